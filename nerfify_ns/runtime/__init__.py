@@ -1,0 +1,129 @@
+"""The CPU and offline layer: makes Nerfstudio 1.1.5 train and evaluate with no GPU and no network.
+
+:func:`activate` runs automatically when our ``nerfstudio.method_configs`` entry point is loaded
+(so a plain ``ns-train`` gets it) and whenever ``nerfify_ns`` drives Nerfstudio itself. It does
+nothing when CUDA is available, unless forced. Each patch is small and named:
+
+* ``lpips``         LPIPS from local AlexNet weights only; ``null`` when there are none
+                    (:mod:`nerfify_ns.runtime.lpips`);
+* ``nerfacc``       torch implementations of nerfacc's CUDA ops, no JIT build
+                    (:mod:`nerfify_ns.runtime.nerfacc_cpu`);
+* ``hashgrid``      a fast torch multi-resolution hash encoding in place of Nerfstudio's fallback,
+                    same parameter layout (:mod:`nerfify_ns.runtime.hashgrid`);
+* ``cpu_default``   ``--machine.device-type`` defaults to ``cpu`` for every registered method.
+
+One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
+device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
+refuses, so ``ns-eval`` and ``--load-dir`` fail; :func:`allow_numpy_scalars_in_checkpoints`
+admits exactly those numpy types (no arbitrary code) to the safe loader.
+
+``NERFIFY_RUNTIME=off`` disables it; ``NERFIFY_RUNTIME=force`` applies it even with CUDA;
+``NERFIFY_RUNTIME_SKIP=hashgrid,...`` leaves the named patches out (baselines, debugging).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from typing import Callable, Dict, List
+
+import torch
+
+ENV_SWITCH = "NERFIFY_RUNTIME"
+ENV_SKIP = "NERFIFY_RUNTIME_SKIP"
+
+_applied: List[str] = []
+
+
+def cuda_available() -> bool:
+    return torch.cuda.is_available()
+
+
+def _patch_lpips() -> None:
+    import torchmetrics.image.lpip as tm_lpip
+    from nerfstudio.pipelines import base_pipeline
+
+    from nerfify_ns.runtime.lpips import OfflineLPIPS, nullify_unavailable_lpips
+
+    tm_lpip.LearnedPerceptualImagePatchSimilarity = OfflineLPIPS  # models import it at init time
+    original = base_pipeline.VanillaPipeline.get_average_eval_image_metrics
+    if getattr(original, "_nerfify_wrapped", False):
+        return
+
+    def get_average_eval_image_metrics(self, *args, **kwargs):
+        return nullify_unavailable_lpips(original(self, *args, **kwargs))
+
+    get_average_eval_image_metrics._nerfify_wrapped = True  # type: ignore[attr-defined]
+    base_pipeline.VanillaPipeline.get_average_eval_image_metrics = get_average_eval_image_metrics
+
+
+def _patch_nerfacc() -> None:
+    from nerfify_ns.runtime import nerfacc_cpu
+
+    nerfacc_cpu.install(force=True)
+
+
+def _patch_hashgrid() -> None:
+    from nerfstudio.field_components.encodings import HashEncoding
+
+    from nerfify_ns.runtime.hashgrid import fast_pytorch_fwd
+
+    HashEncoding.pytorch_fwd = fast_pytorch_fwd
+
+
+def _patch_cpu_default() -> None:
+    """Registered methods train on the CPU unless ``--machine.device-type`` says otherwise."""
+    module = sys.modules.get("nerfstudio.configs.method_configs")
+    configs = getattr(module, "method_configs", {}) if module is not None else {}
+    for config in configs.values():
+        machine = getattr(config, "machine", None)
+        if machine is not None and machine.device_type == "cuda":
+            machine.device_type = "cpu"
+
+
+PATCHES: Dict[str, Callable[[], None]] = {
+    "lpips": _patch_lpips,
+    "nerfacc": _patch_nerfacc,
+    "hashgrid": _patch_hashgrid,
+    "cpu_default": _patch_cpu_default,
+}
+
+
+def allow_numpy_scalars_in_checkpoints() -> None:
+    """Let torch's weights-only loader read the numpy scalars inside Nerfstudio checkpoints."""
+    import numpy as np
+
+    torch.serialization.add_safe_globals(
+        [np.core.multiarray.scalar, np.dtype, type(np.dtype("float64")), type(np.dtype("int64"))]
+    )
+
+
+def activate(force: bool = False) -> List[str]:
+    """Apply the CPU/offline patches (idempotent); returns the names applied so far.
+
+    Without ``force`` nothing is changed when CUDA is available or ``NERFIFY_RUNTIME=off``.
+    """
+    allow_numpy_scalars_in_checkpoints()
+    switch = os.environ.get(ENV_SWITCH, "auto").lower()
+    if switch == "off":
+        return list(_applied)
+    if cuda_available() and not (force or switch == "force"):
+        return list(_applied)
+    skipped = {name.strip() for name in os.environ.get(ENV_SKIP, "").split(",") if name.strip()}
+    unknown = skipped - set(PATCHES)
+    if unknown:
+        raise ValueError(f"{ENV_SKIP} names unknown patches {sorted(unknown)}; known: {sorted(PATCHES)}")
+    for name, patch in PATCHES.items():
+        if name not in _applied and name not in skipped:
+            patch()
+            _applied.append(name)
+    return list(_applied)
+
+
+def default_device_type() -> str:
+    """``cuda`` when a GPU is there, else ``cpu``: the device our own configs default to."""
+    return "cuda" if cuda_available() else "cpu"
+
+
+def active_patches() -> List[str]:
+    return list(_applied)

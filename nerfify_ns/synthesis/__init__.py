@@ -1,0 +1,1 @@
+"""Stage 3: grammar-guided generation of Nerfstudio plugin packages."""

@@ -1,0 +1,77 @@
+"""The ``nerfify-generated`` method: what ``ns-train nerfify-generated`` trains.
+
+Until a plugin has been generated, it is a CPU-sized Nerfacto (Barron-style proposal sampling and a
+hash grid cut down to a small bounded scene: 8 levels, 2^15 table, fewer samples, no scene
+contraction), the configuration our smoke training uses.
+"""
+
+from __future__ import annotations
+
+from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
+from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
+from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManagerConfig
+from nerfstudio.data.dataparsers.blender_dataparser import BlenderDataParserConfig
+from nerfstudio.engine.optimizers import AdamOptimizerConfig
+from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.models.nerfacto import NerfactoModelConfig
+from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
+from nerfstudio.plugins.types import MethodSpecification
+
+from nerfify_ns.runtime import default_device_type
+
+METHOD_NAME = "nerfify-generated"
+
+
+def cpu_nerfacto_config(method_name: str = METHOD_NAME) -> TrainerConfig:
+    """Nerfacto sized for a small bounded synthetic scene on the CPU."""
+    return TrainerConfig(
+        method_name=method_name,
+        steps_per_eval_batch=100,
+        steps_per_eval_image=10_000,
+        steps_per_eval_all_images=100_000,
+        steps_per_save=1_000,
+        max_num_iterations=3_000,
+        mixed_precision=False,
+        machine=MachineConfig(device_type=default_device_type()),
+        pipeline=VanillaPipelineConfig(
+            datamanager=VanillaDataManagerConfig(
+                dataparser=BlenderDataParserConfig(),
+                train_num_rays_per_batch=1024,
+                eval_num_rays_per_batch=1024,
+            ),
+            model=NerfactoModelConfig(
+                eval_num_rays_per_chunk=1 << 12,
+                num_levels=8,
+                log2_hashmap_size=15,
+                max_res=256,
+                num_nerf_samples_per_ray=32,
+                num_proposal_samples_per_ray=(64, 32),
+                disable_scene_contraction=True,
+                use_appearance_embedding=False,
+                background_color="white",
+                camera_optimizer=CameraOptimizerConfig(mode="off"),
+                average_init_density=1.0,
+            ),
+        ),
+        optimizers={
+            "proposal_networks": {
+                "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+                "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=3_000),
+            },
+            "fields": {
+                "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+                "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=3_000),
+            },
+        },
+        viewer=ViewerConfig(num_rays_per_chunk=1 << 12),
+        vis="tensorboard",
+    )
+
+
+def generated_method() -> MethodSpecification:
+    """The method ``ns-train nerfify-generated`` resolves to."""
+    return MethodSpecification(
+        config=cpu_nerfacto_config(),
+        description="nerfify: the plugin generated last (until one is generated: a CPU-sized nerfacto)",
+    )
