@@ -482,7 +482,7 @@ def _cell_index(points_unit: Tensor, res: Tensor) -> Tensor:
 
 
 def _march_lattice(
-    o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl
+    o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl, k_stop=None
 ) -> _Emitted:
     """Marching with a constant step ``dt`` (``cone_angle == 0`` or ``t * cone_angle <= dt``).
 
@@ -492,7 +492,8 @@ def _march_lattice(
     that segment's grid containing ``o + m_k d`` is occupied.  For each segment the candidate ``k``
     are ``[K(a), K(b))`` with ``K(x) = max(0, ceil((x - near) / dt - 1/2))``: all candidates are
     enumerated in chunks, tested against the grid, and compacted.  The cell coordinate is affine in
-    ``k`` per segment, ``u = U0 + V k``, so a candidate costs one row gather and a few float ops.
+    ``k`` per segment, ``u = U0 + V k``, so a candidate costs a few float ops.  ``k_stop`` (per ray,
+    optional) keeps only ``k < k_stop``.  The result also carries ``kk`` (the lattice index).
     """
     device, dtype = o.device, o.dtype
     n_rays = o.shape[0]
@@ -504,9 +505,13 @@ def _march_lattice(
     snear = near.double()[seg_ray]
     k_lo = torch.ceil((sa - snear) / step - 0.5).clamp_min(0)
     k_hi = torch.ceil((sb - snear) / step - 0.5).clamp_min(0)
+    if k_stop is not None:
+        k_hi = torch.minimum(k_hi, k_stop.double()[seg_ray])
     cnt = (k_hi - k_lo).clamp_min(0).long()
     if cnt.numel() == 0 or int(cnt.sum().item()) == 0:
-        return _Emitted.cat([], device, dtype)
+        em = _Emitted.cat([], device, dtype)
+        em.kk = torch.empty(0, dtype=torch.float64, device=device)
+        return em
     # per-segment affine map from the candidate's rank j to the cell coordinate, u = U0 + V * j
     lo = aabbs[slvl, :3].double()
     hi = aabbs[slvl, 3:].double()
@@ -561,7 +566,9 @@ def _march_lattice(
     jj = torch.cat(kept_j)
     n_out = seg_k.numel()
     if n_out == 0:
-        return _Emitted.cat([], device, dtype)
+        em = _Emitted.cat([], device, dtype)
+        em.kk = torch.empty(0, dtype=torch.float64, device=device)
+        return em
     # counting sort by segment; within a segment the candidates are already in k order
     per_seg = torch.bincount(seg_k, minlength=n_seg)
     out_start = torch.cumsum(per_seg, 0) - per_seg
@@ -581,82 +588,110 @@ def _march_lattice(
     cont = torch.zeros_like(ray, dtype=torch.bool)
     if n_out > 1:
         cont[1:] = (ray[1:] == ray[:-1]) & (kk[1:] == kk[:-1] + 1)
-    return _Emitted(ray, t0, t1, cont)
+    em = _Emitted(ray, t0, t1, cont)
+    em.kk = kk
+    return em
 
 
 def _march_cone(
-    o, d, near, a, b, level, valid, step, cone, binaries_flat, aabbs, res, cells_per_lvl
+    o, d, t_start, last_emit, a, b, level, valid, step, cone, binaries_flat, aabbs, res, cells_per_lvl
 ) -> _Emitted:
     """Marching with ``dt = clamp(t * cone_angle, step, 1e10)`` (sequential in t, vectorised over rays).
 
-    Reproduces the kernel's state machine, one event per ray and iteration:
+    Reproduces the kernel's state machine from ``t = t_start`` with one event per ray and iteration:
     ``dt = calc_dt(t)``, ``m = t + dt / 2``; if ``m`` lies in a segment and its cell is occupied the
     sample ``[t, t + dt]`` is emitted and ``t += dt``; otherwise (an empty cell, or the gap before
-    the first segment) the kernel's skip loop ``while (t + dt/2 < exit) t += dt`` with that fixed
-    ``dt`` is done in closed form, ``t += ceil((exit - m) / dt) * dt``, where ``exit`` is the time
-    the ray leaves the cell (slab test against the cell, clipped to the segment end) or the start of
-    the next segment.  A ray stops once ``m`` is past its last segment.
+    the next segment) the kernel's skip loop ``while (t + dt/2 < exit) t += dt`` with that fixed
+    ``dt`` is done in closed form, ``t += max(1, ceil((exit - m) / dt)) * dt``, where ``exit`` is the
+    time the ray leaves the cell (slab test against the cell, clipped to the segment end) or the
+    start of the next segment.  A ray stops once ``m`` is past its last segment.  ``last_emit`` says
+    whether the sample just before ``t_start`` was emitted (then the next sample is continuous).
     """
     device, dtype = o.device, o.dtype
+    n_rays, S = a.shape
     nseg = valid.sum(1)
-    # compact valid segments to the front of each row (segments are already in t order)
-    order = torch.sort((~valid).to(torch.int8), dim=1, stable=True).indices
-    inf = torch.tensor(float("inf"), dtype=dtype, device=device)
-    sa = torch.where(valid, a, inf).gather(1, order)
-    sb = torch.where(valid, b, inf).gather(1, order)
-    sl = level.gather(1, order)
-    ids = torch.nonzero(nseg > 0).squeeze(1)
-    o, d, sa, sb, sl, nseg = o[ids], d[ids], sa[ids], sb[ids], sl[ids], nseg[ids]
-    t = near[ids].clone()
-    last_emit = torch.zeros_like(ids, dtype=torch.bool)
-    lo_all = aabbs[:, :3].to(dtype)
-    hi_all = aabbs[:, 3:].to(dtype)
-    resf = res.to(dtype)
-    strides = torch.tensor([res[1] * res[2], res[2], 1], device=device, dtype=torch.long)
-    dir_pos = (d > 0).long()
-    dir_zero = d == 0
-    out_ray, out_t0, out_t1, out_cont = [], [], [], []
-    while ids.numel() > 0:
-        dt = (t * cone).clamp(step, 1e10)
-        m = t + dt * 0.5
-        j = (sb <= m[:, None]).sum(1)
-        alive = j < nseg
-        if not bool(alive.all()):
-            keep = torch.nonzero(alive).squeeze(1)
-            ids, o, d, sa, sb, sl, nseg = ids[keep], o[keep], d[keep], sa[keep], sb[keep], sl[keep], nseg[keep]
-            t, last_emit, dir_pos, dir_zero = t[keep], last_emit[keep], dir_pos[keep], dir_zero[keep]
-            dt, m, j = dt[keep], m[keep], j[keep]
-            if ids.numel() == 0:
-                break
-        jj = j[:, None]
-        a_j = sa.gather(1, jj).squeeze(1)
-        b_j = sb.gather(1, jj).squeeze(1)
-        lvl = sl.gather(1, jj).squeeze(1)
-        in_seg = a_j <= m
-        lo = lo_all[lvl]
-        hi = hi_all[lvl]
-        p = o + d * m[:, None]
-        cell = _cell_index((p - lo) / (hi - lo) * resf, res)
-        occ = binaries_flat[(cell * strides).sum(1) + lvl * cells_per_lvl] & in_seg
-        if bool(occ.any()):
-            e = torch.nonzero(occ).squeeze(1)
-            out_ray.append(ids[e])
-            out_t0.append(t[e])
-            out_t1.append(t[e] + dt[e])
-            out_cont.append(last_emit[e])
-        # exit time of the empty cell (or the start of the next segment when in a gap)
-        vox = (hi - lo) / resf
-        bound = lo + (cell + dir_pos).to(dtype) * vox
-        t_ax = torch.where(dir_zero, torch.full_like(bound, float("inf")), (bound - o) / d)
-        t_exit = torch.where(in_seg, torch.minimum(t_ax.min(1).values, b_j), a_j)
-        n_skip = torch.ceil((t_exit - m) / dt).clamp_min(1)
-        t = torch.where(occ, t + dt, t + n_skip * dt)
-        last_emit = occ
-    if not out_ray:
+    rows = torch.nonzero(nseg > 0).squeeze(1)
+    if rows.numel() == 0:
         return _Emitted.cat([], device, dtype)
-    ray = torch.cat(out_ray)
+    # per (ray, segment) table: a, b, cell-id base, unit-space origin (3) and direction (3),
+    # 1/direction (3, 0 where the direction is 0), +inf where the direction is 0 (3), (dir > 0) (3).
+    # Valid segments are moved to the front (they are in t order); one padding row of +inf ends it.
+    order = torch.sort((~valid).to(torch.int8), dim=1, stable=True).indices
+    va = valid.gather(1, order)[rows]
+    sa = a.gather(1, order)[rows]
+    sb = b.gather(1, order)[rows]
+    sl = level.gather(1, order)[rows]
+    inf = float("inf")
+    sa = torch.where(va, sa, torch.full_like(sa, inf))
+    sb = torch.where(va, sb, torch.full_like(sb, inf))
+    lo = aabbs[:, :3].to(dtype)[sl]
+    hi = aabbs[:, 3:].to(dtype)[sl]
+    resf = res.to(dtype)
+    scale = resf / (hi - lo)
+    ro, rd = o[rows], d[rows]
+    ou = (ro[:, None, :] - lo) * scale
+    du = rd[:, None, :] * scale
+    zero_dir = du == 0
+    inv = torch.where(zero_dir, torch.zeros_like(du), 1.0 / torch.where(zero_dir, torch.ones_like(du), du))
+    inf_add = torch.where(zero_dir, torch.full_like(du, inf), torch.zeros_like(du))
+    dpos = (du > 0).to(dtype)
+    base = (sl * cells_per_lvl).to(dtype)
+    table = torch.cat([sa[..., None], sb[..., None], base[..., None], ou, du, inv, inf_add, dpos], -1)
+    pad = torch.zeros_like(table[:, :1])
+    pad[..., 0:2] = inf
+    table = torch.cat([table, pad], 1)  # [n, S + 1, 18]
+    sb = torch.cat([sb, torch.full_like(sb[:, :1], inf)], 1)
+    fdt = dtype if binaries_flat.numel() < (1 << 24) or dtype == torch.float64 else torch.float64
+    strides = torch.tensor([float(res[1] * res[2]), float(res[2]), 1.0], dtype=dtype, device=device)
+    zero3 = torch.zeros(3, dtype=dtype, device=device)
+    umax = resf - 1
+
+    ids = rows
+    nseg_a = nseg[rows]
+    t = t_start[rows].to(dtype)
+    last = last_emit[rows]
+    rec_ids, rec_t, rec_dt, rec_occ, rec_last = [], [], [], [], []
+    while True:
+        dt = torch.clamp(t * cone, step, 1e10)
+        m = torch.add(t, dt, alpha=0.5)
+        j = (sb <= m[:, None]).sum(1).clamp_max_(S)
+        alive = j < nseg_a
+        n_alive = int(alive.sum().item())
+        if n_alive == 0:
+            break
+        if n_alive < 0.75 * ids.numel():
+            keep = torch.nonzero(alive).squeeze(1)
+            ids, t, last, table, sb, dt, m, j, alive, nseg_a = (
+                ids[keep], t[keep], last[keep], table[keep], sb[keep], dt[keep], m[keep], j[keep], alive[keep],
+                nseg_a[keep],
+            )
+        row = table.gather(1, j.view(-1, 1, 1).expand(-1, 1, table.shape[2])).squeeze(1)
+        in_seg = row[:, 0] <= m
+        u = torch.addcmul(row[:, 3:6], row[:, 6:9], m[:, None])
+        cell = torch.clamp(u, zero3, umax).floor_()
+        lin = torch.mv(cell.to(fdt), strides.to(fdt)).add_(row[:, 2].to(fdt))
+        occ = binaries_flat[lin.long()] & in_seg & alive
+        rec_ids.append(ids)
+        rec_t.append(t)
+        rec_dt.append(dt)
+        rec_occ.append(occ)
+        rec_last.append(last)
+        # time the ray leaves this (empty) cell, or the start of the next segment when in a gap
+        t_ax = (cell + row[:, 15:18] - row[:, 3:6]) * row[:, 9:12] + row[:, 12:15]
+        t_exit = torch.where(in_seg, torch.minimum(t_ax.amin(1), row[:, 1]), row[:, 0])
+        n_skip = torch.ceil((t_exit - m) / dt).clamp_min_(1)
+        t = torch.where(occ, t + dt, torch.where(alive, torch.addcmul(t, n_skip, dt), t))
+        last = occ
+    if not rec_ids:
+        return _Emitted.cat([], device, dtype)
+    occ = torch.cat(rec_occ)
+    k = torch.nonzero(occ).squeeze(1)
+    ray = torch.cat(rec_ids)[k]
+    t0 = torch.cat(rec_t)[k]
+    t1 = t0 + torch.cat(rec_dt)[k]
+    cont = torch.cat(rec_last)[k]
     order = torch.sort(ray, stable=True).indices  # iteration order is t order within a ray
-    return _Emitted(ray[order], torch.cat(out_t0)[order], torch.cat(out_t1)[order], torch.cat(out_cont)[order])
+    return _Emitted(ray[order], t0[order], t1[order], cont[order])
 
 
 def _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_lvl) -> _Emitted:
@@ -806,23 +841,43 @@ def traverse_grids(
     if step <= 0.0:
         em = _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_lvl)
     else:
-        if cone == 0.0:
-            lattice_ray = torch.ones(n_rays, dtype=torch.bool, device=device)
+        if cone <= 0.0:
+            em = _march_lattice(o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl)
         else:
-            # dt stays == step_size along the whole ray when |t| * cone <= step for every t marched
+            # dt == step_size while t * cone <= step_size, so every t visited up to k_h, the last
+            # lattice index with near + k * step <= step / cone, lies on the lattice near + k * step
+            # (a skip started there keeps dt == step).  The lattice march is exact for k < k_h and
+            # the sequential march takes over at t_{k_h}, where calc_dt is still == step.
+            t_star = step / cone
+            near64 = near.double()
+            k_h = torch.where(near64 <= t_star, torch.floor((t_star - near64) / step), torch.zeros_like(near64))
             t_end = torch.where(valid, b, torch.full_like(b, -float("inf"))).max(1).values
-            lattice_ray = (near * cone <= step) & (t_end * cone <= step)
-        parts = []
-        if bool(lattice_ray.any()):
-            v = valid & lattice_ray[:, None]
-            parts.append(_march_lattice(o, d, near, a, b, level, v, step, binaries_flat, aabbs, res, cells_per_lvl))
-        if not bool(lattice_ray.all()):
-            v = valid & ~lattice_ray[:, None]
-            parts.append(_march_cone(o, d, near, a, b, level, v, step, cone, binaries_flat, aabbs, res, cells_per_lvl))
-        em = _Emitted.cat(parts, device, dtype)
-        if len(parts) > 1 and em.ray.numel():
-            order = torch.sort(em.ray, stable=True).indices
-            em = _Emitted(em.ray[order], em.t0[order], em.t1[order], em.cont[order])
+            k_end = torch.ceil((t_end.double() - near64) / step - 0.5).clamp_min(0)
+            all_lattice = k_end <= k_h + 1  # dt never exceeds step along the ray
+            k_stop = torch.where(all_lattice, torch.full_like(k_h, float("inf")), k_h)
+            em_lat = _march_lattice(
+                o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl, k_stop=k_stop
+            )
+            # rays needing the sequential march: did the lattice emit the sample right before k_star?
+            seq = ~all_lattice
+            last_emit = torch.zeros(n_rays, dtype=torch.bool, device=device)
+            if em_lat.ray.numel():
+                is_last = torch.ones_like(em_lat.ray, dtype=torch.bool)
+                is_last[:-1] = em_lat.ray[1:] != em_lat.ray[:-1]
+                lr, lk = em_lat.ray[is_last], em_lat.kk[is_last]
+                last_emit[lr] = lk == (k_h[lr] - 1)
+            t_start = (near64 + k_h * step).to(dtype)
+            parts = [em_lat]
+            if bool(seq.any()):
+                v = valid & seq[:, None]
+                parts.append(
+                    _march_cone(o, d, t_start, last_emit & seq, a, b, level, v, step, cone,
+                                binaries_flat, aabbs, res, cells_per_lvl)
+                )
+            em = _Emitted.cat(parts, device, dtype)
+            if len(parts) > 1 and em.ray.numel():
+                order = torch.sort(em.ray, stable=True).indices
+                em = _Emitted(em.ray[order], em.t0[order], em.t1[order], em.cont[order])
     return _pack_outputs(em, n_rays, compute_intervals, compute_samples, device, dtype)
 
 

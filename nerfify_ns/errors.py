@@ -1,0 +1,5 @@
+"""The root of nerfify-ns' typed exceptions: the CLI turns any of them into a one-line message."""
+
+
+class NerfifyError(Exception):
+    """An error the user can act on; its message says what went wrong and what to do."""

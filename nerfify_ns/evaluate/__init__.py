@@ -1,0 +1,1 @@
+"""Stage 4: training runs, metrics and visual feedback."""

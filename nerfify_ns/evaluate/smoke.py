@@ -1,0 +1,77 @@
+"""Smoke training: a short real ``ns-train`` run plus ``ns-eval`` on a small scene, on the CPU.
+
+Reference methods are shrunk with the presets in ``runtime/smoke_presets.yaml`` (ns-train
+arguments, applied exactly as a user would type them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import yaml
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.runtime.launch import TrainRun, ns_eval, ns_train
+
+
+class SmokeTrainError(NerfifyError):
+    """A smoke run did not reach its iterations with finite losses."""
+
+    def __init__(self, message: str, log_path: Path) -> None:
+        super().__init__(message)
+        self.log_path = log_path
+
+
+@lru_cache(maxsize=1)
+def smoke_presets() -> Dict[str, dict]:
+    text = resources.files("nerfify_ns.runtime").joinpath("smoke_presets.yaml").read_text()
+    return yaml.safe_load(text)
+
+
+def preset_args(method: str) -> List[str]:
+    """The ns-train arguments that shrink ``method`` for a small CPU scene (none if unknown)."""
+    return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
+
+
+@dataclass
+class SmokeResult:
+    run: TrainRun
+    metrics: Optional[dict]
+
+    def summary(self) -> dict:
+        metrics = self.metrics or {}
+        return {
+            "method": self.run.method,
+            "iterations": self.run.last_step + 1,
+            "final_loss": self.run.losses.get(self.run.last_step),
+            "train_seconds": round(self.run.wall_seconds, 1),
+            "rays_per_sec": self.run.median_rays_per_sec,
+            "psnr": metrics.get("psnr"),
+            "ssim": metrics.get("ssim"),
+            "lpips": metrics.get("lpips"),
+            "config": str(self.run.config_path) if self.run.config_path else None,
+        }
+
+
+def smoke_train(
+    method: str,
+    data: Path,
+    out_dir: Path,
+    *,
+    iterations: int = 100,
+    extra_args: List[str] | None = None,
+    evaluate: bool = True,
+    timeout: float = 900,
+) -> SmokeResult:
+    """Train ``method`` for ``iterations`` on ``data`` and evaluate it; raises when it failed."""
+    run = ns_train(method, data, out_dir, iterations=iterations,
+                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout)
+    if not run.ok or run.last_step + 1 < iterations:
+        reason = "timed out" if run.timed_out else f"exit code {run.returncode}, reached step {run.last_step}"
+        raise SmokeTrainError(f"smoke training of {method} failed ({reason}); see the log {run.log_path}", run.log_path)
+    metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=timeout) if evaluate else None
+    return SmokeResult(run=run, metrics=metrics)

