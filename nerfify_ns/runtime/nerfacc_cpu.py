@@ -613,9 +613,10 @@ def _march_cone(
     rows = torch.nonzero(nseg > 0).squeeze(1)
     if rows.numel() == 0:
         return _Emitted.cat([], device, dtype)
-    # per (ray, segment) table: a, b, cell-id base, unit-space origin (3) and direction (3),
-    # 1/direction (3, 0 where the direction is 0), +inf where the direction is 0 (3), (dir > 0) (3).
-    # Valid segments are moved to the front (they are in t order); one padding row of +inf ends it.
+    # per (ray, segment) table row: a, b, cell-id base, unit-space origin (3) and direction (3),
+    # then (3 + 3) for the cell exit time t_ax = cell * inv + c0 with inv = 1 / direction and
+    # c0 = ((dir > 0) - origin) * inv (c0 = +inf, inv = 0 where the direction is 0).  Valid
+    # segments are moved to the front of each ray (they are in t order) and one +inf row ends it.
     order = torch.sort((~valid).to(torch.int8), dim=1, stable=True).indices
     va = valid.gather(1, order)[rows]
     sa = a.gather(1, order)[rows]
@@ -633,54 +634,58 @@ def _march_cone(
     du = rd[:, None, :] * scale
     zero_dir = du == 0
     inv = torch.where(zero_dir, torch.zeros_like(du), 1.0 / torch.where(zero_dir, torch.ones_like(du), du))
-    inf_add = torch.where(zero_dir, torch.full_like(du, inf), torch.zeros_like(du))
-    dpos = (du > 0).to(dtype)
+    c0 = torch.where(zero_dir, torch.full_like(du, inf), ((du > 0).to(dtype) - ou) * inv)
     base = (sl * cells_per_lvl).to(dtype)
-    table = torch.cat([sa[..., None], sb[..., None], base[..., None], ou, du, inv, inf_add, dpos], -1)
+    table = torch.cat([sa[..., None], sb[..., None], base[..., None], ou, du, inv, c0], -1)
     pad = torch.zeros_like(table[:, :1])
     pad[..., 0:2] = inf
-    table = torch.cat([table, pad], 1)  # [n, S + 1, 18]
+    n_rows = table.shape[1] + 1
+    table = torch.cat([table, pad], 1).reshape(-1, table.shape[2])  # [n * (S + 1), 15]
     sb = torch.cat([sb, torch.full_like(sb[:, :1], inf)], 1)
-    fdt = dtype if binaries_flat.numel() < (1 << 24) or dtype == torch.float64 else torch.float64
-    strides = torch.tensor([float(res[1] * res[2]), float(res[2]), 1.0], dtype=dtype, device=device)
+    fdt = dtype if (binaries_flat.numel() < (1 << 24) or dtype == torch.float64) else torch.float64
+    strides = torch.tensor([float(res[1] * res[2]), float(res[2]), 1.0], dtype=fdt, device=device)
     zero3 = torch.zeros(3, dtype=dtype, device=device)
     umax = resf - 1
 
     ids = rows
+    row_base = _arange(rows.numel(), device) * n_rows
     nseg_a = nseg[rows]
     t = t_start[rows].to(dtype)
     last = last_emit[rows]
     rec_ids, rec_t, rec_dt, rec_occ, rec_last = [], [], [], [], []
+    it = 0
     while True:
         dt = torch.clamp(t * cone, step, 1e10)
         m = torch.add(t, dt, alpha=0.5)
-        j = (sb <= m[:, None]).sum(1).clamp_max_(S)
-        alive = j < nseg_a
-        n_alive = int(alive.sum().item())
-        if n_alive == 0:
-            break
-        if n_alive < 0.75 * ids.numel():
-            keep = torch.nonzero(alive).squeeze(1)
-            ids, t, last, table, sb, dt, m, j, alive, nseg_a = (
-                ids[keep], t[keep], last[keep], table[keep], sb[keep], dt[keep], m[keep], j[keep], alive[keep],
-                nseg_a[keep],
-            )
-        row = table.gather(1, j.view(-1, 1, 1).expand(-1, 1, table.shape[2])).squeeze(1)
+        j = (sb <= m[:, None]).sum(1)
+        if it % 4 == 0:
+            alive = j < nseg_a
+            n_alive = int(alive.sum().item())
+            if n_alive == 0:
+                break
+            if n_alive < 0.75 * ids.numel():
+                keep = torch.nonzero(alive).squeeze(1)
+                ids, t, last, sb, row_base, nseg_a, dt, m, j = (
+                    ids[keep], t[keep], last[keep], sb[keep], row_base[keep], nseg_a[keep], dt[keep], m[keep], j[keep]
+                )
+        it += 1
+        row = table.index_select(0, row_base + j)
+        # past its last segment a ray reads a row with a = +inf: never in a segment, never emits
         in_seg = row[:, 0] <= m
         u = torch.addcmul(row[:, 3:6], row[:, 6:9], m[:, None])
         cell = torch.clamp(u, zero3, umax).floor_()
-        lin = torch.mv(cell.to(fdt), strides.to(fdt)).add_(row[:, 2].to(fdt))
-        occ = binaries_flat[lin.long()] & in_seg & alive
+        lin = torch.addmv(row[:, 2].to(fdt), cell.to(fdt), strides)
+        occ = binaries_flat[lin.long()] & in_seg
         rec_ids.append(ids)
         rec_t.append(t)
         rec_dt.append(dt)
         rec_occ.append(occ)
         rec_last.append(last)
         # time the ray leaves this (empty) cell, or the start of the next segment when in a gap
-        t_ax = (cell + row[:, 15:18] - row[:, 3:6]) * row[:, 9:12] + row[:, 12:15]
-        t_exit = torch.where(in_seg, torch.minimum(t_ax.amin(1), row[:, 1]), row[:, 0])
-        n_skip = torch.ceil((t_exit - m) / dt).clamp_min_(1)
-        t = torch.where(occ, t + dt, torch.where(alive, torch.addcmul(t, n_skip, dt), t))
+        t_exit = torch.addcmul(row[:, 12:15], cell, row[:, 9:12]).amin(1)
+        t_exit = torch.where(in_seg, torch.minimum(t_exit, row[:, 1]), row[:, 0])
+        n_skip = torch.ceil((t_exit - m) / dt).clamp_(1, 1e30)
+        t = torch.where(occ, t + dt, torch.where(in_seg | (j < nseg_a), torch.addcmul(t, n_skip, dt), t))
         last = occ
     if not rec_ids:
         return _Emitted.cat([], device, dtype)
@@ -698,7 +703,8 @@ def _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_
     """Marching with ``step_size <= 0``: one interval per occupied DDA cell.
 
     The cells along a segment are delimited by the segment ends and the times the ray crosses the
-    grid planes ``x = min + i * voxel`` (per axis); each occupied cell ``[t_i, t_{i+1}]`` is a sample.
+    grid planes ``x = min + i * voxel`` (per axis, ignoring crossings within the kernel's ``eps =
+    1e-6`` of the segment ends); each occupied cell ``[t_i, t_{i+1}]`` is a sample.
     """
     device, dtype = o.device, o.dtype
     n_rays, S = a.shape
@@ -728,7 +734,9 @@ def _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_
     ps, ax = pair // 3, pair % 3
     plane = lo[ps, ax] + (i_lo.reshape(-1)[pair] + j).to(dtype) * vox[ps, ax]
     t_cross = (plane - so[ps, ax]) / sd[ps, ax]
-    inside = (t_cross > sa[ps]) & (t_cross < sb[ps])
+    # like the kernel, whose DDA starts in the cell at a + 1e-6 and ends in the cell at b - 1e-6,
+    # plane crossings within 1e-6 of a segment end do not open a new cell
+    inside = (t_cross > sa[ps] + 1e-6) & (t_cross < sb[ps] - 1e-6)
     ps, t_cross = ps[inside], t_cross[inside]
     seg_all = torch.cat([_arange(n_seg, device), _arange(n_seg, device), ps])
     t_all = torch.cat([sa, sb, t_cross])
