@@ -6,7 +6,7 @@ import pytest
 import torch
 from nerfstudio.field_components.encodings import HashEncoding
 
-from nerfify_ns.runtime.hashgrid import corner_indices_and_weights, fast_pytorch_fwd, hash_encode
+from nerfify_ns.runtime.hashgrid import corner_indices, corner_weights, fast_pytorch_fwd, hash_encode
 
 STOCK = HashEncoding.__dict__["pytorch_fwd"]  # captured before any runtime patch can replace it
 
@@ -103,9 +103,12 @@ def test_empty_and_batched_shapes():
 def test_weights_partition_unity_and_indices_in_range():
     x = torch.rand(100, 3)
     scalings = torch.tensor([16.0, 37.0, 512.0])
-    idx, weights, _ = corner_indices_and_weights(x, scalings, 2**10)
+    idx, frac = corner_indices(x, scalings, 2**10)
+    weights = corner_weights(frac)
+    assert idx.shape == weights.shape == (3, 100, 8)
     assert torch.allclose(weights.sum(-1), torch.ones(3, 100))
-    assert int(idx.min()) >= 0 and int(idx.max()) < 2**10
+    for level in range(3):  # each level addresses its own slice of the flat table
+        assert int(idx[level].min()) >= level * 2**10 and int(idx[level].max()) < (level + 1) * 2**10
 
 
 def test_checkpoint_interchangeable_with_stock_layout():

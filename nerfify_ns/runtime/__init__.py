@@ -43,8 +43,9 @@ def _patch_lpips() -> None:
     import torchmetrics.image.lpip as tm_lpip
     from nerfstudio.pipelines import base_pipeline
 
-    from nerfify_ns.runtime.lpips import OfflineLPIPS, nullify_unavailable_lpips
+    from nerfify_ns.runtime.lpips import OfflineLPIPS, nullify_unavailable_lpips, torchmetrics_lpips_class
 
+    torchmetrics_lpips_class()  # record the original before replacing it
     tm_lpip.LearnedPerceptualImagePatchSimilarity = OfflineLPIPS  # models import it at init time
     original = base_pipeline.VanillaPipeline.get_average_eval_image_metrics
     if getattr(original, "_nerfify_wrapped", False):

@@ -2,16 +2,16 @@
 
 Replaces the body of Nerfstudio's ``HashEncoding.pytorch_fwd`` (the fallback used when
 tiny-cuda-nn is missing). On the CPU the stock path is bound by memory traffic: eight separate
-gathers, eight dense ``index_put`` table gradients and a ``[N, L, 8, F]`` layout that jumps between
-levels. This version:
+gathers, eight dense ``index_put`` table gradients, a ``[N, L, 8, F]`` layout that jumps between
+levels, and element-wise products broadcast over tiny trailing dimensions. This version:
 
-* works level-major (``[L, N, 8]``), so each level's slice of the table stays in cache while it
-  is read and written;
-* builds all 8 corner indices at once by broadcasting the per-axis hash terms
+* works level-major and planar (``[L, 8, N]``: level, corner, point), so each level's slice of
+  the table stays in cache and every element-wise op runs over long contiguous rows;
+* builds the 8 corner indices from per-axis hash terms
   (``x * 1 ^ y * 2654435761 ^ z * 805459861`` wrapped to the table size; only the low
   ``log2_hashmap_size`` bits matter, so the products are computed in int32 with wrap-around);
-* treats a 2-feature row as one complex number, so the gather is one ``index_select`` of scalars
-  and the backward one ``scatter_add_`` of scalars (complex addition is component-wise);
+* gathers once (``index_select``) and scatters once (``scatter_add_``), treating a 2-feature row
+  as one complex number so both move scalars (complex addition is component-wise);
 * computes the gradient with respect to positions analytically (camera optimisation needs it).
 
 The parameter layout is Nerfstudio's (one ``hash_table`` of shape ``[levels * T, F]``, the same
@@ -23,7 +23,7 @@ derivative across that plane; this one reports the right-sided derivative.
 
 from __future__ import annotations
 
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
 import torch
 from torch import Tensor
@@ -41,62 +41,69 @@ def _wrap_int32(value: int) -> int:
 _PRIMES_I32 = tuple(_wrap_int32(p) for p in PRIMES)
 
 
-def _axis_weights(frac: Tensor) -> Tuple[Tensor, Tensor, Tensor]:
-    """Per-axis linear weights ``[..., 2]`` for the floor and floor + 1 corners."""
-    one_minus = 1.0 - frac
-    return tuple(torch.stack([one_minus[..., a], frac[..., a]], dim=-1) for a in range(3))  # type: ignore
+def _corner_stack(a: Tuple[Tensor, Tensor], b: Tuple[Tensor, Tensor], c: Tuple[Tensor, Tensor], op) -> Tensor:
+    """``op(op(a_i, b_j), c_k)`` for corners ``4 i + 2 j + k``, stacked on a new last axis (``[L, N, 8]``).
 
-
-def corner_indices_and_weights(
-    positions: Tensor, scalings: Tensor, table_size: int
-) -> Tuple[Tensor, Tensor, Tensor]:
-    """Level-major hash indices ``[L, N, 8]``, trilinear weights ``[L, N, 8]``, fractions ``[L, N, 3]``.
-
-    Corner ``c = 4 * bx + 2 * by + bz`` takes ``floor + b`` along each axis. Indices are within a
-    level (add ``level * table_size`` to address the flat table).
+    Corners of one point stay adjacent so a gather or scatter touches the same cache lines for them.
     """
-    scaled = scalings[:, None, None] * positions[None, :, :]  # [L, N, 3]
+    pairs = [op(a[i], b[j]) for i in (0, 1) for j in (0, 1)]
+    return torch.stack([op(p, c[k]) for p in pairs for k in (0, 1)], dim=-1)
+
+
+def corner_indices(positions: Tensor, scalings: Tensor, table_size: int) -> Tuple[Tensor, Tensor]:
+    """Flat table indices ``[L, N, 8]`` (level offsets included, int32) and fractions ``[3, L, N]``.
+
+    Corner ``c = 4 * bx + 2 * by + bz`` takes ``floor + b`` along each axis. Masking each axis term
+    before the XOR equals masking the XOR, and since every masked value is below ``table_size`` (a
+    power of two), adding the level offset to one term equals adding it to the result.
+    """
+    scaled = positions.t()[:, None, :] * scalings[None, :, None]  # [3, L, N]
     floor = torch.floor(scaled)
     frac = scaled - floor
     base = floor.to(torch.int32)
-    hx, hy, hz = (
-        torch.stack([base[..., a] * p, base[..., a] * p + p], dim=-1) for a, p in enumerate(_PRIMES_I32)
-    )
-    idx = (hx[..., :, None, None] ^ hy[..., None, :, None] ^ hz[..., None, None, :]) & (table_size - 1)
-    wx, wy, wz = _axis_weights(frac)
-    weights = wx[..., :, None, None] * wy[..., None, :, None] * wz[..., None, None, :]
-    levels, n = scaled.shape[:2]
-    return idx.reshape(levels, n, 8), weights.reshape(levels, n, 8), frac
+    mask = table_size - 1
+    terms: List[Tuple[Tensor, Tensor]] = []
+    for axis, prime in enumerate(_PRIMES_I32):
+        lo = base[axis] * prime if prime != 1 else base[axis]
+        terms.append((lo & mask, (lo + prime) & mask))
+    levels = scalings.shape[0]
+    offsets = (torch.arange(levels, device=positions.device, dtype=torch.int32) * table_size)[:, None]
+    terms[2] = (terms[2][0] + offsets, terms[2][1] + offsets)
+    return _corner_stack(*terms, op=torch.bitwise_xor), frac
 
 
-def _rows_as_scalars(table: Tensor) -> Tensor:
-    """A 1-D view with one element per table row: complex for 2 features, the table itself for 1."""
-    if table.shape[1] == 2:
-        return torch.view_as_complex(table)
-    if table.shape[1] == 1:
-        return table.view(-1)
-    return table
+def _axis_weights(frac: Tensor) -> List[Tuple[Tensor, Tensor]]:
+    """Per-axis linear weights ``(1 - t, t)`` for the floor and floor + 1 corners."""
+    return [(1.0 - frac[a], frac[a]) for a in range(3)]
 
 
-def _scalars_as_rows(values: Tensor, features: int) -> Tensor:
-    """Inverse of :func:`_rows_as_scalars` for gathered values: ``[..., F]``."""
-    if features == 2:
-        return torch.view_as_real(values)
-    if features == 1:
-        return values[..., None]
-    return values
+def corner_weights(frac: Tensor) -> Tensor:
+    """Trilinear weights ``[L, N, 8]`` of the corners, from fractions ``[3, L, N]``."""
+    return _corner_stack(*_axis_weights(frac), op=torch.mul)
 
 
 def _position_gradient(dots: Tensor, frac: Tensor, scalings: Tensor) -> Tensor:
-    """Gradient w.r.t. positions ``[N, 3]`` from per-corner ``<f_c, dL/d out>`` products ``[L, N, 8]``."""
-    levels, n = frac.shape[:2]
-    d = dots.reshape(levels, n, 2, 2, 2)
-    wx, wy, wz = _axis_weights(frac)
-    sign = frac.new_tensor([-1.0, 1.0])
-    gx = torch.einsum("lnabc,a,lnb,lnc->ln", d, sign, wy, wz)
-    gy = torch.einsum("lnabc,lna,b,lnc->ln", d, wx, sign, wz)
-    gz = torch.einsum("lnabc,lna,lnb,c->ln", d, wx, wy, sign)
-    return (torch.stack([gx, gy, gz], dim=-1) * scalings[:, None, None]).sum(dim=0)
+    """Gradient w.r.t. positions ``[N, 3]`` from per-corner ``<f_c, dL/d out>`` products ``[L, N, 8]``.
+
+    Along an axis the trilinear weight's derivative is ``+-1`` times the other two axes' weights,
+    so each component is a difference of corner products contracted with two weight pairs.
+    """
+    (ox, fx), (oy, fy), (oz, fz) = _axis_weights(frac)
+    d = dots.transpose(1, 2).contiguous().unbind(1)  # d[4 bx + 2 by + bz], each contiguous [L, N]
+
+    def contract(diff: List[Tensor], u: Tuple[Tensor, Tensor], v: Tuple[Tensor, Tensor]) -> Tensor:
+        return (diff[0] * v[0] + diff[1] * v[1]) * u[0] + (diff[2] * v[0] + diff[3] * v[1]) * u[1]
+
+    gx = contract([d[4] - d[0], d[5] - d[1], d[6] - d[2], d[7] - d[3]], (oy, fy), (oz, fz))
+    gy = contract([d[2] - d[0], d[3] - d[1], d[6] - d[4], d[7] - d[5]], (ox, fx), (oz, fz))
+    gz = contract([d[1] - d[0], d[3] - d[2], d[5] - d[4], d[7] - d[6]], (ox, fx), (oy, fy))
+    per_level = torch.stack([gx, gy, gz], dim=-1)  # [L, N, 3]
+    return (per_level * scalings[:, None, None]).sum(dim=0)
+
+
+def _rows(table: Tensor) -> Tensor:
+    """One element per 2-feature row (complex view, so gathers and scatters move scalars)."""
+    return torch.view_as_complex(table) if table.shape[-1] == 2 else table
 
 
 class HashGridFunction(torch.autograd.Function):
@@ -104,37 +111,36 @@ class HashGridFunction(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, positions: Tensor, table: Tensor, scalings: Tensor, table_size: int):  # type: ignore[override]
-        idx, weights, frac = corner_indices_and_weights(positions, scalings, table_size)
-        levels, n = idx.shape[:2]
+        idx, frac = corner_indices(positions, scalings, table_size)
+        levels, n, _ = idx.shape
         features = table.shape[1]
-        offsets = torch.arange(levels, device=idx.device, dtype=torch.int64)[:, None, None] * table_size
-        flat_idx = (idx.to(torch.int64) + offsets).reshape(-1)
-        gathered = _rows_as_scalars(table.detach()).index_select(0, flat_idx)
-        feats = _scalars_as_rows(gathered, features).reshape(levels, n, 8, features)
-        out = torch.einsum("lnc,lncf->nlf", weights.to(table.dtype), feats).reshape(n, levels * features)
+        flat_idx = idx.view(-1)
+        gathered = _rows(table.detach()).index_select(0, flat_idx)
+        feats = (torch.view_as_real(gathered) if features == 2 else gathered).view(levels * n, 8, features)
+        weights = corner_weights(frac).to(table.dtype)
+        out = torch.bmm(weights.view(levels * n, 1, 8), feats).view(levels, n, features)
         ctx.table_shape = table.shape
-        keep_feats = feats if ctx.needs_input_grad[0] else None
-        ctx.save_for_backward(flat_idx, weights, frac, scalings, keep_feats)
-        return out
+        ctx.save_for_backward(flat_idx, weights, frac, scalings, feats if ctx.needs_input_grad[0] else None)
+        return out.transpose(0, 1).reshape(n, levels * features)
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):  # type: ignore[override]
         flat_idx, weights, frac, scalings, feats = ctx.saved_tensors
-        levels, n = weights.shape[:2]
+        levels, n, _ = weights.shape
         features = ctx.table_shape[1]
-        grad_levels = grad_out.reshape(n, levels, features).transpose(0, 1)  # [L, N, F]
+        grad_levels = grad_out.reshape(n, levels, features).transpose(0, 1).contiguous()  # [L, N, F]
         grad_table: Optional[Tensor] = None
         if ctx.needs_input_grad[1]:
-            per_corner = (weights[..., None] * grad_levels[:, :, None, :]).reshape(-1, features).contiguous()
             grad_table = grad_out.new_zeros(ctx.table_shape)
-            target = _rows_as_scalars(grad_table)
-            if target.dim() == 1:
-                target.scatter_add_(0, flat_idx, _rows_as_scalars(per_corner))
+            if features == 2:  # complex product: a real weight times a 2-feature gradient
+                per_corner = weights * torch.view_as_complex(grad_levels)[:, :, None]
+                _rows(grad_table).scatter_add_(0, flat_idx, per_corner.view(-1))
             else:
-                target.index_add_(0, flat_idx, per_corner)
+                per_corner = weights[..., None] * grad_levels[:, :, None, :]
+                grad_table.index_add_(0, flat_idx, per_corner.view(-1, features))
         grad_pos: Optional[Tensor] = None
         if ctx.needs_input_grad[0]:
-            dots = torch.einsum("lncf,lnf->lnc", feats, grad_levels)
+            dots = torch.bmm(feats, grad_levels.view(levels * n, features, 1)).view(levels, n, 8)
             grad_pos = _position_gradient(dots, frac, scalings)
         return grad_pos, grad_table, None, None
 

@@ -155,8 +155,17 @@ def ns_train(
     return run
 
 
+def headline_metrics(results: dict) -> Dict[str, Optional[float]]:
+    """PSNR, SSIM and LPIPS of an ``ns-eval`` result; coarse-to-fine models report the fine ones."""
+    def pick(name: str) -> Optional[float]:
+        return results.get(f"fine_{name}", results.get(name))
+
+    return {"psnr": pick("psnr"), "ssim": pick("ssim"), "lpips": pick("lpips")}
+
+
 def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: Optional[dict] = None) -> dict:
-    """Evaluate a trained run with ``ns-eval``; returns its ``results`` (LPIPS ``None`` when unavailable)."""
+    """Evaluate a trained run with ``ns-eval``; returns its headline metrics (LPIPS ``None`` when unavailable)
+    merged over all of ``results``."""
     output_path = Path(output_path).resolve()
     cmd = [*offline_prefix(), _bin("ns-eval"), "--load-config", str(config_path), "--output-path", str(output_path)]
     log_path = output_path.with_suffix(".log")
@@ -164,4 +173,5 @@ def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: 
     if code != 0 or timed_out or not output_path.exists():
         tail = "\n".join(log_path.read_text(errors="replace").splitlines()[-15:])
         raise TrainLaunchError(f"ns-eval failed for {config_path} (exit {code}, timed out: {timed_out}):\n{tail}")
-    return json.loads(output_path.read_text())["results"]
+    results = json.loads(output_path.read_text())["results"]
+    return {**results, **headline_metrics(results)}

@@ -46,6 +46,20 @@ ALEXNET_FEATURE_SHAPES: Dict[str, tuple] = {
 
 _explicit_path: Optional[Path] = None
 _warned = False
+_torchmetrics_class: Optional[type] = None
+
+
+def torchmetrics_lpips_class() -> type:
+    """torchmetrics' own LPIPS class, even after the runtime replaced the module attribute."""
+    global _torchmetrics_class
+    if _torchmetrics_class is None:
+        from torchmetrics.image import lpip
+
+        candidate = lpip.LearnedPerceptualImagePatchSimilarity
+        _torchmetrics_class = candidate if candidate is not OfflineLPIPS else None
+        if _torchmetrics_class is None:
+            raise RuntimeError("torchmetrics' LPIPS class was replaced before it was recorded")
+    return _torchmetrics_class
 
 
 def nerfify_cache_dir() -> Path:
@@ -120,7 +134,6 @@ def _build_real_lpips(weights: Path, **kwargs: Any) -> nn.Module:
     """torchmetrics' LPIPS with the AlexNet backbone loaded from ``weights`` instead of the web."""
     import torchvision
     from torchmetrics.functional.image import lpips as tm_lpips
-    from torchmetrics.image.lpip import LearnedPerceptualImagePatchSimilarity as TorchmetricsLPIPS
 
     features = load_alexnet_features(weights)
 
@@ -134,7 +147,7 @@ def _build_real_lpips(weights: Path, **kwargs: Any) -> nn.Module:
     original = tm_lpips._get_tv_model_features
     tm_lpips._get_tv_model_features = local_features
     try:
-        return TorchmetricsLPIPS(**kwargs)
+        return torchmetrics_lpips_class()(**kwargs)
     finally:
         tm_lpips._get_tv_model_features = original
 

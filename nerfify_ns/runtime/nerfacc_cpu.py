@@ -132,6 +132,26 @@ def is_cub_available() -> bool:
 # --------------------------------------------------------------------------------------------
 # Small helpers
 # --------------------------------------------------------------------------------------------
+class _single_thread:
+    """Run a loop of many small torch ops on one intra-op thread (restored afterwards).
+
+    The sequential cone march issues thousands of ops on a few thousand elements; splitting them
+    over OpenMP threads gains nothing, and when the other cores are busy (or have to be woken up,
+    as on small VMs) each op's barrier can stall for milliseconds.
+    """
+
+    def __enter__(self):
+        self.prev = torch.get_num_threads()
+        if self.prev != 1:
+            torch.set_num_threads(1)
+        return self
+
+    def __exit__(self, *exc):
+        if self.prev != 1:
+            torch.set_num_threads(self.prev)
+        return False
+
+
 def _arange(n: int, device: torch.device) -> Tensor:
     return torch.arange(n, device=device, dtype=torch.long)
 
@@ -150,27 +170,43 @@ class _Layout:
     """Gather plan for scanning chunks ``[start, start + cnt)`` of a flattened tensor.
 
     ``idx`` maps positions of the packed (gathered) layout back to the input; it is ``None`` when the
-    chunks already tile the input contiguously in order (the usual ``pack_info`` layout).
-    ``first``/``last`` are, per item of the packed layout, the packed position of its chunk's first
-    and last item.
+    chunks already tile the input contiguously in order (the usual ``pack_info`` layout).  ``offs``
+    and ``cnts`` describe the chunks in the packed layout; ``seg`` (chunk id per packed item),
+    ``first`` and ``last`` (packed position of the item's chunk's first / last item) are computed
+    on demand.
     """
 
     def __init__(self, chunk_starts: Tensor, chunk_cnts: Tensor, n_items: int) -> None:
         device = chunk_cnts.device
-        cnts = chunk_cnts.long().clamp_min(0)
+        self.cnts = chunk_cnts.long().clamp_min(0)
         starts = chunk_starts.long()
-        self.total = int(cnts.sum().item()) if cnts.numel() else 0
-        offs = _starts_from_cnts(cnts)
-        seg = _segment_of_items(cnts, self.total)
-        if self.total == n_items and bool(torch.equal(starts, offs)):
+        self.total = int(self.cnts.sum().item()) if self.cnts.numel() else 0
+        self.offs = _starts_from_cnts(self.cnts)
+        if self.total == n_items and bool(torch.equal(starts, self.offs)):
             self.idx: Optional[Tensor] = None
         else:
-            self.idx = torch.repeat_interleave(starts - offs, cnts, output_size=self.total) + _arange(
+            self.idx = torch.repeat_interleave(starts - self.offs, self.cnts, output_size=self.total) + _arange(
                 self.total, device
             )
-        self.first = offs[seg]
-        self.last = (offs + cnts - 1)[seg]
-        self.max_cnt = int(cnts.max().item()) if cnts.numel() else 0
+        self._seg: Optional[Tensor] = None
+
+    @property
+    def seg(self) -> Tensor:
+        if self._seg is None:
+            self._seg = _segment_of_items(self.cnts, self.total)
+        return self._seg
+
+    def expand(self, per_chunk: Tensor) -> Tensor:
+        """Per-chunk values repeated for every item of the chunk."""
+        return per_chunk.index_select(0, self.seg)
+
+    @property
+    def first(self) -> Tensor:
+        return self.expand(self.offs)
+
+    @property
+    def last(self) -> Tensor:
+        return self.expand(self.offs + self.cnts - 1)
 
     def gather(self, x: Tensor) -> Tensor:
         return x if self.idx is None else x[self.idx]
@@ -206,45 +242,62 @@ def _doubling_scan(x: Tensor, first: Tensor, op) -> Tensor:
     return y
 
 
+class _Lazy:
+    """A tensor computed on first use (``.get()``)."""
+
+    def __init__(self, fn, dtype=None) -> None:
+        self.fn, self.dtype, self.value = fn, dtype, None
+
+    def get(self) -> Tensor:
+        if self.value is None:
+            v = self.fn() if callable(self.fn) else self.fn
+            self.value = v if self.dtype is None else v.to(self.dtype)
+        return self.value
+
+
 def _segmented_sum(x: Tensor, lay: _Layout, reverse: bool, inclusive: bool) -> Tuple[Tensor, Tensor]:
     """Inclusive or exclusive, forward or reverse, segmented sum of packed ``x``.
 
-    Returns ``(scan, total)`` where ``total`` is the per-item segment total (used by ``normalize``).
-    Fast path: one global cumsum in float64 minus the segment's base (exact to float32 rounding for
-    finite inputs).  When the input holds inf/NaN the global prefix would leak across segments, so
-    the per-segment doubling scan is used instead.
+    Returns ``(scan, total)`` where ``total`` (a :class:`_Lazy`, computed only when asked for) is
+    the per-item chunk total used by ``normalize``.
+    Fast path: with ``P_i = sum_{j<i} x_j`` (one global cumsum in float64) and a chunk ``[s, e)``:
+    inclusive ``P_{i+1} - P_s``, exclusive ``P_i - P_s``, reverse inclusive ``P_e - P_i``, reverse
+    exclusive ``P_e - P_{i+1}`` (exact to float32 rounding for finite inputs).  When the input
+    holds inf/NaN the global prefix would leak across chunks (detected from the last prefix), so
+    the per-chunk doubling scan is used instead.
     """
     n = x.numel()
     if n == 0:
-        return x.clone(), x.clone()
-    if bool(torch.isfinite(x).all()):
-        acc = x.double() if x.dtype != torch.float64 else x
-        cs = torch.cumsum(acc, 0)
-        ex = cs - acc
-        base = ex[lay.first]
-        total = cs[lay.last] - base
-        incl = cs - base
-        excl = ex - base
+        return x.clone(), _Lazy(x.clone())
+    acc = x.double() if x.dtype != torch.float64 else x
+    P = torch.zeros(n + 1, dtype=torch.float64, device=x.device)
+    torch.cumsum(acc, 0, out=P[1:])
+    if bool(torch.isfinite(P[-1])):
         if not reverse:
-            out = incl if inclusive else excl
-        else:  # suffix sums: sum_{j >= i} (inclusive) or sum_{j > i} (exclusive)
-            out = total - excl if inclusive else total - incl
-        return out.to(x.dtype), total.to(x.dtype)
+            base = lay.expand(P.index_select(0, lay.offs))
+            out = (P[1:] if inclusive else P[:-1]) - base
+            total = lambda: lay.expand(P.index_select(0, lay.offs + lay.cnts)) - base  # noqa: E731
+        else:
+            end = lay.expand(P.index_select(0, lay.offs + lay.cnts))
+            out = end - (P[:-1] if inclusive else P[1:])
+            total = lambda: end - lay.expand(P.index_select(0, lay.offs))  # noqa: E731
+        return out.to(x.dtype), _Lazy(total, x.dtype)
     # robust path (non-finite values present)
     if not reverse:
-        incl = _doubling_scan(x, lay.first, torch.add)
-        total = incl[lay.last]
+        first = lay.first
+        incl = _doubling_scan(x, first, torch.add)
+        total = _Lazy(incl[lay.last])
         if inclusive:
             return incl, total
         pos = _arange(n, x.device)
-        excl = torch.where(pos > lay.first, incl[(pos - 1).clamp_min(0)], torch.zeros_like(x))
+        excl = torch.where(pos > first, incl[(pos - 1).clamp_min(0)], torch.zeros_like(x))
         return excl, total
     # reverse scan = forward scan of the reversed array, whose segments start at the old ends
     pos = _arange(n, x.device)
     rfirst = (n - 1 - lay.last).flip(0)
     rx = x.flip(0)
     rincl = _doubling_scan(rx, rfirst, torch.add)
-    total = rincl[(n - 1 - lay.first).flip(0)].flip(0)
+    total = _Lazy(rincl[(n - 1 - lay.first).flip(0)].flip(0))
     if inclusive:
         return rincl.flip(0), total
     rexcl = torch.where(pos > rfirst, rincl[(pos - 1).clamp_min(0)], torch.zeros_like(x))
@@ -271,7 +324,7 @@ def _sum_op(chunk_starts, chunk_cnts, inputs, normalize, backward, inclusive):
     x = lay.gather(inputs.reshape(-1))
     out, total = _segmented_sum(x, lay, reverse=bool(backward), inclusive=inclusive)
     if normalize:
-        out = out / total.clamp_min(1e-10)
+        out = out / total.get().clamp_min(1e-10)
     return lay.scatter(out, inputs.reshape(-1)).view_as(inputs)
 
 
@@ -525,42 +578,46 @@ def _march_lattice(
     # same and stays in float32, where cell ids (< 2^24) are exact
     fdt = torch.float64 if binaries_flat.numel() >= (1 << 24) else torch.float32
     strides = torch.tensor([float(res[1] * res[2]), float(res[2]), 1.0], dtype=fdt, device=device)
-    umax = (resd - 1).to(fdt)
-    zero = torch.zeros(3, dtype=fdt, device=device)
+    res_list = [int(r) for r in res.tolist()]
+    cubic = res_list[0] == res_list[1] == res_list[2]
     U0 = U0.to(fdt)
     V = V.to(fdt)
     lvl_base = (slvl * cells_per_lvl).to(fdt)
+    occupancy = binaries_flat.view(torch.uint8)  # index_select on bytes beats bool indexing
 
     # Candidates are laid out densely, [segments, max count], on groups of segments sorted by
-    # count (little padding, no per-candidate gathers); kept samples are then scattered back in
-    # (segment, k) order, which is the (ray, t) order.
+    # count (little padding, no per-candidate gathers, in-place float ops); kept samples are then
+    # scattered back in (segment, k) order, which is the (ray, t) order.
     n_seg = cnt.numel()
     order = torch.sort(cnt).indices
     cnt_sorted = cnt[order]
+    cnt_list = cnt_sorted.tolist()
     kept_seg, kept_j = [], []
+    group = max(1, -(-n_seg // 8))  # >= 8 groups keep the padding small
     g0 = 0
     while g0 < n_seg:
-        # grow the group while group_size * its max count stays under the chunk budget
-        cmax_tail = int(cnt_sorted[-1].item())
-        g1 = n_seg
-        if (n_seg - g0) * max(cmax_tail, 1) > _CANDIDATE_CHUNK:
-            # largest g1 with (g1 - g0) * cnt_sorted[g1 - 1] <= budget (cnt_sorted is ascending)
-            idx = _arange(n_seg - g0, device)
-            ok = (idx + 1) * cnt_sorted[g0:].clamp_min(1) <= _CANDIDATE_CHUNK
-            g1 = g0 + max(int(ok.sum().item()), 1)
-        segs = order[g0:g1]
-        cg = cnt_sorted[g0:g1]
-        cmax = int(cg[-1].item())
+        g1 = min(n_seg, g0 + group)
+        cmax = cnt_list[g1 - 1]
+        if (g1 - g0) * cmax > _CANDIDATE_CHUNK:
+            g1 = g0 + max(1, _CANDIDATE_CHUNK // max(cmax, 1))
+            cmax = cnt_list[g1 - 1]
         if cmax > 0:
+            segs = order[g0:g1]
             j = torch.arange(cmax, dtype=fdt, device=device)
             u = torch.addcmul(U0[segs][:, None, :], V[segs][:, None, :], j[None, :, None])
-            u = torch.clamp(u, zero, umax).floor_()
-            lin = torch.matmul(u, strides).add_(lvl_base[segs][:, None])
-            occ = binaries_flat[lin.long()]
-            occ &= _arange(cmax, device)[None, :] < cg[:, None]
+            if cubic:
+                u.clamp_(0, res_list[0] - 1)
+            else:
+                for ax in range(3):
+                    u[..., ax].clamp_(0, res_list[ax] - 1)
+            u.floor_()
+            lin = torch.matmul(u, strides)
+            lin.add_(lvl_base[segs][:, None])
+            occ = occupancy.index_select(0, lin.view(-1).long()).view(lin.shape)
             gi, jj = torch.nonzero(occ, as_tuple=True)
-            kept_seg.append(segs[gi])
-            kept_j.append(jj)
+            inside = jj < cnt_sorted[g0:g1][gi]  # drop the padding
+            kept_seg.append(segs[gi[inside]])
+            kept_j.append(jj[inside])
         g0 = g1
     seg_k = torch.cat(kept_seg)
     jj = torch.cat(kept_j)
@@ -763,41 +820,35 @@ def _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_
 
 
 def _pack_outputs(em: _Emitted, n_rays: int, compute_intervals: bool, compute_samples: bool, device, dtype):
-    """Write the emitted samples as the kernel's two RaySegmentsSpec (intervals, samples)."""
+    """Write the emitted samples as the kernel's two RaySegmentsSpec (intervals, samples).
+
+    A sample that does not continue the previous one opens a run: it contributes its left edge
+    (``is_left``) and its right edge; a continuing sample contributes only its right edge, and the
+    right edge before it is then also a left edge.  So sample ``i`` gives the edges
+    ``[t0_i (if it opens a run), t1_i]`` with ``is_left(t1_i) = cont_{i+1}``.
+    """
     intervals, samples = RaySegmentsSpec(), RaySegmentsSpec()
     n = em.ray.numel()
+    ray = em.ray.long()
+    n_per_ray = torch.bincount(ray, minlength=n_rays) if n else torch.zeros(n_rays, dtype=torch.long, device=device)
     if compute_samples:
-        cnts = torch.bincount(em.ray, minlength=n_rays) if n else torch.zeros(n_rays, dtype=torch.long, device=device)
-        samples.chunk_cnts = cnts.long()
-        samples.chunk_starts = _starts_from_cnts(samples.chunk_cnts)
+        samples.chunk_cnts = n_per_ray
+        samples.chunk_starts = _starts_from_cnts(n_per_ray)
         samples.vals = ((em.t1 + em.t0) * 0.5).to(dtype)
-        samples.ray_indices = em.ray.long()
+        samples.ray_indices = ray
     if compute_intervals:
-        # a non-continuous sample opens a new run: it writes its left and its right edge; a
-        # continuous one only writes its right edge (its left edge is the previous right edge)
-        n_edges = 2 - em.cont.long()
-        right = torch.cumsum(n_edges, 0) - 1
-        left = right - 1
-        n_total = int(right[-1].item()) + 1 if n else 0
-        vals = torch.zeros(n_total, dtype=dtype, device=device)
-        ray_e = torch.zeros(n_total, dtype=torch.long, device=device)
-        is_left = torch.zeros(n_total, dtype=torch.bool, device=device)
-        is_right = torch.zeros(n_total, dtype=torch.bool, device=device)
-        if n:
-            opens = ~em.cont
-            vals[left[opens]] = em.t0[opens].to(dtype)
-            vals[right] = em.t1.to(dtype)
-            ray_e[left] = em.ray
-            ray_e[right] = em.ray
-            is_left[left] = True
-            is_right[right] = True
-        cnts = torch.bincount(ray_e, minlength=n_rays) if n_total else torch.zeros(n_rays, dtype=torch.long, device=device)
-        intervals.chunk_cnts = cnts.long()
+        opens = ~em.cont
+        next_cont = torch.zeros_like(em.cont)
+        next_cont[:-1] = em.cont[1:]
+        keep = torch.stack([opens, torch.ones_like(opens)], 1).reshape(-1)
+        idx = torch.nonzero(keep).squeeze(1)
+        intervals.vals = torch.stack([em.t0.to(dtype), em.t1.to(dtype)], 1).reshape(-1).index_select(0, idx)
+        intervals.is_left = torch.stack([torch.ones_like(opens), next_cont], 1).reshape(-1).index_select(0, idx)
+        intervals.is_right = torch.stack([torch.zeros_like(opens), torch.ones_like(opens)], 1).reshape(-1).index_select(0, idx)
+        intervals.ray_indices = idx // 2 if n == 0 else ray.index_select(0, idx // 2)
+        runs = torch.bincount(ray[opens], minlength=n_rays) if n else torch.zeros_like(n_per_ray)
+        intervals.chunk_cnts = n_per_ray + runs
         intervals.chunk_starts = _starts_from_cnts(intervals.chunk_cnts)
-        intervals.vals = vals
-        intervals.ray_indices = ray_e
-        intervals.is_left = is_left
-        intervals.is_right = is_right
     return [intervals, samples]
 
 
@@ -878,10 +929,11 @@ def traverse_grids(
             parts = [em_lat]
             if bool(seq.any()):
                 v = valid & seq[:, None]
-                parts.append(
-                    _march_cone(o, d, t_start, last_emit & seq, a, b, level, v, step, cone,
-                                binaries_flat, aabbs, res, cells_per_lvl)
-                )
+                with _single_thread():
+                    parts.append(
+                        _march_cone(o, d, t_start, last_emit & seq, a, b, level, v, step, cone,
+                                    binaries_flat, aabbs, res, cells_per_lvl)
+                    )
             em = _Emitted.cat(parts, device, dtype)
             if len(parts) > 1 and em.ray.numel():
                 order = torch.sort(em.ray, stable=True).indices

@@ -1,0 +1,56 @@
+"""Real Nerfstudio training on the CPU, offline, in subprocesses: the CI smoke-train.
+
+Every run goes through ``ns-train`` / ``ns-eval`` (Nerfstudio's own trainer and pipeline) under
+``unshare -n`` when we are root, on a 32x32 generated scene.
+"""
+
+import math
+
+import pytest
+
+from nerfify_ns.evaluate.smoke import preset_args, smoke_train
+from nerfify_ns.runtime.launch import ns_eval, ns_train, offline_prefix
+
+from conftest import installed_lpips_weights
+
+NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "", "NERFIFY_CACHE": "/nonexistent-nerfify-cache",
+                  "TORCH_HOME": "/nonexistent-torch-home"}
+
+pytestmark = pytest.mark.slow
+
+
+def test_offline_sandbox_is_used():
+    import os
+
+    if os.geteuid() == 0:
+        assert offline_prefix()[-1] == "-n"
+
+
+def test_ci_smoke_train_nerfacto(tiny_scene, tmp_path):
+    result = smoke_train("nerfacto", tiny_scene, tmp_path / "nerfacto", iterations=60, evaluate=False)
+    run = result.run
+    assert run.ok and run.last_step == 59
+    losses = [run.losses[s] for s in sorted(run.losses)]
+    assert all(math.isfinite(v) for v in losses)
+    assert sum(losses[-10:]) / 10 < 0.5 * sum(losses[:5]) / 5, "photometric loss did not go down"
+    assert run.median_rays_per_sec and run.median_rays_per_sec > 0
+
+    metrics = ns_eval(run.config_path, tmp_path / "eval_noweights.json", env=NO_WEIGHTS_ENV)
+    assert metrics["psnr"] > 14.0 and 0.0 < metrics["ssim"] <= 1.0
+    assert metrics["lpips"] is None, "LPIPS must be null without real weights"
+
+    weights = installed_lpips_weights()
+    metrics = ns_eval(run.config_path, tmp_path / "eval_weights.json", env={"NERFIFY_LPIPS_WEIGHTS": str(weights)})
+    assert isinstance(metrics["lpips"], float) and 0.0 <= metrics["lpips"] < 1.0
+
+
+@pytest.mark.parametrize("method", ["vanilla-nerf", "nerfacto", "instant-ngp", "mipnerf", "tensorf"])
+def test_reference_methods_train_offline_on_cpu(method, tiny_scene, tmp_path):
+    """The issue's bar: 20 iterations with --machine.device-type cpu, finite losses, ns-eval metrics."""
+    run = ns_train(method, tiny_scene, tmp_path, iterations=20,
+                   method_args=[*preset_args(method), "--machine.device-type", "cpu"], env=NO_WEIGHTS_ENV)
+    assert run.returncode == 0, run.log_tail()
+    assert run.last_step == 19 and run.finite, run.log_tail()
+    metrics = ns_eval(run.config_path, tmp_path / "eval.json", env=NO_WEIGHTS_ENV)
+    assert math.isfinite(metrics["psnr"]) and math.isfinite(metrics["ssim"])
+    assert metrics["lpips"] is None
