@@ -44,11 +44,16 @@ def test_ci_smoke_train_nerfacto(tiny_scene, tmp_path):
     assert isinstance(metrics["lpips"], float) and 0.0 <= metrics["lpips"] < 1.0
 
 
+# The MLP-only methods cost ~10 ms per ray on 2 cores; a smaller batch keeps CI short.
+TEST_BATCH = {"vanilla-nerf": "64", "mipnerf": "64", "instant-ngp": "512"}
+
+
 @pytest.mark.parametrize("method", ["vanilla-nerf", "nerfacto", "instant-ngp", "mipnerf", "tensorf"])
 def test_reference_methods_train_offline_on_cpu(method, tiny_scene, tmp_path):
     """The issue's bar: 20 iterations with --machine.device-type cpu, finite losses, ns-eval metrics."""
+    batch = ["--pipeline.datamanager.train-num-rays-per-batch", TEST_BATCH[method]] if method in TEST_BATCH else []
     run = ns_train(method, tiny_scene, tmp_path, iterations=20,
-                   method_args=[*preset_args(method), "--machine.device-type", "cpu"], env=NO_WEIGHTS_ENV)
+                   method_args=[*preset_args(method), *batch, "--machine.device-type", "cpu"], env=NO_WEIGHTS_ENV)
     assert run.returncode == 0, run.log_tail()
     assert run.last_step == 19 and run.finite, run.log_tail()
     metrics = ns_eval(run.config_path, tmp_path / "eval.json", env=NO_WEIGHTS_ENV)
