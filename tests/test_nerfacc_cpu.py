@@ -145,6 +145,13 @@ def test_no_jit_build_is_ever_attempted(tmp_path):
     assert "OK" in res.stdout
 
 
+def test_single_thread_scope_restores_thread_count():
+    before = torch.get_num_threads()
+    with nc._single_thread():
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+
+
 def test_pack_info_cpu():
     ri = torch.tensor([0, 0, 2, 2, 2, 4])
     pi = nerfacc.pack_info(ri, n_rays=6)
@@ -261,6 +268,11 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
         covered[s : s + c] = True
     torch.testing.assert_close(out[covered], ref[covered], atol=1e-6, rtol=0)
     assert (out[~covered] == 0).all()
+    back = C.exclusive_sum(starts, cnts, x, False, True)  # backward = reverse exclusive scan
+    torch.testing.assert_close(back[covered], _ref_scan(x, starts, cnts, "sum", True, reverse=True)[covered], atol=1e-6, rtol=0)
+    xp = x + 0.5
+    y = C.inclusive_prod_forward(starts, cnts, xp)
+    torch.testing.assert_close(y[covered], _ref_scan(xp, starts, cnts, "prod")[covered], rtol=1e-5, atol=0)
     # normalize divides by the chunk total (which includes the last item, also for exclusive)
     for excl in (False, True):
         op = C.exclusive_sum if excl else C.inclusive_sum
@@ -520,13 +532,14 @@ def _grid(levels, res, occ, gen):
 def test_traverse_grids_matches_reference(levels, res, occ, step, cone):
     g = torch.Generator().manual_seed(10 + levels + res)
     o, d = _random_rays(40, g, radius=2.5, spread=1.5)
-    # edge cases: inside the box, axis-parallel, missing, grazing the outer box, opposite direction
+    # edge cases: inside the box, axis-parallel, missing, sliding along a face of the box
+    # (o_y on the plane y = 1 with d_y = 0: the slab gives NaN there, as in the kernel), reversed
     o[0] = torch.tensor([0.05, 0.1, -0.2], dtype=torch.float64)
     o[1] = torch.tensor([0.3, -0.2, -3.0], dtype=torch.float64)
     d[1] = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     o[2] = torch.tensor([5.0, 5.0, 5.0], dtype=torch.float64)
     d[2] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
-    o[3] = torch.tensor([-3.0, 0.37, 0.0], dtype=torch.float64)
+    o[3] = torch.tensor([-3.0, 1.0, 0.37], dtype=torch.float64)
     d[3] = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)
     d[4] = -d[4]
     aabb = torch.tensor([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0], dtype=torch.float64)
@@ -540,6 +553,19 @@ def test_traverse_grids_matches_reference(levels, res, occ, step, cone):
     samples = _check_traversal(o, d, binaries, aabbs, near, far, step, cone)
     assert samples.vals.numel() > 100
     assert samples.packed_info[7, 1] == 0 and samples.packed_info[2, 1] == 0
+
+
+@pytest.mark.parametrize("step,cone", [(0.03, 0.0), (0.02, 0.05), (0.0, 0.0)])
+def test_traverse_grids_non_cubic_grid(step, cone):
+    """Resolution (8, 12, 5) and a non-cubic box: lattice, cone and per-cell marching."""
+    g = torch.Generator().manual_seed(21)
+    o, d = _random_rays(30, g, radius=2.5, spread=1.2)
+    aabbs = torch.tensor([[-1.0, -0.5, -1.5, 1.0, 1.5, 1.0], [-2.0, -1.5, -2.75, 2.0, 2.5, 2.25]], dtype=torch.float64)
+    binaries = torch.rand(2, 8, 12, 5, generator=g) < 0.45
+    near = torch.zeros(30, dtype=torch.float64)
+    far = torch.full((30,), 1e10, dtype=torch.float64)
+    samples = _check_traversal(o, d, binaries, aabbs, near, far, step, cone)
+    assert samples.vals.numel() > 50
 
 
 def test_traverse_grids_float32_close_to_reference():
@@ -716,6 +742,17 @@ def test_importance_sampling_int_and_tensor_counts():
         torch.testing.assert_close(sp.vals[sp.ray_indices == r], torch.tensor(s, dtype=torch.float64), atol=1e-12, rtol=0)
         torch.testing.assert_close(iv.vals[iv.ray_indices == r], torch.tensor(e, dtype=torch.float64), atol=1e-12, rtol=0)
     assert iv.is_left.sum() == 7 and iv.is_right.sum() == 7
+    # flattened input intervals with an int count -> batched outputs
+    ec = [7, 4, 6]
+    tv_f = torch.cat([torch.sort(torch.rand(c, generator=g, dtype=torch.float64)).values for c in ec])
+    cdf_f = torch.cat([torch.linspace(0, 1, c, dtype=torch.float64) ** 2 for c in ec])
+    iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv_f, packed_info=_packed(ec)), cdf_f, 3)
+    assert sp.vals.shape == (3, 3) and iv.vals.shape == (3, 4)
+    st = _packed(ec)[:, 0].tolist()
+    for r, c in enumerate(ec):
+        s, e = _ref_importance(tv_f[st[r] : st[r] + c].tolist(), cdf_f[st[r] : st[r] + c].tolist(), 3)
+        torch.testing.assert_close(sp.vals[r], torch.tensor(s, dtype=torch.float64), atol=1e-12, rtol=0)
+        torch.testing.assert_close(iv.vals[r], torch.tensor(e, dtype=torch.float64), atol=1e-12, rtol=0)
     # stratified: one jitter per ray, samples stay sorted and inside the ray's range
     iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv), cdf, 16, stratified=True)
     assert bool((sp.vals[:, 1:] >= sp.vals[:, :-1]).all())

@@ -24,6 +24,17 @@ the Python ``pack_info`` (patched).  ``accumulate_along_rays`` and
 ``importance_sampling``, the lens undistortions) are implemented for completeness
 (``PropNetEstimator``, ``render_*_from_alpha``, gsplat's torch path).
 
+``traverse_grids`` (the hot op) is served three ways, all vectorised over rays:
+
+* constant step (``cone_angle == 0``, e.g. ``instant-ngp-bounded``): every position the kernel
+  visits lies on the lattice ``near + k * step``, so all candidate steps inside the ray's AABB
+  segments are enumerated at once (dense ``[segments, steps]`` blocks, chunked to bound memory),
+  their midpoint cells looked up in the binary grid, and the occupied ones compacted;
+* ``cone_angle > 0`` (``instant-ngp``): the lattice is exact while ``t * cone_angle <= step``; from
+  there on the kernel's state machine (emit, or skip an empty cell with a fixed ``dt``) is run as
+  one event per ray and iteration, single-threaded (many tiny ops);
+* ``step_size <= 0``: one sample per occupied cell, cells delimited by plane crossings.
+
 Semantics follow ``nerfacc/cuda/csrc/*.cu`` of nerfacc 0.5.2 (whose ``traverse_grids`` takes
 ``t_mins, t_maxs, hits`` and has no ``traverse_steps_limit`` / ``over_allocate`` arguments; those
 belong to later nerfacc versions).  Known, documented differences are listed in
@@ -68,7 +79,9 @@ KNOWN_DIFFERENCES = (
     "non-nested AABBs the kernel may march through the gap between two boxes without re-marching, "
     "here samples whose midpoint is in a gap are never produced.  Segments with non-finite ends "
     "(e.g. rays with a zero direction and an infinite far plane) are dropped instead of looping.",
-    "traverse_grids with step_size <= 0: zero-length DDA cells (ties between two axes) are dropped.",
+    "traverse_grids with step_size <= 0: zero-length DDA cells (ties between two axes) are dropped; "
+    "like the kernel (whose DDA starts at tmin + 1e-6 and ends at tmax - 1e-6) plane crossings within "
+    "1e-6 of a segment end open no cell.",
     "importance_sampling with one interval per ray: the kernel reads past the ray's samples and "
     "leaves the last edge unwritten; here the single interval spans [t_min, t_max] of the ray.",
     "stratified importance_sampling draws its per-ray jitter from torch's CPU generator, not curand.",
@@ -99,7 +112,9 @@ class RaySegmentsSpec:
         self.is_right: Optional[Tensor] = None
 
     def __repr__(self) -> str:  # pragma: no cover - debugging aid
-        fields = {k: (None if getattr(self, k) is None else tuple(getattr(self, k).shape)) for k in self.__slots__}
+        fields = {
+            k: (None if getattr(self, k) is None else tuple(getattr(self, k).shape)) for k in self.__slots__
+        }
         return f"RaySegmentsSpec({fields})"
 
 
@@ -114,7 +129,8 @@ class RaysSpec:
 
 
 class MultiScaleGridSpec:
-    """Replacement for ``_C.MultiScaleGridSpec`` (``data``, ``occupied`` [levels, x, y, z], ``base_aabb`` [6])."""
+    """Replacement for ``_C.MultiScaleGridSpec``: ``data`` and ``occupied`` [levels, x, y, z],
+    ``base_aabb`` [6]."""
 
     __slots__ = ("data", "occupied", "base_aabb")
 
@@ -153,6 +169,7 @@ class _single_thread:
 
 
 def _arange(n: int, device: torch.device) -> Tensor:
+    """``torch.arange(n)`` as int64 on ``device``."""
     return torch.arange(n, device=device, dtype=torch.long)
 
 
@@ -185,9 +202,8 @@ class _Layout:
         if self.total == n_items and bool(torch.equal(starts, self.offs)):
             self.idx: Optional[Tensor] = None
         else:
-            self.idx = torch.repeat_interleave(starts - self.offs, self.cnts, output_size=self.total) + _arange(
-                self.total, device
-            )
+            shift = torch.repeat_interleave(starts - self.offs, self.cnts, output_size=self.total)
+            self.idx = shift + _arange(self.total, device)
         self._seg: Optional[Tensor] = None
 
     @property
@@ -320,6 +336,7 @@ def _segmented_prod(x: Tensor, lay: _Layout, inclusive: bool) -> Tensor:
 # Scans (scan.cu)
 # --------------------------------------------------------------------------------------------
 def _sum_op(chunk_starts, chunk_cnts, inputs, normalize, backward, inclusive):
+    """Shared body of ``inclusive_sum`` / ``exclusive_sum``: gather the chunks, scan, scatter back."""
     lay = _Layout(chunk_starts, chunk_cnts, inputs.numel())
     x = lay.gather(inputs.reshape(-1))
     out, total = _segmented_sum(x, lay, reverse=bool(backward), inclusive=inclusive)
@@ -371,6 +388,7 @@ def exclusive_prod_forward(chunk_starts: Tensor, chunk_cnts: Tensor, inputs: Ten
 
 
 def _prod_backward(chunk_starts, chunk_cnts, inputs, outputs, grad_outputs, inclusive):
+    """Shared body of the product backwards: reverse scan of ``dy * y``, divided by the input."""
     lay = _Layout(chunk_starts, chunk_cnts, inputs.numel())
     go = lay.gather((grad_outputs * outputs).reshape(-1))
     acc, _ = _segmented_sum(go, lay, reverse=True, inclusive=inclusive)
@@ -631,7 +649,8 @@ def _march_lattice(
     out_start = torch.cumsum(per_seg, 0) - per_seg
     first_in_run = torch.ones(n_out, dtype=torch.bool, device=device)
     first_in_run[1:] = seg_k[1:] != seg_k[:-1]
-    run_start = torch.cummax(torch.where(first_in_run, _arange(n_out, device), torch.zeros_like(seg_k)), 0).values
+    run_start = torch.where(first_in_run, _arange(n_out, device), torch.zeros_like(seg_k))
+    run_start = torch.cummax(run_start, 0).values
     pos = out_start[seg_k] + (_arange(n_out, device) - run_start)
     seg_sorted = torch.empty_like(seg_k)
     seg_sorted[pos] = seg_k
@@ -722,9 +741,8 @@ def _march_cone(
                 break
             if n_alive < 0.75 * ids.numel():
                 keep = torch.nonzero(alive).squeeze(1)
-                ids, t, last, sb, row_base, nseg_a, dt, m, j = (
-                    ids[keep], t[keep], last[keep], sb[keep], row_base[keep], nseg_a[keep], dt[keep], m[keep], j[keep]
-                )
+                ids, t, last, sb, row_base = ids[keep], t[keep], last[keep], sb[keep], row_base[keep]
+                nseg_a, dt, m, j = nseg_a[keep], dt[keep], m[keep], j[keep]
         it += 1
         row = table.index_select(0, row_base + j)
         # past its last segment a ray reads a row with a = +inf: never in a segment, never emits
@@ -787,7 +805,8 @@ def _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_
     cnt_flat = cnt.reshape(-1)  # [n_seg * 3]
     total = int(cnt_flat.sum().item())
     pair = torch.repeat_interleave(_arange(n_seg * 3, device), cnt_flat, output_size=total)
-    j = _arange(total, device) - torch.repeat_interleave(_starts_from_cnts(cnt_flat), cnt_flat, output_size=total)
+    first_of_pair = torch.repeat_interleave(_starts_from_cnts(cnt_flat), cnt_flat, output_size=total)
+    j = _arange(total, device) - first_of_pair
     ps, ax = pair // 3, pair % 3
     plane = lo[ps, ax] + (i_lo.reshape(-1)[pair] + j).to(dtype) * vox[ps, ax]
     t_cross = (plane - so[ps, ax]) / sd[ps, ax]
@@ -830,7 +849,10 @@ def _pack_outputs(em: _Emitted, n_rays: int, compute_intervals: bool, compute_sa
     intervals, samples = RaySegmentsSpec(), RaySegmentsSpec()
     n = em.ray.numel()
     ray = em.ray.long()
-    n_per_ray = torch.bincount(ray, minlength=n_rays) if n else torch.zeros(n_rays, dtype=torch.long, device=device)
+    if n:
+        n_per_ray = torch.bincount(ray, minlength=n_rays)
+    else:
+        n_per_ray = torch.zeros(n_rays, dtype=torch.long, device=device)
     if compute_samples:
         samples.chunk_cnts = n_per_ray
         samples.chunk_starts = _starts_from_cnts(n_per_ray)
@@ -840,11 +862,15 @@ def _pack_outputs(em: _Emitted, n_rays: int, compute_intervals: bool, compute_sa
         opens = ~em.cont
         next_cont = torch.zeros_like(em.cont)
         next_cont[:-1] = em.cont[1:]
-        keep = torch.stack([opens, torch.ones_like(opens)], 1).reshape(-1)
-        idx = torch.nonzero(keep).squeeze(1)
-        intervals.vals = torch.stack([em.t0.to(dtype), em.t1.to(dtype)], 1).reshape(-1).index_select(0, idx)
-        intervals.is_left = torch.stack([torch.ones_like(opens), next_cont], 1).reshape(-1).index_select(0, idx)
-        intervals.is_right = torch.stack([torch.zeros_like(opens), torch.ones_like(opens)], 1).reshape(-1).index_select(0, idx)
+        yes, no = torch.ones_like(opens), torch.zeros_like(opens)
+        idx = torch.nonzero(torch.stack([opens, yes], 1).reshape(-1)).squeeze(1)
+
+        def pick(first: Tensor, second: Tensor) -> Tensor:
+            return torch.stack([first, second], 1).reshape(-1).index_select(0, idx)
+
+        intervals.vals = pick(em.t0.to(dtype), em.t1.to(dtype))
+        intervals.is_left = pick(yes, next_cont)
+        intervals.is_right = pick(no, yes)
         intervals.ray_indices = idx // 2 if n == 0 else ray.index_select(0, idx // 2)
         runs = torch.bincount(ray[opens], minlength=n_rays) if n else torch.zeros_like(n_per_ray)
         intervals.chunk_cnts = n_per_ray + runs
@@ -893,7 +919,8 @@ def traverse_grids(
     far = far_planes.to(dtype).reshape(-1)
     aabbs = aabbs.to(device)
     if n_rays == 0 or n_grids == 0:
-        return _pack_outputs(_Emitted.cat([], device, dtype), n_rays, compute_intervals, compute_samples, device, dtype)
+        empty = _Emitted.cat([], device, dtype)
+        return _pack_outputs(empty, n_rays, compute_intervals, compute_samples, device, dtype)
     a, b, level, valid = _segments(t_mins.to(dtype), t_maxs.to(dtype), hits.bool(), near, far, n_grids)
     step = float(step_size)
     cone = float(cone_angle)
@@ -901,7 +928,9 @@ def traverse_grids(
         em = _march_cells(o, d, a, b, level, valid, binaries_flat, aabbs, res, cells_per_lvl)
     else:
         if cone <= 0.0:
-            em = _march_lattice(o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl)
+            em = _march_lattice(
+                o, d, near, a, b, level, valid, step, binaries_flat, aabbs, res, cells_per_lvl
+            )
         else:
             # dt == step_size while t * cone <= step_size, so every t visited up to k_h, the last
             # lattice index with near + k * step <= step / cone, lies on the lattice near + k * step
@@ -909,7 +938,8 @@ def traverse_grids(
             # the sequential march takes over at t_{k_h}, where calc_dt is still == step.
             t_star = step / cone
             near64 = near.double()
-            k_h = torch.where(near64 <= t_star, torch.floor((t_star - near64) / step), torch.zeros_like(near64))
+            k_h = torch.floor((t_star - near64) / step)
+            k_h = torch.where(near64 <= t_star, k_h, torch.zeros_like(near64))
             t_end = torch.where(valid, b, torch.full_like(b, -float("inf"))).max(1).values
             k_end = torch.ceil((t_end.double() - near64) / step - 0.5).clamp_min(0)
             all_lattice = k_end <= k_h + 1  # dt never exceeds step along the ray
@@ -964,6 +994,7 @@ def _upper_bound(keys: Tensor, base: Tensor, last: Tensor, values: Tensor) -> Te
 
 
 def _ray_of_items(spec: RaySegmentsSpec, n_items: int, device) -> Tensor:
+    """Ray id of every value of a (batched or flattened) RaySegmentsSpec, as the kernel finds it."""
     if spec.vals.dim() > 1:
         return _arange(n_items, device) // max(spec.vals.shape[-1], 1)
     if spec.ray_indices is not None:
@@ -972,6 +1003,7 @@ def _ray_of_items(spec: RaySegmentsSpec, n_items: int, device) -> Tensor:
 
 
 def _key_range(spec: RaySegmentsSpec, ray: Tensor) -> Tuple[Tensor, Tensor]:
+    """Flat index of the first and last value of ``ray`` in a (batched or flattened) spec."""
     if spec.vals.dim() > 1:
         e = spec.vals.shape[-1]
         base = ray * e
@@ -1069,7 +1101,8 @@ def importance_sampling(
         t0, t1 = tv[p0], tv[p1]
         denom = c1 - c0
         flat_seg = denom < 1e-10
-        t = torch.where(flat_seg, (t0 + t1) * 0.5, (u - c0) * ((t1 - t0) / torch.where(flat_seg, torch.ones_like(denom), denom)) + t0)
+        slope = (t1 - t0) / torch.where(flat_seg, torch.ones_like(denom), denom)
+        t = torch.where(flat_seg, (t0 + t1) * 0.5, (u - c0) * slope + t0)
     else:
         t = torch.zeros(0, dtype=dtype, device=device)
 
@@ -1130,14 +1163,18 @@ def opencv_lens_undistortion(uv: Tensor, params: Tensor, eps: float, max_iterati
         z = torch.zeros_like(params[..., :3])
         params = torch.cat([params, z], -1)  # {k1, k2, p1, p2, k3} -> {.., k3, k4=0, k5=0, k6=0}
     elif n != 8:
-        raise NotImplementedError(f"nerfacc_cpu: opencv_lens_undistortion with {n} parameters is not supported")
+        raise NotImplementedError(
+            f"nerfacc_cpu: opencv_lens_undistortion with {n} parameters is not supported"
+        )
     from nerfacc.cameras import _opencv_lens_undistortion  # pure torch, no CUDA
 
     return _opencv_lens_undistortion(uv, params, float(eps), int(max_iterations))
 
 
 @torch.no_grad()
-def opencv_lens_undistortion_fisheye(uv: Tensor, params: Tensor, criteria_eps: float, criteria_iters: int) -> Tensor:
+def opencv_lens_undistortion_fisheye(
+    uv: Tensor, params: Tensor, criteria_eps: float, criteria_iters: int
+) -> Tensor:
     """Replaces ``_C.opencv_lens_undistortion_fisheye``: solve
     ``theta * (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8) = theta_d`` (``theta_d = |uv|``,
     clipped to [-pi/2, pi/2]) by Newton's method in float64, then ``uv * tan(theta) / theta_d``."""
@@ -1160,7 +1197,8 @@ def opencv_lens_undistortion_fisheye(uv: Tensor, params: Tensor, criteria_eps: f
         converged = converged | newly
         done = done | newly
     small = theta_d.abs() <= criteria_eps
-    scale = torch.where(small, torch.zeros_like(theta), torch.tan(theta) / torch.where(small, torch.ones_like(theta_d), theta_d))
+    safe_theta_d = torch.where(small, torch.ones_like(theta_d), theta_d)
+    scale = torch.where(small, torch.zeros_like(theta), torch.tan(theta) / safe_theta_d)
     flipped = ((theta_d < 0) & (theta > 0)) | ((theta_d > 0) & (theta < 0))
     ok = (converged & ~flipped)[..., None]
     return torch.where(ok, uv * scale[..., None].to(uv.dtype), uv)
@@ -1170,6 +1208,7 @@ def opencv_lens_undistortion_fisheye(uv: Tensor, params: Tensor, criteria_eps: f
 # The backend object and its installation
 # --------------------------------------------------------------------------------------------
 def _make_backend() -> types.ModuleType:
+    """Build the ``_C`` stand-in module from the functions and classes above."""
     mod = types.ModuleType("nerfify_ns.runtime.nerfacc_cpu._C")
     mod.__doc__ = "Pure-torch stand-in for nerfacc's compiled extension (same attribute names as _C)."
     for name in (

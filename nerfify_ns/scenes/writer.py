@@ -142,30 +142,10 @@ def _install(tmp: Path, out: Path, overwrite: bool) -> None:
         trash.unlink()
 
 
-def write_scene(
-    name: str,
-    out: str | Path,
-    *,
-    resolution: int = 64,
-    n_train: int = 24,
-    n_val: int = 8,
-    n_test: int = 8,
-    seed: int = 0,
-    supersample: int = 2,
-    overwrite: bool = False,
-) -> Path:
-    """Render the catalog scene ``name`` into ``out``; see :func:`write_spec`."""
-    return write_spec(
-        scene_spec(name),
-        out,
-        resolution=resolution,
-        n_train=n_train,
-        n_val=n_val,
-        n_test=n_test,
-        seed=seed,
-        supersample=supersample,
-        overwrite=overwrite,
-    )
+def write_scene(name: str, out: str | Path, **settings: Any) -> Path:
+    """Render the catalog scene ``name`` into ``out``; keywords (resolution, view counts, seed,
+    supersample, overwrite) as for :func:`write_spec`."""
+    return write_spec(scene_spec(name), out, **settings)
 
 
 def write_spec(
