@@ -94,7 +94,8 @@ def test_install_registers_backend_and_is_idempotent():
     assert nc.backend.is_cub_available() is False
     for name in (
         "ray_aabb_intersect", "traverse_grids", "inclusive_sum", "exclusive_sum", "exclusive_sum_by_key",
-        "inclusive_prod_forward", "inclusive_prod_backward", "exclusive_prod_forward", "exclusive_prod_backward",
+        "inclusive_prod_forward", "inclusive_prod_backward",
+        "exclusive_prod_forward", "exclusive_prod_backward",
         "searchsorted", "importance_sampling", "RaySegmentsSpec", "RaysSpec", "MultiScaleGridSpec",
         "opencv_lens_undistortion", "opencv_lens_undistortion_fisheye",
     ):
@@ -195,7 +196,8 @@ def test_ray_aabb_intersect_empty_and_single():
     aabbs = torch.tensor([[-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]])
     t0, t1, hit = nerfacc.ray_aabb_intersect(torch.zeros(0, 3), torch.zeros(0, 3), aabbs)
     assert t0.shape == (0, 1) and hit.dtype == torch.bool
-    t0, t1, hit = nerfacc.ray_aabb_intersect(torch.tensor([[0.0, 0.0, -5.0]]), torch.tensor([[0.0, 0.0, 1.0]]), aabbs)
+    o, d = torch.tensor([[0.0, 0.0, -5.0]]), torch.tensor([[0.0, 0.0, 1.0]])
+    t0, t1, hit = nerfacc.ray_aabb_intersect(o, d, aabbs)
     assert hit.item() and t0.item() == pytest.approx(4.0) and t1.item() == pytest.approx(6.0)
 
 
@@ -213,7 +215,8 @@ def test_sum_scans_forward_backward(exclusive):
     pi = _packed(CNTS)
     x = torch.randn(sum(CNTS), generator=g)
     fn = nerfacc.exclusive_sum if exclusive else nerfacc.inclusive_sum
-    torch.testing.assert_close(fn(x, pi), _ref_scan(x, pi[:, 0], pi[:, 1], "sum", exclusive), atol=1e-5, rtol=0)
+    ref = _ref_scan(x, pi[:, 0], pi[:, 1], "sum", exclusive)
+    torch.testing.assert_close(fn(x, pi), ref, atol=1e-5, rtol=0)
     op = C.exclusive_sum if exclusive else C.inclusive_sum
     gy = torch.randn_like(x)
     back = op(pi[:, 0], pi[:, 1], gy, False, True)
@@ -236,7 +239,8 @@ def test_prod_scans_forward_backward(exclusive):
     pi = _packed(CNTS)
     x = torch.rand(sum(CNTS), generator=g) + 0.5
     fn = nerfacc.exclusive_prod if exclusive else nerfacc.inclusive_prod
-    torch.testing.assert_close(fn(x, pi), _ref_scan(x, pi[:, 0], pi[:, 1], "prod", exclusive), rtol=1e-5, atol=1e-6)
+    ref = _ref_scan(x, pi[:, 0], pi[:, 1], "prod", exclusive)
+    torch.testing.assert_close(fn(x, pi), ref, rtol=1e-5, atol=1e-6)
     xd = (torch.rand(sum(CNTS), dtype=torch.float64, generator=g) + 0.5).requires_grad_(True)
     assert torch.autograd.gradcheck(lambda v: fn(v, pi), (xd,), eps=1e-6, atol=1e-7)
     xr = xd.detach().clone().requires_grad_(True)
@@ -269,7 +273,8 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     torch.testing.assert_close(out[covered], ref[covered], atol=1e-6, rtol=0)
     assert (out[~covered] == 0).all()
     back = C.exclusive_sum(starts, cnts, x, False, True)  # backward = reverse exclusive scan
-    torch.testing.assert_close(back[covered], _ref_scan(x, starts, cnts, "sum", True, reverse=True)[covered], atol=1e-6, rtol=0)
+    ref_back = _ref_scan(x, starts, cnts, "sum", True, reverse=True)
+    torch.testing.assert_close(back[covered], ref_back[covered], atol=1e-6, rtol=0)
     xp = x + 0.5
     y = C.inclusive_prod_forward(starts, cnts, xp)
     torch.testing.assert_close(y[covered], _ref_scan(xp, starts, cnts, "prod")[covered], rtol=1e-5, atol=0)
@@ -280,7 +285,8 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
         for s, c in zip(starts.tolist(), cnts.tolist()):
             if c:
                 tot = x[s : s + c].sum()
-                torch.testing.assert_close(outn[s : s + c], _ref_scan(x, starts, cnts, "sum", excl)[s : s + c] / tot)
+                ref = _ref_scan(x, starts, cnts, "sum", excl)[s : s + c] / tot
+                torch.testing.assert_close(outn[s : s + c], ref)
     # inf / nan stay within their chunk
     y = torch.rand(12, generator=g)
     y[2] = float("inf")
@@ -339,7 +345,8 @@ def test_volrend_weights_transmittance_visibility_and_grads():
     # packed_info path gives the same, and gradcheck passes
     pi = nerfacc.pack_info(ri, n_rays)
     assert torch.autograd.gradcheck(
-        lambda s: nerfacc.render_weight_from_density(t0, t1, s, packed_info=pi)[0], (sig.detach().requires_grad_(True),)
+        lambda s: nerfacc.render_weight_from_density(t0, t1, s, packed_info=pi)[0],
+        (sig.detach().requires_grad_(True),),
     )
     # alpha based
     alphas = (1 - torch.exp(-sig.detach() * (t1 - t0))).requires_grad_(True)
@@ -347,12 +354,17 @@ def test_volrend_weights_transmittance_visibility_and_grads():
     torch.testing.assert_close(wa, rw.detach(), atol=1e-10, rtol=0)
     torch.testing.assert_close(Ta, rT.detach(), atol=1e-10, rtol=0)
     assert torch.autograd.gradcheck(
-        lambda al: nerfacc.render_weight_from_alpha(al, packed_info=pi)[0], (alphas.detach().clamp(0.05, 0.95).requires_grad_(True),)
+        lambda al: nerfacc.render_weight_from_alpha(al, packed_info=pi)[0],
+        (alphas.detach().clamp(0.05, 0.95).requires_grad_(True),),
     )
     # visibility = (T >= eps) & (alpha >= thre)
-    vis = nerfacc.render_visibility_from_density(t0, t1, sig.detach(), packed_info=pi, early_stop_eps=0.2, alpha_thre=0.1)
+    vis = nerfacc.render_visibility_from_density(
+        t0, t1, sig.detach(), packed_info=pi, early_stop_eps=0.2, alpha_thre=0.1
+    )
     assert torch.equal(vis, (rT.detach() >= 0.2) & (ra.detach() >= 0.1))
-    vis_a = nerfacc.render_visibility_from_alpha(alphas.detach(), ray_indices=ri, n_rays=n_rays, early_stop_eps=0.2)
+    vis_a = nerfacc.render_visibility_from_alpha(
+        alphas.detach(), ray_indices=ri, n_rays=n_rays, early_stop_eps=0.2
+    )
     assert torch.equal(vis_a, rT.detach() >= 0.2 - 1e-12)
     # accumulate
     rgb = torch.rand(n, 3, generator=g, dtype=torch.float64)
@@ -362,7 +374,8 @@ def test_volrend_weights_transmittance_visibility_and_grads():
 
 
 def test_transmittance_from_alpha_with_zero_rays():
-    w, T = nerfacc.render_weight_from_alpha(torch.zeros(0), ray_indices=torch.zeros(0, dtype=torch.long), n_rays=0)
+    no_rays = torch.zeros(0, dtype=torch.long)
+    w, T = nerfacc.render_weight_from_alpha(torch.zeros(0), ray_indices=no_rays, n_rays=0)
     assert w.shape == (0,) and T.shape == (0,)
 
 
@@ -503,11 +516,13 @@ def _check_traversal(o, d, binaries, aabbs, near, far, step, cone, atol=1e-9):
     for r in range(n_rays):
         got = torch.stack([starts[samples.ray_indices == r], ends[samples.ray_indices == r]], -1).tolist()
         ref = _ref_march_ray(
-            o[r].tolist(), d[r].tolist(), binaries.numpy(), aabbs.tolist(), float(near[r]), float(far[r]), step, cone
+            o[r].tolist(), d[r].tolist(), binaries.numpy(), aabbs.tolist(),
+            float(near[r]), float(far[r]), step, cone,
         )
         assert len(got) == len(ref), (r, len(got), len(ref))
         if ref:
-            torch.testing.assert_close(torch.tensor(got, dtype=torch.float64), torch.tensor(ref, dtype=torch.float64), atol=atol, rtol=0)
+            got_t = torch.tensor(got, dtype=torch.float64)
+            torch.testing.assert_close(got_t, torch.tensor(ref, dtype=torch.float64), atol=atol, rtol=0)
         # intervals: one left edge per run of adjacent samples, runs share edges
         e = intervals.vals[intervals.ray_indices == r]
         n_runs = sum(1 for i, s in enumerate(ref) if i == 0 or abs(ref[i - 1][1] - s[0]) > 1e-12)
@@ -560,7 +575,9 @@ def test_traverse_grids_non_cubic_grid(step, cone):
     """Resolution (8, 12, 5) and a non-cubic box: lattice, cone and per-cell marching."""
     g = torch.Generator().manual_seed(21)
     o, d = _random_rays(30, g, radius=2.5, spread=1.2)
-    aabbs = torch.tensor([[-1.0, -0.5, -1.5, 1.0, 1.5, 1.0], [-2.0, -1.5, -2.75, 2.0, 2.5, 2.25]], dtype=torch.float64)
+    aabbs = torch.tensor(
+        [[-1.0, -0.5, -1.5, 1.0, 1.5, 1.0], [-2.0, -1.5, -2.75, 2.0, 2.5, 2.25]], dtype=torch.float64
+    )
     binaries = torch.rand(2, 8, 12, 5, generator=g) < 0.45
     near = torch.zeros(30, dtype=torch.float64)
     far = torch.full((30,), 1e10, dtype=torch.float64)
@@ -576,16 +593,21 @@ def test_traverse_grids_float32_close_to_reference():
     aabbs = torch.tensor([[-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]])
     near = torch.zeros(20, dtype=torch.float64)
     far = torch.full((20,), 1e10, dtype=torch.float64)
-    intervals, samples = nerfacc.traverse_grids(o.float(), d.float(), binaries, aabbs, near.float(), far.float(), 0.02, 0.0)
+    intervals, samples = nerfacc.traverse_grids(
+        o.float(), d.float(), binaries, aabbs, near.float(), far.float(), 0.02, 0.0
+    )
     assert samples.vals.dtype == torch.float32
     starts = intervals.vals[intervals.is_left].double()
     for r in range(20):
-        ref = _ref_march_ray(o[r].tolist(), d[r].tolist(), binaries.numpy(), aabbs.double().tolist(), 0.0, 1e10, 0.02, 0.0)
+        ref = _ref_march_ray(
+            o[r].tolist(), d[r].tolist(), binaries.numpy(), aabbs.double().tolist(), 0.0, 1e10, 0.02, 0.0
+        )
         got = starts[samples.ray_indices == r]
         # a midpoint within float32 rounding of a cell face may flip: allow 1 mismatch per ray
         assert abs(len(got) - len(ref)) <= 1
         if ref and len(got) == len(ref):
-            torch.testing.assert_close(got, torch.tensor([s for s, _ in ref], dtype=torch.float64), atol=1e-4, rtol=0)
+            ref_starts = torch.tensor([s for s, _ in ref], dtype=torch.float64)
+            torch.testing.assert_close(got, ref_starts, atol=1e-4, rtol=0)
 
 
 def test_traverse_grids_empty_full_zero_rays_single_ray():
@@ -604,10 +626,11 @@ def test_traverse_grids_empty_full_zero_rays_single_ray():
     s0 = iv.vals[iv.is_left][:20]
     torch.testing.assert_close(s0[1:] - s0[:-1], torch.full((19,), 0.1), atol=1e-5, rtol=0)
     # zero rays
-    iv, sp = nerfacc.traverse_grids(torch.zeros(0, 3), torch.zeros(0, 3), torch.ones(1, 8, 8, 8, dtype=torch.bool), aabbs)
+    full = torch.ones(1, 8, 8, 8, dtype=torch.bool)
+    iv, sp = nerfacc.traverse_grids(torch.zeros(0, 3), torch.zeros(0, 3), full, aabbs)
     assert sp.vals.shape == (0,) and sp.packed_info.shape == (0, 2) and iv.packed_info.shape == (0, 2)
     # single ray, cone_angle > 0
-    iv, sp = nerfacc.traverse_grids(o[:1], d[:1], torch.ones(1, 8, 8, 8, dtype=torch.bool), aabbs, step_size=0.01, cone_angle=0.01)
+    iv, sp = nerfacc.traverse_grids(o[:1], d[:1], full, aabbs, step_size=0.01, cone_angle=0.01)
     t = iv.vals
     assert sp.vals.numel() > 0 and bool((t[1:] > t[:-1]).all())
     dt = t[1:] - t[:-1]
@@ -640,12 +663,15 @@ def test_occgrid_sampling_render_matches_per_ray_reference():
     def sigma_fn(t0, t1, ri):
         return density(o[ri] + d[ri] * ((t0 + t1) / 2)[:, None])
 
-    ri, t0, t1 = est.sampling(o, d, sigma_fn=sigma_fn, render_step_size=step, early_stop_eps=eps, near_plane=0.0)
+    ri, t0, t1 = est.sampling(
+        o, d, sigma_fn=sigma_fn, render_step_size=step, early_stop_eps=eps, near_plane=0.0
+    )
     x = o[ri] + d[ri] * ((t0 + t1) / 2)[:, None]
     w, _, _ = nerfacc.render_weight_from_density(t0, t1, density(x), ray_indices=ri, n_rays=n)
     rgb = nerfacc.accumulate_along_rays(w, colour(x), ri, n)
     for r in range(n):
-        samples = _ref_march_ray(o[r].tolist(), d[r].tolist(), est.binaries.numpy(), est.aabbs.double().tolist(), 0.0, 1e10, step, 0.0)
+        grid, boxes = est.binaries.numpy(), est.aabbs.double().tolist()
+        samples = _ref_march_ray(o[r].tolist(), d[r].tolist(), grid, boxes, 0.0, 1e10, step, 0.0)
         acc, col = 0.0, torch.zeros(3, dtype=torch.float64)
         for s0, s1 in samples:
             p = o[r] + d[r] * (s0 + s1) / 2
@@ -667,7 +693,8 @@ def test_occgrid_update_every_n_steps_runs():
     assert est.binaries.any() and not est.binaries.all()
     est.update_every_n_steps(step=5, occ_eval_fn=occ_fn, warmup_steps=2, n=1)  # sampled-cells path
     assert torch.isfinite(est.occs).all()
-    ri, t0, t1 = est.sampling(torch.tensor([[0.0, 0.0, -3.0]]), torch.tensor([[0.0, 0.0, 1.0]]), render_step_size=0.05)
+    o, d = torch.tensor([[0.0, 0.0, -3.0]]), torch.tensor([[0.0, 0.0, 1.0]])
+    ri, t0, t1 = est.sampling(o, d, render_step_size=0.05)
     assert t0.numel() > 0 and ((t0 + t1) / 2 > 2.4).all() and ((t0 + t1) / 2 < 3.6).all()
 
 
@@ -693,7 +720,9 @@ def test_searchsorted_batched_and_flattened():
     kc, qc = [3, 5, 1], [2, 4, 3]
     kf = torch.cat([torch.sort(torch.rand(c, generator=g)).values for c in kc])
     qf = torch.rand(sum(qc), generator=g)
-    il, ir = nerfacc.searchsorted(RayIntervals(vals=kf, packed_info=_packed(kc)), RayIntervals(vals=qf, packed_info=_packed(qc)))
+    il, ir = nerfacc.searchsorted(
+        RayIntervals(vals=kf, packed_info=_packed(kc)), RayIntervals(vals=qf, packed_info=_packed(qc))
+    )
     ks = _packed(kc)[:, 0].tolist()
     qi = 0
     for r, c in enumerate(qc):
@@ -726,7 +755,8 @@ def test_importance_sampling_int_and_tensor_counts():
     tv = torch.sort(torch.rand(3, 7, generator=g, dtype=torch.float64), -1).values
     w = torch.rand(3, 6, generator=g, dtype=torch.float64)
     w[1, 2:4] = 0  # flat CDF pieces
-    cdf = torch.cat([torch.zeros(3, 1, dtype=torch.float64), torch.cumsum(w, -1) / w.sum(-1, keepdim=True)], -1)
+    cdf = torch.cumsum(w, -1) / w.sum(-1, keepdim=True)
+    cdf = torch.cat([torch.zeros(3, 1, dtype=torch.float64), cdf], -1)
     iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv), cdf, 5, stratified=False)
     assert sp.vals.shape == (3, 5) and iv.vals.shape == (3, 6)
     for r in range(3):
@@ -739,8 +769,9 @@ def test_importance_sampling_int_and_tensor_counts():
     assert sp.packed_info[:, 1].tolist() == [4, 0, 3] and iv.packed_info[:, 1].tolist() == [5, 0, 4]
     for r in (0, 2):
         s, e = _ref_importance(tv[r].tolist(), cdf[r].tolist(), int(cnt[r]))
-        torch.testing.assert_close(sp.vals[sp.ray_indices == r], torch.tensor(s, dtype=torch.float64), atol=1e-12, rtol=0)
-        torch.testing.assert_close(iv.vals[iv.ray_indices == r], torch.tensor(e, dtype=torch.float64), atol=1e-12, rtol=0)
+        s, e = torch.tensor(s, dtype=torch.float64), torch.tensor(e, dtype=torch.float64)
+        torch.testing.assert_close(sp.vals[sp.ray_indices == r], s, atol=1e-12, rtol=0)
+        torch.testing.assert_close(iv.vals[iv.ray_indices == r], e, atol=1e-12, rtol=0)
     assert iv.is_left.sum() == 7 and iv.is_right.sum() == 7
     # flattened input intervals with an int count -> batched outputs
     ec = [7, 4, 6]
@@ -762,7 +793,9 @@ def test_importance_sampling_int_and_tensor_counts():
 def test_prop_net_estimator_sampling_runs():
     est = nerfacc.PropNetEstimator()
     fn = lambda t0, t1: torch.exp(-((t0 + t1) / 2 - 3.0) ** 2) * 5  # noqa: E731
-    t0, t1 = est.sampling([fn, fn], [32, 16], 8, n_rays=5, near_plane=0.5, far_plane=6.0, stratified=True, requires_grad=True)
+    t0, t1 = est.sampling(
+        [fn, fn], [32, 16], 8, n_rays=5, near_plane=0.5, far_plane=6.0, stratified=True, requires_grad=True
+    )
     assert t0.shape == (5, 8) and bool((t1 >= t0).all())
     trans, _ = nerfacc.render_transmittance_from_density(t0, t1, fn(t0, t1))
     loss = est.compute_loss(trans)
