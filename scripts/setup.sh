@@ -23,6 +23,10 @@ $PIP install --quiet --upgrade pip
 $PIP install --quiet torch==2.14.1 torchvision==0.29.1
 extra=""; [ "$dev" = 1 ] && extra="[dev]"
 $PIP install --quiet -c constraints.txt -e ".${extra}"
+# The fused CPU hash-grid kernel is compiled here, at setup, never while training; without it the
+# runtime uses its pure-torch hash grid.
+.venv/bin/python -m nerfify_ns.runtime.hashgrid_ext build \
+  || echo "warning: the C++ hash-grid kernel did not build; the pure-torch hash grid will be used" >&2
 if [ "$lpips" = 1 ]; then
   .venv/bin/ns-nerfify lpips-weights
 fi

@@ -11,6 +11,12 @@ from nerfify_ns.runtime.hashgrid import corner_indices, corner_weights, fast_pyt
 STOCK = HashEncoding.__dict__["pytorch_fwd"]  # captured before any runtime patch can replace it
 
 
+@pytest.fixture(autouse=True)
+def torch_path(monkeypatch):
+    """These tests cover the pure-torch path; tests/test_hashgrid_ext.py covers the C++ kernel."""
+    monkeypatch.setenv("NERFIFY_HASHGRID_IMPL", "torch")
+
+
 def make_encoding(levels=16, log2_size=19, features=2, max_res=2048, dtype=torch.float32, seed=0):
     torch.manual_seed(seed)
     enc = HashEncoding(num_levels=levels, log2_hashmap_size=log2_size, features_per_level=features,

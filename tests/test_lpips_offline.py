@@ -48,6 +48,14 @@ def test_wrong_shapes_are_rejected(no_lpips_weights, tmp_path):
         lpips.OfflineLPIPS()
 
 
+def test_none_switches_lpips_off_even_with_weights(no_lpips_weights, monkeypatch):
+    hub = Path(torch.hub.get_dir()) / "checkpoints"
+    hub.mkdir(parents=True)
+    (hub / lpips.TORCHVISION_ALEXNET_FILE).write_bytes(b"x")
+    monkeypatch.setenv(lpips.ENV_WEIGHTS, "none")
+    assert lpips.find_lpips_weights() is None and not lpips.lpips_available()
+
+
 def test_hub_cache_file_is_found(no_lpips_weights):
     hub = Path(torch.hub.get_dir()) / "checkpoints"
     hub.mkdir(parents=True)

@@ -13,8 +13,7 @@ from nerfify_ns.runtime.launch import ns_eval, ns_train, offline_prefix
 
 from conftest import installed_lpips_weights
 
-NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "", "NERFIFY_CACHE": "/nonexistent-nerfify-cache",
-                  "TORCH_HOME": "/nonexistent-torch-home"}
+NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "none"}
 
 pytestmark = pytest.mark.slow
 

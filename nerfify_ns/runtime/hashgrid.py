@@ -19,14 +19,24 @@ hash and level offsets), so checkpoints are interchangeable with the stock torch
 gradients match it to float rounding (``tests/test_hashgrid.py``). One documented difference: at
 a position lying exactly on a grid plane the stock path (``ceil == floor``) reports a zero
 derivative across that plane; this one reports the right-sided derivative.
+
+On the CPU a fused C++ kernel (``csrc/hashgrid_cpu.cpp``, :mod:`nerfify_ns.runtime.hashgrid_ext`)
+does the same in one pass per direction (hash, gather and interpolate; recomputed rows, race-free
+scatter and the analytic position gradient in backward). It is compiled at setup time only
+(``python -m nerfify_ns.runtime.hashgrid_ext build``); :func:`hash_encode` uses it for float32/float64
+CPU tensors whenever it is built, else this torch path. ``NERFIFY_HASHGRID_IMPL`` = ``auto`` (default),
+``torch`` or ``cpp`` forces a choice; ``cpp`` raises a RuntimeError when the kernel cannot be used.
 """
 
 from __future__ import annotations
 
+import os
 from typing import List, Optional, Tuple
 
 import torch
 from torch import Tensor
+
+from nerfify_ns.runtime import hashgrid_ext
 
 # Instant-NGP's spatial hash primes, as Nerfstudio's torch fallback uses them.
 PRIMES = (1, 2654435761, 805459861)
@@ -145,11 +155,38 @@ class HashGridFunction(torch.autograd.Function):
         return grad_pos, grad_table, None, None
 
 
+ENV_IMPL = "NERFIFY_HASHGRID_IMPL"
+IMPLS = ("auto", "torch", "cpp")
+
+
+def _use_cpp(positions: Tensor, table: Tensor) -> bool:
+    """Whether :func:`hash_encode` runs the C++ kernel, per ``NERFIFY_HASHGRID_IMPL`` and the tensors."""
+    impl = os.environ.get(ENV_IMPL, "auto").strip().lower() or "auto"
+    if impl not in IMPLS:
+        raise ValueError(f"{ENV_IMPL}={impl!r}: expected one of {', '.join(IMPLS)}")
+    if impl == "torch":
+        return False
+    eligible = (positions.device.type == "cpu" and table.device.type == "cpu"
+                and positions.dtype == table.dtype and positions.dtype in (torch.float32, torch.float64))
+    if impl == "auto":
+        return eligible and hashgrid_ext.load() is not None
+    if not eligible:
+        raise RuntimeError(f"{ENV_IMPL}=cpp: the C++ hash-grid kernel takes CPU float32/float64 tensors "
+                           f"of one dtype, got positions {positions.dtype} on {positions.device}, "
+                           f"table {table.dtype} on {table.device}")
+    hashgrid_ext.require()  # RuntimeError saying how to build when it is not available
+    return True
+
+
 def hash_encode(positions: Tensor, table: Tensor, scalings: Tensor, table_size: int) -> Tensor:
     """Encode ``positions`` ``[..., 3]`` with the hash ``table`` ``[L * T, F]`` -> ``[..., L * F]``."""
     levels = scalings.shape[0]
     flat = positions.reshape(-1, 3)
-    out = HashGridFunction.apply(flat, table, scalings.to(positions), table_size)
+    if _use_cpp(flat, table):
+        cpp_fn = hashgrid_ext.HashGridCppFunction
+        out = cpp_fn.apply(flat.contiguous(), table, scalings.to(positions), table_size)
+    else:
+        out = HashGridFunction.apply(flat, table, scalings.to(positions), table_size)
     return out.reshape(*positions.shape[:-1], levels * table.shape[1])
 
 

@@ -152,7 +152,8 @@ class HashGridCppFunction(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, positions: Tensor, table: Tensor, scalings: Tensor, table_size: int):  # type: ignore[override]
+    def forward(ctx, positions: Tensor, table: Tensor, scalings: Tensor,  # type: ignore[override]
+                table_size: int):
         module = require()
         positions = positions.detach().contiguous()
         table_d = table.detach()
@@ -166,8 +167,8 @@ class HashGridCppFunction(torch.autograd.Function):
     def backward(ctx, grad_out: Tensor):  # type: ignore[override]
         positions, table, scalings = ctx.saved_tensors
         need_pos, need_table = bool(ctx.needs_input_grad[0]), bool(ctx.needs_input_grad[1])
-        grad_table, grad_pos = require().backward(grad_out.contiguous(), positions, table, scalings, ctx.table_size,
-                                                  need_table, need_pos)
+        grad_table, grad_pos = require().backward(grad_out.contiguous(), positions, table, scalings,
+                                                  ctx.table_size, need_table, need_pos)
         return (grad_pos if need_pos else None), (grad_table if need_table else None), None, None
 
 

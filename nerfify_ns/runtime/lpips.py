@@ -6,7 +6,7 @@ CVPR 2018) needs ImageNet AlexNet features. torchmetrics builds them with
 Nerfstudio model offline. Here the AlexNet features come from a local file only:
 
 1. the path given to :func:`set_lpips_weights` (``--lpips-weights``),
-2. the ``NERFIFY_LPIPS_WEIGHTS`` environment variable,
+2. the ``NERFIFY_LPIPS_WEIGHTS`` environment variable (``none`` turns LPIPS off),
 3. torchvision's own file in the torch hub cache (``alexnet-owt-7be5be79.pth``),
 4. the file written by ``ns-nerfify lpips-weights`` (see :mod:`nerfify_ns.runtime.lpips_weights`).
 
@@ -80,15 +80,21 @@ def candidate_weight_paths() -> list[Path]:
     paths = []
     if _explicit_path is not None:
         paths.append(_explicit_path)
-    if os.environ.get(ENV_WEIGHTS):
+    if os.environ.get(ENV_WEIGHTS) and os.environ[ENV_WEIGHTS].lower() not in DISABLED:
         paths.append(Path(os.environ[ENV_WEIGHTS]))
     paths.append(Path(torch.hub.get_dir()) / "checkpoints" / TORCHVISION_ALEXNET_FILE)
     paths.append(nerfify_cache_dir() / "lpips" / CONVERTED_ALEXNET_FILE)
     return paths
 
 
+DISABLED = {"none", "off"}
+
+
 def find_lpips_weights() -> Optional[Path]:
-    """The first existing weights file, or None. An explicitly named but missing file is an error."""
+    """The first existing weights file, or None. An explicitly named but missing file is an error;
+    ``NERFIFY_LPIPS_WEIGHTS=none`` turns LPIPS off even where weights exist."""
+    if os.environ.get(ENV_WEIGHTS, "").strip().lower() in DISABLED and _explicit_path is None:
+        return None
     explicit = _explicit_path or (Path(os.environ[ENV_WEIGHTS]) if os.environ.get(ENV_WEIGHTS) else None)
     if explicit is not None and not explicit.is_file():
         raise LPIPSWeightsError(f"LPIPS weights file {explicit} does not exist; fix the path or unset {ENV_WEIGHTS}")
