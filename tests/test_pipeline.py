@@ -1,0 +1,59 @@
+"""The demo flow's output handling: atomic folders and one-line errors, nothing half-written."""
+
+import subprocess
+import sys
+
+import pytest
+
+from nerfify_ns.evaluate.smoke import SmokeTrainError
+from nerfify_ns.pipeline import OutputExistsError, atomic_output, run_demo
+
+
+def test_atomic_output_appears_only_on_success(tmp_path):
+    out = tmp_path / "out"
+    with atomic_output(out) as staging:
+        (staging / "a.txt").write_text("x")
+        assert not out.exists()
+    assert (out / "a.txt").read_text() == "x"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_atomic_output_leaves_nothing_on_failure(tmp_path):
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        with atomic_output(out) as staging:
+            (staging / "half.txt").write_text("x")
+            raise RuntimeError("boom")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_non_empty_output_is_refused_unless_overwrite(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("precious")
+    with pytest.raises(OutputExistsError, match="--overwrite"):
+        with atomic_output(out):
+            pass
+    assert (out / "keep.txt").read_text() == "precious"
+    with atomic_output(out, overwrite=True) as staging:
+        (staging / "new.txt").write_text("y")
+    assert [p.name for p in out.iterdir()] == ["new.txt"]
+
+
+def test_failed_training_keeps_the_log_and_writes_no_output(tiny_scene, tmp_path):
+    out = tmp_path / "demo"
+    with pytest.raises(SmokeTrainError) as err:
+        run_demo(out, method="no-such-method", data=tiny_scene, iterations=2)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert err.value.log_path.exists() and "no-such-method" in err.value.log_path.read_text()
+
+
+def test_cli_reports_one_line_and_exit_code(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "x").write_text("x")
+    proc = subprocess.run([sys.executable, "-m", "nerfify_ns.cli", "demo", "--out", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "--overwrite" in lines[0]
