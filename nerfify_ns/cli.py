@@ -14,7 +14,6 @@ from rich.table import Table
 from typing_extensions import Annotated
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.runtime.errors import RuntimeLayerError
 
 CONSOLE = Console(width=120)
 
@@ -153,7 +152,7 @@ def entrypoint() -> None:
     command = tyro.cli(Commands, description="nerfify-ns: NeRF papers to verified Nerfstudio methods.")
     try:
         command.main()
-    except (NerfifyError, RuntimeLayerError) as exc:
+    except NerfifyError as exc:
         CONSOLE.print(f"[bold red]error:[/bold red] {exc}", soft_wrap=True)
         sys.exit(2)
 

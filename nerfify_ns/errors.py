@@ -1,4 +1,7 @@
-"""The root of nerfify-ns' typed exceptions: the CLI turns any of them into a one-line message."""
+"""The root of nerfify-ns' typed exceptions: the CLI turns any of them into a one-line message.
+
+A leaf module (imports nothing), so every package, the leaf ones included, can derive from it.
+"""
 
 
 class NerfifyError(Exception):

@@ -57,3 +57,12 @@ def test_cli_reports_one_line_and_exit_code(tmp_path):
     assert proc.returncode == 2
     lines = [line for line in proc.stdout.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and "--overwrite" in lines[0]
+
+
+def test_cli_unknown_scene_is_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "nerfify_ns.cli", "scene", "no-such-scene", str(tmp_path / "s")],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    lines = [line for line in proc.stdout.splitlines() if line.strip()]
+    assert len(lines) == 1 and "unknown scene 'no-such-scene'" in lines[0] and "default" in lines[0]
+    assert not (tmp_path / "s").exists()

@@ -1,7 +1,9 @@
 """Typed exceptions of the CPU/offline runtime layer."""
 
+from nerfify_ns.errors import NerfifyError
 
-class RuntimeLayerError(RuntimeError):
+
+class RuntimeLayerError(NerfifyError, RuntimeError):
     """Base class for errors raised by :mod:`nerfify_ns.runtime`."""
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from nerfify_ns.errors import NerfifyError
 
-class SceneError(Exception):
+
+class SceneError(NerfifyError):
     """Base class of every error raised by :mod:`nerfify_ns.scenes`."""
 
 
