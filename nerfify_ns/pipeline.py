@@ -9,38 +9,15 @@ from __future__ import annotations
 
 import shutil
 import tempfile
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator, Optional
+from typing import Callable, Optional
 
-from nerfify_ns.errors import NerfifyError
+from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
 from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.scenes import write_scene
 
 Progress = Callable[[str], None]
-
-
-class OutputExistsError(NerfifyError):
-    """The output folder exists and holds something; we never write into it half-way."""
-
-
-@contextmanager
-def atomic_output(out: Path, overwrite: bool = False) -> Iterator[Path]:
-    """Yield a temporary sibling folder that becomes ``out`` only if the block succeeds."""
-    out = Path(out).resolve()
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise OutputExistsError(f"output folder {out} is not empty; pass --overwrite or choose another folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    try:
-        yield staging
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    if out.exists():
-        shutil.rmtree(out)
-    staging.rename(out)
 
 
 @dataclass
@@ -61,7 +38,7 @@ def run_demo(
     progress: Progress = lambda stage: None,
 ) -> DemoResult:
     """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
-    with atomic_output(out, overwrite) as staging:
+    with atomic_dir(out, overwrite) as staging:
         if data is None:
             progress(f"rendering scene '{scene}'")
             data = write_scene(scene, staging / "scene")
@@ -72,7 +49,7 @@ def run_demo(
             kept = Path(tempfile.gettempdir()) / f"nerfify-{method}-failed.log"
             shutil.copy(exc.log_path, kept)
             raise SmokeTrainError(f"{exc.args[0].split('; see')[0]}; see the log {kept}", kept) from None
-    final = Path(out).resolve()
+    final = Path(out).absolute()
     scene_path = final / "scene" if data.is_relative_to(staging) else data
     _rebase(result, staging, final)
     return DemoResult(out=final, scene=scene_path, smoke=result)

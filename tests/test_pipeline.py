@@ -6,22 +6,23 @@ import sys
 import pytest
 
 from nerfify_ns.evaluate.smoke import SmokeTrainError
-from nerfify_ns.pipeline import OutputExistsError, atomic_output, run_demo
+from nerfify_ns.atomic import OutputExistsError, atomic_dir
+from nerfify_ns.pipeline import run_demo
 
 
-def test_atomic_output_appears_only_on_success(tmp_path):
+def test_atomic_dir_appears_only_on_success(tmp_path):
     out = tmp_path / "out"
-    with atomic_output(out) as staging:
+    with atomic_dir(out) as staging:
         (staging / "a.txt").write_text("x")
         assert not out.exists()
     assert (out / "a.txt").read_text() == "x"
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 
 
-def test_atomic_output_leaves_nothing_on_failure(tmp_path):
+def test_atomic_dir_leaves_nothing_on_failure(tmp_path):
     out = tmp_path / "out"
     with pytest.raises(RuntimeError):
-        with atomic_output(out) as staging:
+        with atomic_dir(out) as staging:
             (staging / "half.txt").write_text("x")
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
@@ -32,10 +33,10 @@ def test_non_empty_output_is_refused_unless_overwrite(tmp_path):
     out.mkdir()
     (out / "keep.txt").write_text("precious")
     with pytest.raises(OutputExistsError, match="--overwrite"):
-        with atomic_output(out):
+        with atomic_dir(out):
             pass
     assert (out / "keep.txt").read_text() == "precious"
-    with atomic_output(out, overwrite=True) as staging:
+    with atomic_dir(out, overwrite=True) as staging:
         (staging / "new.txt").write_text("y")
     assert [p.name for p in out.iterdir()] == ["new.txt"]
 

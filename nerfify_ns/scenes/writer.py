@@ -22,9 +22,6 @@ rendering the scaled geometry would give.
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +30,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from PIL import Image
+
+from nerfify_ns.atomic import atomic_dir, check_target
 
 from .cameras import SPLITS, Rig, focal_length, pixel_rays
 from .catalog import resolve_spec, scene_spec
@@ -118,30 +117,6 @@ class _Stats:
             self.depth_max = max(self.depth_max, float(finite.max()))
 
 
-def _check_target(out: Path, overwrite: bool) -> None:
-    if out.exists() and not overwrite and (not out.is_dir() or any(out.iterdir())):
-        raise SceneExistsError(f"{out} exists and is not empty; pass overwrite=True to replace it")
-
-
-def _install(tmp: Path, out: Path, overwrite: bool) -> None:
-    """Move the finished temporary folder to ``out``, replacing an old one if allowed."""
-    _check_target(out, overwrite)
-    if not out.exists():
-        tmp.rename(out)
-        return
-    trash = out.with_name(f".{out.name}.old-{uuid.uuid4().hex[:8]}")
-    out.rename(trash)
-    try:
-        tmp.rename(out)
-    except BaseException:
-        trash.rename(out)  # put the old scene back
-        raise
-    if trash.is_dir():
-        shutil.rmtree(trash)
-    else:
-        trash.unlink()
-
-
 def write_scene(name: str, out: str | Path, **settings: Any) -> Path:
     """Render the catalog scene ``name`` into ``out``; keywords (resolution, view counts, seed,
     supersample, overwrite) as for :func:`write_spec`."""
@@ -169,19 +144,12 @@ def write_spec(
     if resolution < 1 or supersample < 1 or min(n_train, n_val, n_test) < 0:
         raise ValueError("resolution and supersample must be >= 1 and view counts >= 0")
     out = Path(out).absolute()
-    _check_target(out, overwrite)
+    check_target(out, overwrite, SceneExistsError)
     resolved = resolve_spec(spec, name=spec.get("name"))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
-    tmp.mkdir()
-    try:
+    with atomic_dir(out, overwrite, SceneExistsError) as tmp:
         _render_into(
             tmp, resolved, resolution, {"train": n_train, "val": n_val, "test": n_test}, seed, supersample
         )
-        _install(tmp, out, overwrite)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 
