@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,7 +53,6 @@ class Demo:
                               iterations=self.iterations, overwrite=self.overwrite,
                               progress=lambda stage: status.update(f"[bold yellow]{stage}"))
         summary = result.smoke.summary()
-        (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
         table = Table(title=f"{self.method} on the CPU, {summary['iterations']} iterations")
         table.add_column("metric")
         table.add_column("value")

@@ -21,9 +21,13 @@ from nerfify_ns.runtime.launch import TrainRun, ns_eval, ns_train
 class SmokeTrainError(NerfifyError):
     """A smoke run did not reach its iterations with finite losses."""
 
-    def __init__(self, message: str, log_path: Path) -> None:
-        super().__init__(message)
-        self.log_path = log_path
+    def __init__(self, method: str, reason: str, log_path: Path) -> None:
+        super().__init__(f"smoke training of {method} failed ({reason}); see the log {log_path}")
+        self.method, self.reason, self.log_path = method, reason, log_path
+
+    def with_log(self, log_path: Path) -> "SmokeTrainError":
+        """The same failure, pointing at a copy of its log kept elsewhere."""
+        return SmokeTrainError(self.method, self.reason, log_path)
 
 
 @lru_cache(maxsize=1)
@@ -72,6 +76,6 @@ def smoke_train(
                    method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout)
     if not run.ok or run.last_step + 1 < iterations:
         reason = "timed out" if run.timed_out else f"exit code {run.returncode}, reached step {run.last_step}"
-        raise SmokeTrainError(f"smoke training of {method} failed ({reason}); see the log {run.log_path}", run.log_path)
+        raise SmokeTrainError(method, reason, run.log_path)
     metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=timeout) if evaluate else None
     return SmokeResult(run=run, metrics=metrics)
