@@ -1,11 +1,15 @@
 """The ``nerfify-generated`` method: what ``ns-train nerfify-generated`` trains.
 
-Until a plugin has been generated, it is a CPU-sized Nerfacto (Barron-style proposal sampling and a
-hash grid cut down to a small bounded scene: 8 levels, 2^15 table, fewer samples, no scene
-contraction), the configuration our smoke training uses.
+It is the plugin generated last (or the folder named by $NERFIFY_GENERATED), imported from its
+folder, so a user can train it without installing it. Before any plugin exists, or when the
+recorded one cannot be imported, it is a CPU-sized Nerfacto (proposal sampling and a hash grid
+cut down to a small bounded scene), the configuration our smoke training uses, and a warning says why.
 """
 
 from __future__ import annotations
+
+import copy
+import sys
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
@@ -19,6 +23,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from nerfify_ns.runtime import default_device_type
+from nerfify_ns.synthesis.registry import GeneratedPluginError, generated_plugin_dir, load_plugin_method
 
 METHOD_NAME = "nerfify-generated"
 
@@ -69,9 +74,22 @@ def cpu_nerfacto_config(method_name: str = METHOD_NAME) -> TrainerConfig:
     )
 
 
+def _fallback(reason: str) -> MethodSpecification:
+    return MethodSpecification(config=cpu_nerfacto_config(),
+                               description=f"nerfify: {reason}; until then a CPU-sized nerfacto")
+
+
 def generated_method() -> MethodSpecification:
     """The method ``ns-train nerfify-generated`` resolves to."""
-    return MethodSpecification(
-        config=cpu_nerfacto_config(),
-        description="nerfify: the plugin generated last (until one is generated: a CPU-sized nerfacto)",
-    )
+    plugin = generated_plugin_dir()
+    if plugin is None:
+        return _fallback("no plugin generated yet (ns-nerfify compose / ns-nerfify PAPER)")
+    try:
+        spec = load_plugin_method(plugin)
+    except GeneratedPluginError as exc:
+        print(f"nerfify-generated: {exc}", file=sys.stderr)
+        return _fallback(f"the plugin in {plugin} cannot be loaded")
+    config = copy.deepcopy(spec.config)
+    config.method_name = METHOD_NAME
+    config.machine.device_type = default_device_type()
+    return MethodSpecification(config=config, description=f"nerfify: the plugin generated last ({plugin})")

@@ -1,0 +1,328 @@
+"""Held-out PSNR against training time, measured without disturbing the run being timed.
+
+1. Train with Nerfstudio's ``ns-train`` saving a checkpoint every ``every`` steps
+   (``--steps-per-save K --save-only-latest-checkpoint False``) and in-training evaluation off
+   (``--steps-per-eval-* 0``).
+2. Training seconds come from the run's own tensorboard events: the per-iteration
+   ``Train Iter (time)`` (Nerfstudio's timer around one training iteration, so checkpoint
+   writing and logging are excluded), summed up to each checkpoint's step. Nerfstudio logs a
+   running mean over ``logging.max_buffer_size`` steps; we log with a buffer of 1 and undo the
+   mean otherwise.
+3. Afterwards ONE subprocess (:mod:`nerfify_ns.evaluate.render_views`, with a time limit) loads
+   the config once and renders the eval split at every checkpoint; PSNR is the mean of per-image
+   PSNRs against white-composited ground truth. Its time is reported apart (``eval_seconds``).
+
+``curve.csv`` columns: ``label, step, train_seconds, psnr, loss`` where ``step`` is the number of
+iterations done (checkpoint step + 1) and ``loss`` the mean train loss over the steps since the
+previous checkpoint.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Sequence, Union
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.runtime.launch import TrainRun, _run, ns_train, offline_prefix
+
+CURVE_COLUMNS = ("label", "step", "train_seconds", "psnr", "loss")
+ITER_TIME_TAG = "Train Iter (time)"
+LOSS_TAG = "Train Loss"
+
+
+class CurveError(NerfifyError):
+    """A run could not be turned into a PSNR-against-time curve."""
+
+
+@dataclass(frozen=True)
+class CurvePoint:
+    label: str
+    step: int  # iterations done
+    train_seconds: float
+    psnr: float
+    loss: Optional[float]
+
+
+@dataclass
+class Curve:
+    points: List[CurvePoint]
+    eval_seconds: float = 0.0  # the evaluation subprocess, measured apart from training
+    train_wall_seconds: float = 0.0  # the whole ns-train process (startup included)
+    csv_path: Optional[Path] = None
+    checkpoints: List[Path] = field(default_factory=list)
+
+
+def curve_train_args(every: int) -> List[str]:
+    """ns-train arguments: keep a checkpoint every ``every`` steps, no evaluation while training,
+    raw (unaveraged) iteration times in the events."""
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
+    return [
+        "--steps-per-save",
+        str(every),
+        "--save-only-latest-checkpoint",
+        "False",
+        "--steps-per-eval-batch",
+        "0",
+        "--steps-per-eval-image",
+        "0",
+        "--steps-per-eval-all-images",
+        "0",
+        "--logging.max-buffer-size",
+        "1",
+    ]
+
+
+def train_for_curve(
+    method: str,
+    data: Path,
+    out_dir: Path,
+    *,
+    iterations: int,
+    every: int,
+    method_args: Sequence[str] = (),
+    timeout: float = 900,
+    env: Optional[dict] = None,
+) -> TrainRun:
+    """``ns_train`` with :func:`curve_train_args` appended to ``method_args``."""
+    return ns_train(
+        method,
+        data,
+        out_dir,
+        iterations=iterations,
+        method_args=[*method_args, *curve_train_args(every)],
+        timeout=timeout,
+        env=env,
+    )
+
+
+def _scalars(run_dir: Path, tag: str) -> Dict[int, float]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    values: Dict[int, float] = {}
+    for events in sorted(Path(run_dir).glob("events.out.tfevents.*")):
+        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
+        acc.Reload()
+        if tag in acc.Tags().get("scalars", []):
+            values.update({e.step: float(e.value) for e in acc.Scalars(tag)})
+    return values
+
+
+def _buffer_size(run_dir: Path) -> int:
+    config = Path(run_dir) / "config.yml"
+    match = re.search(r"max_buffer_size:\s*(\d+)", config.read_text()) if config.exists() else None
+    return int(match.group(1)) if match else 20
+
+
+def undo_running_mean(means: Dict[int, float], buffer: int) -> Dict[int, float]:
+    """Per-step values from Nerfstudio's running mean over the last ``buffer`` steps (steps 0..n)."""
+    durations: Dict[int, float] = {}
+    for step in sorted(means):
+        n = min(step + 1, buffer)
+        earlier = sum(durations.get(s, 0.0) for s in range(step - n + 1, step))
+        durations[step] = max(0.0, n * means[step] - earlier)
+    return durations
+
+
+def step_seconds(run_dir: Path) -> Dict[int, float]:
+    """Cumulative training seconds at the end of each step, from the run's events."""
+    means = _scalars(run_dir, ITER_TIME_TAG)
+    if not means:
+        raise CurveError(f"no '{ITER_TIME_TAG}' events in {run_dir}")
+    durations = undo_running_mean(means, _buffer_size(run_dir))
+    total, cumulative = 0.0, {}
+    for step in sorted(durations):
+        total += durations[step]
+        cumulative[step] = total
+    return cumulative
+
+
+def checkpoints(run_dir: Path) -> List[Path]:
+    """The run's checkpoints, by step."""
+    return sorted((Path(run_dir) / "nerfstudio_models").glob("step-*.ckpt"))
+
+
+def evaluate_checkpoints(
+    config_path: Path,
+    ckpts: Sequence[Path],
+    out_json: Path,
+    *,
+    timeout: float = 600,
+    env: Optional[dict] = None,
+    save_dir: Optional[Path] = None,
+) -> tuple[List[dict], float]:
+    """Render and score every checkpoint in one subprocess; returns its results and wall seconds."""
+    out_json = Path(out_json).resolve()
+    out_json.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [
+        *offline_prefix(),
+        sys.executable,
+        "-m",
+        "nerfify_ns.evaluate.render_views",
+        str(Path(config_path).resolve()),
+        str(out_json),
+        "--checkpoints",
+        *[str(Path(c).resolve()) for c in ckpts],
+    ]
+    if save_dir is not None:
+        cmd += ["--save-dir", str(Path(save_dir).resolve())]
+    log = out_json.with_suffix(".log")
+    code, seconds, timed_out = _run(cmd, log, out_json.parent, timeout, env)
+    if code != 0 or timed_out or not out_json.exists():
+        tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:]) if log.exists() else ""
+        raise CurveError(
+            f"checkpoint evaluation failed (exit {code}, timed out: {timed_out}); log {log}:\n{tail}"
+        )
+    return json.loads(out_json.read_text())["results"], seconds
+
+
+def record_curve(
+    run: TrainRun,
+    out_dir: Path,
+    *,
+    label: Optional[str] = None,
+    timeout: float = 600,
+    env: Optional[dict] = None,
+    save_dir: Optional[Path] = None,
+) -> Curve:
+    """Evaluate every checkpoint of a finished run and write ``out_dir/curve.csv``."""
+    if run.run_dir is None or run.config_path is None:
+        raise CurveError(f"run of {run.method} left no run folder or config; see {run.log_path}")
+    ckpts = checkpoints(run.run_dir)
+    if not ckpts:
+        raise CurveError(f"run of {run.method} saved no checkpoints in {run.run_dir}")
+    seconds = step_seconds(run.run_dir)
+    results, eval_seconds = evaluate_checkpoints(
+        run.config_path,
+        ckpts,
+        Path(out_dir) / "checkpoint_eval.json",
+        timeout=timeout,
+        env=env,
+        save_dir=save_dir,
+    )
+    label = label or run.method
+    points, previous = [], -1
+    for result in sorted(results, key=lambda r: r["step"]):
+        step = result["step"]
+        if step not in seconds:
+            raise CurveError(f"no iteration time logged for step {step} in {run.run_dir}")
+        window = [v for s, v in run.losses.items() if previous < s <= step]
+        loss = sum(window) / len(window) if window else None
+        points.append(CurvePoint(label, step + 1, seconds[step], result["psnr"], loss))
+        previous = step
+    curve = Curve(points, eval_seconds=eval_seconds, train_wall_seconds=run.wall_seconds, checkpoints=ckpts)
+    curve.csv_path = write_curve_csv(points, Path(out_dir) / "curve.csv")
+    return curve
+
+
+def run_curve(
+    method: str,
+    data: Path,
+    out_dir: Path,
+    *,
+    iterations: int,
+    every: int,
+    label: Optional[str] = None,
+    method_args: Sequence[str] = (),
+    timeout: float = 900,
+    env: Optional[dict] = None,
+) -> Curve:
+    """Train with checkpoints, then evaluate them: the whole PSNR-against-time measurement."""
+    run = train_for_curve(
+        method,
+        data,
+        out_dir,
+        iterations=iterations,
+        every=every,
+        method_args=method_args,
+        timeout=timeout,
+        env=env,
+    )
+    if not run.ok:
+        raise CurveError(
+            f"training {method} failed (exit {run.returncode}, timed out: {run.timed_out}); "
+            f"see {run.log_path}"
+        )
+    return record_curve(run, out_dir, label=label, timeout=timeout, env=env)
+
+
+def write_curve_csv(points: Iterable[CurvePoint], path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CURVE_COLUMNS)
+        writer.writeheader()
+        for p in points:
+            writer.writerow({**asdict(p), "loss": "" if p.loss is None else p.loss})
+    return path
+
+
+def read_curve_csv(path: Path) -> List[CurvePoint]:
+    with open(path, newline="") as f:
+        return [
+            CurvePoint(
+                row["label"],
+                int(row["step"]),
+                float(row["train_seconds"]),
+                float(row["psnr"]),
+                float(row["loss"]) if row["loss"] else None,
+            )
+            for row in csv.DictReader(f)
+        ]
+
+
+CurveSource = Union[str, Path, Curve, Sequence[CurvePoint]]
+
+
+def plot_curves(
+    sources: Sequence[CurveSource],
+    out_png: Path,
+    labels: Optional[Sequence[str]] = None,
+    title: str = "Held-out PSNR against training time",
+) -> Path:
+    """One figure, two panels (PSNR vs training seconds, PSNR vs iterations), one line per run.
+
+    ``sources`` are CSV paths, :class:`Curve` objects or lists of points; ``labels`` (one per source)
+    override the labels they carry.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if labels is not None and len(labels) != len(sources):
+        raise ValueError("give one label per source")
+    series: Dict[str, List[CurvePoint]] = {}
+    for i, source in enumerate(sources):
+        points = (
+            read_curve_csv(Path(source))
+            if isinstance(source, (str, Path))
+            else source.points
+            if isinstance(source, Curve)
+            else list(source)
+        )
+        for p in points:
+            series.setdefault(labels[i] if labels is not None else p.label, []).append(p)
+    fig, (ax_t, ax_i) = plt.subplots(1, 2, figsize=(10, 4))
+    for name, points in series.items():
+        points = sorted(points, key=lambda p: p.step)
+        ax_t.plot([p.train_seconds for p in points], [p.psnr for p in points], marker="o", label=name)
+        ax_i.plot([p.step for p in points], [p.psnr for p in points], marker="o", label=name)
+    ax_t.set_xlabel("training time (s)")
+    ax_i.set_xlabel("iterations")
+    for ax in (ax_t, ax_i):
+        ax.set_ylabel("PSNR (dB)")
+        ax.grid(alpha=0.3)
+    ax_t.legend()
+    fig.suptitle(title)
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=100)
+    plt.close(fig)
+    return out_png

@@ -1,0 +1,119 @@
+"""Render a trained run's eval views at several checkpoints, loading its config once.
+
+Run as a subprocess (it builds Nerfstudio's pipeline, which may spawn datamanager workers that
+re-import ``__main__``; hence the guard at the bottom)::
+
+    python -m nerfify_ns.evaluate.render_views CONFIG OUT.json --checkpoints A.ckpt B.ckpt \
+        [--save-dir DIR]
+
+For each checkpoint: load its weights into the pipeline, render every image of the eval split
+with ``model.get_outputs_for_camera``, and score it with :mod:`nerfify_ns.evaluate.metrics` against
+the ground-truth PNG composited on white (mean of per-image PSNR and SSIM). ``--save-dir`` keeps
+the last checkpoint's renders: ``<stem>.png`` (RGB), ``<stem>_depth.npy`` (distance along the
+unit ray, in the transforms' units) and ``<stem>_accumulation.npy``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import List, Optional, Sequence
+
+import numpy as np
+
+
+def evaluate_checkpoints(
+    config_path: Path, checkpoints: Sequence[Path], save_dir: Optional[Path] = None
+) -> List[dict]:
+    """Per-checkpoint ``{checkpoint, step, psnr, ssim, per_view_psnr, render_seconds}``."""
+    import torch
+    from PIL import Image
+
+    from nerfify_ns.runtime import activate
+
+    activate()
+    from nerfstudio.utils.eval_utils import eval_setup
+
+    from nerfify_ns.evaluate.metrics import as_rgb, psnr, ssim
+
+    _, pipeline, _, _ = eval_setup(
+        Path(config_path), test_mode="test", update_config_callback=_serial_datamanager
+    )
+    dataset = pipeline.datamanager.eval_dataset
+    outputs_meta = dataset._dataparser_outputs
+    scale = float(getattr(outputs_meta, "dataparser_scale", 1.0))
+    filenames = [Path(f) for f in outputs_meta.image_filenames]
+    gts = [as_rgb(np.asarray(Image.open(f))) for f in filenames]
+    results = []
+    for index, checkpoint in enumerate(checkpoints):
+        start = time.perf_counter()
+        state = torch.load(checkpoint, map_location="cpu")
+        pipeline.load_pipeline(state["pipeline"], state["step"])
+        pipeline.eval()
+        last = index == len(checkpoints) - 1
+        psnrs, ssims = [], []
+        for i, gt in enumerate(gts):
+            camera = dataset.cameras[i : i + 1].to(pipeline.device)
+            with torch.no_grad():
+                out = pipeline.model.get_outputs_for_camera(camera)
+            rgb = out["rgb"].detach().cpu().numpy().astype(np.float64)
+            psnrs.append(psnr(rgb, gt))
+            ssims.append(ssim(rgb, gt))
+            if save_dir is not None and last:
+                _save_render(Path(save_dir), filenames[i].stem, rgb, out, scale)
+        results.append(
+            {
+                "checkpoint": str(checkpoint),
+                "step": int(state["step"]),
+                "psnr": float(np.mean(psnrs)),
+                "ssim": float(np.mean(ssims)),
+                "per_view_psnr": [float(v) for v in psnrs],
+                "render_seconds": time.perf_counter() - start,
+            }
+        )
+    return results
+
+
+def _serial_datamanager(config):
+    """Nerfstudio's parallel datamanager starts a worker that keeps sampling training rays (and
+    re-imports ``__main__``); rendering needs only the eval split, so use the serial one."""
+    from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManager
+    from nerfstudio.data.datamanagers.parallel_datamanager import ParallelDataManager
+
+    datamanager = config.pipeline.datamanager
+    if getattr(datamanager, "_target", None) is ParallelDataManager:
+        datamanager._target = VanillaDataManager
+    return config
+
+
+def _save_render(out: Path, stem: str, rgb: np.ndarray, outputs: dict, scale: float) -> None:
+    from PIL import Image
+
+    out.mkdir(parents=True, exist_ok=True)
+    Image.fromarray((np.clip(rgb, 0, 1) * 255).round().astype(np.uint8)).save(out / f"{stem}.png")
+    for key in ("depth", "accumulation"):
+        if key in outputs:
+            value = outputs[key].detach().cpu().numpy().astype(np.float32)[..., 0]
+            np.save(out / f"{stem}_{key}.npy", value / scale if key == "depth" else value)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("config", type=Path)
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--checkpoints", type=Path, nargs="+", required=True)
+    parser.add_argument("--save-dir", type=Path, default=None)
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    results = evaluate_checkpoints(args.config, args.checkpoints, args.save_dir)
+    payload = {"results": results, "seconds": time.perf_counter() - start}
+    tmp = args.out.with_suffix(args.out.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, allow_nan=True) + "\n")
+    tmp.replace(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,269 @@
+"""``validate(plan)``: accept exactly the derivations of the grammar, name the rule that breaks.
+
+A plan is a derivation of ``Method`` plus annotations (method name, paper, evidence, pruned parts,
+holes, notes). Checking runs in two passes: the structure (slots, alternatives, parameter types
+and ranges) and then the duties of every terminal used and the optimiser-group rule.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Dict, List, Optional
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.grammar.spec import Grammar, Nonterminal, Param, Terminal, load_grammar
+
+METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}$")
+ANNOTATIONS: Dict[str, type] = {
+    "method": str, "description": str, "paper": dict, "evidence": dict, "pruned": list, "holes": list,
+    "notes": list,
+}
+
+
+@dataclass(frozen=True)
+class Violation:
+    """One broken rule: where in the plan, which production, which rule, and what to do."""
+
+    path: str
+    production: str
+    rule: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path or '<plan>'}: {self.production}: {self.rule}: {self.message}"
+
+
+class PlanError(NerfifyError):
+    """The plan is not a derivation of the grammar."""
+
+    def __init__(self, violations: List[Violation]) -> None:
+        self.violations = violations
+        more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
+        super().__init__(f"invalid plan: {violations[0]}{more}")
+
+
+@dataclass
+class Derivation:
+    """What a plan derives: the alternative chosen at each choice and the terminals used."""
+
+    choices: Dict[str, str] = field(default_factory=dict)
+    used: Dict[str, str] = field(default_factory=dict)
+    violations: List[Violation] = field(default_factory=list)
+
+    def fail(self, path: str, production: str, rule: str, message: str) -> None:
+        self.violations.append(Violation(path, production, rule, message))
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _is_int(value: Any) -> bool:
+    return (isinstance(value, int) and not isinstance(value, bool)) or (
+        isinstance(value, float) and math.isfinite(value) and value.is_integer())
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _scalar_ok(param: Param, kind: str, value: Any) -> Optional[str]:
+    """None if ``value`` has ``kind``; otherwise what it should be."""
+    checks = {"int": _is_int, "float": _is_number, "bool": lambda v: isinstance(v, bool),
+              "str": lambda v: isinstance(v, str), "enum": lambda v: v in param.values}
+    if not checks[kind](value):
+        return f"one of {list(param.values)}" if kind == "enum" else f"a {kind}"
+    return None
+
+
+def _in_range(param: Param, value: Any) -> bool:
+    lo, hi = param.range or (None, None)
+    return (lo is None or value >= lo) and (hi is None or value <= hi)
+
+
+def _check_param(d: Derivation, path: str, production: str, param: Param, value: Any) -> None:
+    if param.type in ("int_list", "float_list"):
+        item_kind = param.type.split("_")[0]
+        if not isinstance(value, list):
+            d.fail(path, production, "param_type", f"{param.name} must be a list of {item_kind}s, got {value!r}")
+            return
+        lo, hi = param.length or (0, math.inf)
+        if not lo <= len(value) <= hi:
+            d.fail(path, production, "param_length", f"{param.name} must have {lo}..{hi} items, got {len(value)}")
+        for item in value:
+            if _scalar_ok(param, item_kind, item) is not None:
+                d.fail(path, production, "param_type", f"{param.name} items must be {item_kind}s, got {item!r}")
+            elif not _in_range(param, item):
+                d.fail(path, production, "param_range", f"{param.name} item {item} outside {list(param.range)}")
+        return
+    expected = _scalar_ok(param, param.type, value)
+    if expected is not None:
+        d.fail(path, production, "param_type", f"{param.name} must be {expected}, got {value!r}")
+    elif param.type in ("int", "float") and not _in_range(param, value):
+        d.fail(path, production, "param_range", f"{param.name}={value} outside {list(param.range)}")
+
+
+def _check_terminal(g: Grammar, d: Derivation, term: Terminal, value: Any, path: str) -> None:
+    d.used[path] = term.name
+    if not isinstance(value, dict):
+        d.fail(path, term.name, "terminal_params", f"expected a mapping of {term.name}'s parameters, got {value!r}")
+        return
+    for name, item in value.items():
+        param = term.params.get(name)
+        if param is None:
+            d.fail(path, term.name, "unknown_param",
+                   f"{term.name} has no parameter {name!r} (it has: {', '.join(term.params) or 'none'})")
+        else:
+            _check_param(d, path, term.name, param, item)
+
+
+def _check_mapping(d: Derivation, nt: Nonterminal, value: Any, path: str) -> bool:
+    if isinstance(value, dict):
+        return True
+    d.fail(path, nt.name, "structure", f"{nt.name} must be a mapping, got {value!r}")
+    return False
+
+
+def _check_sequence(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path: str) -> None:
+    names = {slot.name for slot in nt.slots}
+    for key in value:
+        if key not in names:
+            d.fail(_join(path, key), nt.name, "unknown_slot",
+                   f"{nt.name} has no slot {key!r} (slots: {', '.join(sorted(names))})")
+    for slot in nt.slots:
+        if slot.name in value:
+            _check_symbol(g, d, slot.symbol, value[slot.name], _join(path, slot.name))
+        elif not slot.optional:
+            d.fail(_join(path, slot.name), nt.name, "missing_slot", f"{nt.name} requires slot {slot.name!r}")
+
+
+def _check_choice(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path: str) -> None:
+    if len(value) != 1:
+        d.fail(path, nt.name, "choice_arity",
+               f"{nt.name} takes exactly one of {list(nt.alternatives)}, got {list(value) or 'none'}")
+        return
+    (alt, inner), = value.items()
+    if alt not in nt.alternatives:
+        d.fail(path, nt.name, "unknown_alternative", f"{alt!r} is not an alternative of {nt.name} "
+               f"(alternatives: {', '.join(nt.alternatives)})")
+        return
+    d.choices[path] = alt
+    _check_symbol(g, d, alt, inner, _join(path, alt))
+
+
+def _check_set(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path: str) -> None:
+    allowed = nt.keys if nt.kind == "map" else nt.members
+    for key, inner in value.items():
+        if key not in allowed:
+            d.fail(_join(path, key), nt.name, "unknown_member",
+                   f"{key!r} is not allowed in {nt.name} (allowed: {', '.join(allowed)})")
+        else:
+            _check_symbol(g, d, nt.value if nt.kind == "map" else key, inner, _join(path, key))
+
+
+def _check_symbol(g: Grammar, d: Derivation, symbol: str, value: Any, path: str) -> None:
+    if g.is_terminal(symbol):
+        _check_terminal(g, d, g.terminals[symbol], value, path)
+        return
+    nt = g.nonterminals[symbol]
+    if nt.kind == "enum":
+        if value in nt.alternatives:
+            d.choices[path] = value
+            d.used[path] = value
+        else:
+            d.fail(path, nt.name, "unknown_alternative",
+                   f"{value!r} is not an alternative of {nt.name} (alternatives: {', '.join(nt.alternatives)})")
+        return
+    if not _check_mapping(d, nt, value, path):
+        return
+    {"sequence": _check_sequence, "choice": _check_choice, "set": _check_set, "map": _check_set}[nt.kind](
+        g, d, nt, value, path)
+
+
+# ---------------------------------------------------------------------------------- duties
+def scene_flag(g: Grammar, plan: dict, flag: str) -> Any:
+    """The value of a scene flag in ``plan``, its default when the plan leaves it out."""
+    scene = plan.get("scene") if isinstance(plan.get("scene"), dict) else {}
+    return scene.get(flag, g.terminals["scene"].params[flag].default)
+
+
+def _duty_holds(g: Grammar, d: Derivation, plan: dict, duty: dict) -> Optional[str]:
+    """None if ``duty`` holds; else (rule, message)."""
+    (rule, arg), = duty.items()
+    if rule == "requires_base":
+        base = d.choices.get("base")
+        return None if base in arg else f"requires base in {arg}, the plan's base is {base!r}"
+    if rule == "requires_loss":
+        return None if f"model.losses.{arg}" in d.used else f"requires loss {arg!r}: add model.losses.{arg}"
+    if rule == "requires_scene":
+        bad = {flag: value for flag, value in arg.items() if scene_flag(g, plan, flag) != value}
+        return None if not bad else f"requires a scene with {bad} (plan.scene says otherwise)"
+    if rule == "requires_terminal":
+        chosen = d.choices.get(arg["slot"])
+        return None if chosen in arg["any_of"] else (
+            f"requires {arg['slot']} to be one of {arg['any_of']}, got {chosen!r}")
+    raise ValueError(f"unknown duty {rule}")
+
+
+def expected_param_groups(g: Grammar, d: Derivation) -> List[str]:
+    """The optimiser groups the model will have: the union of its terminals' param_groups."""
+    groups = [grp for term in d.used.values() for grp in g.terminals[term].param_groups]
+    return list(dict.fromkeys(groups))
+
+
+def _check_duties(g: Grammar, d: Derivation, plan: dict) -> None:
+    for path, term in d.used.items():
+        for duty in g.terminals[term].duties:
+            problem = _duty_holds(g, d, plan, duty)
+            if problem:
+                d.fail(path, term, next(iter(duty)), f"{term} {problem}")
+    if isinstance(plan.get("optimizers"), dict):
+        expected, actual = set(expected_param_groups(g, d)), set(plan["optimizers"])
+        for group in sorted(expected - actual):
+            d.fail(f"optimizers.{group}", "Optimizers", "param_groups",
+                   f"the model has parameter group {group!r} but no optimiser for it")
+        for group in sorted(actual - expected):
+            d.fail(f"optimizers.{group}", "Optimizers", "param_groups",
+                   f"optimiser for {group!r}, a parameter group the model does not have")
+
+
+def _check_annotations(d: Derivation, plan: dict) -> dict:
+    derivation = {}
+    for key, value in plan.items():
+        kind = ANNOTATIONS.get(key)
+        if kind is None:
+            derivation[key] = value
+        elif not isinstance(value, kind):
+            d.fail(key, "Plan", "annotation", f"{key} must be a {kind.__name__}, got {type(value).__name__}")
+    name = plan.get("method")
+    if not isinstance(name, str) or not METHOD_NAME.match(name):
+        d.fail("method", "Plan", "method_name",
+               f"method must be a lower-case name like 'kplanes-static' (a-z, 0-9, '-'), got {name!r}")
+    return derivation
+
+
+def derive(plan: Any, grammar: Optional[Grammar] = None) -> Derivation:
+    """Check ``plan`` against the grammar and return what it derives with every violation found."""
+    g = grammar or load_grammar()
+    d = Derivation()
+    if not isinstance(plan, dict):
+        d.fail("", "Plan", "structure", f"a plan is a mapping, got {type(plan).__name__}")
+        return d
+    _check_symbol(g, d, g.start, _check_annotations(d, plan), "")
+    if not d.violations:
+        _check_duties(g, d, plan)
+    return d
+
+
+def check(plan: Any, grammar: Optional[Grammar] = None) -> List[Violation]:
+    return derive(plan, grammar).violations
+
+
+def validate(plan: Any, grammar: Optional[Grammar] = None) -> Derivation:
+    """Accept a derivation of the grammar (returned) or raise PlanError naming the broken rules."""
+    d = derive(plan, grammar)
+    if d.violations:
+        raise PlanError(d.violations)
+    return d

@@ -1,0 +1,146 @@
+"""The registry of known papers (``papers.yaml``) and matching of references against it."""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Optional
+
+import yaml
+
+from nerfify_ns.knowledge.errors import PaperRegistryError
+from nerfify_ns.knowledge.text import (
+    alias_pattern,
+    longest_non_overlapping,
+    normalize_arxiv_id,
+    normalize_title,
+    strip_latex,
+)
+
+PAPERS_FILE = Path(__file__).resolve().parent / "papers.yaml"
+PAPER_FIELDS = ("key", "title", "authors", "year", "venue", "arxiv", "aliases", "provides")
+FUZZY_TITLE_RATIO = 0.93   # near-identical titles only (OCR slips, a dropped word)
+FUZZY_MIN_LENGTH = 24
+
+
+@dataclass(frozen=True)
+class KnownPaper:
+    """A paper the knowledge base knows, and the cards (techniques) it is the source of."""
+
+    key: str
+    title: str
+    authors: tuple[str, ...]
+    year: Optional[int]
+    venue: Optional[str]
+    arxiv: Optional[str]
+    aliases: tuple[str, ...] = ()
+    provides: tuple[str, ...] = ()
+    notes: str = field(default="", compare=False)
+
+    @property
+    def normalized_title(self) -> str:
+        return normalize_title(self.title)
+
+
+def _parse(entry: object, index: int, path: Path) -> KnownPaper:
+    if not isinstance(entry, dict):
+        raise PaperRegistryError(f"{path}: entry {index} is not a mapping; fix papers.yaml")
+    missing = [k for k in PAPER_FIELDS if k not in entry]
+    if missing:
+        raise PaperRegistryError(f"{path}: entry {entry.get('key', index)!r} lacks {', '.join(missing)}; "
+                                 "fix papers.yaml")
+    arxiv = entry["arxiv"]
+    if arxiv is not None and normalize_arxiv_id(str(arxiv)) != str(arxiv):
+        raise PaperRegistryError(f"{path}: {entry['key']!r} has a non-canonical arXiv id {arxiv!r} "
+                                 "(write e.g. 2111.12077, no version); fix papers.yaml")
+    for key in ("authors", "aliases", "provides"):
+        value = entry[key] or []
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            raise PaperRegistryError(f"{path}: {entry['key']!r}.{key} must be a list of strings; "
+                                     "fix papers.yaml")
+    return KnownPaper(key=str(entry["key"]), title=str(entry["title"]), authors=tuple(entry["authors"] or ()),
+                      year=None if entry["year"] is None else int(entry["year"]),
+                      venue=None if entry["venue"] is None else str(entry["venue"]),
+                      arxiv=None if arxiv is None else str(arxiv), aliases=tuple(entry["aliases"] or ()),
+                      provides=tuple(entry["provides"] or ()), notes=str(entry.get("notes") or ""))
+
+
+@lru_cache(maxsize=4)
+def _load_papers_cached(path: str) -> tuple[KnownPaper, ...]:
+    file = Path(path)
+    try:
+        data = yaml.safe_load(file.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise PaperRegistryError(f"cannot read {file} ({exc}); reinstall nerfify-ns") from exc
+    except yaml.YAMLError as exc:
+        raise PaperRegistryError(f"{file}: invalid YAML ({exc}); fix papers.yaml") from exc
+    entries = data.get("papers") if isinstance(data, dict) else None
+    if not isinstance(entries, list):
+        raise PaperRegistryError(f"{file}: expected a top-level 'papers:' list; fix papers.yaml")
+    papers = tuple(_parse(e, i, file) for i, e in enumerate(entries))
+    seen: dict[str, str] = {}
+    for p in papers:
+        for kind, value in (("key", p.key), ("arxiv", p.arxiv), ("title", p.normalized_title)):
+            if value is None:
+                continue
+            tag = f"{kind}:{value}"
+            if tag in seen:
+                raise PaperRegistryError(f"{file}: {p.key!r} repeats the {kind} of {seen[tag]!r}; "
+                                         "fix papers.yaml")
+            seen[tag] = p.key
+    return papers
+
+
+def load_papers(path: Optional[Path] = None) -> dict[str, KnownPaper]:
+    """Every known paper, by key (loaded once, then cached)."""
+    return {p.key: p for p in _load_papers_cached(str(Path(path or PAPERS_FILE).resolve()))}
+
+
+def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
+                papers: Optional[dict[str, KnownPaper]] = None) -> Optional[KnownPaper]:
+    """The known paper a reference points to, or ``None``.
+
+    Tried in order: the arXiv id (any form: "arXiv:2111.12077v2", a URL, old-style "cs.CV/0502076");
+    the normalised title (case, punctuation, LaTeX commands and braces, accents ignored); a paper
+    alias equal to the title ("Mip-NeRF 360"); a near-identical title (ratio >= 0.93).
+    """
+    papers = load_papers() if papers is None else papers
+    wanted = normalize_arxiv_id(arxiv) if arxiv else None
+    if wanted:
+        for p in papers.values():
+            if p.arxiv and normalize_arxiv_id(p.arxiv) == wanted:
+                return p
+    if not title:
+        return None
+    key = normalize_title(title)
+    if not key:
+        return None
+    for p in papers.values():
+        if p.normalized_title == key:
+            return p
+    bare = strip_latex(title).strip(" .,;:")
+    for p in papers.values():
+        if any(alias_pattern(a).fullmatch(bare) for a in p.aliases):
+            return p
+    if len(key) >= FUZZY_MIN_LENGTH:
+        best, best_ratio = None, 0.0
+        for p in papers.values():
+            ratio = difflib.SequenceMatcher(None, key, p.normalized_title).ratio()
+            if ratio > best_ratio:
+                best, best_ratio = p, ratio
+        if best is not None and best_ratio >= FUZZY_TITLE_RATIO:
+            return best
+    return None
+
+
+def find_papers_by_alias(text: str) -> list[KnownPaper]:
+    """Known papers named in running text by an alias ("as in Mip-NeRF 360"), in order of first
+    mention; overlapping aliases resolve to the longest ("Mip-NeRF 360" is not also "Mip-NeRF")."""
+    spans = [(m.start(), m.end(), p) for p in load_papers().values() for a in p.aliases
+             for m in alias_pattern(a).finditer(text)]
+    seen: dict[str, KnownPaper] = {}
+    for _, _, p in longest_non_overlapping(spans):
+        seen.setdefault(p.key, p)
+    return list(seen.values())

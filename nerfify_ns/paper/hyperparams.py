@@ -1,0 +1,162 @@
+"""Hyperparameter extraction from sentences; the name patterns live in ``hyperparams.yaml``."""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from functools import lru_cache
+from pathlib import Path
+from typing import Iterable, Optional, Union
+
+import yaml
+
+from nerfify_ns.paper.document import Hyperparameter, Location
+
+Value = Union[int, float, list]
+PATTERNS_FILE = Path(__file__).with_name("hyperparams.yaml")
+
+# ----- numbers ----------------------------------------------------------------------------------------
+_SCI = r"\d+(?:\.\d+)?\s*(?:×|\*|·|x(?=\s*10))\s*10\s*\^?\s*[-−–]?\s*\d+"
+_POW = r"(?:2|10)\s*\^\s*[-−–]?\s*\d+"
+_UPOW = r"10\s*−\s*\d+"  # "10−7": a flattened superscript with a true minus sign
+_E = r"\d+(?:\.\d+)?[eE][-−+]?\d+"
+_PLAIN = r"(?:\d{1,3}(?:,\d{3})+(?!\d)|\d+(?:\.\d+)?|\.\d+)(?:[kKM](?![A-Za-z]))?"
+_VAL = rf"(?:{_SCI}|{_E}|{_POW}|{_UPOW}|{_PLAIN})"
+NUMBER = rf"(?<![\w.^/])(?P<num>[-−]?{_VAL}(?:\s*[–—]\s*{_VAL}|-(?=\d){_VAL})?)(?![\d])"
+INTEGER = r"(?P<num>\d+)(?![\d.])"
+
+_GREEK = {"lambda": "λ", "beta": "β", "epsilon": "ϵ", "varepsilon": "ε", "gamma": "γ", "sigma": "σ",
+          "alpha": "α", "delta": "δ", "theta": "θ", "phi": "ϕ", "mu": "μ", "omega": "ω", "tau": "τ"}
+
+
+def normalize_math(s: str) -> str:
+    """Flatten inline LaTeX so patterns see ``N_c=64``, ``5 × 10^-4``, ``λ_rgb = 0.1``."""
+    s = unicodedata.normalize("NFKC", s).replace("$", "")
+    s = re.sub(r"\\(?:times|cdot)\b", " × ", s)
+    s = re.sub(r"\\(" + "|".join(_GREEK) + r")(?![A-Za-z])", lambda m: _GREEK[m.group(1)], s)
+    for _ in range(3):
+        s = re.sub(r"\\(?:mathrm|mathbf|mathit|text|textrm|textit|textbf|operatorname|boldsymbol|bm)\s*\{([^{}]*)\}",
+                   r"\1", s)
+    s = re.sub(r"([_^])\{([^{}]*)\}", r"\1\2", s)
+    s = re.sub(r"\\[,;:! ]|\\mathopen\{\}|\\mathclose\{\}|\\left|\\right", " ", s)
+    s = s.replace("{", "").replace("}", "")
+    s = re.sub(r"(?<=\d)\s*\^\s*", "^", s)
+    s = re.sub(r"(\d)\s*e\s*[−-]\s*(\d)", r"\1e-\2", s)  # "5e −4" from PDFs
+    s = re.sub(r"×\s*10([−-]?\d{1,2})(?![\d.])", r"× 10^\1", s)  # "2 × 105": a flattened superscript
+    return re.sub(r"\s+", " ", s).strip()
+
+
+def _one(s: str) -> float:
+    s = s.strip().replace("−", "-").replace("–", "-")
+    m = re.fullmatch(r"(-?\d+(?:\.\d+)?)\s*(?:×|\*|·|x)\s*10\s*\^?\s*(-?)\s*(\d+)", s)
+    if m:
+        return float(m.group(1)) * 10.0 ** int(m.group(2) + m.group(3))
+    m = re.fullmatch(r"(-?)(2|10)\s*\^?\s*(-?)\s*(\d+)", s) if ("^" in s or re.fullmatch(r"-?10\s*-\s*\d+", s)) else None
+    if m:
+        return float(m.group(1) + "1") * float(m.group(2)) ** int(m.group(3) + m.group(4))
+    mult = {"k": 1e3, "K": 1e3, "M": 1e6}.get(s[-1], 1.0)
+    return float(s.rstrip("kKM").replace(",", "")) * mult
+
+
+def _tidy(x: float) -> Union[int, float]:
+    return int(x) if x.is_integer() and abs(x) >= 1 else x
+
+
+def parse_number(text: str) -> Value:
+    """``"5 × 10^-4"`` -> 0.0005, ``"2^19"`` -> 524288, ``"300k"`` -> 300000, ``"100–300k"`` -> [100000, 300000]."""
+    text = text.strip()
+    parts = re.split(r"\s*[–—]\s*|(?<=\d)-(?=\d)(?![^×]*×)", text) if not re.search(r"[eE]-|\^\s*-|10\s*−", text) else [text]
+    if len(parts) == 2 and parts[0] and parts[1]:
+        lo, hi = parts
+        if hi[-1] in "kKM" and lo[-1] not in "kKM":
+            lo += hi[-1]
+        return [_tidy(_one(lo)), _tidy(_one(hi))]
+    return _tidy(_one(text))
+
+
+# ----- sentences --------------------------------------------------------------------------------------
+_ABBREV = re.compile(r"(?:\b(?:e\.g|i\.e|et al|Figs?|Eqs?|Eqns?|Secs?|Tabs?|vs|cf|resp|approx|Refs?|No|Alg|Ch|Sect)"
+                     r"|\b[A-Z])\.$")
+
+
+def split_sentences(text: str) -> list[str]:
+    """Split a paragraph into sentences, keeping abbreviations ("Fig.", "et al.", initials) intact."""
+    pieces = re.split(r"(?<=[.!?])\s+(?=[A-Z0-9(\[$\\])", text.strip())
+    out: list[str] = []
+    for piece in pieces:
+        if out and _ABBREV.search(out[-1]):
+            out[-1] += " " + piece
+        else:
+            out.append(piece)
+    return [s for s in out if s]
+
+
+# ----- patterns ---------------------------------------------------------------------------------------
+@lru_cache(maxsize=None)
+def load_specs(path: str = str(PATTERNS_FILE)) -> tuple:
+    """(name, unit, [compiled patterns]) for each entry of the YAML file."""
+    specs = []
+    for entry in yaml.safe_load(Path(path).read_text(encoding="utf-8")):
+        pats = [re.compile(p.replace("{num}", NUMBER).replace("{int}", INTEGER), re.IGNORECASE) for p in entry["patterns"]]
+        specs.append((entry["name"], entry.get("unit", ""), pats))
+    return tuple(specs)
+
+
+_QUALIFIERS = [("direction", r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*d\s*\)|\(?d\)|view(?:ing)? direction|direction)"),
+               ("position", r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*x\s*\)|\(?x\)|position|location)"),
+               ("coarse", r"^[^.;,]{0,25}\bcoarse\b"), ("fine", r"^[^.;,]{0,25}\bfine\b"),
+               ("proposal", r"^[^.;,]{0,25}\bproposal\b")]
+_SELF_QUALIFIED = {"num_coarse_samples", "num_fine_samples", "num_proposal_samples"}
+_STOP_SUBS = {"a", "the", "loss", "an", "with", "and", "of", "its", "each", "this", "same", "total", "initial"}
+
+
+def _qualifier(after: str, hp_name: str) -> str:
+    for name, pat in _QUALIFIERS:
+        if hp_name in _SELF_QUALIFIED and name not in ("direction", "position"):
+            continue
+        if re.search(pat, after, re.IGNORECASE):
+            return name
+    return ""
+
+
+def extract_from_sentence(sentence: str, loc: Optional[Location] = None, section: str = "") -> list[Hyperparameter]:
+    """Every hyperparameter the patterns find in one sentence."""
+    norm = normalize_math(sentence)
+    found: list[Hyperparameter] = []
+    seen: set = set()
+    for name, unit, pats in load_specs():
+        for pat in pats:
+            for m in pat.finditer(norm):
+                h = _make(name, unit, m, norm, sentence, loc, section)
+                key = (h.name, str(h.value), h.qualifier) if h else None
+                if h and key not in seen:
+                    seen.add(key)
+                    found.append(h)
+    return found
+
+
+def _make(name, unit, m, norm, sentence, loc, section) -> Optional[Hyperparameter]:
+    try:
+        value = parse_number(m.group("num"))
+    except (ValueError, OverflowError):
+        return None
+    groups = m.groupdict()
+    sub = (groups.get("sub") or "").strip().lower()
+    if name == "lambda" and sub:
+        words = [w for w in re.split(r"\W+", sub) if w and w not in _STOP_SUBS]
+        if not words:
+            return None
+        name = "lambda_" + "_".join(words)
+    return Hyperparameter(name=name, value=value, unit=groups.get("unit") or unit, sentence=sentence.strip(),
+                          raw=m.group(0).strip(), qualifier=_qualifier(norm[m.end():m.end() + 60], name),
+                          loc=loc or Location(), section=section)
+
+
+def extract_hyperparameters(items: Iterable[tuple[str, Location, str]]) -> list[Hyperparameter]:
+    """Hyperparameters of (paragraph text, location, section) items, sentence by sentence."""
+    out: list[Hyperparameter] = []
+    for text, loc, section in items:
+        for sentence in split_sentences(text):
+            if re.search(r"\d", sentence):
+                out.extend(extract_from_sentence(sentence, loc, section))
+    return out

@@ -1,0 +1,321 @@
+"""LaTeX reader: a .tex file, a source folder or an arXiv tarball, into blocks and a Document."""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from bisect import bisect_right
+from pathlib import Path
+from typing import Iterator, Optional
+
+from nerfify_ns.paper.bibtex import load_references, parse_bbl
+from nerfify_ns.paper.builder import Block, build
+from nerfify_ns.paper.document import Document, Location
+from nerfify_ns.paper.errors import EmptyDocumentError
+from nerfify_ns.paper.latex_source import (
+    Flat, collect_macros, expand_macros, find_main_file, flatten, read_group, safe_extract,
+)
+
+MATH_ENVS = ("equation", "align", "eqnarray", "gather", "multline", "displaymath", "flalign", "alignat")
+_ENV = ("abstract", *MATH_ENVS, "figure", "table", "algorithm", "algorithm2e", "thebibliography")
+_TOKEN = re.compile(
+    r"\\(?P<sec>section|subsection|subsubsection|paragraph)(?P<star>\*?)\s*(?:\[[^\]]*\])?\s*(?=\{)"
+    r"|\\begin\{(?P<env>(?:" + "|".join(_ENV) + r")\*?)\}"
+    r"|(?P<dmath>\\\[|\$\$)|(?P<appendix>\\appendix\b)")
+_LEVEL = {"section": 1, "subsection": 2, "subsubsection": 3, "paragraph": 4}
+ARCHIVES = (".tar.gz", ".tgz", ".tar")
+
+
+def read_latex(path: Path) -> Document:
+    """Ingest a .tex file, a folder of sources, or a .tar/.tar.gz/.tgz of sources."""
+    if path.is_dir():
+        return _read_tree(find_main_file(path), path, str(path))
+    if path.name.lower().endswith(ARCHIVES):
+        with tempfile.TemporaryDirectory(prefix="nerfify-tex-") as tmp:
+            root = safe_extract(path, Path(tmp))
+            return _read_tree(find_main_file(root), root, str(path))
+    return _read_tree(path, path.parent, str(path))
+
+
+def _read_tree(main: Path, root: Path, source: str) -> Document:
+    flat = flatten(main, root)
+    macros, text = collect_macros(flat.text)
+    parser = _Parser(text, flat, macros)
+    blocks = list(parser.blocks())
+    if not blocks and not parser.title:
+        raise EmptyDocumentError(f"{source}: no text found in the LaTeX sources; check the main file")
+    refs = parser.bib_refs if parser.bib_refs is not None else load_references(
+        root, main, parser.bib_names, parser.cited)
+    doc = build(blocks, source=source, kind="latex", references=refs, title=parser.title,
+                authors=parser.authors, cite_keys={r.key for r in refs} | set(parser.cited))
+    return doc
+
+
+class _Parser:
+    """Walks the flattened source between \\begin{document} and \\end{document}."""
+
+    def __init__(self, text: str, flat: Flat, macros: dict):
+        self.text, self.flat, self.macros = text, flat, macros
+        self.eq_no = self.fig_no = self.tab_no = self.alg_no = 0
+        self.sec = [0, 0, 0, 0]
+        self.appendix = False
+        self.labels: dict[str, str] = {}
+        self.cited: list[str] = []
+        self.bib_names: list[str] = []
+        self.bib_refs: Optional[list] = None
+        self.line_starts = [0] + [m.end() for m in re.finditer("\n", text)]
+        self.title = self._clean(self._command_arg("title"))
+        self.authors = self._authors()
+
+    # ----- helpers ------------------------------------------------------------------------------------
+    def _loc(self, offset: int) -> Location:
+        i = max(0, bisect_right(self.line_starts, offset) - 1)
+        fname, line = self.flat.origins[i] if i < len(self.flat.origins) else ("", 0)
+        return Location(file=fname, line=line)
+
+    def _command_arg(self, name: str) -> str:
+        m = re.search(r"\\" + name + r"\s*(?:\[[^\]]*\])?\s*(?=\{)", self.text)
+        return read_group(self.text, m.end())[0] if m else ""
+
+    def _authors(self) -> list[str]:
+        raw = self._command_arg("author")
+        raw = re.sub(r"\\(?:thanks|footnote|inst|affiliation|email)\s*\{[^{}]*\}", "", raw)
+        names = []
+        for part in re.split(r"\\and\b|,|\\AND\b", raw):
+            first = re.split(r"\\\\", part)[0]
+            name = self._clean(first).strip(" *0123456789")
+            if name and len(name.split()) <= 5:
+                names.append(name)
+        return names
+
+    def _expand(self, s: str) -> str:
+        return expand_macros(s, self.macros)
+
+    def _clean(self, s: str) -> str:
+        """LaTeX prose to text: macros expanded, citations as [keys], math kept in $...$."""
+        s = self._expand(s)
+        for cmd in ("cite", "citep", "citet", "citealp", "autocite", "parencite", "textcite", "citeauthor"):
+            s = re.sub(r"\\" + cmd + r"\*?\s*(?:\[[^\]]*\]\s*)*\{([^}]*)\}", self._cite, s)
+        s = re.sub(r"\\(?:eqref)\s*\{([^}]*)\}", lambda m: f"({self.labels.get(m.group(1).strip(), '?')})", s)
+        s = re.sub(r"\\(?:ref|autoref|cref|Cref)\s*\{([^}]*)\}", lambda m: self.labels.get(m.group(1).strip(), "?"), s)
+        s = re.sub(r"\\label\s*\{[^}]*\}", "", s)
+        s = re.sub(r"\\(?:url)\s*\{([^}]*)\}", r"\1", s)
+        s = re.sub(r"\\href\s*\{[^}]*\}\s*\{([^}]*)\}", r"\1", s)
+        s = re.sub(r"\\footnote\s*\{((?:[^{}]|\{[^{}]*\})*)\}", r" (\1)", s)
+        s = re.sub(r"\\(?:begin|end)\s*\{(?:itemize|enumerate|description|center|small|footnotesize)\}", "\n", s)
+        s = re.sub(r"\\item\s*(?:\[([^\]]*)\])?", lambda m: "\n- " + (m.group(1) or ""), s)
+        segs = re.split(r"(\$[^$]+\$)", s)
+        segs = [seg if seg.startswith("$") else self._prose(seg) for seg in segs]
+        return re.sub(r"[ \t]+", " ", "".join(segs)).strip()
+
+    def _cite(self, m: re.Match) -> str:
+        keys = [k.strip() for k in m.group(1).split(",") if k.strip()]
+        self.cited.extend(keys)
+        return "[" + ", ".join(keys) + "]"
+
+    @staticmethod
+    def _prose(s: str) -> str:
+        s = s.replace("~", " ").replace("\\\\", " ").replace("---", "—").replace("--", "–")
+        s = s.replace("``", "“").replace("''", "”").replace("\\%", "%").replace("\\&", "&").replace("\\_", "_")
+        for _ in range(3):
+            s = re.sub(r"\\(?:emph|textbf|textit|texttt|textsc|underline|text|mbox|textrm|textsf|noindent)\s*"
+                       r"\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", s)
+        s = re.sub(r"\\(?:noindent|centering|vspace\*?\{[^}]*\}|hspace\*?\{[^}]*\}|medskip|smallskip|bigskip|"
+                   r"maketitle|newpage|clearpage|par)\b", " ", s)
+        s = re.sub(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^}]*\}", "", s)
+        s = re.sub(r"\\(?:includegraphics|input)\s*(?:\[[^\]]*\])?\{[^}]*\}", "", s)
+        s = re.sub(r"\\[A-Za-z]+\*?", "", s)
+        return s.replace("{", "").replace("}", "")
+
+    # ----- walk ---------------------------------------------------------------------------------------
+    def blocks(self) -> Iterator[Block]:
+        begin = self.text.find("\\begin{document}")
+        start = begin + len("\\begin{document}") if begin >= 0 else 0
+        end = self.text.find("\\end{document}")
+        end = end if end >= 0 else len(self.text)
+        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^}]*)\}", self.text)
+                          for n in m.group(1).split(",")]
+        out: list[Block] = []
+        pos = start
+        while True:
+            m = _TOKEN.search(self.text, pos, end)
+            if not m:
+                break
+            out.extend(self._prose_blocks(self.text[pos:m.start()], pos))
+            pos = self._token(m, out)
+        out.extend(self._prose_blocks(self.text[pos:end], pos))
+        for b in out:  # resolve \ref / \cite now that every label has its number
+            if b.kind in ("para", "abstract", "caption"):
+                b.text = self._clean(b.text)
+        yield from (b for b in out if b.text or b.kind in ("equation", "table", "algorithm"))
+
+    def _prose_blocks(self, chunk: str, offset: int) -> Iterator[Block]:
+        for m in re.finditer(r"(?:[^\n]|\n(?!\s*\n))+", chunk):
+            para = m.group(0).strip()
+            if para and re.search(r"[A-Za-z]{2}", re.sub(r"\\[A-Za-z]+", "", para)):
+                yield Block("para", para, self._loc(offset + m.start()))
+
+    def _token(self, m: re.Match, out: list) -> int:
+        if m.group("sec"):
+            return self._section(m, out)
+        if m.group("appendix"):
+            self.appendix, self.sec = True, [0, 0, 0, 0]
+            return m.end()
+        if m.group("dmath"):
+            closer = "\\]" if m.group("dmath") == "\\[" else "$$"
+            stop = self.text.find(closer, m.end())
+            stop = stop if stop >= 0 else len(self.text)
+            latex = self._expand(self.text[m.end():stop]).strip()
+            out.append(Block("equation", "", self._loc(m.start()), latex=latex))
+            return stop + len(closer)
+        env = m.group("env")
+        body, after = self._env_body(env, m.end())
+        handler = {"abstract": self._abstract, "figure": self._float, "table": self._float,
+                   "algorithm": self._algorithm, "algorithm2e": self._algorithm,
+                   "thebibliography": self._bibliography}.get(env.rstrip("*"), self._math)
+        out.extend(handler(env, body, self._loc(m.start())))
+        return after
+
+    def _env_body(self, env: str, start: int) -> tuple[str, int]:
+        close = f"\\end{{{env}}}"
+        depth, i = 1, start
+        opener = f"\\begin{{{env}}}"
+        while depth:
+            nxt_close = self.text.find(close, i)
+            if nxt_close < 0:
+                return self.text[start:], len(self.text)
+            nxt_open = self.text.find(opener, i, nxt_close)
+            if nxt_open >= 0:
+                depth, i = depth + 1, nxt_open + len(opener)
+            else:
+                depth, i = depth - 1, nxt_close + len(close)
+        return self.text[start:i - len(close)], i
+
+    def _section(self, m: re.Match, out: list) -> int:
+        title, after = read_group(self.text, m.end())
+        level = _LEVEL[m.group("sec")]
+        number = ""
+        if not m.group("star") and level <= 3:
+            self.sec[level - 1] += 1
+            self.sec[level:] = [0] * (4 - level)
+            first = chr(ord("A") + self.sec[0] - 1) if self.appendix else str(self.sec[0])
+            number = ".".join([first, *map(str, self.sec[1:level])])
+        label = re.match(r"\s*\\label\s*\{([^}]*)\}", self.text[after:])
+        if label:
+            self.labels[label.group(1).strip()] = number
+        out.append(Block("heading", self._clean(title), self._loc(m.start()), level=level, number=number))
+        return after
+
+    def _abstract(self, env: str, body: str, loc: Location) -> Iterator[Block]:
+        yield Block("abstract", body.strip(), loc)
+
+    def _float(self, env: str, body: str, loc: Location) -> Iterator[Block]:
+        is_table = env.startswith("table")
+        for cm in re.finditer(r"\\caption\s*(?:\[[^\]]*\])?\s*(?=\{)", body):
+            if is_table:
+                self.tab_no += 1
+            else:
+                self.fig_no += 1
+            number = str(self.tab_no if is_table else self.fig_no)
+            caption, _ = read_group(body, cm.end())
+            label = re.search(r"\\label\s*\{([^}]*)\}", body)
+            if label:
+                self.labels[label.group(1).strip()] = number
+            kind = "Table" if is_table else "Figure"
+            yield Block("caption", f"{kind} {number}: {caption.strip()}", loc, number=number,
+                        label=label.group(1).strip() if label else "", title=kind.lower())
+        if is_table and (rows := self._tabular_rows(body)):
+            yield Block("table", "", loc, rows=rows, number=str(self.tab_no))
+
+    def _tabular_rows(self, body: str) -> list[list[str]]:
+        m = re.search(r"\\begin\{tabular\*?\}\s*(?:\{[^}]*\}\s*)?(?:\{(?:[^{}]|\{[^{}]*\})*\})", body)
+        if not m:
+            return []
+        end = body.find("\\end{tabular", m.end())
+        content = body[m.end(): end if end >= 0 else len(body)]
+        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^}]*\}|cmidrule(?:\([^)]*\))?\{[^}]*\})", "", content)
+        content = re.sub(r"\\multicolumn\{\d+\}\{[^}]*\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        content = re.sub(r"\\multirow\{[^}]*\}\{[^}]*\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        rows = []
+        for row in re.split(r"\\\\", content):
+            cells = [self._clean(c).strip() for c in row.split("&")]
+            if any(cells):
+                rows.append(cells)
+        numeric = sum(1 for r in rows for c in r if re.fullmatch(r"[-+]?\d+(?:\.\d+)?%?", c))
+        return rows if numeric >= 2 else []
+
+    def _algorithm(self, env: str, body: str, loc: Location) -> Iterator[Block]:
+        self.alg_no += 1
+        caption = re.search(r"\\caption\s*(?=\{)", body)
+        title = self._clean(read_group(body, caption.end())[0]) if caption else ""
+        label = re.search(r"\\label\s*\{([^}]*)\}", body)
+        if label:
+            self.labels[label.group(1).strip()] = str(self.alg_no)
+        lines = []
+        for raw in re.split(r"\n|\\\\|(?=\\(?:State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|"
+                            r"Ensure|Return|Function|EndFunction|Procedure|EndProcedure|KwIn|KwOut)\b)", body):
+            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\]]*\])?", "", raw)
+            kw = re.match(r"\s*\\(State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|Ensure|Return|"
+                          r"Function|EndFunction|Procedure|EndProcedure)\b", raw)
+            prefix = "" if not kw or kw.group(1) == "State" else kw.group(1).lower() + " "
+            txt = raw[kw.end():] if kw else raw
+            txt = self._clean(txt)
+            if txt or prefix:
+                lines.append((prefix + txt).strip())
+        text = "\n".join([f"Algorithm {self.alg_no}: {title}".strip(), *lines])
+        yield Block("algorithm", text, loc, number=str(self.alg_no), title=title)
+
+    def _bibliography(self, env: str, body: str, loc: Location) -> Iterator[Block]:
+        self.bib_refs = parse_bbl(body)
+        return iter(())
+
+    def _math(self, env: str, body: str, loc: Location) -> Iterator[Block]:
+        base = env.rstrip("*")
+        starred = env.endswith("*") or base == "displaymath"
+        body = self._expand(body)
+        rows = [body] if base in ("equation", "multline") else _split_rows(body)
+        pending: list[str] = []
+        for row in rows:
+            label = re.search(r"\\label\s*\{([^}]*)\}", row)
+            tag = re.search(r"\\tag\*?\s*\{([^}]*)\}", row)
+            clean = re.sub(r"\\(?:label|tag\*?)\s*\{[^}]*\}|\\(?:nonumber|notag)\b", "", row).strip()
+            numbered = not starred and not re.search(r"\\(?:nonumber|notag)\b", row) or tag
+            pending.append(clean)
+            if not numbered or not clean and not tag:
+                continue
+            if tag:
+                number = tag.group(1).strip()
+            else:
+                self.eq_no += 1
+                number = str(self.eq_no)
+            if label:
+                self.labels[label.group(1).strip()] = number
+            yield Block("equation", "", loc, number=number, latex=" \\\\ ".join(p for p in pending if p),
+                        label=label.group(1).strip() if label else "")
+            pending = []
+        if any(pending):
+            yield Block("equation", "", loc, latex=" \\\\ ".join(p for p in pending if p))
+
+
+def _split_rows(body: str) -> list[str]:
+    """Split an align-like body at top-level ``\\\\`` (not inside nested environments or braces)."""
+    rows, depth, env_depth, cur, i = [], 0, 0, [], 0
+    while i < len(body):
+        if body.startswith("\\begin{", i):
+            env_depth += 1
+        elif body.startswith("\\end{", i):
+            env_depth -= 1
+        c = body[i]
+        if c == "{":
+            depth += 1
+        elif c == "}":
+            depth -= 1
+        if body.startswith("\\\\", i) and depth == 0 and env_depth == 0:
+            rows.append("".join(cur))
+            cur = []
+            i += 2
+            continue
+        cur.append(c)
+        i += 1
+    rows.append("".join(cur))
+    return [r for r in rows if r.strip()]

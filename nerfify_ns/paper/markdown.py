@@ -1,0 +1,166 @@
+"""Markdown reader: headings, paragraphs with line numbers, math blocks, pipe tables, captions."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Iterator
+
+from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
+from nerfify_ns.paper.document import Document, Location
+from nerfify_ns.paper.mathdup import fix_inline, has_duplicated_math, split_display
+
+_EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
+_TRAILING_NUM = re.compile(r"\s*\(\s*(\d+[a-z]?)\s*\)\s*$")
+_TAG = re.compile(r"\\tag\{([^}]*)\}")
+_NUMERIC_CELL = re.compile(r"^[-−+]?\d+(?:\.\d+)?%?$")
+_LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
+
+
+def read_markdown(path: Path) -> Document:
+    """Ingest a ``.md`` file."""
+    text = path.read_text(encoding="utf-8", errors="replace")
+    return build(markdown_blocks(text), source=str(path), kind="markdown")
+
+
+def markdown_blocks(text: str) -> list[Block]:
+    """The blocks of a markdown text, in order."""
+    lines = text.splitlines()
+    fix = fix_inline if has_duplicated_math(text) else (lambda s: s)
+    reader = _Reader(lines, fix)
+    return list(reader.blocks())
+
+
+class _Reader:
+    def __init__(self, lines: list[str], fix):
+        self.lines, self.fix, self.i = lines, fix, 0
+        self.seen_title = False
+        self.last_para = ""
+
+    def blocks(self) -> Iterator[Block]:
+        n = len(self.lines)
+        while self.i < n:
+            line = self.lines[self.i]
+            s = line.strip()
+            if not s:
+                self.i += 1
+            elif s.startswith("#"):
+                yield from self._heading(s)
+            elif s.startswith("```"):
+                yield from self._fence()
+            elif s.startswith("$$") or s.startswith("\\["):
+                yield from self._math()
+            elif s.startswith("|"):
+                yield from self._table()
+            else:
+                yield from self._paragraph()
+
+    def _loc(self, i: int) -> Location:
+        return Location(line=i + 1)
+
+    def _heading(self, s: str) -> Iterator[Block]:
+        hashes = len(s) - len(s.lstrip("#"))
+        text = re.sub(r"[*_`]", "", s[hashes:]).strip()
+        loc = self._loc(self.i)
+        self.i += 1
+        if hashes == 1 and not self.seen_title:
+            self.seen_title = True
+            yield Block("title", text, loc)
+            return
+        number, title = split_heading(text)
+        yield Block("heading", title, loc, level=heading_level(number, max(1, hashes - 1)), number=number)
+
+    def _fence(self) -> Iterator[Block]:
+        start = self.i
+        self.i += 1
+        body = []
+        while self.i < len(self.lines) and not self.lines[self.i].strip().startswith("```"):
+            body.append(self.lines[self.i])
+            self.i += 1
+        self.i += 1
+        text = "\n".join(body)
+        m = re.match(r"\s*Algorithm\s+(\d+)", text)
+        if m or re.search(r"^\s*\d+:\s", text, re.MULTILINE):
+            yield Block("algorithm", text, self._loc(start), number=m.group(1) if m else "")
+
+    def _math(self) -> Iterator[Block]:
+        start = self.i
+        first = self.lines[self.i].strip()
+        closer = "$$" if first.startswith("$$") else "\\]"
+        body = first[2:]
+        while not body.rstrip().endswith(closer) or body.strip() == "" and self.i == start:
+            self.i += 1
+            if self.i >= len(self.lines):
+                break
+            body += "\n" + self.lines[self.i]
+        self.i += 1
+        latex, _, after = body.rpartition(closer) if closer in body else (body, "", "")
+        number = ""
+        if (m := _TAG.search(latex)):
+            number, latex = m.group(1), _TAG.sub("", latex)
+        elif (m := _TRAILING_NUM.match(after)) or (m := _TRAILING_NUM.search(latex)):
+            number = m.group(1)
+            latex = _TRAILING_NUM.sub("", latex) if m.string == latex else latex
+        if not number and self.i < len(self.lines) and _EQ_NUM.match(self.lines[self.i].strip()):
+            number = _EQ_NUM.match(self.lines[self.i].strip()).group(1)
+            self.i += 1
+        yield Block("equation", "", self._loc(start), number=number, latex=latex.strip())
+
+    def _table(self) -> Iterator[Block]:
+        start = self.i
+        rows = []
+        while self.i < len(self.lines) and self.lines[self.i].strip().startswith("|"):
+            row = self.lines[self.i].strip().strip("|")
+            if not re.fullmatch(r"[\s|:\-]+", row):
+                rows.append([c.strip() for c in row.split("|")])
+            self.i += 1
+        if any(_EQ_NUM.match(r[-1] if r else "") or _EQ_NUM.match((r[-2] if len(r) > 1 else "")) for r in rows):
+            yield from self._equation_rows(rows, start)
+            return
+        cells = [[self._cell(c) for c in r] for r in rows]
+        if sum(1 for r in cells for c in r if _NUMERIC_CELL.match(c)) >= 3:
+            yield Block("table", "", self._loc(start), rows=cells)
+
+    def _cell(self, c: str) -> str:
+        c = re.sub(r"\{?\\mathbf\{([^{}]*)\}\}?|\{([^{}]*)\}", lambda m: m.group(1) or m.group(2) or "", c)
+        c = self.fix(c)
+        return c.strip("$ ")
+
+    def _equation_rows(self, rows: list[list[str]], start: int) -> Iterator[Block]:
+        """LaTeXML equation tables: ``|  | <math> |  | (n) |``, one or more rows per equation."""
+        pending_u, pending_l = [], []
+        for r in rows:
+            nums = [c for c in r if _EQ_NUM.match(c)]
+            body = [c for c in r if c and not _EQ_NUM.match(c)]
+            for cell in body:
+                u, lx = split_display(cell)
+                pending_u.append(u)
+                pending_l.append(lx)
+            if nums:
+                yield Block("equation", " ".join(x for x in pending_u if x), self._loc(start),
+                            number=_EQ_NUM.match(nums[0]).group(1), latex=" ".join(x for x in pending_l if x))
+                pending_u, pending_l = [], []
+        if pending_l or pending_u:
+            yield Block("equation", " ".join(pending_u), self._loc(start), latex=" ".join(pending_l))
+
+    def _paragraph(self) -> Iterator[Block]:
+        start = self.i
+        parts = []
+        while self.i < len(self.lines):
+            s = self.lines[self.i].strip()
+            if not s or s.startswith(("#", "|", "```", "$$", "\\[")) or (parts and _LIST.match(s)):
+                break
+            parts.append(_LIST.sub("", s) if not parts else s)
+            self.i += 1
+            if s.endswith("$$"):
+                break
+        text = self.fix(" ".join(parts))
+        if text == self.last_para:  # converters repeat list items
+            return
+        self.last_para = text
+        kind = "caption" if CAPTION.match(text) else "para"
+        alg = re.match(r"\**Algorithm\s+(\d+)\**[:.]?\s*(.*)", text)
+        if alg:
+            yield Block("algorithm", text, self._loc(start), number=alg.group(1), title=alg.group(2)[:120])
+        else:
+            yield Block(kind, text, self._loc(start))

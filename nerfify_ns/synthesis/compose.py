@@ -1,0 +1,174 @@
+"""The composer: a validated plan -> a pip-installable Nerfstudio plugin package.
+
+The plugin's files form a dependency DAG (components -> field -> model -> config -> entry point,
+README); they are rendered from Jinja2 templates in topological order, each Python file parsed
+as soon as it exists and formatted with ruff, and the folder is published atomically.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Dict, List, Optional
+
+import jinja2
+import networkx as nx
+import yaml
+
+from nerfify_ns.atomic import atomic_dir
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.grammar import Grammar, load_grammar, validate
+from nerfify_ns.synthesis.context import Context, Names, build_context, py
+from nerfify_ns.synthesis.registry import record_generated
+from nerfify_ns.synthesis.resources import templates_dir
+
+
+class CompositionError(NerfifyError):
+    """A template produced code that does not parse (a bug in a template or snippet)."""
+
+
+class PlanFileError(NerfifyError):
+    """A plan file that cannot be read as YAML."""
+
+
+@dataclass
+class PluginFile:
+    """One file of the generated plugin: where it goes, its template and what it depends on."""
+
+    path: str
+    template: str
+    depends_on: tuple = ()
+
+
+@dataclass
+class ComposedPlugin:
+    out: Path
+    method: str
+    package: str
+    files: List[str]
+    plan: dict
+
+
+def load_plan(path: Path) -> dict:
+    """Read a plan from YAML (or JSON); a file that is not one raises PlanFileError."""
+    try:
+        plan = yaml.safe_load(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise PlanFileError(f"cannot read plan {path}: {str(exc).splitlines()[0]}; "
+                            "a plan is a YAML mapping (see method_configs/)") from None
+    if not isinstance(plan, dict):
+        raise PlanFileError(f"{path} is not a plan (a YAML mapping; see method_configs/ for examples)")
+    return plan
+
+
+def plugin_files(ctx: dict) -> nx.DiGraph:
+    """The plugin's files and their dependencies (an edge a -> b: b imports or describes a)."""
+    pkg = ctx["package"]
+    files = [PluginFile(f"{pkg}/components/__init__.py", "components_init.py.j2")] if ctx["components"] else []
+    files += [PluginFile(f"{pkg}/components/{m}.py", f"component:{m}", (f"{pkg}/components/__init__.py",))
+              for m in ctx["components"]]
+    component_files = tuple(f.path for f in files)
+    files += [
+        PluginFile(f"{pkg}/field.py", ctx["field_template"], component_files),
+        PluginFile(f"{pkg}/model.py", "model.py.j2", (f"{pkg}/field.py", *component_files)),
+        PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py",)),
+        PluginFile(f"{pkg}/__init__.py", "__init__.py.j2", (f"{pkg}/config.py",)),
+        PluginFile("pyproject.toml", "pyproject.toml.j2", (f"{pkg}/config.py",)),
+        PluginFile("plan.yaml", "plan"),
+        PluginFile("README.md", "README.md.j2", (f"{pkg}/config.py", "plan.yaml")),
+    ]
+    graph = nx.DiGraph()
+    for f in files:
+        graph.add_node(f.path, file=f)
+        for dep in f.depends_on:
+            graph.add_edge(dep, f.path)
+    return graph
+
+
+def _environment() -> jinja2.Environment:
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())), undefined=jinja2.StrictUndefined,
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    env.filters["tuple_literal"] = py
+    return env
+
+
+def _component_source(module: str) -> str:
+    """Our component module, copied into the plugin so it stands alone."""
+    source = resources.files("nerfify_ns.components").joinpath(f"{module}.py").read_text()
+    return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import", "from . import")
+
+
+def _ruff(args: List[str], code: str, path: str) -> str:
+    ruff = Path(sys.executable).with_name("ruff")
+    result = subprocess.run([str(ruff), *args, "--stdin-filename", path, "-"],
+                            input=code, capture_output=True, text=True, timeout=60)
+    if result.returncode != 0:
+        raise CompositionError(f"ruff failed on generated {path}: {(result.stderr or result.stdout).strip()[:300]}")
+    return result.stdout
+
+
+def _format_python(code: str, path: str) -> str:
+    """Parse (a template bug is caught here), sort imports, drop unused ones, format."""
+    try:
+        ast.parse(code)
+    except SyntaxError as exc:
+        raise CompositionError(f"generated {path} does not parse (line {exc.lineno}: {exc.msg}); "
+                               "this is a template bug, please report it") from None
+    code = _ruff(["check", "--quiet", "--select", "I,F401", "--fix", "--exit-zero", "--line-length", "110"], code, path)
+    return _ruff(["format", "--quiet", "--line-length", "110"], code, path)
+
+
+def _render(env: jinja2.Environment, f: PluginFile, ctx: dict, plan: dict) -> str:
+    if f.template == "plan":
+        return yaml.safe_dump(plan, sort_keys=False, width=110)
+    if f.template.startswith("component:"):
+        return _component_source(f.template.split(":", 1)[1])
+    return env.get_template(f.template).render(**ctx)
+
+
+def readme_rows(context: Context, ctx: dict) -> List[dict]:
+    pkg = ctx["package"]
+    rows = [{"file": f"{pkg}/{p.file}", "part": p.role, "path": p.path, "implementation": p.implementation,
+             "evidence": (p.evidence or p.source).replace("|", "/")} for p in context.parts]
+    for kw in ctx["config"]["model"]:
+        rows.append({"file": f"{pkg}/config.py", "part": f"config `{kw.name}`", "path": kw.source.split(" ")[0],
+                     "implementation": ctx["base"]["config_class"], "evidence": ""})
+    return rows
+
+
+def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
+            record: bool = True) -> ComposedPlugin:
+    """Validate ``plan`` and write its plugin package to ``out`` (atomically)."""
+    g = grammar or load_grammar()
+    derivation = validate(plan, g)
+    context = Context(names=Names.of(plan["method"]), plan=plan, derivation=derivation, grammar=g)
+    ctx = build_context(context)
+    ctx["readme"] = {"rows": readme_rows(context, ctx), "pruned": plan.get("pruned") or [],
+                     "holes": plan.get("holes") or [], "notes": plan.get("notes") or []}
+    graph = plugin_files(ctx)
+    env = _environment()
+    written: Dict[str, str] = {}
+    with atomic_dir(out, overwrite) as staging:
+        for name in nx.topological_sort(graph):
+            f: PluginFile = graph.nodes[name]["file"]
+            text = _render(env, f, ctx, plan)
+            if name.endswith(".py"):
+                text = _format_python(text, name)
+            target = staging / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_text(text)
+            written[name] = text
+        (staging / "nerfify.json").write_text(json.dumps(
+            {"method": ctx["method"], "package": ctx["package"], "config": f"{ctx['package']}.config:{ctx['config']['var']}",
+             "files": list(written)}, indent=2))
+    result = ComposedPlugin(out=Path(out).absolute(), method=ctx["method"], package=ctx["package"],
+                            files=list(written), plan=plan)
+    if record:
+        record_generated(result.out)
+    return result
+

@@ -1,0 +1,438 @@
+"""From a validated plan to the values the plugin templates render.
+
+Terminal code comes from ``templates/snippets.yaml`` and base models from ``templates/bases.yaml``;
+base-model config values come from each terminal's ``config`` mapping in ``grammar_spec.yaml``.
+Every value carries the plan entry it comes from, so the generated code can say so.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import re
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+import jinja2
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.grammar import Derivation, Grammar
+from nerfify_ns.knowledge import card as load_card
+from nerfify_ns.synthesis.resources import bases, snippets
+
+
+def one(mapping: dict) -> Tuple[str, Any]:
+    """The single (alternative, value) of a choice."""
+    (key, value), = mapping.items()
+    return key, value
+
+
+def py(value: Any) -> str:
+    """A Python literal for a plan value (lists become tuples, as Nerfstudio's configs use)."""
+    if isinstance(value, (list, tuple)):
+        items = ", ".join(py(v) for v in value)
+        return f"({items},)" if len(value) == 1 else f"({items})"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{py(k)}: {py(v)}" for k, v in value.items()) + "}"
+    return repr(value)
+
+
+_ENV = jinja2.Environment(undefined=jinja2.StrictUndefined, keep_trailing_newline=False)
+_ENV.filters["tuple_literal"] = py
+
+
+def render_snippet(text: str, params: dict, package: str) -> str:
+    return _ENV.from_string(text).render(p=params, package=package)
+
+
+@dataclass
+class KW:
+    """A keyword argument of a generated config call and the plan entry it comes from."""
+
+    name: str
+    value: str
+    source: str
+
+
+@dataclass
+class Part:
+    """A part of the plugin, traced to its plan entry, implementation and evidence."""
+
+    file: str
+    role: str
+    path: str
+    terminal: str
+    what: str
+    implementation: str
+    source: str = ""
+    evidence: str = ""
+
+
+@dataclass
+class Names:
+    method: str
+    package: str
+    prefix: str
+
+    @classmethod
+    def of(cls, method: str) -> "Names":
+        package = re.sub(r"[^a-z0-9]+", "_", method.lower()).strip("_")
+        package = package if package[0].isalpha() else f"m_{package}"
+        prefix = "".join(part.capitalize() for part in package.split("_"))
+        return cls(method=method, package=package, prefix=prefix)
+
+
+@dataclass
+class Context:
+    """Everything the templates render for one plugin."""
+
+    names: Names
+    plan: dict
+    derivation: Derivation
+    grammar: Grammar
+    parts: List[Part] = field(default_factory=list)
+    components: List[str] = field(default_factory=list)
+
+    def params(self, path: str) -> dict:
+        """A terminal's parameters at ``path`` with the grammar's defaults filled in."""
+        terminal = self.grammar.terminals[self.derivation.used[path]]
+        given = get_path(self.plan, path)
+        return {**terminal.defaults(), **(given if isinstance(given, dict) else {})}
+
+    def used(self, path: str) -> bool:
+        return path in self.derivation.used
+
+    def part(self, file: str, role: str, path: str, what: str) -> None:
+        terminal = self.grammar.terminals[self.derivation.used[path]]
+        evidence = (self.plan.get("evidence") or {}).get(_slot_of(path), "")
+        implementation = terminal.implementation.replace("nerfify_ns.components", f"{self.names.package}.components")
+        self.parts.append(Part(file=file, role=role, path=path, terminal=terminal.name, what=what,
+                               implementation=implementation, source=card_reference(terminal.card),
+                               evidence=str(evidence)))
+
+    def need_component(self, snippet: dict) -> None:
+        module = snippet.get("component")
+        if module and module not in self.components:
+            self.components.append(module)
+
+
+def card_reference(card_name: Optional[str]) -> str:
+    """'<paper title> (<year>), <equation>' of a knowledge-base card, or '' when there is none."""
+    if not card_name:
+        return ""
+    try:
+        card = load_card(card_name)
+    except NerfifyError:
+        return ""
+    where = f", {card.equation.ref}" if card.equation.ref else ""
+    year = f" ({card.paper.year})" if card.paper.year else ""
+    arxiv = f", arXiv {card.paper.arxiv}" if card.paper.arxiv else ""
+    return f"{card.paper.title}{year}{arxiv}{where}"
+
+
+def _slot_of(path: str) -> str:
+    """The plan slot a terminal path belongs to (``model.sampler.proposal`` -> ``model.sampler``)."""
+    return path.rsplit(".", 1)[0] if path.count(".") >= 2 and path.split(".")[-2] != "losses" else path
+
+
+def get_path(plan: dict, path: str) -> Any:
+    node: Any = plan
+    for key in path.split("."):
+        node = node[key]
+    return node
+
+
+# ------------------------------------------------------------------------------- the field
+def _imports(ctx: Context, snippet: dict) -> List[str]:
+    ctx.need_component(snippet)
+    return [render_snippet(line, {}, ctx.names.package) for line in snippet.get("imports", [])]
+
+
+def _activation(kind: str) -> Callable[[str], str]:
+    expr = snippets()["density_activation"][kind]["expr"]
+    return lambda x: expr.format(x=x)
+
+
+def mlp_field(ctx: Context) -> dict:
+    root = "model.field.MLPField"
+    fp = get_path(ctx.plan, root)
+    pkg = ctx.names.package
+    imports: List[str] = []
+
+    pe_name, _ = one(fp["pos_encoding"])
+    pe_path = f"{root}.pos_encoding.{pe_name}"
+    pe = snippets()["pos_encoding"][pe_name]
+    imports += _imports(ctx, pe)
+    ctx.part("field.py", "position encoding", pe_path, ctx.grammar.terminals[pe_name].doc)
+
+    de_name, _ = one(fp["dir_encoding"])
+    de_path = f"{root}.dir_encoding.{de_name}"
+    de = snippets()["dir_encoding"][de_name]
+    imports += _imports(ctx, de)
+    ctx.part("field.py", "direction encoding", de_path, ctx.grammar.terminals[de_name].doc)
+
+    dh_name, _ = one(fp["density_head"])
+    dh_path = f"{root}.density_head.{dh_name}"
+    dh = ctx.params(dh_path)
+    act = snippets()["density_activation"][dh["activation"]]
+    imports += _imports(ctx, act)
+    ctx.part("field.py", "density head", dh_path, ctx.grammar.terminals[dh_name].doc)
+
+    backbone = ctx.params(f"{root}.backbone")
+    ctx.part("field.py", "backbone", f"{root}.backbone", ctx.grammar.terminals["mlp"].doc)
+    rgb = ctx.params(f"{root}.rgb_head")
+    ctx.part("field.py", "colour head", f"{root}.rgb_head", ctx.grammar.terminals["rgb_mlp"].doc)
+
+    distortion = None
+    if "spatial_distortion" in fp:
+        sd_name, _ = one(fp["spatial_distortion"])
+        sd_path = f"{root}.spatial_distortion.{sd_name}"
+        sd = snippets()["spatial_distortion"][sd_name]
+        imports += _imports(ctx, sd)
+        distortion = render_snippet(sd["ctor"], ctx.params(sd_path), pkg)
+        ctx.part("field.py", "spatial distortion", sd_path, ctx.grammar.terminals[sd_name].doc)
+
+    appearance = None
+    if "appearance_embedding" in fp:
+        appearance = ctx.params(f"{root}.appearance_embedding")
+        imports.append("from nerfstudio.field_components.embedding import Embedding")
+        ctx.part("field.py", "appearance embedding", f"{root}.appearance_embedding",
+                 ctx.grammar.terminals["appearance_embedding"].doc)
+
+    split = dh_name == "density_split"
+    geo = str(dh["geo_feat_dim"]) if split else "self.backbone.get_out_dim()"
+    rgb_in = " + ".join(["self.direction_encoding.get_out_dim()", geo] + ([str(appearance["dim"])] if appearance else []))
+    skips = backbone["skip_connections"]
+    return {
+        "cls": f"{ctx.names.prefix}Field",
+        "summary": f"Radiance field of the plan: {pe_name} positions, {de_name} directions, "
+                   f"{backbone['num_layers']} x {backbone['layer_width']} MLP, {dh_name} density.",
+        "imports": sorted(set(imports)),
+        "pos_encoding": render_snippet(pe["ctor"], ctx.params(pe_path), pkg),
+        "dir_encoding": render_snippet(de["ctor"], ctx.params(de_path), pkg),
+        "dir_normalized": de["normalized_input"],
+        "domain": pe["domain"],
+        "times": bool(pe.get("times")),
+        "distortion": distortion,
+        "appearance": appearance,
+        "backbone": {**backbone, "skip_connections": py(skips) if skips else None},
+        "density": {"split": split, "geo_feat_dim": dh.get("geo_feat_dim"), "init_density": dh.get("init_density"),
+                    "activation": _activation(dh["activation"])},
+        "rgb": rgb,
+        "rgb_in_dim": rgb_in,
+        "keeps_density": ctx.used("model.regularizers.density_sparsity"),
+        "parts": [p for p in ctx.parts if p.file == "field.py"],
+    }
+
+
+def tensorial_field(ctx: Context) -> dict:
+    root = "model.field.TensorialField"
+    fp = get_path(ctx.plan, root)
+    dec_name, _ = one(fp["decomposition"])
+    dec_path = f"{root}.decomposition.{dec_name}"
+    dec = ctx.params(dec_path)
+    snippet = snippets()["tensor_decomposition"][dec_name]
+    head = ctx.params(f"{root}.appearance_head")
+    ctx.part("field.py", "tensor decomposition", dec_path, ctx.grammar.terminals[dec_name].doc)
+    ctx.part("field.py", "appearance head", f"{root}.appearance_head",
+             ctx.grammar.terminals["tensorial_appearance"].doc)
+    return {
+        "cls": f"{ctx.names.prefix}Field",
+        "summary": f"Tensorial radiance field of the plan: {dec_name} factors, "
+                   f"{dec['density_components']} density / {dec['color_components']} appearance components.",
+        "imports": _imports(ctx, snippet),
+        "decomposition": snippet["cls"],
+        "density_components": dec["density_components"],
+        "color_components": dec["color_components"],
+        **{k: head[k] for k in ("appearance_dim", "num_layers", "layer_width", "feature_frequencies",
+                                "direction_frequencies")},
+        "parts": [p for p in ctx.parts if p.file == "field.py"],
+    }
+
+
+# ------------------------------------------------------------------------------- the model
+def _proposal_networks(ctx: Context) -> Optional[dict]:
+    path = "model.sampler.proposal"
+    if not ctx.used(path) or ctx.params(path)["network"] != "kplanes":
+        return None
+    distortion = ctx.used("model.field.MLPField.spatial_distortion.scene_contraction")
+    ctor = "KPlanesDensityField(self.scene_box.aabb, resolution=resolution, num_components=8"
+    ctor += ', spatial_distortion=SceneContraction(order=float("inf")))' if distortion else ")"
+    imports = ["from .components.kplanes import KPlanesDensityField", "from torch import nn"]
+    if distortion:
+        imports.append("from nerfstudio.field_components.spatial_distortions import SceneContraction")
+    ctx.need_component({"component": "kplanes"})
+    return {"ctor": ctor, "resolutions": list(ctx.params(path)["network_max_res"]), "imports": imports}
+
+
+def model_context(ctx: Context) -> dict:
+    imports: List[str] = []
+    rgb_name, _ = one(get_path(ctx.plan, "model.losses.rgb"))
+    rgb_snippet = snippets()["rgb_loss"][rgb_name]
+    rgb_loss = None
+    ctx.part("model.py", "photometric loss", f"model.losses.rgb.{rgb_name}", ctx.grammar.terminals[rgb_name].doc)
+    if rgb_snippet:
+        imports += _imports(ctx, rgb_snippet)
+        params = ctx.params(f"model.losses.rgb.{rgb_name}")
+        rgb_loss = {"name": rgb_name, "ctor": render_snippet(rgb_snippet["ctor"], params, ctx.names.package)}
+    regularizers = []
+    for name in (get_path(ctx.plan, "model").get("regularizers") or {}):
+        snippet = snippets()["regularizers"].get(name)
+        if snippet is None:  # realised through the base model's own config (e.g. TensoRF's L1/TV)
+            continue
+        path = f"model.regularizers.{name}"
+        params = ctx.params(path)
+        imports += _imports(ctx, snippet)
+        regularizers.append({"name": name, "weight": params["weight"],
+                             "expr": render_snippet(snippet["expr"], params, ctx.names.package)})
+        ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
+    sampler_name, _ = one(get_path(ctx.plan, "model.sampler"))
+    ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
+    proposal = _proposal_networks(ctx)
+    if proposal:
+        imports += proposal["imports"]
+    return {
+        "cls": f"{ctx.names.prefix}Model",
+        "config_cls": f"{ctx.names.prefix}ModelConfig",
+        "imports": sorted(set(imports)),
+        "rgb_loss": rgb_loss,
+        "regularizers": regularizers,
+        "proposal_networks": proposal,
+    }
+
+
+# ------------------------------------------------------------------------------- the config
+def _config_fields(base: dict) -> Dict[str, Any]:
+    module = importlib.import_module(base.get("config_module") or base["module"])
+    cls = getattr(module, base["config_class"])
+    return {f.name: f for f in dataclasses.fields(cls)}
+
+
+def _mapped_values(ctx: Context, base_name: str) -> List[KW]:
+    """Base-config values that terminals map onto (``config:`` in grammar_spec.yaml)."""
+    out = []
+    for path, term in ctx.derivation.used.items():
+        mapping = ctx.grammar.terminals[term].config.get(base_name, {})
+        params = ctx.params(path) if mapping else {}
+        for param, config_field in mapping.items():
+            out.append(KW(config_field, py(params[param]), f"{path}.{param}"))
+    return out
+
+
+def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> List[KW]:
+    """Base-config switches implied by what the plan contains (or leaves out)."""
+    out: List[KW] = []
+    model = get_path(ctx.plan, "model")
+    mlp = (model["field"].get("MLPField") or {})
+    if "background_color" in fields:
+        out.append(KW("background_color", py(ctx.params("model.renderer")["background"]), "model.renderer.background"))
+    if "disable_scene_contraction" in fields:
+        out.append(KW("disable_scene_contraction", py("spatial_distortion" not in mlp),
+                      "model.field.MLPField.spatial_distortion (absent: disabled)"))
+    if "use_appearance_embedding" in fields:
+        has = "appearance_embedding" in mlp
+        out.append(KW("use_appearance_embedding", py(has), "model.field.MLPField.appearance_embedding"))
+    if "average_init_density" in fields and ctx.used("model.field.MLPField.density_head.density_split"):
+        value = ctx.params("model.field.MLPField.density_head.density_split")["init_density"]
+        out.append(KW("average_init_density", py(value), "model.field.MLPField.density_head.density_split.init_density"))
+    if "camera_optimizer" in fields:
+        mode = {"so3xr3": "SO3xR3", "se3": "SE3"}.get(one(model["camera_optimizer"])[0]) if "camera_optimizer" in model else "off"
+        out.append(KW("camera_optimizer", f"CameraOptimizerConfig(mode={mode!r})", "model.camera_optimizer (absent: off)"))
+    if ctx.used("model.sampler.proposal") and "proposal_net_args_list" in fields:
+        p = ctx.params("model.sampler.proposal")
+        out.append(KW("num_proposal_iterations", py(len(p["samples_per_ray"])), "model.sampler.proposal.samples_per_ray"))
+    if ctx.used("model.sampler.proposal") and ctx.params("model.sampler.proposal")["network"] == "hash":
+        p = ctx.params("model.sampler.proposal")
+        nets = [{"hidden_dim": p["network_hidden_dim"], "log2_hashmap_size": p["network_log2_hashmap_size"],
+                 "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False} for r in p["network_max_res"]]
+        out.append(KW("proposal_net_args_list", "[" + ", ".join(py(n) for n in nets) + "]", "model.sampler.proposal.network_*"))
+    out += _loss_coefficients(ctx, base_name)
+    return out
+
+
+def _loss_coefficients(ctx: Context, base_name: str) -> List[KW]:
+    if base_name in ("vanilla-nerf", "mipnerf"):
+        weight = ctx.params("model.sampler.hierarchical")["coarse_loss_weight"]
+        return [KW("loss_coefficients", py({"rgb_loss_coarse": weight, "rgb_loss_fine": 1.0}),
+                   "model.sampler.hierarchical.coarse_loss_weight")]
+    if base_name != "tensorf":
+        return []
+    dec, _ = one(get_path(ctx.plan, "model.field.TensorialField.decomposition"))
+    out = [KW("tensorf_encoding", py({"tensor_vm": "vm", "tensor_cp": "cp"}[dec]), "model.field.TensorialField.decomposition")]
+    coeffs = {"rgb_loss": 1.0}
+    regularization = "none"
+    if ctx.used("model.regularizers.tensor_tv"):
+        p = ctx.params("model.regularizers.tensor_tv")
+        regularization, coeffs = "tv", {**coeffs, "tv_reg_density": p["density_weight"], "tv_reg_color": p["color_weight"]}
+    if ctx.used("model.regularizers.tensor_l1"):
+        regularization, coeffs = "l1", {**coeffs, "l1_reg": ctx.params("model.regularizers.tensor_l1")["weight"]}
+    out.append(KW("regularization", py(regularization), "model.regularizers (tensor_l1 / tensor_tv)"))
+    out.append(KW("loss_coefficients", py(coeffs), "model.regularizers.tensor_*"))
+    return out
+
+
+def _group_ctor(ctx: Context, kind: str, value: Optional[dict], path: str) -> Tuple[str, List[str]]:
+    if value is None:
+        return "None", []
+    name, _ = one(value)
+    snippet = snippets()[kind][name]
+    return render_snippet(snippet["ctor"], ctx.params(f"{path}.{name}"), ctx.names.package), snippet["imports"]
+
+
+def config_context(ctx: Context, base: dict) -> dict:
+    base_name = ctx.plan["base"]
+    fields = _config_fields(base)
+    trainer = ctx.params("trainer")
+    dm = ctx.params("datamanager")
+    dataparser = snippets()["datamanager"][dm["dataparser"]]
+    imports = [
+        "from nerfstudio.configs.base_config import ViewerConfig",
+        "from nerfstudio.engine.trainer import TrainerConfig",
+        "from nerfstudio.plugins.types import MethodSpecification",
+        f"from {base['pipeline']['module']} import {base['pipeline']['cls']}",
+        f"from {base['datamanager']['module']} import {base['datamanager']['cls']}",
+        *dataparser["imports"],
+    ]
+    model_kws = _mapped_values(ctx, base_name) + _derived_values(ctx, base_name, fields)
+    if any(kw.name == "camera_optimizer" for kw in model_kws):
+        imports.append("from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig")
+    groups = []
+    for name, group in ctx.plan["optimizers"].items():
+        optimizer, opt_imports = _group_ctor(ctx, "optimizer", group["optimizer"], f"optimizers.{name}.optimizer")
+        scheduler, sch_imports = _group_ctor(ctx, "scheduler", group.get("scheduler"), f"optimizers.{name}.scheduler")
+        imports += opt_imports + sch_imports
+        groups.append({"name": name, "optimizer": optimizer, "scheduler": scheduler})
+    return {
+        "var": f"{ctx.names.package}_method",
+        "imports": sorted(set(imports)),
+        "trainer": [KW(k, py(v), f"trainer.{k}") for k, v in trainer.items()],
+        "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}") for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")],
+        "dataparser": dataparser["ctor"],
+        "model": model_kws,
+        "optimizers": groups,
+    }
+
+
+def build_context(ctx: Context) -> dict:
+    """The full template context of a plugin."""
+    base = {"name": ctx.plan["base"], "config_module": None, **bases()[ctx.plan["base"]]}
+    field_kind, _ = one(ctx.plan["model"]["field"])
+    field_ctx = mlp_field(ctx) if field_kind == "MLPField" else tensorial_field(ctx)
+    model = model_context(ctx)
+    config = config_context(ctx, base)
+    paper = ctx.plan.get("paper") or {}
+    return {
+        "method": ctx.names.method,
+        "package": ctx.names.package,
+        "distribution": f"nerfify-{ctx.names.method}",
+        "title": ctx.names.method,
+        "description": ctx.plan.get("description") or f"{ctx.names.method}, generated by nerfify-ns",
+        "paper": paper,
+        "base": base,
+        "field": field_ctx,
+        "field_template": "field_mlp.py.j2" if field_kind == "MLPField" else "field_tensorial.py.j2",
+        "model": model,
+        "config": config,
+        "components": list(ctx.components),
+        "packages": [ctx.names.package] + ([f"{ctx.names.package}.components"] if ctx.components else []),
+    }

@@ -1,0 +1,133 @@
+"""Scene-adaptive pruning: leave out what the scene does not need, and say why.
+
+Rules are data (``pruning.yaml``). Each applied rule is recorded in ``plan["pruned"]`` with the
+part, the action, the old and new values and the reason; the result is validated again.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from functools import lru_cache
+from importlib import resources
+from typing import Any, Dict, List
+
+import yaml
+
+from nerfify_ns.grammar import Grammar, derive, load_grammar, validate
+from nerfify_ns.grammar.validate import expected_param_groups
+from nerfify_ns.synthesis.scene_probe import SceneFacts
+
+_FUNCTIONS = {"ceil": math.ceil, "log2": math.log2, "max": max, "min": min}
+
+
+@lru_cache(maxsize=1)
+def pruning_rules() -> List[dict]:
+    return yaml.safe_load(resources.files("nerfify_ns.synthesis").joinpath("pruning.yaml").read_text())["rules"]
+
+
+def _parent(plan: dict, path: str):
+    node = plan
+    *head, last = path.split(".")
+    for key in head:
+        if not isinstance(node, dict) or key not in node:
+            return None, last
+        node = node[key]
+    return (node if isinstance(node, dict) else None), last
+
+
+def _cap(value: Any, limit: int, dedupe: bool) -> Any:
+    if not isinstance(value, list):
+        return min(value, limit)
+    capped = [min(v, limit) for v in value]
+    return list(dict.fromkeys(capped)) if dedupe else capped
+
+
+class _Pruner:
+    def __init__(self, plan: dict, facts: SceneFacts, grammar: Grammar) -> None:
+        self.plan, self.facts, self.grammar = plan, facts, grammar
+        self.records: List[dict] = []
+        self.env = {**facts.sizes(), **facts.flags()}
+
+    def reason(self, rule: dict) -> str:
+        return rule["reason"].format(evidence=self.facts.evidence, **self.env)
+
+    def record(self, rule: dict, path: str, action: str, before: Any, after: Any) -> None:
+        self.records.append({"rule": rule["name"], "path": path, "action": action, "from": before, "to": after,
+                             "reason": self.reason(rule)})
+
+    def remove(self, rule: dict, path: str) -> None:
+        parent, key = _parent(self.plan, path)
+        if parent is not None and key in parent:
+            self.record(rule, path, "removed", parent.pop(key), None)
+            if parent == {} and path.startswith("model.regularizers."):
+                self.plan["model"].pop("regularizers")
+
+    def replace(self, rule: dict, spec: dict) -> None:
+        parent, key = _parent(self.plan, spec["path"])
+        slot = parent.get(key) if parent else None
+        if isinstance(slot, dict) and spec["from"] in slot:
+            params = {k: v for k, v in slot[spec["from"]].items() if k not in spec.get("drop_params", [])}
+            parent[key] = {spec["to"]: params}
+            self.record(rule, spec["path"], "replaced", spec["from"], spec["to"])
+
+    def set(self, rule: dict, spec: dict) -> None:
+        parent, key = _parent(self.plan, spec["path"])
+        node = parent.get(key) if parent else None
+        if isinstance(node, dict) and node.get(spec["param"]) != spec["value"]:
+            before = node.get(spec["param"], self.grammar.terminals[key].params[spec["param"]].default)
+            node[spec["param"]] = spec["value"]
+            self.record(rule, f"{spec['path']}.{spec['param']}", "set", before, spec["value"])
+
+    def clamp(self, rule: dict, spec: dict) -> None:
+        limit = int(eval(spec["max"], {"__builtins__": {}, **_FUNCTIONS}, dict(self.env)))  # our own YAML
+        derivation = derive(self.plan, self.grammar)
+        for path, terminal in derivation.used.items():
+            if terminal != spec["terminal"]:
+                continue
+            parent, key = _parent(self.plan, path)
+            params = parent[key]
+            value = params.get(spec["param"], self.grammar.terminals[terminal].params[spec["param"]].default)
+            capped = _cap(value, limit, spec.get("dedupe", False))
+            if capped != value:
+                params[spec["param"]] = capped
+                self.record(rule, f"{path}.{spec['param']}", "clamped", value, capped)
+
+    def drop_orphan_optimizers(self) -> None:
+        expected = set(expected_param_groups(self.grammar, derive(self.plan, self.grammar)))
+        for group in [g for g in self.plan.get("optimizers", {}) if g not in expected]:
+            before = self.plan["optimizers"].pop(group)
+            self.records.append({"rule": "param_groups", "path": f"optimizers.{group}", "action": "removed",
+                                 "from": before, "to": None,
+                                 "reason": f"the pruned model has no parameter group {group!r}"})
+
+    def run(self) -> None:
+        for rule in pruning_rules():
+            if any(self.env.get(k) != v for k, v in (rule.get("when") or {}).items()):
+                continue
+            for action in ("remove", "replace", "set", "clamp"):
+                if action in rule:
+                    getattr(self, action)(rule, rule[action])
+        self.drop_orphan_optimizers()
+
+
+def prune_plan(plan: dict, facts: SceneFacts, grammar: Grammar | None = None) -> dict:
+    """A copy of ``plan`` for the scene ``facts`` describe, with ``pruned`` records; validated."""
+    g = grammar or load_grammar()
+    validate(plan, g)
+    pruned = copy.deepcopy(plan)
+    pruned["scene"] = facts.flags()
+    pruner = _Pruner(pruned, facts, g)
+    pruner.run()
+    pruned["pruned"] = list(plan.get("pruned") or []) + pruner.records
+    pruned.setdefault("evidence", {})["scene"] = "; ".join(f"{k}: {v}" for k, v in facts.evidence.items())
+    validate(pruned, g)
+    return pruned
+
+
+def adopt_scene(plan: dict, facts: SceneFacts) -> Dict[str, Any]:
+    """With pruning off (--keep-all): the plan unchanged except for a note of the scene's facts."""
+    kept = copy.deepcopy(plan)
+    kept.setdefault("notes", []).append(
+        "pruning off (--keep-all); the scene would allow: " + ", ".join(f"{k}={v}" for k, v in facts.flags().items()))
+    return kept
