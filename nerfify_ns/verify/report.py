@@ -1,0 +1,92 @@
+"""What the ladder found: diagnoses, per-rung results and the whole report (``verify.json``)."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any, Dict, List, Optional
+
+RUNGS = ("static", "contract", "stability", "smoke")
+
+
+@dataclass
+class Diagnosis:
+    """One broken rule: which rung, which rule, where (file and line) and why."""
+
+    rung: str
+    rule: str
+    message: str
+    file: Optional[str] = None
+    line: Optional[int] = None
+    traceback: str = ""
+    component: Optional[str] = None
+    case: Optional[str] = None
+
+    def where(self) -> str:
+        if not self.file:
+            return self.component or "-"
+        return f"{self.file}:{self.line}" if self.line else self.file
+
+    def __str__(self) -> str:
+        return f"[{self.rung}/{self.rule}] {self.where()}: {self.message}"
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Diagnosis":
+        return cls(**{k: data.get(k) for k in cls.__dataclass_fields__ if k in data})
+
+
+@dataclass
+class RungResult:
+    """One rung: passed, failed or skipped (with why), its checks and its failures."""
+
+    name: str
+    status: str = "pass"  # pass | fail | skip
+    seconds: float = 0.0
+    checks: int = 0
+    failures: List[Diagnosis] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)
+    details: Dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status != "fail"
+
+    def fail(self, diagnosis: Diagnosis) -> None:
+        self.failures.append(diagnosis)
+        self.status = "fail"
+
+    def to_dict(self) -> dict:
+        data = asdict(self)
+        data["seconds"] = round(self.seconds, 2)
+        return data
+
+
+@dataclass
+class LadderReport:
+    """Every rung of every round; ``rungs`` are those of the last round."""
+
+    plugin: str
+    rungs: List[RungResult] = field(default_factory=list)
+    rounds: List[List[RungResult]] = field(default_factory=list)
+    patches: List[dict] = field(default_factory=list)
+    notes: List[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.rungs) and all(r.ok for r in self.rungs)
+
+    @property
+    def failures(self) -> List[Diagnosis]:
+        return [d for r in self.rungs for d in r.failures]
+
+    def rung(self, name: str) -> Optional[RungResult]:
+        return next((r for r in self.rungs if r.name == name), None)
+
+    def to_dict(self) -> dict:
+        return {
+            "plugin": self.plugin, "ok": self.ok,
+            "rungs": [r.to_dict() for r in self.rungs],
+            "failures": [asdict(d) for d in self.failures],
+            "patches": self.patches, "notes": self.notes,
+            "rounds": [[{"name": r.name, "status": r.status, "failures": [str(d) for d in r.failures]} for r in rnd]
+                       for rnd in self.rounds],
+        }

@@ -1,0 +1,102 @@
+"""Run untrusted plugin code in a separate process: time limit, memory limit, no network, no writes
+outside its folder.
+
+Where we are root and ``unshare`` exists, the process gets a new network namespace (no network)
+and a new mount namespace in which the whole root filesystem is remounted read-only except the
+run's own folder (``workdir``) and a fresh ``/dev/shm``; ``TMPDIR`` points inside ``workdir``.
+Memory is capped with ``RLIMIT_AS``; on timeout the whole process group is killed.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence
+
+DEFAULT_MEMORY = 12 << 30
+
+# Runs inside the new mount namespace before the command: everything read-only but $1.
+_INNER = (
+    'set -e; W="$1"; shift; mount --make-rprivate /; mount --bind "$W" "$W"; '
+    "mount -o remount,bind,ro /; mount -t tmpfs -o size=2g tmpfs /dev/shm; "
+    'mount -o remount,bind,rw "$W"; cd "$W"; exec "$@"'
+)
+
+
+@dataclass
+class SandboxResult:
+    """How the sandboxed process ended."""
+
+    returncode: int
+    seconds: float
+    timed_out: bool
+    log_path: Path
+    isolation: List[str]
+
+    def tail(self, lines: int = 30) -> str:
+        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+        return "\n".join(text.splitlines()[-lines:])
+
+
+def isolation_available() -> bool:
+    """True when we can give a process its own network and mount namespaces."""
+    return shutil.which("unshare") is not None and hasattr(os, "geteuid") and os.geteuid() == 0
+
+
+def sandbox_prefix(workdir: Path, isolate: bool = True) -> List[str]:
+    if not (isolate and isolation_available()):
+        return []
+    return [shutil.which("unshare"), "-n", "-m", "sh", "-c", _INNER, "sh", str(workdir)]
+
+
+def _limits(memory: int):
+    def apply() -> None:
+        if memory:
+            resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+        resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    return apply
+
+
+def sandbox_env(workdir: Path, extra: Optional[Dict[str, str]] = None) -> Dict[str, str]:
+    tmp = workdir / ".tmp"
+    tmp.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.update({"TMPDIR": str(tmp), "MPLCONFIGDIR": str(tmp / "mpl"), "PYTHONDONTWRITEBYTECODE": "1",
+                "PYTHONWARNINGS": "ignore", "XDG_CACHE_HOME": str(tmp / "cache"), "NERFIFY_SANDBOX": "1"})
+    env.update(extra or {})
+    return env
+
+
+def run_sandboxed(cmd: Sequence[str], workdir: Path, *, timeout: float, log_name: str = "run.log",
+                  memory: int = DEFAULT_MEMORY, env: Optional[Dict[str, str]] = None,
+                  isolate: bool = True) -> SandboxResult:
+    """Run ``cmd`` with its working directory ``workdir`` (created), output to ``workdir/log_name``."""
+    workdir = Path(workdir).resolve()
+    workdir.mkdir(parents=True, exist_ok=True)
+    prefix = sandbox_prefix(workdir, isolate)
+    isolation = ["timeout", "rlimit_as"] + (["no-network", "read-only-fs"] if prefix else [])
+    log_path = workdir / log_name
+    start = time.perf_counter()
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen([*prefix, *cmd], stdout=log, stderr=subprocess.STDOUT, cwd=workdir,
+                                env=sandbox_env(workdir, env), start_new_session=True,
+                                preexec_fn=_limits(memory))
+        try:
+            code = proc.wait(timeout=timeout)
+            timed_out = False
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+            code, timed_out = -9, True
+    return SandboxResult(code, time.perf_counter() - start, timed_out, log_path, isolation)
+
+
+def python_cmd(module: str, *args: str) -> List[str]:
+    return [sys.executable, "-m", module, *args]
