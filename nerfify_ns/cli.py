@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,6 +14,10 @@ from rich.table import Table
 from typing_extensions import Annotated
 
 from nerfify_ns.errors import NerfifyError
+
+
+class UsageError(NerfifyError):
+    """The command line asks for something contradictory or incomplete."""
 
 CONSOLE = Console(width=120)
 
@@ -62,6 +67,79 @@ class Demo:
                           else f"{value:.4g}" if isinstance(value, float) else str(value))
         CONSOLE.print(table)
         CONSOLE.print(f"outputs: {result.out}  (scene: {result.scene}, Nerfstudio config: {summary['config']})")
+
+
+@dataclass
+class Compose:
+    """Plan -> validate against the grammar -> prune for the scene -> generate a pip-installable plugin ->
+    smoke-train it with Nerfstudio's trainer on a bundled scene (or --data) -> print a summary.
+    Afterwards `ns-train nerfify-generated` trains it, or `pip install -e OUT` registers it by name."""
+
+    plan: tyro.conf.Positional[Optional[Path]] = None
+    """A plan YAML (a derivation of grammar_spec.yaml); or use --method."""
+    method: Optional[str] = None
+    """A reference plan from method_configs/ instead of a file: vanilla-nerf, mipnerf, nerfacto, instant-ngp,
+    tensorf, kplanes-static."""
+    out: Optional[Path] = None
+    """Output folder (default nerfify-out/<method>); written atomically."""
+    data: Optional[Path] = None
+    """Train on this Blender-format scene instead of rendering one."""
+    scene: str = "default"
+    """Procedural scene to render when --data is not given."""
+    iterations: int = 100
+    """Smoke-training iterations."""
+    keep_all: bool = False
+    """Do not prune the plan for the scene (keep contraction, appearance codes, sizes...)."""
+    no_train: bool = False
+    """Generate the plugin only."""
+    overwrite: bool = False
+    """Replace an existing output folder."""
+
+    def main(self) -> None:
+        from nerfify_ns.pipeline import run_compose
+        from nerfify_ns.synthesis.compose import load_plan
+        from nerfify_ns.synthesis.resources import load_reference_plan
+
+        if (self.plan is None) == (self.method is None):
+            raise UsageError("give a plan file or --method NAME (one of them)")
+        plan = load_plan(self.plan) if self.plan is not None else load_reference_plan(self.method)
+        out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
+        with CONSOLE.status("[bold yellow]nerfify compose") as status:
+            result = run_compose(plan, out, data=self.data, scene=self.scene, iterations=self.iterations,
+                                 keep_all=self.keep_all, train=not self.no_train, overwrite=self.overwrite,
+                                 progress=lambda stage: status.update(f"[bold yellow]{stage}"))
+        _print_compose(result)
+
+
+def _print_compose(result) -> None:
+    table = Table(title=f"{result.plan['method']} (base {result.plan['base']})", show_header=False)
+    table.add_row("plugin", str(result.out))
+    table.add_row("files", ", ".join(result.plugin.files))
+    for item in result.plan.get("pruned") or []:
+        table.add_row(f"pruned {item['path']}", f"{item['action']} -> {item['to']}: {item['reason']}")
+    if result.smoke is not None:
+        for key, value in result.smoke.summary().items():
+            table.add_row(key, f"{value:.4g}" if isinstance(value, float) else str(value))
+    CONSOLE.print(table)
+    CONSOLE.print(f"train it: ns-train nerfify-generated --data DATA   or   pip install -e {result.out} && "
+                  f"ns-train {result.plan['method']} --data DATA")
+
+
+@dataclass
+class GrammarExport:
+    """Export the grammar of plans as a JSON Schema and a GBNF grammar (for constrained decoding)."""
+
+    out_dir: tyro.conf.Positional[Path]
+    """Folder to write plan.schema.json and plan.gbnf into."""
+
+    def main(self) -> None:
+        from nerfify_ns.grammar.gbnf import to_gbnf
+        from nerfify_ns.grammar.json_schema import to_json_schema
+
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        (self.out_dir / "plan.schema.json").write_text(json.dumps(to_json_schema(), indent=1))
+        (self.out_dir / "plan.gbnf").write_text(to_gbnf())
+        CONSOLE.print(f"wrote {self.out_dir / 'plan.schema.json'} and {self.out_dir / 'plan.gbnf'}")
 
 
 @dataclass
@@ -137,6 +215,8 @@ class Runtime:
 
 
 Commands = Union[
+    Annotated[Compose, tyro.conf.subcommand("compose")],
+    Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
     Annotated[Demo, tyro.conf.subcommand("demo")],
     Annotated[Scene, tyro.conf.subcommand("scene")],
     Annotated[LpipsWeights, tyro.conf.subcommand("lpips-weights")],

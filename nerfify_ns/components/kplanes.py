@@ -33,6 +33,8 @@ from torch import Tensor, nn
 __all__ = ["MultiScaleKPlanes", "KPlanesDensityField", "sample_plane"]
 
 TIME_AXIS = 3
+MAX_LOG_DENSITY = 20.0
+"""Pre-activation density cap of the proposal field: exp(20) ~ 4.9e8 keeps density finite."""
 
 
 def sample_plane(plane: Tensor, coords: Tensor) -> Tensor:
@@ -224,7 +226,9 @@ class KPlanesDensityField(Field):
         if self.encoding.in_dim == 3:
             times = None
         features = self.encoding(positions, times)
-        density = self.average_init_density * trunc_exp(self.linear(features.to(self.linear.weight.dtype)))
+        raw = self.linear(features.to(self.linear.weight.dtype))
+        # trunc_exp's forward is a plain exp (inf above ~88 in float32): clamp the pre-activation first
+        density = self.average_init_density * trunc_exp(raw.clamp(max=MAX_LOG_DENSITY))
         return density * inside.to(density.dtype)
 
     def get_density(self, ray_samples: RaySamples) -> Tuple[Tensor, None]:

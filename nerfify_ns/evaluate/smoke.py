@@ -6,6 +6,7 @@ arguments, applied exactly as a user would type them).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -41,6 +42,23 @@ def preset_args(method: str) -> List[str]:
     return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
 
 
+GENERATED = "nerfify-generated"
+_BATCH_ARG = "--pipeline.datamanager.train-num-rays-per-batch"
+
+
+def generated_smoke_args(base: str) -> List[str]:
+    """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the ray
+    batch of the base's preset and no mixed precision (its sizes were already pruned for the scene)."""
+    args = preset_args(base)
+    batch = args[args.index(_BATCH_ARG): args.index(_BATCH_ARG) + 2] if _BATCH_ARG in args else []
+    return [*batch, "--mixed-precision", "False"]
+
+
+def generated_env(plugin_dir: Path) -> dict:
+    """The environment under which ``nerfify-generated`` is the plugin in ``plugin_dir``."""
+    return {**os.environ, "NERFIFY_GENERATED": str(Path(plugin_dir).absolute())}
+
+
 @dataclass
 class SmokeResult:
     run: TrainRun
@@ -70,12 +88,13 @@ def smoke_train(
     extra_args: List[str] | None = None,
     evaluate: bool = True,
     timeout: float = 900,
+    env: Optional[dict] = None,
 ) -> SmokeResult:
     """Train ``method`` for ``iterations`` on ``data`` and evaluate it; raises when it failed."""
     run = ns_train(method, data, out_dir, iterations=iterations,
-                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout)
+                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout, env=env)
     if not run.ok or run.last_step + 1 < iterations:
         reason = "timed out" if run.timed_out else f"exit code {run.returncode}, reached step {run.last_step}"
         raise SmokeTrainError(method, reason, run.log_path)
-    metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=timeout) if evaluate else None
+    metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=timeout, env=env) if evaluate else None
     return SmokeResult(run=run, metrics=metrics)

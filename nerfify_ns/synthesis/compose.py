@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import List, Optional
 
 import jinja2
 import networkx as nx
@@ -141,9 +141,8 @@ def readme_rows(context: Context, ctx: dict) -> List[dict]:
     return rows
 
 
-def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
-            record: bool = True) -> ComposedPlugin:
-    """Validate ``plan`` and write its plugin package to ``out`` (atomically)."""
+def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None) -> ComposedPlugin:
+    """Validate ``plan`` and render its plugin into the existing, empty ``folder``."""
     g = grammar or load_grammar()
     derivation = validate(plan, g)
     context = Context(names=Names.of(plan["method"]), plan=plan, derivation=derivation, grammar=g)
@@ -152,23 +151,29 @@ def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional
                      "holes": plan.get("holes") or [], "notes": plan.get("notes") or []}
     graph = plugin_files(ctx)
     env = _environment()
-    written: Dict[str, str] = {}
+    written: List[str] = []
+    for name in nx.topological_sort(graph):
+        f: PluginFile = graph.nodes[name]["file"]
+        text = _render(env, f, ctx, plan)
+        if name.endswith(".py"):
+            text = _format_python(text, name)
+        target = Path(folder) / name
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(text)
+        written.append(name)
+    meta = {"method": ctx["method"], "package": ctx["package"],
+            "config": f"{ctx['package']}.config:{ctx['config']['var']}", "files": written}
+    (Path(folder) / "nerfify.json").write_text(json.dumps(meta, indent=2))
+    return ComposedPlugin(out=Path(folder).absolute(), method=ctx["method"], package=ctx["package"],
+                          files=written, plan=plan)
+
+
+def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
+            record: bool = True) -> ComposedPlugin:
+    """Validate ``plan`` and write its plugin package to ``out`` (atomically); remember it as the last one."""
     with atomic_dir(out, overwrite) as staging:
-        for name in nx.topological_sort(graph):
-            f: PluginFile = graph.nodes[name]["file"]
-            text = _render(env, f, ctx, plan)
-            if name.endswith(".py"):
-                text = _format_python(text, name)
-            target = staging / name
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_text(text)
-            written[name] = text
-        (staging / "nerfify.json").write_text(json.dumps(
-            {"method": ctx["method"], "package": ctx["package"], "config": f"{ctx['package']}.config:{ctx['config']['var']}",
-             "files": list(written)}, indent=2))
-    result = ComposedPlugin(out=Path(out).absolute(), method=ctx["method"], package=ctx["package"],
-                            files=list(written), plan=plan)
+        result = write_plugin(plan, staging, grammar=grammar)
+    result.out = Path(out).absolute()
     if record:
         record_generated(result.out)
     return result
-

@@ -170,7 +170,7 @@ def composite_samples(case: str, samples: int = 8):
                         starts=starts, ends=ends, pixel_area=torch.ones(rays, samples, 1))
     ray_samples = RaySamples(frustums=frustums, spacing_starts=starts / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
                              spacing_ends=ends / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
-                             spacing_to_euclidean_fn=lambda x: x)
+                             spacing_to_euclidean_fn=lambda x: x, deltas=ends - starts)
     value = {"density_0": 0.0, "density_1e8": 1e8, "density_1e8_step_huge": 1e8}.get(case)
     gen = torch.Generator().manual_seed(4)
     densities = torch.rand(rays, samples, 1, generator=gen) * 5 if value is None else torch.full((rays, samples, 1), value)
@@ -377,7 +377,7 @@ def _sampler(terminal: str):
             coarse = rs.UniformSampler(num_samples=p["num_coarse_samples"])(bundle)
             weights = torch.rand(rays, p["num_coarse_samples"], 1).requires_grad_(True)
             samples = rs.PDFSampler(num_samples=p["num_importance_samples"])(bundle, coarse, weights)
-            expected = p["num_importance_samples"] + p["num_coarse_samples"]
+            expected = p["num_importance_samples"] + p["num_coarse_samples"] + 1  # include_original: bin edges
             inputs = [weights]
         elif terminal == "proposal":
             from nerfstudio.data.scene_box import SceneBox
@@ -524,6 +524,24 @@ _add(["interlevel", "distortion"], _sampler_loss, ("density_0", "density_1e8", "
 _add(["plane_tv", "time_smoothness", "plane_l1", "ray_entropy", "density_sparsity"], _regularizer, VALUE_CASES)
 _add(["so3xr3", "se3"], _camera, ("empty_batch", "far_1e5"))
 
+def _kplanes_density(p: dict, case: str) -> Run:
+    from nerfify_ns.components.kplanes import KPlanesDensityField
+
+    module = KPlanesDensityField(torch.tensor(AABB), resolution=8, num_components=4)
+    offset = {"density_raw_0": 0.0, "density_raw_1e8": 1e8, "density_raw_-1e8": -1e8}.get(case)
+    if offset is not None:
+        module.linear.register_forward_hook(lambda m, i, o: o * 0 + offset)
+    x = _points(case, "raw")
+    density = module.density_fn(x.float() if case == "half" else x)
+    return Run({"density": density}, {"density": (_n(case), 1)}, {"density": (0.0, None)}, module=module, inputs=[x])
+
+
+HARNESSES["KPlanesDensityField"] = Harness("KPlanesDensityField", _kplanes_density,
+                                           ("nominal", "density_raw_0", "density_raw_1e8", "density_raw_-1e8",
+                                            "empty_batch", "points_outside_contraction", "scene_scale_1e3"))
+OURS_EXTRA = {"KPlanesDensityField": "nerfify_ns.components.kplanes.KPlanesDensityField"}
+"""Components of ours that fill a terminal indirectly (a proposal network of k-planes)."""
+
 MODEL_LEVEL = {"tensor_l1", "tensor_tv", "nerfacto", "vanilla-nerf", "mipnerf", "instant-ngp", "tensorf"}
 """Terminals implemented inside a Nerfstudio model: checked through the assembled model."""
 
@@ -578,6 +596,8 @@ def check_run(run: Run, grads_required: bool) -> List[str]:
 
 
 def terminal_params(grammar, terminal: str, plan_params: Optional[dict]) -> dict:
+    if terminal not in grammar.terminals:
+        return dict(plan_params or {})
     params = grammar.terminals[terminal].defaults()
     params.update(plan_params or {})
     return small(terminal, params)

@@ -1,0 +1,196 @@
+"""Reading a paper's sentences in context: section roles, sentence splitting, prior-work and usage cues.
+
+Shared by technique detection (``detect.py``) and citation recovery (``citations.py``). The rules
+are data (``detect.yaml``). A paper is any object shaped like ``nerfify_ns.paper.Document``
+(``title``, ``abstract``, ``sections`` with ``paragraphs``, ``equations``): the knowledge package
+imports nothing from the paper package, it only reads those attributes.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Iterator, Optional
+
+import yaml
+
+from nerfify_ns.knowledge.errors import KnowledgeError
+
+DETECT_FILE = Path(__file__).resolve().parent / "detect.yaml"
+
+_ABBREV = re.compile(r"(?:\b(?:e\.g|i\.e|et al|Figs?|Eqs?|Eqns?|Secs?|Tabs?|vs|cf|resp|approx|Refs?|No|Alg|Ch|Sect|"
+                     r"etc|w\.r\.t|Fig|Eq)|\b[A-Z])\.$")
+
+
+@dataclass(frozen=True)
+class Rules:
+    """The compiled contents of ``detect.yaml``."""
+
+    section_roles: tuple[tuple[str, re.Pattern], ...]
+    context_weights: dict
+    signal_weights: dict
+    used_threshold: float
+    prior: tuple[re.Pattern, ...]
+    usage: tuple[re.Pattern, ...]
+    own: tuple[re.Pattern, ...]
+    contrast: tuple[re.Pattern, ...]
+    comparison: tuple[re.Pattern, ...]
+    hyperparameter_cards: dict
+
+
+@lru_cache(maxsize=2)
+def load_rules(path: str = str(DETECT_FILE)) -> Rules:
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        cues = data["cues"]
+
+        def comp(items: list) -> tuple[re.Pattern, ...]:
+            return tuple(re.compile(p, re.IGNORECASE) for p in items)
+
+        hp_cards = {k: ([v] if isinstance(v, str) else list(v)) for k, v in data["hyperparameter_cards"].items()}
+        return Rules(
+            section_roles=tuple((r["role"], re.compile(r["pattern"], re.IGNORECASE)) for r in data["section_roles"]),
+            context_weights=dict(data["context_weights"]), signal_weights=dict(data["signal_weights"]),
+            used_threshold=float(data["used_threshold"]), prior=comp(cues["prior"]), usage=comp(cues["usage"]), own=comp(cues["own"]),
+            contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards)
+    except (OSError, KeyError, TypeError, re.error, yaml.YAMLError) as exc:
+        raise KnowledgeError(f"{path}: cannot read the detection rules ({exc}); fix detect.yaml") from exc
+
+
+def split_sentences(text: str) -> list[str]:
+    """Sentences of a paragraph, each an exact substring of ``text`` (abbreviations kept intact)."""
+    text = text.strip()
+    if not text:
+        return []
+    out: list[str] = []
+    start = 0
+    for m in re.finditer(r"(?<=[.!?])\s+(?=[A-Z0-9(\[$\\])", text):
+        piece = text[start:m.start()]
+        if _ABBREV.search(piece):
+            continue
+        out.append(piece)
+        start = m.end()
+    out.append(text[start:])
+    return [s.strip() for s in out if s.strip()]
+
+
+def section_roles(doc: Any) -> dict[int, str]:
+    """The role of every section of ``doc`` (by index): prior, method, experiments, conclusion, ignore."""
+    rules = load_rules()
+    roles: dict[int, str] = {}
+    stack: list[tuple[int, str, str]] = []  # (level, number, role)
+    for i, s in enumerate(doc.sections):
+        heading = (getattr(s, "title", "") or "").strip().lower()
+        own = next((role for role, pat in rules.section_roles if pat.search(heading)), None)
+        level = getattr(s, "level", 1) or 1
+        number = getattr(s, "number", "") or ""
+        while stack and stack[-1][0] >= level:
+            stack.pop()
+        parent = stack[-1][2] if stack else None
+        if parent is None and "." in number:  # "2.1" under "2" even when levels are flat
+            prefix = number.rsplit(".", 1)[0]
+            parent = next((roles[j] for j in range(i - 1, -1, -1) if doc.sections[j].number == prefix), None)
+        role = own or parent or "method"
+        roles[i] = role
+        stack.append((level, number, role))
+    return roles
+
+
+def _clause_spans(sentence: str, patterns: tuple[re.Pattern, ...]) -> list[tuple[int, int]]:
+    spans = []
+    for pat in patterns:
+        for m in pat.finditer(sentence):
+            end = re.search(r"[,;:.]|\s--\s", sentence[m.end():])
+            spans.append((m.start(), m.end() + (end.start() if end else len(sentence) - m.end())))
+    return spans
+
+
+@dataclass(frozen=True)
+class SentenceContext:
+    """How a sentence speaks about techniques: its section role and cues."""
+
+    role: str
+    prior: bool
+    usage: bool
+    comparison: bool
+    contrast_spans: tuple[tuple[int, int], ...]
+    own: bool = False
+
+    def in_contrast(self, start: int, end: int) -> bool:
+        return any(a <= start and end <= b + 1 for a, b in self.contrast_spans)
+
+    def use_weight(self, start: int = 0, end: int = 0) -> float:
+        """How much a mention at [start, end) counts as the paper using the technique (0 = mention only)."""
+        rules = load_rules()
+        if self.role == "ignore" or (end > start and self.in_contrast(start, end)):
+            return 0.0
+        if self.role == "prior":
+            return 0.8 if self.own and not self.prior else 0.0
+        if self.prior and not self.usage:
+            return 0.0
+        if self.role == "experiments":
+            if self.usage:
+                return 0.8
+            return 0.0 if self.comparison else rules.context_weights["experiments"]
+        return float(rules.context_weights.get(self.role, 1.0))
+
+
+def read_sentence(sentence: str, role: str) -> SentenceContext:
+    rules = load_rules()
+    return SentenceContext(role=role, prior=any(p.search(sentence) for p in rules.prior),
+                           usage=any(p.search(sentence) for p in rules.usage),
+                           comparison=any(p.search(sentence) for p in rules.comparison),
+                           contrast_spans=tuple(_clause_spans(sentence, rules.contrast)),
+                           own=any(p.search(sentence) for p in rules.own))
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One sentence of the paper with where it is."""
+
+    text: str
+    section: str
+    role: str
+    page: Optional[int]
+    line: Optional[int]
+    order: int
+    context: SentenceContext
+
+
+def _loc(loc: Any) -> tuple[Optional[int], Optional[int], int]:
+    if loc is None:
+        return None, None, 0
+    return getattr(loc, "page", None), getattr(loc, "line", None), getattr(loc, "order", 0) or 0
+
+
+def sentences(doc: Any) -> Iterator[Unit]:
+    """Every sentence of the title, abstract, headings and paragraphs, in reading order, with its role."""
+    if doc.title:
+        page = 1 if getattr(doc, "kind", "") == "pdf" else None
+        yield Unit(doc.title, "", "title", page, None if page else 1, 0, read_sentence(doc.title, "title"))
+    for s in split_sentences(doc.abstract or ""):
+        yield Unit(s, "Abstract", "abstract", 1 if getattr(doc, "kind", "") == "pdf" else None, None, 0,
+                   read_sentence(s, "abstract"))
+    roles = section_roles(doc)
+    for i, sec in enumerate(doc.sections):
+        role = roles[i]
+        if role == "ignore":
+            continue
+        page, line, order = _loc(sec.loc)
+        if sec.heading:
+            yield Unit(sec.heading, sec.heading, role, page, line, order, read_sentence(sec.heading, role))
+        for p in sec.paragraphs:
+            page, line, order = _loc(p.loc)
+            for s in split_sentences(p.text):
+                yield Unit(s, sec.heading, role, page, line, order, read_sentence(s, role))
+
+
+def role_of_section(doc: Any, heading: str) -> str:
+    """The role of the section called ``heading`` ("method" when unknown)."""
+    roles = section_roles(doc)
+    for i, s in enumerate(doc.sections):
+        if s.heading == heading:
+            return roles[i]
+    return "abstract" if heading == "Abstract" else "method"

@@ -1,0 +1,119 @@
+"""The assembled plugin: its model built from its own config with a tiny scene box, run on a small
+RayBundle, losses backpropagated; nominal and stiff cases. Runs only inside a probe subprocess."""
+
+from __future__ import annotations
+
+import copy
+from typing import Dict, List, Optional, Tuple
+
+import torch
+from torch import nn
+
+from nerfify_ns.verify.harness import AABB, collide, finite_problem, ray_bundle
+
+MODEL_CASES = ("near_eq_far", "far_1e5", "grazing_rays", "missing_rays", "scene_scale_1e-3", "scene_scale_1e3",
+               "empty_batch", "density_0", "density_1e8", "density_raw_1e8", "half")
+DENSITY_MODULES = ("backbone", "density_head", "mlp_base", "mlp_base_mlp", "linear")
+"""Field submodules whose output is (or starts with) the pre-activation density."""
+
+
+def build_model(spec, scale: float = 1.0):
+    """The plugin's model from its own config, on a [-1.5, 1.5]^3 scene box (times ``scale``)."""
+    from nerfstudio.data.scene_box import SceneBox
+
+    cfg = copy.deepcopy(spec.config.pipeline.model)
+    for name in ("near_plane", "far_plane"):
+        if isinstance(getattr(cfg, name, None), (int, float)):
+            setattr(cfg, name, getattr(cfg, name) * scale)
+    if isinstance(getattr(cfg, "collider_params", None), dict):
+        cfg.collider_params = {k: v * scale for k, v in cfg.collider_params.items()}
+    model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor(AABB) * scale), num_train_data=4, metadata={})
+    return model.to("cpu")
+
+
+def plugin_fields(model, package: str) -> List[Tuple[str, nn.Module]]:
+    from nerfstudio.fields.base_field import Field
+
+    return [(name, m) for name, m in model.named_modules()
+            if isinstance(m, Field) and name and type(m).__module__.split(".")[0] == package]
+
+
+def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
+    """The field's outputs on uniform samples of a small ray bundle."""
+    from nerfstudio.field_components.field_heads import FieldHeadNames
+    from nerfstudio.model_components.ray_samplers import UniformSampler
+
+    bundle = collide(ray_bundle(case), case)
+    samples = UniformSampler(num_samples=8)(bundle)
+    samples.camera_indices = torch.zeros(*samples.shape, 1, dtype=torch.long)
+    out = field(samples)
+    return {("density" if k == FieldHeadNames.DENSITY else getattr(k, "value", str(k))): v
+            for k, v in out.items() if isinstance(v, torch.Tensor)}
+
+
+def train_step(model, case: str = "nominal", rays: int = 16):
+    """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done)."""
+    model.train()
+    bundle = ray_bundle(case, rays)
+    if case in ("grazing_rays", "missing_rays"):
+        bundle.nears = bundle.fars = None  # the model's own collider decides
+    n = bundle.origins.shape[0]
+    batch = {"image": torch.rand(n, 3, generator=torch.Generator().manual_seed(5))}
+    outputs = model(bundle)
+    metrics = model.get_metrics_dict(outputs, batch)
+    losses = model.get_loss_dict(outputs, batch, metrics)
+    total = sum(v for v in losses.values() if isinstance(v, torch.Tensor))
+    if isinstance(total, torch.Tensor) and total.requires_grad:
+        total.backward()
+    return outputs, losses, total
+
+
+def output_problems(outputs: dict, losses: dict) -> List[str]:
+    problems = []
+    for key in ("rgb", "accumulation", "depth", "expected_depth", "rgb_fine", "rgb_coarse"):
+        value = outputs.get(key)
+        if isinstance(value, torch.Tensor):
+            problems += [p for p in [finite_problem(f"outputs[{key!r}]", value)] if p]
+    for key, value in losses.items():
+        if isinstance(value, torch.Tensor):
+            problems += [p for p in [finite_problem(f"loss {key!r}", value)] if p]
+    return problems
+
+
+def grad_problems(model, require: bool) -> Tuple[List[str], List[str]]:
+    """(non-finite gradient problems, names of trainable parameters without a gradient)."""
+    groups = model.get_param_groups()
+    ids = {id(p) for params in groups.values() for p in params}
+    bad, missing = [], []
+    for name, p in model.named_parameters():
+        if id(p) not in ids or not p.requires_grad:
+            continue
+        if p.grad is None:
+            missing.append(name)
+        elif not torch.isfinite(p.grad).all():
+            bad.append(f"gradient of {name} not finite")
+    return bad, (missing if require else [])
+
+
+def patch_density(model, package: str, case: str) -> Optional[str]:
+    """Force the stiff density of ``case`` on every plugin field; returns why not, if it cannot."""
+    fields = plugin_fields(model, package)
+    if case in ("density_0", "density_1e8"):
+        value = 0.0 if case == "density_0" else 1e8
+        for _, f in fields:
+            def forced(ray_samples, _orig=f.get_density):
+                result = _orig(ray_samples)
+                if isinstance(result, tuple):
+                    return (result[0] * 0.0 + value, *result[1:])
+                return result * 0.0 + value
+            f.get_density = forced
+        return None
+    hooked = 0
+    for _, f in fields:
+        for name in DENSITY_MODULES:
+            module = getattr(f, name, None)
+            if isinstance(module, nn.Module):
+                module.register_forward_hook(lambda m, i, o: o + 1e8 if isinstance(o, torch.Tensor) else o)
+                hooked += 1
+                break
+    return None if hooked else "no field submodule producing the pre-activation density " + str(DENSITY_MODULES)

@@ -1,0 +1,473 @@
+"""The probe: the part of the ladder that executes plugin code, run only as a sandboxed subprocess.
+
+    python -m nerfify_ns.verify.probe PLUGIN_DIR EVENTS_JSONL --rungs static,contract,stability [--suite all]
+
+It writes one JSON object per line (flushed): ``{"rung", "event": "start"|"end"}``, diagnoses
+(``{"event": "diagnosis", ...}``) and stability results (``{"event": "case", ...}``). The parent
+reads them back; a rung that started and never ended was killed (timeout, memory).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import importlib
+import inspect
+import json
+import sys
+import traceback
+import warnings
+from pathlib import Path
+from typing import Dict, List, Optional
+
+ROOT: Path = Path(".")
+PACKAGE = ""
+_events = None
+
+
+def emit(**event) -> None:
+    _events.write(json.dumps(event, default=str) + "\n")
+    _events.flush()
+
+
+def plugin_frame(tb) -> tuple:
+    """(file, line) of the innermost traceback frame inside the plugin folder, else (None, None)."""
+    found = (None, None)
+    for frame in traceback.extract_tb(tb):
+        try:
+            rel = Path(frame.filename).resolve().relative_to(ROOT)
+        except ValueError:
+            continue
+        found = (str(rel), frame.lineno)
+    return found
+
+
+FAILED = set()
+
+
+def diagnose(rung: str, rule: str, message: str, file=None, line=None, exc: Optional[BaseException] = None,
+             **extra) -> None:
+    FAILED.add(rung)
+    text = ""
+    if exc is not None:
+        text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)[-6:])[-2000:]
+        if file is None:
+            file, line = plugin_frame(exc.__traceback__)
+    emit(event="diagnosis", rung=rung, rule=rule, message=message, file=file, line=line, traceback=text, **extra)
+
+
+def class_line(cls) -> tuple:
+    try:
+        file = Path(inspect.getsourcefile(cls)).resolve().relative_to(ROOT)
+        return str(file), inspect.getsourcelines(cls)[1]
+    except (TypeError, OSError, ValueError):
+        return None, None
+
+
+# ----------------------------------------------------------------------------- static
+def module_name(rel: str) -> str:
+    parts = rel[:-3].split("/")
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def check_imports(files: List[str]) -> Dict[str, object]:
+    """Resolve every import statement of every file; import the plugin's own modules."""
+    modules = {}
+    for rel in files:
+        try:
+            tree = ast.parse((ROOT / rel).read_text())
+        except SyntaxError:
+            continue
+        name = module_name(rel)
+        package = name if rel.endswith("__init__.py") else name.rpartition(".")[0]
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                targets = [(a.name, None) for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = importlib.util.resolve_name("." * node.level + (node.module or ""), package) if node.level \
+                    else node.module
+                targets = [(base, a.name) for a in node.names]
+            else:
+                continue
+            for mod, attr in targets:
+                try:
+                    imported = importlib.import_module(mod)
+                    if attr and attr != "*" and not hasattr(imported, attr):
+                        importlib.import_module(f"{mod}.{attr}")
+                except Exception as exc:  # any failure of untrusted code is a finding
+                    what = f"{mod}.{attr}" if attr else mod
+                    diagnose("static", "import", f"import of {what} fails: {type(exc).__name__}: {exc}",
+                             rel, node.lineno, exc if not isinstance(exc, ImportError) else None)
+        try:
+            modules[rel] = importlib.import_module(name)
+        except Exception as exc:
+            diagnose("static", "import", f"module {name} cannot be imported: {type(exc).__name__}: {exc}",
+                     exc=exc)
+    return modules
+
+
+def plugin_classes(modules: Dict[str, object]):
+    for rel, module in modules.items():
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if cls.__module__ == module.__name__:
+                yield rel, cls
+
+
+def check_classes(modules, base: Optional[dict]) -> None:
+    from nerfstudio.fields.base_field import Field
+    from nerfstudio.models.base_model import Model, ModelConfig
+
+    for rel, cls in plugin_classes(modules):
+        file, line = class_line(cls)
+        name = cls.__name__
+        if name.endswith("ModelConfig") and not issubclass(cls, ModelConfig):
+            diagnose("static", "base-class", f"{name} must subclass nerfstudio ModelConfig", file, line)
+        elif not name.endswith("Config") and (name.endswith("Model") or "populate_modules" in vars(cls)) \
+                and not issubclass(cls, Model):
+            diagnose("static", "base-class", f"{name} must subclass nerfstudio's Model", file, line)
+        elif (name.endswith("Field") or "get_density" in vars(cls)) and not issubclass(cls, Field):
+            diagnose("static", "base-class", f"{name} must subclass nerfstudio's Field "
+                     "(nerfstudio.fields.base_field.Field)", file, line)
+        if isinstance(cls, type) and issubclass(cls, ModelConfig) and cls is not ModelConfig:
+            check_target(cls, file, line, base)
+
+
+def check_target(cfg_cls, file, line, base: Optional[dict]) -> None:
+    from nerfstudio.models.base_model import Model
+
+    try:
+        target = cfg_cls()._target
+    except Exception as exc:
+        diagnose("static", "config-target", f"{cfg_cls.__name__}() cannot be built: {exc}", file, line, exc)
+        return
+    tline = _target_line(cfg_cls) or line
+    if not (isinstance(target, type) and issubclass(target, Model)):
+        diagnose("static", "config-target", f"{cfg_cls.__name__}._target is {target!r}, not a Model class",
+                 file, tline)
+        return
+    annotated = target.__dict__.get("__annotations__", {}).get("config")
+    annotated = getattr(annotated, "__name__", annotated)
+    expected = cfg_cls.__name__[: -len("Config")]
+    if annotated is not None and annotated != cfg_cls.__name__ or annotated is None and target.__name__ != expected:
+        diagnose("static", "config-target", f"{cfg_cls.__name__}._target builds {target.__module__}."
+                 f"{target.__name__}, not the model this config belongs to ({expected})", file, tline)
+    elif base and not issubclass(target, _import(f"{base['module']}.{base['model_class']}")):
+        diagnose("static", "base-class", f"{target.__name__} must derive from the plan's base "
+                 f"{base['model_class']}", *class_line(target))
+
+
+def _target_line(cls) -> Optional[int]:
+    try:
+        lines, start = inspect.getsourcelines(cls)
+    except (OSError, TypeError):
+        return None
+    return next((start + i for i, text in enumerate(lines) if text.strip().startswith("_target")), None)
+
+
+def _import(path: str):
+    module, _, attr = path.rpartition(".")
+    return getattr(importlib.import_module(module), attr)
+
+
+def load_spec(config: str, entry_line):
+    from nerfstudio.plugins.types import MethodSpecification
+
+    module_name_, _, var = config.partition(":")
+    try:
+        spec = getattr(importlib.import_module(module_name_), var)
+    except Exception as exc:
+        diagnose("static", "entry-point", f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
+                 "pyproject.toml", entry_line, exc if not isinstance(exc, (ImportError, AttributeError)) else None)
+        return None
+    if not isinstance(spec, MethodSpecification):
+        diagnose("static", "entry-point", f"entry point {config} is a {type(spec).__name__}, not a "
+                 "MethodSpecification", "pyproject.toml", entry_line)
+        return None
+    return spec
+
+
+def optimizers_line(config_module: str) -> tuple:
+    rel = config_module.replace(".", "/") + ".py"
+    try:
+        tree = ast.parse((ROOT / rel).read_text())
+    except (OSError, SyntaxError):
+        return rel, None
+    line = next((n.lineno for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "optimizers"), None)
+    return rel, line
+
+
+def check_param_groups(spec, config_module: str):
+    from nerfify_ns.verify.assembled import build_model
+
+    try:
+        model = build_model(spec)
+    except Exception as exc:
+        diagnose("static", "model-build", f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
+                 exc=exc)
+        return None
+    groups = {k: v for k, v in model.get_param_groups().items()}
+    keys = set(spec.config.optimizers)
+    file, line = optimizers_line(config_module)
+    missing, extra = sorted(set(groups) - keys), sorted(keys - set(groups))
+    empty = sorted(k for k, v in groups.items() if not list(v))
+    if missing or extra:
+        diagnose("static", "param-groups", f"model parameter groups {sorted(groups)} != optimizer keys "
+                 f"{sorted(keys)} (missing optimizers: {missing}; optimizers without a group: {extra})", file, line,
+                 missing=missing, extra=extra)
+    if empty:
+        diagnose("static", "param-groups", f"parameter groups without parameters: {empty}", file, line)
+    return model
+
+
+# ----------------------------------------------------------------------------- contract / stability
+def plan_value(plan: dict, path: str):
+    node = plan
+    for key in path.split("."):
+        if not isinstance(node, dict) or key not in node:
+            return None
+        node = node[key]
+    return node
+
+
+def used_terminals(plan: dict) -> Dict[str, str]:
+    from nerfify_ns.grammar import load_grammar, validate
+
+    return dict(validate(plan, load_grammar()).used)
+
+
+def run_component(rung: str, terminal: str, params: dict, cases) -> List[dict]:
+    import torch
+
+    from nerfify_ns.grammar import load_grammar
+    from nerfify_ns.verify.harness import HARNESSES, NotApplicable, check_run, terminal_params
+
+    harness = HARNESSES[terminal]
+    p = terminal_params(load_grammar(), terminal, params)
+    results = []
+    for case in cases:
+        torch.manual_seed(0)
+        try:
+            problems = check_run(harness.run(p, case), grads_required=case == "nominal")
+            status = "fail" if problems else "pass"
+        except NotApplicable as exc:
+            problems, status = [str(exc)], "n/a"
+        except Exception as exc:
+            problems, status = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"], "fail"
+        results.append({"case": case, "status": status, "problems": problems})
+    return results
+
+
+def contract_rung(spec, plan: Optional[dict]) -> None:
+    from nerfify_ns.verify.harness import HARNESSES
+
+    if plan is not None:
+        for path, terminal in used_terminals(plan).items():
+            if terminal not in HARNESSES:
+                continue
+            result = run_component("contract", terminal, plan_value(plan, path) or {}, ["nominal"])[0]
+            emit(event="component", rung="contract", component=terminal, path=path, **result)
+            if result["status"] == "fail":
+                diagnose("contract", "component-contract", f"{terminal} ({path}): " + "; ".join(result["problems"]),
+                         "plan.yaml", None, component=terminal)
+    assembled_contract(spec)
+
+
+def assembled_contract(spec) -> None:
+    import torch
+
+    from nerfify_ns.verify.assembled import build_model, field_forward, grad_problems, output_problems, plugin_fields
+    from nerfify_ns.verify.harness import finite_problem
+
+    model = build_model(spec)
+    for name, field in plugin_fields(model, PACKAGE):
+        file, line = class_line(type(field))
+        try:
+            out = field_forward(field)
+        except Exception as exc:
+            diagnose("contract", "field-contract", f"field {name} ({type(field).__name__}) fails on a small batch: "
+                     f"{type(exc).__name__}: {exc}", exc=exc)
+            continue
+        problems = []
+        shape = (16, 8)
+        radiance = not name.startswith("proposal_networks")
+        for key, dim, low, high in (("density", 1, 0.0, None), ("rgb", 3, 0.0, 1.0)):
+            value = out.get(key)
+            if value is None and key == "rgb" and not radiance:
+                continue
+            if value is None:
+                problems.append(f"no {key} output")
+                continue
+            if tuple(value.shape) != (*shape, dim):
+                problems.append(f"{key} shape {tuple(value.shape)}, expected {(*shape, dim)}")
+            if value.dtype != torch.float32:
+                problems.append(f"{key} dtype {value.dtype}, expected float32")
+            problems += [p for p in [finite_problem(key, value)] if p]
+            if value.numel() and float(value.min()) < low - 1e-5 or high is not None and float(value.max()) > high + 1e-5:
+                problems.append(f"{key} outside [{low}, {high}]")
+        if problems:
+            diagnose("contract", "field-contract", f"field {name} ({type(field).__name__}): " + "; ".join(problems),
+                     file, line)
+    try:
+        outputs, losses, total = model_step(model)
+    except Exception as exc:
+        diagnose("contract", "model-contract", f"a training step of the model fails: {type(exc).__name__}: {exc}",
+                 exc=exc)
+        return
+    problems = output_problems(outputs, losses)
+    if not losses:
+        problems.append("get_loss_dict returned no losses")
+    if problems:
+        diagnose("contract", "non-finite", "model outputs/losses: " + "; ".join(problems))
+    bad, missing = grad_problems(model, require=True)
+    if bad:
+        diagnose("contract", "non-finite", "; ".join(bad))
+    for pname in missing:
+        owner = model.get_submodule(pname.rpartition(".")[0]) if "." in pname else model
+        file, line = class_line(type(owner))
+        diagnose("contract", "detached-parameter", f"trainable parameter {pname} receives no gradient from the "
+                 "losses (a wiring bug: detached, unused, or outside the graph)", file, line, parameter=pname)
+
+
+def model_step(model, case: str = "nominal"):
+    from nerfify_ns.verify.assembled import train_step
+
+    return train_step(model, case)
+
+
+def stability_rung(spec, plan: Optional[dict], suite: str) -> None:
+    from nerfify_ns.verify.harness import HARNESSES, OURS_EXTRA
+
+    grammar_terms = _grammar_terminals()
+    if suite == "all":
+        names = list(HARNESSES)
+        params = {}
+    else:
+        used = used_terminals(plan) if plan else {}
+        names = [t for t in dict.fromkeys(used.values()) if t in HARNESSES]
+        params = {t: plan_value(plan, p) or {} for p, t in used.items()}
+        if plan and "kplanes" in json.dumps(plan.get("model", {})):
+            names.append("KPlanesDensityField")
+    for terminal in names:
+        implementation = grammar_terms.get(terminal) or OURS_EXTRA.get(terminal, "")
+        owner = "ours" if implementation.startswith("nerfify_ns.") else "nerfstudio"
+        for result in run_component("stability", terminal, params.get(terminal, {}), HARNESSES[terminal].cases):
+            emit(event="case", rung="stability", component=terminal, implementation=implementation, owner=owner,
+                 **result)
+            if result["status"] == "fail" and owner == "ours":
+                diagnose("stability", "stiff-case", f"{terminal}, case {result['case']}: "
+                         + "; ".join(result["problems"]), component=terminal, case=result["case"])
+    if spec is not None:
+        assembled_stability(spec)
+
+
+def _grammar_terminals() -> Dict[str, str]:
+    from nerfify_ns.grammar import load_grammar
+
+    return {name: t.implementation for name, t in load_grammar().terminals.items()}
+
+
+ADVISORY_CASES = ("empty_batch", "half")
+"""Model cases recorded but not gating: Nerfstudio's own samplers and losses fail on them (see the report)."""
+
+
+def assembled_stability(spec) -> None:
+    import torch
+
+    from nerfify_ns.verify.assembled import MODEL_CASES, build_model, grad_problems, output_problems, patch_density
+
+    base_model = None
+    for case in MODEL_CASES:
+        torch.manual_seed(0)
+        problems: List[str] = []
+        if case == "half" and not spec.config.mixed_precision:
+            emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status="n/a",
+                 problems=["the method trains in float32 (trainer.mixed_precision off)"])
+            continue
+        scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
+        try:
+            if scale != 1.0 or case.startswith("density"):
+                model = build_model(spec, scale)
+            else:
+                base_model = base_model or build_model(spec)
+                model = base_model
+                model.zero_grad(set_to_none=True)
+            why = patch_density(model, PACKAGE, case) if case.startswith("density") else None
+            if why:
+                emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status="n/a",
+                     problems=[why])
+                continue
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "half"):
+                outputs, losses, _ = model_step(model, "nominal" if case.startswith("density") or case == "half"
+                                                else case)
+            problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
+        except Exception as exc:
+            problems = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"]
+            file, line = plugin_frame(exc.__traceback__)
+            if file:
+                problems[0] += f" at {file}:{line}"
+        gating = case not in ADVISORY_CASES
+        status = ("fail" if gating else "warn") if problems else "pass"
+        emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status=status,
+             problems=problems[:6])
+        if problems and gating:
+            diagnose("stability", "stiff-case", f"assembled model, case {case}: " + "; ".join(problems[:4]),
+                     component="<model>", case=case)
+
+
+# ----------------------------------------------------------------------------- main
+def main(argv=None) -> int:
+    global ROOT, PACKAGE, _events
+    parser = argparse.ArgumentParser()
+    parser.add_argument("plugin")
+    parser.add_argument("events")
+    parser.add_argument("--rungs", default="static,contract,stability")
+    parser.add_argument("--suite", default="plan", choices=["plan", "all"])
+    args = parser.parse_args(argv)
+    warnings.filterwarnings("ignore")
+    _events = open(args.events, "a")
+    from nerfify_ns.runtime import activate
+
+    activate()
+    if args.plugin == "-":  # the component suite alone, no plugin
+        emit(event="start", rung="stability")
+        stability_rung(None, None, "all")
+        emit(event="end", rung="stability")
+        _events.close()
+        return 0
+    from nerfify_ns.verify.plugin import load_plugin
+
+    info = load_plugin(Path(args.plugin))
+    ROOT, PACKAGE = info.root, info.package
+    sys.path.insert(0, str(info.root))
+    base = None
+    if info.plan and info.plan.get("base"):
+        from nerfify_ns.synthesis.resources import bases
+
+        base = bases().get(info.plan["base"])
+    spec = None
+    for rung in args.rungs.split(","):
+        emit(event="start", rung=rung)
+        try:
+            if rung == "static":
+                modules = check_imports(info.python_files)
+                spec = load_spec(info.config, info.entry_line)
+                check_classes(modules, base)
+                if spec is not None:
+                    check_param_groups(spec, info.config_module)
+            else:
+                spec = spec or load_spec(info.config, info.entry_line)
+                if rung == "contract":
+                    contract_rung(spec, info.plan)
+                elif rung == "stability":
+                    stability_rung(spec, info.plan, args.suite)
+        except Exception as exc:  # a crash of the probe on plugin code is itself a finding
+            diagnose(rung, "crash", f"{type(exc).__name__}: {exc}", exc=exc)
+        emit(event="end", rung=rung)
+        if rung in FAILED:
+            break  # the ladder stops at the first failing rung
+    _events.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
