@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
@@ -20,6 +21,32 @@ class UsageError(NerfifyError):
     """The command line asks for something contradictory or incomplete."""
 
 CONSOLE = Console(width=120)
+
+
+class Stages:
+    """Rich progress of a multi-stage run: a spinner on the current stage, a line per finished one."""
+
+    def __init__(self, title: str) -> None:
+        self.title, self.current, self.started = title, None, 0.0
+
+    def __enter__(self) -> "Stages":
+        self.status = CONSOLE.status(f"[bold yellow]{self.title}")
+        self.status.__enter__()
+        return self
+
+    def __call__(self, stage: str) -> None:
+        self._finish()
+        self.current, self.started = stage, time.monotonic()
+        self.status.update(f"[bold yellow]{stage}")
+
+    def _finish(self) -> None:
+        if self.current is not None:
+            CONSOLE.print(f"[green]done[/green] {self.current} ({time.monotonic() - self.started:.1f} s)")
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self._finish()
+        self.status.__exit__(exc_type, exc, tb)
 
 
 def _set_lpips(path: Optional[Path]) -> None:
@@ -53,10 +80,9 @@ class Demo:
         from nerfify_ns.pipeline import run_demo
 
         _set_lpips(self.lpips_weights)
-        with CONSOLE.status("[bold yellow]nerfify demo") as status:
+        with Stages("nerfify demo") as stages:
             result = run_demo(self.out, method=self.method, scene=self.scene, data=self.data,
-                              iterations=self.iterations, overwrite=self.overwrite,
-                              progress=lambda stage: status.update(f"[bold yellow]{stage}"))
+                              iterations=self.iterations, overwrite=self.overwrite, progress=stages)
         summary = result.smoke.summary()
         table = Table(title=f"{self.method} on the CPU, {summary['iterations']} iterations")
         table.add_column("metric")
@@ -67,6 +93,66 @@ class Demo:
                           else f"{value:.4g}" if isinstance(value, float) else str(value))
         CONSOLE.print(table)
         CONSOLE.print(f"outputs: {result.out}  (scene: {result.scene}, Nerfstudio config: {summary['config']})")
+
+
+@dataclass
+class Paper:
+    """The main job: a NeRF paper (.pdf, .tex, a LaTeX folder or tarball, .md, .txt) -> a plan with evidence for
+    every choice -> a pip-installable Nerfstudio plugin -> verification ladder -> training on the CPU with
+    error against time -> evaluation maps -> report.html, all in nerfify-out/<method>/. No network, no LLM."""
+
+    paper: tyro.conf.Positional[Path]
+    """The paper to implement."""
+    out: Optional[Path] = None
+    """Output folder (default nerfify-out/<method>); written atomically."""
+    data: Optional[Path] = None
+    """Train on this Blender-format scene instead of rendering the bundled one."""
+    scene: str = "default"
+    """Procedural scene to render when --data is not given."""
+    iterations: int = 200
+    """Training iterations for the evaluation run."""
+    every: int = 50
+    """Checkpoint cadence of the error-against-time curve (iterations)."""
+    dry_run: bool = False
+    """Stop after the plan: print it with its evidence and holes, write nothing."""
+    keep_all: bool = False
+    """Do not prune the plan for the scene."""
+    patch_rounds: int = 0
+    """Rounds of the visual-feedback patch loop after the first evaluation."""
+    overwrite: bool = False
+    """Replace an existing output folder."""
+    lpips_weights: Optional[Path] = None
+    """AlexNet weights for LPIPS (else $NERFIFY_LPIPS_WEIGHTS, the torch hub cache, or LPIPS is null)."""
+
+    def main(self) -> None:
+        from nerfify_ns.pipeline import run_paper
+
+        _set_lpips(self.lpips_weights)
+        with Stages("nerfify") as stages:
+            result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, iterations=self.iterations,
+                               every=self.every, dry_run=self.dry_run, keep_all=self.keep_all,
+                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=stages)
+        _print_plan(result)
+        if result.out is not None:
+            CONSOLE.print(f"outputs: {result.out}  (report: {result.out / 'report.html'})")
+
+
+def _print_plan(result) -> None:
+    import yaml
+
+    derived = result.derived
+    CONSOLE.print(f"[bold]{result.document.title or result.document.source}[/bold]: base {derived.base} ({derived.base_reason})")
+    table = Table(title="evidence", show_lines=False)
+    table.add_column("plan entry")
+    table.add_column("from")
+    for path, line in sorted((result.plan.get("evidence") or {}).items()):
+        table.add_row(path, str(line))
+    CONSOLE.print(table)
+    for hole in derived.holes:
+        CONSOLE.print(f"[bold red]hole[/bold red] {hole['production']} ({hole['slot']}): not implemented; "
+                      f"{hole.get('stands_in', '')}")
+    if result.out is None:
+        CONSOLE.print(yaml.safe_dump(result.plan, sort_keys=False, width=110))
 
 
 @dataclass
@@ -104,10 +190,10 @@ class Compose:
             raise UsageError("give a plan file or --method NAME (one of them)")
         plan = load_plan(self.plan) if self.plan is not None else load_reference_plan(self.method)
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
-        with CONSOLE.status("[bold yellow]nerfify compose") as status:
+        with Stages("nerfify compose") as stages:
             result = run_compose(plan, out, data=self.data, scene=self.scene, iterations=self.iterations,
                                  keep_all=self.keep_all, train=not self.no_train, overwrite=self.overwrite,
-                                 progress=lambda stage: status.update(f"[bold yellow]{stage}"))
+                                 progress=stages)
         _print_compose(result)
 
 
@@ -215,6 +301,7 @@ class Runtime:
 
 
 Commands = Union[
+    Annotated[Paper, tyro.conf.subcommand("paper")],
     Annotated[Compose, tyro.conf.subcommand("compose")],
     Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
     Annotated[Demo, tyro.conf.subcommand("demo")],
@@ -224,10 +311,16 @@ Commands = Union[
 ]
 
 
+SUBCOMMANDS = ("paper", "compose", "grammar", "demo", "scene", "lpips-weights", "runtime")
+
+
 def entrypoint() -> None:
     """Console script ``ns-nerfify``."""
     tyro.extras.set_accent_color("bright_yellow")
-    command = tyro.cli(Commands, description="nerfify-ns: NeRF papers to verified Nerfstudio methods.")
+    args = sys.argv[1:]
+    if args and not args[0].startswith("-") and args[0] not in SUBCOMMANDS:
+        args = ["paper", *args]  # `ns-nerfify paper.pdf` is the main job
+    command = tyro.cli(Commands, args=args, description="nerfify-ns: NeRF papers to verified Nerfstudio methods.")
     try:
         command.main()
     except NerfifyError as exc:

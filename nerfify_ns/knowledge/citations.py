@@ -150,7 +150,7 @@ def match_target(doc: Any) -> Optional[KnownPaper]:
 _WORD = re.compile(r"[0-9a-z]+")
 
 
-def _first_word(alias: str) -> str:
+def first_word(alias: str) -> str:
     words = _WORD.findall(alias.lower())
     return max(words, key=len) if words else ""
 
@@ -158,12 +158,12 @@ def _first_word(alias: str) -> str:
 @lru_cache(maxsize=1)
 def card_aliases() -> tuple[tuple[str, re.Pattern, object], ...]:
     """(prefilter word, pattern, (card, alias)) for every card alias."""
-    return tuple((_first_word(a), alias_pattern(a), (c.name, a)) for c in load_cards().values() for a in c.aliases)
+    return tuple((first_word(a), alias_pattern(a), (c.name, a)) for c in load_cards().values() for a in c.aliases)
 
 
 @lru_cache(maxsize=1)
 def _paper_aliases() -> tuple[tuple[str, re.Pattern, object], ...]:
-    return tuple((_first_word(a), alias_pattern(a), p.key) for p in load_papers().values() for a in p.aliases)
+    return tuple((first_word(a), alias_pattern(a), p.key) for p in load_papers().values() for a in p.aliases)
 
 
 def find_spans(text: str, table: Sequence[tuple[str, re.Pattern, object]]) -> list[tuple[int, int, object]]:
@@ -231,8 +231,8 @@ def _targets(sentence: str, ref_keys: set[str], ref_papers: dict[str, Optional[s
     return sorted(out, key=lambda t: t.start)
 
 
-def _tokenize(sentence: str, targets: list[_Target]) -> tuple[str, list[int]]:
-    """The sentence with each target replaced by a token, and the offset map token text -> sentence."""
+def _tokenize(sentence: str, targets: list[_Target]) -> str:
+    """The sentence with each target replaced by a token (its index in ``targets``)."""
     parts: list[str] = []
     pos = 0
     for i, t in enumerate(targets):
@@ -240,7 +240,7 @@ def _tokenize(sentence: str, targets: list[_Target]) -> tuple[str, list[int]]:
         parts.append(_TOKEN.format(i))
         pos = t.end
     parts.append(sentence[pos:])
-    return "".join(parts), []
+    return "".join(parts)
 
 
 def _card_hits(text: str, cards: Optional[dict[str, Card]] = None) -> list[str]:
@@ -276,7 +276,7 @@ def find_citation_uses(doc: Any) -> list[CitationUse]:
             continue
         if unit.role == "experiments" and ctx.comparison and not ctx.usage:
             continue
-        tokenized, _ = _tokenize(unit.text, targets)
+        tokenized = _tokenize(unit.text, targets)
         taken: set[tuple[int, str]] = set()
         for pattern in load_patterns().patterns:
             for m in pattern.regex.finditer(tokenized):

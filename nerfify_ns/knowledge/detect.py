@@ -25,8 +25,7 @@ from functools import lru_cache
 from typing import Any, Optional
 
 from nerfify_ns.knowledge.cards import Card, load_cards
-from nerfify_ns.knowledge.citations import _first_word, card_aliases, find_citation_uses, find_spans, match_reference
-from nerfify_ns.knowledge.papers import load_papers
+from nerfify_ns.knowledge.citations import first_word, card_aliases, find_citation_uses, find_spans, match_reference
 from nerfify_ns.knowledge.sentences import SentenceContext, load_rules, read_sentence, role_of_section, sentences
 from nerfify_ns.knowledge.text import alias_pattern, longest_non_overlapping
 
@@ -114,7 +113,7 @@ def _phrase_patterns() -> tuple[tuple[str, str, str, re.Pattern], ...]:
     for c in load_cards().values():
         for ph in c.signals.phrases:
             try:
-                out.append((_first_word(ph), c.name, ph, alias_pattern(ph)))
+                out.append((first_word(ph), c.name, ph, alias_pattern(ph)))
             except ValueError:
                 continue
     return tuple(out)
@@ -196,7 +195,6 @@ def detect_techniques(doc: Any) -> list[Detection]:
             add(name, Evidence(u.sentence, u.section, u.page, u.line, "citation",
                                f"{u.relation} ({u.pattern}) {', '.join(u.papers) or ', '.join(u.keys)}", u.role,
                                round(sw["citation"] * w, 4)))
-    papers = load_papers()
     refs = {r.key: r for r in getattr(doc, "references", [])}
     matched = {k: match_reference(r) for k, r in refs.items()}
     roles_cache: dict[str, str] = {}

@@ -27,8 +27,6 @@ import os
 import sys
 from typing import Callable, Dict, List
 
-import torch
-
 ENV_SWITCH = "NERFIFY_RUNTIME"
 ENV_SKIP = "NERFIFY_RUNTIME_SKIP"
 
@@ -36,6 +34,8 @@ _applied: List[str] = []
 
 
 def cuda_available() -> bool:
+    import torch  # imported on use: tools that never train (a dry run) should not pay for torch
+
     return torch.cuda.is_available()
 
 
@@ -93,6 +93,7 @@ PATCHES: Dict[str, Callable[[], None]] = {
 def allow_numpy_scalars_in_checkpoints() -> None:
     """Let torch's weights-only loader read the numpy scalars inside Nerfstudio checkpoints."""
     import numpy as np
+    import torch
 
     torch.serialization.add_safe_globals(
         [np.core.multiarray.scalar, np.dtype, type(np.dtype("float64")), type(np.dtype("int64"))]

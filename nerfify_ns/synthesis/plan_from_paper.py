@@ -34,7 +34,7 @@ from nerfify_ns.grammar import Grammar, check, load_grammar, validate
 from nerfify_ns.knowledge.cards import Card, load_cards
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, card_aliases, match_target
 from nerfify_ns.knowledge.detect import Detection, detect_techniques, norm_latex
-from nerfify_ns.knowledge.sentences import role_of_section, section_roles, split_sentences
+from nerfify_ns.knowledge.sentences import role_of_section, section_roles
 from nerfify_ns.synthesis.resources import load_reference_plan
 
 BASE_ORDER = ("vanilla-nerf", "mipnerf", "nerfacto", "instant-ngp", "tensorf", "kplanes-static")
@@ -496,7 +496,7 @@ class _Deriver:
                 if role == "method" and len(_MATHY.findall(text)) >= 2:
                     by_section.setdefault(section, []).append((text, loc))
             for section, items in by_section.items():
-                whole = " ".join(t for o, s_, t, l, r in paragraphs if s_ == section)
+                whole = " ".join(t for _o, s_, t, _l, _r in paragraphs if s_ == section)
                 kind = self._kind(whole + " " + section)
                 grp = groups.setdefault((section, kind), {"equations": [], "text": [], "section": section,
                                                           "loc": items[0][1]})
@@ -511,7 +511,7 @@ class _Deriver:
                 if m:
                     lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
                     grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [m.group(1)]
-                grp["text"] = [t for o, s, t, l, r in paragraphs if s == section and len(_MATHY.findall(t)) < 2]
+                grp["text"] = [t for _o, s, t, _l, _r in paragraphs if s == section and len(_MATHY.findall(t)) < 2]
         for (section, kind), grp in groups.items():
             holes.append(self._hole(plan, kind, grp))
         # a card found in the paper whose equation the grammar's terminal does not implement
@@ -551,7 +551,7 @@ class _Deriver:
         equation or in the paragraphs introducing it)."""
         latex, text = norm_latex(e.latex), norm_latex(e.text)
         for c in self.cards.values():
-            if c.name not in taken and c.name not in GENERIC_CARDS:
+            if c.name not in taken:
                 continue
             for frag in c.signals.equations:
                 nf = norm_latex(frag)
@@ -561,7 +561,7 @@ class _Deriver:
             return True
         near = context[0] if context else ""
         for _, _, (name, _alias) in find_spans(near, card_aliases()):
-            if name in taken or name in GENERIC_CARDS:
+            if name in taken:
                 return True
         low = near.lower()
         for name in taken:

@@ -321,11 +321,33 @@ def assembled_contract(spec) -> None:
     bad, missing = grad_problems(model, require=True)
     if bad:
         diagnose("contract", "non-finite", "; ".join(bad))
+    groups: Dict[str, List[str]] = {}
     for pname in missing:
-        owner = model.get_submodule(pname.rpartition(".")[0]) if "." in pname else model
+        groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
+    for prefix, names in groups.items():
+        file, line = owner_line(model, names[0])
+        diagnose("contract", "detached-parameter", f"trainable parameter(s) {', '.join(names[:4])}"
+                 f"{' ...' if len(names) > 4 else ''} receive no gradient from the losses (a wiring bug: detached, "
+                 "unused, or outside the graph)", file, line, parameter=names[0])
+
+
+def owner_line(model, pname: str) -> tuple:
+    """File and line of the plugin code that creates the module holding ``pname`` (``self.<attr> = ...``)."""
+    parts = pname.split(".")[:-1]
+    for i in range(len(parts), -1, -1):
+        owner = model.get_submodule(".".join(parts[:i])) if i else model
+        if type(owner).__module__.split(".")[0] != PACKAGE:
+            continue
         file, line = class_line(type(owner))
-        diagnose("contract", "detached-parameter", f"trainable parameter {pname} receives no gradient from the "
-                 "losses (a wiring bug: detached, unused, or outside the graph)", file, line, parameter=pname)
+        if i < len(parts) and file:
+            try:
+                lines, start = inspect.getsourcelines(type(owner))
+                hit = next((start + k for k, t in enumerate(lines) if f"self.{parts[i]} =" in t), None)
+                return file, hit or line
+            except (OSError, TypeError):
+                pass
+        return file, line
+    return None, None
 
 
 def model_step(model, case: str = "nominal"):

@@ -25,6 +25,19 @@ LEARNING_RATIO = 0.9
 """The photometric loss over the last quarter must be below this fraction of the first quarter's."""
 
 
+def warmup_args(plan: Optional[dict]) -> List[str]:
+    """ns-train arguments switching off learning-rate warm-up (a 20-step run would never leave it)."""
+    args: List[str] = []
+    for group, spec in ((plan or {}).get("optimizers") or {}).items():
+        scheduler = (spec or {}).get("scheduler") or {}
+        flag = f"--optimizers.{group.replace('_', '-')}.scheduler."
+        if "cosine_decay" in scheduler:
+            args += [flag + "warm-up-end", "0"]
+        elif "exponential_decay" in scheduler and (scheduler["exponential_decay"] or {}).get("warmup_steps"):
+            args += [flag + "warmup-steps", "0"]
+    return args
+
+
 def _bin(name: str) -> str:
     import sys
 
@@ -60,7 +73,7 @@ def smoke_rung(info: PluginInfo, scene: Path, workdir: Path, *, iterations: int 
     cmd = [_bin("ns-train"), METHOD, "--data", str(Path(scene).resolve()), "--output-dir", str(workdir),
            "--experiment-name", "run", "--timestamp", "run", "--max-num-iterations", str(iterations),
            "--vis", "tensorboard", "--logging.steps-per-log", "1", "--viewer.quit-on-train-completion", "True",
-           *SMOKE_ARGS, *(extra_args or []), "blender-data"]
+           *SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or []), "blender-data"]
     env = {"NERFIFY_GENERATED": str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
     result = run_sandboxed(cmd, workdir, timeout=timeout, log_name="train.log", env=env)
     r.seconds = time.perf_counter() - start

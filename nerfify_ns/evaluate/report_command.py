@@ -1,0 +1,31 @@
+"""``ns-nerfify report RUN_DIR``: (re-)render ``report.html`` and ``report.json`` of a run folder."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import tyro
+from rich.console import Console
+
+from nerfify_ns.evaluate.report import ReportError, write_report
+
+
+@dataclass
+class Report:
+    """Write a self-contained report (report.html, images inlined, opens offline; and report.json) of a
+    nerfify run folder: paper and plan, citation graph, components and holes, verification ladder,
+    stability cases, metrics, error against time, error maps, consistency maps and the patch-loop
+    history. Parts that are absent are reported as "not run"."""
+
+    run_dir: tyro.conf.Positional[Path]
+    """The run folder (the output of 'ns-nerfify PAPER', e.g. nerfify-out/<method>)."""
+    quiet: bool = False
+    """Print nothing but errors."""
+
+    def main(self) -> None:
+        if not Path(self.run_dir).is_dir():
+            raise ReportError(f"{self.run_dir} is not a folder; pass the output folder of 'ns-nerfify PAPER'")
+        html_path, json_path = write_report(self.run_dir)
+        if not self.quiet:
+            Console().print(f"report: {html_path}\n        {json_path}")

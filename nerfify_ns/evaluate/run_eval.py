@@ -1,0 +1,269 @@
+"""Error against run time for one generated plugin: train, curve, renders, error maps, consistency.
+
+:func:`evaluate_run` trains a composed plugin (``ns-train nerfify-generated`` with
+``$NERFIFY_GENERATED`` pointing at it) with :func:`nerfify_ns.evaluate.curve.train_for_curve`
+(checkpoints every ``every`` steps, evaluation time excluded from the training seconds), then in
+``out_dir`` writes:
+
+* ``curve.csv`` / ``curve.png``: held-out PSNR against training seconds (and iterations), with
+  optional comparison curves (e.g. the reference method) on the same plot;
+* ``renders/``: RGB, depth and accumulation of the test views at the final checkpoint;
+* ``error_maps.json`` + ``<view>_errors.png``: per-view error maps with worst regions;
+* ``consistency.json`` + ``<view>_inconsistent.png``: cross-view depth consistency of the
+  rendered depths (pixels with accumulation < 0.5 count as "no surface") under the scene's
+  test cameras;
+* ``summary.json``: PSNR and SSIM of the final checkpoint (float renders, mean over test views),
+  LPIPS (AlexNet, on the saved 8-bit renders; ``None`` without real weights), training seconds, loss
+  statistics, per-image diagnostics (background error share, high-frequency error ratio,
+  sharpness) and the paths above. It is returned as a dict.
+
+A run that fails or goes non-finite is not an exception: its summary has ``status: failed`` and
+the reason, so a patch loop can diagnose it (divergence) and move on.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import List, Optional, Sequence
+
+import numpy as np
+from PIL import Image
+from scipy import ndimage
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.evaluate.consistency import check_consistency, views_from_transforms
+from nerfify_ns.evaluate.curve import CurveError, CurveSource, plot_curves, record_curve, train_for_curve
+from nerfify_ns.evaluate.error_maps import analyze_views
+from nerfify_ns.evaluate.metrics import as_rgb, lpips, psnr, ssim, to_float
+
+GENERATED_METHOD = "nerfify-generated"
+ENV_GENERATED = "NERFIFY_GENERATED"
+CPU_ARGS = ("--mixed-precision", "False", "--pipeline.datamanager.train-num-rays-per-batch", "512")
+ACCUMULATION_SURFACE = 0.5  # rendered pixels with less accumulation have no surface (consistency)
+HIGH_FREQUENCY_QUANTILE = 0.8  # the top 20% of ground-truth gradient magnitude is "high frequency"
+
+
+class RunEvalError(NerfifyError):
+    """The inputs of an evaluation are unusable (no plugin, no scene, no test split)."""
+
+
+def _json_default(value):
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, (np.floating, np.integer)):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value)}")
+
+
+def _finite(value: Optional[float]) -> Optional[float]:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+def write_json(path: Path, payload) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(payload, indent=2, default=_json_default, allow_nan=False) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def scene_test_frames(scene: Path) -> List[dict]:
+    """The frames of ``transforms_test.json`` (name = image stem, gt = RGBA PNG path)."""
+    path = Path(scene) / "transforms_test.json"
+    if not path.is_file():
+        raise RunEvalError(f"{scene} has no transforms_test.json; pass a Blender-format scene folder")
+    frames = json.loads(path.read_text())["frames"]
+    out = []
+    for frame in frames:
+        rel = frame["file_path"][2:] if frame["file_path"].startswith("./") else frame["file_path"]
+        gt = Path(scene) / (rel if Path(rel).suffix else rel + ".png")
+        out.append({"name": Path(rel).stem, "gt": gt})
+    return out
+
+
+def loss_stats(losses: dict) -> dict:
+    """First/last/min of the train loss (means over the first and last tenth of the logged steps)."""
+    if not losses:
+        return {"finite": False, "steps": 0, "first": None, "last": None, "min": None}
+    steps = sorted(losses)
+    values = [float(losses[s]) for s in steps]
+    finite = all(math.isfinite(v) for v in values)
+    k = max(1, len(values) // 10)
+    good = [v for v in values if math.isfinite(v)]
+    return {
+        "finite": finite,
+        "steps": len(values),
+        "first": _finite(float(np.mean(values[:k]))) if finite else None,
+        "last": _finite(float(np.mean(values[-k:]))) if finite else None,
+        "min": _finite(min(good)) if good else None,
+        "first_nonfinite_step": None if finite else next(s for s, v in zip(steps, values) if not math.isfinite(v)),
+    }
+
+
+def _gradient_energy(img: np.ndarray) -> np.ndarray:
+    grey = img.mean(axis=-1)
+    return ndimage.sobel(grey, axis=0) ** 2 + ndimage.sobel(grey, axis=1) ** 2
+
+
+def image_diagnostics(pred: np.ndarray, gt_rgba: np.ndarray) -> dict:
+    """Where one view's error lies: on the background (GT alpha 0), in high-frequency regions,
+    and how sharp the render is relative to the ground truth."""
+    gt = as_rgb(gt_rgba)
+    p = as_rgb(pred)
+    err = np.mean((p - gt) ** 2, axis=-1)
+    total = float(err.sum())
+    rgba = to_float(gt_rgba)
+    background = rgba[..., 3] <= 1e-3 if rgba.ndim == 3 and rgba.shape[-1] == 4 else np.zeros(err.shape, bool)
+    grad_gt, grad_pred = _gradient_energy(gt), _gradient_energy(p)
+    high = grad_gt >= np.quantile(grad_gt, HIGH_FREQUENCY_QUANTILE)
+    high &= grad_gt > 1e-6
+    low = ~high
+    foreground = ~background
+    interior = ndimage.binary_erosion(foreground, iterations=2)  # texture, not the silhouette
+    interior = interior if interior.any() else foreground
+    return {
+        "background_fraction": float(background.mean()),
+        "background_error_share": float(err[background].sum() / total) if total > 0 else 0.0,
+        "background_psnr": _finite(psnr(p[background], gt[background])) if background.any() else None,
+        "foreground_psnr": _finite(psnr(p[foreground], gt[foreground])) if foreground.any() else None,
+        "high_frequency_error_ratio": float(err[high].mean() / max(err[low].mean(), 1e-12))
+        if high.any() and low.any()
+        else 1.0,
+        "sharpness": float(grad_pred[interior].sum() / max(grad_gt[interior].sum(), 1e-12))
+        if interior.any()
+        else 1.0,
+    }
+
+
+def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+    good = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(good)) if good and len(good) == len(values) else None
+
+
+def _final_ssim(out_dir: Path) -> Optional[float]:
+    """Mean SSIM of the last checkpoint from the render subprocess (float renders, like the PSNR)."""
+    path = out_dir / "checkpoint_eval.json"
+    if not path.is_file():
+        return None
+    results = json.loads(path.read_text()).get("results") or []
+    return _finite(max(results, key=lambda r: r["step"]).get("ssim")) if results else None
+
+
+def evaluate_run(
+    plugin_dir: Path,
+    scene: Path,
+    out_dir: Path,
+    *,
+    iterations: int,
+    every: int,
+    label: str = "generated",
+    method_args: Sequence[str] = CPU_ARGS,
+    seed: Optional[int] = None,
+    compare: Sequence[CurveSource] = (),
+    compare_labels: Optional[Sequence[str]] = None,
+    env: Optional[dict] = None,
+    timeout: float = 900,
+) -> dict:
+    """Train the plugin in ``plugin_dir`` on ``scene`` and evaluate it into ``out_dir``.
+
+    ``method_args`` are ns-train arguments (default: CPU settings, 512 rays per batch); ``seed``
+    adds ``--machine.seed``. ``compare`` adds curves (CSV paths, curves or point lists, e.g. the
+    reference method's) to ``curve.png``. Returns the summary also written to ``summary.json``.
+    """
+    plugin_dir, scene, out_dir = Path(plugin_dir).resolve(), Path(scene).resolve(), Path(out_dir).resolve()
+    if not (plugin_dir / "nerfify.json").is_file():
+        raise RunEvalError(f"{plugin_dir} is not a composed plugin (no nerfify.json)")
+    frames = scene_test_frames(scene)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    run_env = {**os.environ, **(env or {}), ENV_GENERATED: str(plugin_dir)}
+    args = [*method_args, *(["--machine.seed", str(seed)] if seed is not None else [])]
+    run = train_for_curve(
+        GENERATED_METHOD, scene, out_dir / "train", iterations=iterations, every=every, method_args=args,
+        timeout=timeout, env=run_env,
+    )
+    summary: dict = {
+        "label": label,
+        "plugin": str(plugin_dir),
+        "scene": str(scene),
+        "iterations": iterations,
+        "every": every,
+        "seed": seed,
+        "method_args": list(args),
+        "train_log": str(run.log_path),
+        "train_wall_seconds": run.wall_seconds,
+        "iterations_done": run.last_step + 1,
+        "losses": loss_stats(run.losses),
+    }
+    if not run.ok:
+        reason = (
+            "timed out" if run.timed_out
+            else f"exit code {run.returncode}" if run.returncode != 0
+            else "non-finite training loss" if run.losses
+            else "no training loss logged"
+        )
+        summary.update(status="failed", reason=reason, psnr=None, ssim=None, lpips=None, seconds=None,
+                       log_tail=run.log_tail(15))
+        write_json(out_dir / "summary.json", summary)
+        return summary
+    renders = out_dir / "renders"
+    try:
+        curve = record_curve(run, out_dir, label=label, timeout=timeout, env=run_env, save_dir=renders)
+    except CurveError as exc:
+        summary.update(status="failed", reason=f"evaluation failed: {exc}", psnr=None, ssim=None, lpips=None,
+                       seconds=None)
+        write_json(out_dir / "summary.json", summary)
+        return summary
+    plot_curves(
+        [curve, *compare],
+        out_dir / "curve.png",
+        labels=None if compare_labels is None else [label, *compare_labels],
+    )
+    preds = [np.asarray(Image.open(renders / f"{f['name']}.png").convert("RGB")) for f in frames]
+    gts = [np.asarray(Image.open(f["gt"])) for f in frames]
+    names = [f["name"] for f in frames]
+    error_maps = analyze_views(preds, gts, out_dir, names)
+    depths, valid = [], []
+    for f in frames:
+        depths.append(np.load(renders / f"{f['name']}_depth.npy"))
+        acc_path = renders / f"{f['name']}_accumulation.npy"
+        valid.append(np.load(acc_path) >= ACCUMULATION_SURFACE if acc_path.exists() else np.ones_like(depths[-1], bool))
+    report = check_consistency(views_from_transforms(scene / "transforms_test.json", depths, valid))
+    report.save(out_dir)
+    consistency = report.summary()
+    per_view = [image_diagnostics(to_float(p), g) for p, g in zip(preds, gts)]
+    diagnostics = {
+        key: _mean([v[key] for v in per_view])
+        for key in ("background_fraction", "background_error_share", "background_psnr", "foreground_psnr",
+                    "high_frequency_error_ratio", "sharpness")
+    }
+    lpips_values = [lpips(p, as_rgb(g)) for p, g in zip(preds, gts)]
+    last = curve.points[-1]
+    summary.update(
+        status="ok",
+        reason="",
+        psnr=_finite(last.psnr),
+        ssim=_final_ssim(out_dir) or _mean([ssim(as_rgb(p), as_rgb(g)) for p, g in zip(preds, gts)]),
+        lpips=_mean(lpips_values) if all(v is not None for v in lpips_values) else None,
+        per_view_psnr=[_finite(v["psnr"]) for v in error_maps],
+        seconds=last.train_seconds,
+        eval_seconds=curve.eval_seconds,
+        consistency={k: consistency[k] for k in ("mean_score", "inconsistent_fraction")},
+        worst_regions=sum(len(v["regions"]) for v in error_maps),
+        diagnostics=diagnostics,
+        per_view_diagnostics=[{"view": n, **d} for n, d in zip(names, per_view)],
+        paths={
+            "curve_csv": "curve.csv",
+            "curve_png": "curve.png",
+            "error_maps": "error_maps.json",
+            "consistency": "consistency.json",
+            "renders": "renders",
+            "panels": [v["panel"] for v in error_maps],
+            "masks": [f"{n}_inconsistent.png" for n in names],
+        },
+    )
+    write_json(out_dir / "summary.json", summary)
+    return summary

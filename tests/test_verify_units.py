@@ -1,0 +1,89 @@
+"""Fast checks of the ladder's parts: plugin loading, AST rung, sandbox, fixers, report."""
+
+import json
+import sys
+
+import pytest
+
+from nerfify_ns.verify import Diagnosis, NotAPluginError, RungResult, LadderReport
+from nerfify_ns.verify.plugin import load_plugin
+from nerfify_ns.verify.repair import ExpGuardFixer, OptimizerGroupFixer
+from nerfify_ns.verify.sandbox import isolation_available, run_sandboxed
+from nerfify_ns.verify.static import ast_checks
+
+from verify_helpers import reference_plugins  # noqa: F401  (fixture)
+
+
+def test_not_a_plugin(tmp_path):
+    with pytest.raises(NotAPluginError):
+        load_plugin(tmp_path)
+
+
+def test_load_reference_plugin(reference_plugins):
+    info = load_plugin(reference_plugins["kplanes-static"])
+    assert info.method == "kplanes-static" and info.package == "kplanes_static"
+    assert info.config == "kplanes_static.config:kplanes_static_method" and info.plan["base"] == "nerfacto"
+    assert "kplanes_static/field.py" in info.python_files and ast_checks(info) == []
+
+
+def test_syntax_error_names_file_and_line(reference_plugins, tmp_path):
+    import shutil
+
+    plugin = shutil.copytree(reference_plugins["nerfacto"], tmp_path / "p")
+    (plugin / "nerfacto_ref" / "field.py").write_text("x = 1\ndef broken(:\n")
+    found = ast_checks(load_plugin(plugin))
+    assert [(d.rule, d.file, d.line) for d in found] == [("syntax", "nerfacto_ref/field.py", 2)]
+
+
+@pytest.mark.skipif(not isolation_available(), reason="needs root and unshare for namespaces")
+def test_sandbox_blocks_network_writes_and_time(tmp_path):
+    outside = tmp_path / "outside.txt"
+    code = (f"import socket\nopen('inside.txt','w').write('ok')\n"
+            f"try:\n  open({str(outside)!r},'w').write('x'); print('WROTE')\nexcept OSError as e: print('RO', e.errno)\n"
+            "try:\n  socket.create_connection(('1.1.1.1', 80), timeout=3); print('NET')\n"
+            "except OSError as e: print('NONET', e.errno)\n")
+    r = run_sandboxed([sys.executable, "-c", code], tmp_path / "work", timeout=60)
+    log = r.log_path.read_text()
+    assert r.returncode == 0 and "RO 30" in log and "NONET" in log, log
+    assert not outside.exists() and (tmp_path / "work" / "inside.txt").exists()
+    r = run_sandboxed([sys.executable, "-c", "while True: pass"], tmp_path / "loop", timeout=3)
+    assert r.timed_out and r.returncode == -9 and r.seconds < 30
+
+
+def test_sandbox_memory_limit(tmp_path):
+    r = run_sandboxed([sys.executable, "-c", "x = bytearray(3 << 30)"], tmp_path, timeout=60, memory=1 << 30)
+    assert r.returncode != 0 and "MemoryError" in r.log_path.read_text()
+
+
+def test_optimizer_group_fixer(reference_plugins, tmp_path):
+    import shutil
+
+    plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
+    config = plugin / "kplanes_static" / "config.py"
+    config.write_text(config.read_text().replace('"proposal_networks": {', '"proposal_network": {'))
+    line = next(i for i, t in enumerate(config.read_text().splitlines(), 1) if "optimizers=" in t)
+    d = Diagnosis("static", "param-groups", "model parameter groups ['fields', 'proposal_networks'] != optimizer keys "
+                  "['fields', 'proposal_network'] (missing optimizers: ['proposal_networks']; optimizers without a "
+                  "group: ['proposal_network'])", "kplanes_static/config.py", line)
+    (patch,) = OptimizerGroupFixer().propose(load_plugin(plugin), [d])
+    assert "'proposal_networks':" in patch.after and '"proposal_network"' not in patch.after
+    assert patch.diff().startswith("--- a/kplanes_static/config.py")
+    compile(patch.after, "config.py", "exec")
+
+
+def test_exp_guard_fixer(reference_plugins, tmp_path):
+    import shutil
+
+    plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
+    d = Diagnosis("stability", "stiff-case", "assembled model, case density_raw_1e8: ...", case="density_raw_1e8")
+    patches = {p.file: p for p in ExpGuardFixer().propose(load_plugin(plugin), [d])}
+    assert "trunc_exp((density_raw.to(hidden)).clamp(max=20.0))" in patches["kplanes_static/field.py"].after
+    assert "kplanes_static/components/kplanes.py" not in patches  # already guarded
+
+
+def test_report_round_trip():
+    r = RungResult("static")
+    r.fail(Diagnosis("static", "import", "boom", "p/field.py", 3))
+    report = LadderReport("x", rungs=[r, RungResult("contract", "skip")])
+    data = json.loads(json.dumps(report.to_dict()))
+    assert data["ok"] is False and data["failures"][0]["line"] == 3 and str(report.failures[0]).startswith("[static/import]")

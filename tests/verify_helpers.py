@@ -1,0 +1,52 @@
+"""Shared helpers of the verification-ladder tests: reference plugins composed after pruning for the
+tiny scene, and the broken-plugin corpus applied as mutations of them."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+BROKEN = Path(__file__).parent / "broken_plugins"
+
+
+def compose_reference(name: str, scene: Path, out: Path) -> Path:
+    from nerfify_ns.synthesis.compose import compose
+    from nerfify_ns.synthesis.prune import prune_plan
+    from nerfify_ns.synthesis.resources import load_reference_plan
+    from nerfify_ns.synthesis.scene_probe import probe_scene
+
+    plan = prune_plan(load_reference_plan(name), probe_scene(scene))
+    return compose(plan, out, overwrite=True, record=False).out
+
+
+@pytest.fixture(scope="session")
+def reference_plugins(tiny_scene, tmp_path_factory):
+    """name -> pristine plugin folder (composed once per session; copy before changing it)."""
+    from nerfify_ns.synthesis.resources import reference_plans
+
+    root = tmp_path_factory.mktemp("reference_plugins")
+    return {name: compose_reference(name, tiny_scene, root / name) for name in reference_plans()}
+
+
+def corpus() -> list:
+    return sorted(p.stem for p in BROKEN.glob("*.yaml"))
+
+
+def load_case(name: str) -> dict:
+    return yaml.safe_load((BROKEN / f"{name}.yaml").read_text())
+
+
+def broken_plugin(name: str, reference: Path, dest: Path, outside: Path) -> Path:
+    """A copy of ``reference`` with the mutations of corpus entry ``name`` applied (each must match)."""
+    case = load_case(name)
+    shutil.copytree(reference, dest)
+    package = next(p for p in dest.iterdir() if (p / "config.py").is_file())
+    for m in case["mutations"]:
+        path = package / m["file"]
+        text = path.read_text()
+        assert m["old"] in text, f"corpus {name}: {m['old']!r} not in {m['file']} (a template changed?)"
+        path.write_text(text.replace(m["old"], m["new"].replace("{OUTSIDE}", str(outside))))
+    return dest
