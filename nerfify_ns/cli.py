@@ -15,6 +15,8 @@ from rich.table import Table
 from typing_extensions import Annotated
 
 from nerfify_ns.errors import NerfifyError
+from nerfify_ns.evaluate.report_command import Report
+from nerfify_ns.verify.command import Verify
 
 
 class UsageError(NerfifyError):
@@ -303,6 +305,8 @@ class Runtime:
 Commands = Union[
     Annotated[Paper, tyro.conf.subcommand("paper")],
     Annotated[Compose, tyro.conf.subcommand("compose")],
+    Annotated[Verify, tyro.conf.subcommand("verify")],
+    Annotated[Report, tyro.conf.subcommand("report")],
     Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
     Annotated[Demo, tyro.conf.subcommand("demo")],
     Annotated[Scene, tyro.conf.subcommand("scene")],
@@ -311,7 +315,7 @@ Commands = Union[
 ]
 
 
-SUBCOMMANDS = ("paper", "compose", "grammar", "demo", "scene", "lpips-weights", "runtime")
+SUBCOMMANDS = ("paper", "compose", "verify", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
 
 
 def entrypoint() -> None:

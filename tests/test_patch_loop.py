@@ -167,12 +167,16 @@ def test_loop_keeps_only_improvements_beyond_noise(tmp_path, floaters_scene, mon
 @pytest.mark.slow
 def test_real_loop_keeps_more_samples_and_rejects_distortion(tmp_path, floaters_scene):
     """Weakened nerfacto on the 32x32 floaters scene, 60 iterations per run, 4 runs (2 seeds of the weak
-    plan for the noise, then the 2 candidates). Measured (100 iterations, seeds 42/7, 2 shared cores): weak
-    plan 10.56 / 10.91 dB (noise 0.35), + distortion loss 10.71 dB, 4x samples 14.8 dB."""
+    plan for the noise, then the 2 candidates); 10.5 min on 2 heavily shared cores.
+
+    Measured here: weak plan 10.34 / 10.67 dB (seeds 0/1, noise 0.33), 4x samples 16.10 dB (+5.59, kept),
+    + distortion loss 10.51 dB (+0.00, rejected). Earlier, 100 iterations, seeds 42/7: weak 10.56 / 10.91,
+    + distortion 10.71, 4x samples 14.8. Two repeats can agree by chance, so the threshold has a 0.5 dB floor
+    (the distortion loss moved PSNR by at most 0.15 dB in every measurement)."""
     messages = []
     result = pl.run_patch_loop(
         weakened(floaters_scene), floaters_scene, tmp_path / "patches", iterations=60, rounds=1, repeats=2,
-        seeds=(0, 1), max_candidates=2, only_rules=["add_distortion_loss", "more_proposal_samples"],
+        seeds=(0, 1), max_candidates=2, noise_floor=0.5, only_rules=["add_distortion_loss", "more_proposal_samples"],
         env=NO_WEIGHTS_ENV, timeout=600, progress=messages.append,
     )
     history = result.history
@@ -182,7 +186,8 @@ def test_real_loop_keeps_more_samples_and_rejects_distortion(tmp_path, floaters_
     assert {"floaters", "blur_high_frequency"} <= {d["name"] for d in round0["diagnoses"]}
     by_rule = {e["patch"]["rule"]: e for e in history["entries"]}
     kept, rejected = by_rule["more_proposal_samples"], by_rule["add_distortion_loss"]
-    assert kept["decision"] == "kept" and kept["improvement"] > max(kept["noise"], 0.05) + 1.0
+    assert kept["threshold"] == max(kept["noise"], 0.5)
+    assert kept["decision"] == "kept" and kept["improvement"] > kept["threshold"] + 1.0
     assert rejected["decision"] == "rejected" and rejected["improvement"] <= rejected["threshold"]
     assert result.best_plan["model"]["sampler"]["proposal"]["nerf_samples"] == 8
     assert (tmp_path / "patches" / kept["run"] / "error_maps.json").is_file()

@@ -10,6 +10,7 @@ import sys
 
 import pytest
 
+from nerfify_ns.evaluate.smoke import generated_smoke_args
 from nerfify_ns.runtime.launch import ns_train
 from nerfify_ns.synthesis.compose import compose
 from nerfify_ns.synthesis.prune import prune_plan
@@ -33,7 +34,7 @@ def test_reference_plugin_installs_and_trains_100_iterations(name, tiny_scene, t
     _pip("install", "--no-deps", "--no-build-isolation", "--no-index", "-q", "-e", str(plugin.out))
     try:
         run = ns_train(plugin.method, tiny_scene, tmp_path / "run", iterations=ITERATIONS, timeout=900,
-                       method_args=["--machine.device-type", "cpu", "--mixed-precision", "False",
+                       method_args=["--machine.device-type", "cpu", *generated_smoke_args(plan["base"]),
                                     "--pipeline.datamanager.train-num-rays-per-batch", str(RAYS.get(name, 512))])
     finally:
         _pip("uninstall", "-y", "-q", f"nerfify-{plugin.method}")

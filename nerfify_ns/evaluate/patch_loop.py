@@ -10,7 +10,8 @@ One round:
 2. **Noise.** ``noise`` = the spread (max - min) of the held-out PSNRs of those repeats: the
    run-to-run variation of the unchanged config. A candidate must beat the *mean* of the repeats
    by more than ``threshold = max(noise, noise_floor)`` to be kept; ``noise_floor`` (default
-   0.05 dB) guards against two repeats that agree by chance.
+   0.1 dB) guards against repeats that agree by chance (the range of two draws is a noisy
+   estimate of the spread: use more ``repeats`` or a higher floor where runs are cheap or short).
 3. **Diagnose** with a :class:`Critic` (default :class:`DeterministicCritic`, thresholds in
    ``patch_rules.yaml``): floaters (cross-view consistency), blur in high-frequency regions and
    large worst regions (error maps), background errors (error where the ground-truth alpha is
@@ -524,7 +525,7 @@ class PatchLoop:
         repeats: int = 2,
         seeds: Sequence[int] = (0, 1, 2, 3),
         max_candidates: int = 3,
-        noise_floor: float = 0.05,
+        noise_floor: float = 0.1,
         target_psnr: Optional[float] = None,
         critic: Optional[Critic] = None,
         rules: Union[None, Path, dict] = None,

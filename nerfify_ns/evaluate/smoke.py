@@ -43,15 +43,22 @@ def preset_args(method: str) -> List[str]:
 
 
 GENERATED = "nerfify-generated"
-_BATCH_ARG = "--pipeline.datamanager.train-num-rays-per-batch"
 
 
 def generated_smoke_args(base: str) -> List[str]:
-    """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the ray
-    batch of the base's preset and no mixed precision (its sizes were already pruned for the scene)."""
-    args = preset_args(base)
-    batch = args[args.index(_BATCH_ARG): args.index(_BATCH_ARG) + 2] if _BATCH_ARG in args else []
-    return [*batch, "--mixed-precision", "False"]
+    """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
+    and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
+    the plugin's sizes come from its plan, already pruned for the scene."""
+    args, out, i = preset_args(base), [], 0
+    while i < len(args):
+        flag, values = args[i], []
+        i += 1
+        while i < len(args) and not args[i].startswith("--"):
+            values.append(args[i])
+            i += 1
+        if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model."):
+            out += [flag, *values]
+    return [*out, "--mixed-precision", "False"]
 
 
 def generated_env(plugin_dir: Path) -> dict:

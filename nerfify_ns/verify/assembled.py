@@ -95,9 +95,10 @@ def grad_problems(model, require: bool) -> Tuple[List[str], List[str]]:
     return bad, (missing if require else [])
 
 
-def patch_density(model, package: str, case: str) -> Optional[str]:
-    """Force the stiff density of ``case`` on every plugin field; returns why not, if it cannot."""
+def patch_density(model, package: str, case: str):
+    """Force the stiff density of ``case`` on every plugin field: (why not, or None; a function undoing it)."""
     fields = plugin_fields(model, package)
+    undo = []
     if case in ("density_0", "density_1e8"):
         value = 0.0 if case == "density_0" else 1e8
         for _, f in fields:
@@ -107,13 +108,17 @@ def patch_density(model, package: str, case: str) -> Optional[str]:
                     return (result[0] * 0.0 + value, *result[1:])
                 return result * 0.0 + value
             f.get_density = forced
-        return None
-    hooked = 0
-    for _, f in fields:
-        for name in DENSITY_MODULES:
-            module = getattr(f, name, None)
-            if isinstance(module, nn.Module):
-                module.register_forward_hook(lambda m, i, o: o + 1e8 if isinstance(o, torch.Tensor) else o)
-                hooked += 1
-                break
-    return None if hooked else "no field submodule producing the pre-activation density " + str(DENSITY_MODULES)
+            undo.append(lambda f=f: f.__dict__.pop("get_density", None))
+    else:
+        for _, f in fields:
+            module = next((getattr(f, n) for n in DENSITY_MODULES if isinstance(getattr(f, n, None), nn.Module)), None)
+            if module is not None:
+                handle = module.register_forward_hook(lambda m, i, o: o + 1e8 if isinstance(o, torch.Tensor) else o)
+                undo.append(handle.remove)
+        if not undo:
+            return "no field submodule producing the pre-activation density " + str(DENSITY_MODULES), None
+
+    def restore() -> None:
+        for fn in undo:
+            fn()
+    return None, restore

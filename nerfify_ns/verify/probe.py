@@ -196,11 +196,23 @@ def optimizers_line(config_module: str) -> tuple:
     return rel, line
 
 
-def check_param_groups(spec, config_module: str):
+_MODELS: Dict[float, object] = {}
+
+
+def shared_model(spec, scale: float = 1.0):
+    """One model per scene scale for the whole probe (building a Nerfstudio model costs seconds)."""
     from nerfify_ns.verify.assembled import build_model
 
+    if scale not in _MODELS:
+        _MODELS[scale] = build_model(spec, scale)
+    model = _MODELS[scale]
+    model.zero_grad(set_to_none=True)
+    return model
+
+
+def check_param_groups(spec, config_module: str):
     try:
-        model = build_model(spec)
+        model = shared_model(spec)
     except Exception as exc:
         diagnose("static", "model-build", f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
                  exc=exc)
@@ -275,10 +287,10 @@ def contract_rung(spec, plan: Optional[dict]) -> None:
 def assembled_contract(spec) -> None:
     import torch
 
-    from nerfify_ns.verify.assembled import build_model, field_forward, grad_problems, output_problems, plugin_fields
+    from nerfify_ns.verify.assembled import field_forward, grad_problems, output_problems, plugin_fields
     from nerfify_ns.verify.harness import finite_problem
 
-    model = build_model(spec)
+    model = shared_model(spec)
     for name, field in plugin_fields(model, PACKAGE):
         file, line = class_line(type(field))
         try:
@@ -395,9 +407,8 @@ ADVISORY_CASES = ("empty_batch", "half")
 def assembled_stability(spec) -> None:
     import torch
 
-    from nerfify_ns.verify.assembled import MODEL_CASES, build_model, grad_problems, output_problems, patch_density
+    from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
 
-    base_model = None
     for case in MODEL_CASES:
         torch.manual_seed(0)
         problems: List[str] = []
@@ -407,13 +418,8 @@ def assembled_stability(spec) -> None:
             continue
         scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
         try:
-            if scale != 1.0 or case.startswith("density"):
-                model = build_model(spec, scale)
-            else:
-                base_model = base_model or build_model(spec)
-                model = base_model
-                model.zero_grad(set_to_none=True)
-            why = patch_density(model, PACKAGE, case) if case.startswith("density") else None
+            model = shared_model(spec, scale)
+            why, restore = patch_density(model, PACKAGE, case) if case.startswith("density") else (None, None)
             if why:
                 emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status="n/a",
                      problems=[why])
@@ -422,11 +428,14 @@ def assembled_stability(spec) -> None:
                 outputs, losses, _ = model_step(model, "nominal" if case.startswith("density") or case == "half"
                                                 else case)
             problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
+            if restore:
+                restore()
         except Exception as exc:
             problems = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"]
             file, line = plugin_frame(exc.__traceback__)
             if file:
                 problems[0] += f" at {file}:{line}"
+            _MODELS.pop(scale, None)  # possibly left patched or half-updated
         gating = case not in ADVISORY_CASES
         status = ("fail" if gating else "warn") if problems else "pass"
         emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status=status,
