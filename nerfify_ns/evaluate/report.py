@@ -7,7 +7,8 @@ says "not run" for each part that is absent::
     paper.md              the cleaned paper
     evidence.json         technique detections with quotes
     citations.json/.png   the citation graph
-    plugin/               the generated package (files, README parts table)
+    nerfify.json          the generated package lives in the run folder itself (its files are listed
+                          there; README.md has the parts table); a plugin/ subfolder is read too
     verify.json           the verification ladder (rungs, rules, stability cases per component)
     eval/summary.json     metrics (evaluate_run); eval/curve.csv + curve.png (error against time)
     eval/error_maps.json  + <view>_errors.png panels (worst regions)
@@ -251,13 +252,15 @@ class _Builder:
 
     # ---------------------------------------------------------------- components and holes
     def components(self) -> None:
-        plugin = self.run / "plugin"
+        meta, _ = _read_json(self.run / "nerfify.json")
+        plugin = self.run if isinstance(meta, dict) else self.run / "plugin"
         plan, _ = _read_yaml(self.run / "plan.yaml")
         parts: List[str] = []
         data: dict = {"status": "ok" if plugin.is_dir() else NOT_RUN}
         if plugin.is_dir():
-            files = sorted(str(p.relative_to(plugin)) for p in plugin.rglob("*")
-                           if p.is_file() and "__pycache__" not in p.parts and ".verify" not in p.parts)
+            files = sorted(meta["files"]) if isinstance(meta, dict) else sorted(
+                str(p.relative_to(plugin)) for p in plugin.rglob("*")
+                if p.is_file() and "__pycache__" not in p.parts and ".verify" not in p.parts)
             data["files"] = files
             parts.append(f"<h3>Generated package</h3><p>{len(files)} files</p>"
                          f"<pre>{e(chr(10).join(files))}</pre>")
