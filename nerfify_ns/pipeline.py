@@ -213,8 +213,8 @@ def run_demo(
 
 
 def _rewrite_saved_paths(staging: Path, final: Path) -> None:
-    """Point saved Nerfstudio configs and JSON files at the folder they will have after the rename."""
-    for path in [*staging.rglob("*.yml"), *staging.rglob("*.json")]:
+    """Point saved Nerfstudio configs, JSON files and the report at the folder they will have after the rename."""
+    for path in [*staging.rglob("*.yml"), *staging.rglob("*.json"), *staging.glob("*.html")]:
         text = path.read_text(errors="replace")
         if str(staging) not in text and f"- {staging.name}\n" not in text:
             continue

@@ -18,7 +18,7 @@ from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
 ITERATIONS = 100
-RAYS = {"vanilla-nerf": 128, "mipnerf": 128}  # the MLP-only methods are ~10 ms per ray on the CPU
+RAYS = {"vanilla-nerf": 64, "mipnerf": 64}  # the MLP-only methods are ~10 ms per ray on the CPU
 
 
 def _pip(*args: str) -> None:
@@ -35,7 +35,7 @@ def test_reference_plugin_installs_and_trains_100_iterations(name, tiny_scene, t
     try:
         run = ns_train(plugin.method, tiny_scene, tmp_path / "run", iterations=ITERATIONS, timeout=900,
                        method_args=["--machine.device-type", "cpu", *generated_smoke_args(plan["base"]),
-                                    "--pipeline.datamanager.train-num-rays-per-batch", str(RAYS.get(name, 512))])
+                                    "--pipeline.datamanager.train-num-rays-per-batch", str(RAYS.get(name, 256))])
     finally:
         _pip("uninstall", "-y", "-q", f"nerfify-{plugin.method}")
     assert run.ok, run.log_path.read_text()[-3000:]

@@ -51,9 +51,19 @@ def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
             for k, v in out.items() if isinstance(v, torch.Tensor)}
 
 
+def before_iteration(model, step: int = 0) -> None:
+    """Run the model's own BEFORE_TRAIN_ITERATION callbacks (occupancy grid update, proposal annealing)."""
+    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
+
+    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None))
+    for cb in callbacks:
+        cb.run_callback_at_location(step, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+
+
 def train_step(model, case: str = "nominal", rays: int = 16):
     """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done)."""
     model.train()
+    before_iteration(model)
     bundle = ray_bundle(case, rays)
     if case in ("grazing_rays", "missing_rays"):
         bundle.nears = bundle.fars = None  # the model's own collider decides

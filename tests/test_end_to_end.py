@@ -1,0 +1,54 @@
+"""`ns-nerfify PAPER` end to end, as a user runs it, offline: paper -> plan -> plugin -> verification ladder ->
+training with error against time -> evaluation maps -> report.html (issues 4 and 6)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nerfify_ns.grammar import check
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
+
+
+@pytest.mark.slow
+def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
+    env = {**os.environ, "NERFIFY_CACHE": str(tmp_path / "cache")}
+    cmd = [str(Path(sys.executable).with_name("ns-nerfify")), str(EXAMPLE), "--data", str(tiny_scene),
+           "--iterations", "20", "--every", "10", "--out", str(tmp_path / "out")]
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env, timeout=1800)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    out = tmp_path / "out"
+
+    plan = yaml.safe_load((out / "plan.yaml").read_text())
+    assert check(plan) == [] and plan["method"] == "gridlite" and plan["base"] == "nerfacto"
+    assert plan["holes"] and plan["pruned"]
+    assert (out / "pyproject.toml").is_file() and (out / "gridlite" / "field.py").is_file()
+    for name in ("paper.md", "evidence.json", "citations.json", "citations.png", "verify.json", "report.html"):
+        assert (out / name).is_file(), name
+
+    assert json.loads((out / "verify.json").read_text())["ok"] is True
+    summary = json.loads((out / "eval" / "summary.json").read_text())
+    assert summary["status"] == "ok" and summary["iterations_done"] == 20 and summary["psnr"] > 8
+    curve = (out / "eval" / "curve.csv").read_text().splitlines()
+    assert curve[0].startswith("label,step,train_seconds,psnr") and len(curve) == 3  # checkpoints at 10 and 20
+
+    report = json.loads((out / "report.json").read_text())
+    sections = report["sections"]
+    for name in ("paper", "citations", "components", "verification", "stability", "metrics", "curve",
+                 "error_maps", "consistency"):
+        assert sections[name]["status"] not in ("not run", None), name
+    assert sections["patches"]["status"] == "not run"
+    html = (out / "report.html").read_text()
+    assert "data:image/png;base64," in html and "http://" not in html and "https://" not in html
+    assert str(tmp_path / "out") in html and ".partial-" not in html
+
+    last = json.loads((tmp_path / "cache" / "generated" / "last.json").read_text())
+    assert last["plugin"] == str(out)  # `ns-train nerfify-generated` now trains this plugin
