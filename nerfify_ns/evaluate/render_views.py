@@ -58,6 +58,7 @@ def evaluate_checkpoints(
             camera = dataset.cameras[i : i + 1].to(pipeline.device)
             with torch.no_grad():
                 out = pipeline.model.get_outputs_for_camera(camera)
+            out = fine_outputs(out)
             rgb = out["rgb"].detach().cpu().numpy().astype(np.float64)
             psnrs.append(psnr(rgb, gt))
             ssims.append(ssim(rgb, gt))
@@ -74,6 +75,13 @@ def evaluate_checkpoints(
             }
         )
     return results
+
+
+def fine_outputs(outputs: dict) -> dict:
+    """Coarse-to-fine models (NeRF, Mip-NeRF) name their final outputs ``rgb_fine``, ``depth_fine``, ...;
+    they are the ones that count."""
+    fine = {key[: -len("_fine")]: value for key, value in outputs.items() if key.endswith("_fine")}
+    return {**outputs, **fine}
 
 
 def _serial_datamanager(config):

@@ -143,7 +143,7 @@ class ExpGuardFixer:
     CALLS = ("trunc_exp", "torch.exp", "exp")
 
     def propose(self, info, diagnoses):
-        if not any(d.rung == "stability" and (d.case or "").startswith("density") or "overflow" in d.message
+        if not any(d.rung == "stability" and d.case in ("density_raw_1e8", "density_1e8") or "overflow" in d.message
                    for d in diagnoses):
             return []
         patches = []
@@ -165,5 +165,38 @@ class ExpGuardFixer:
         return patches
 
 
+class EmptyReshapeFixer:
+    """``x.view(*shape, -1)`` cannot reshape 0 elements (no samples: near = far, rays missing the box, an
+    empty occupancy grid): name the last dimension, ``x.reshape(*shape, x.shape[-1])``, on the line at fault."""
+
+    name = "empty-reshape"
+    AT = re.compile(r"at ([\w/.-]+\.py):(\d+)")
+    VIEW = re.compile(r"(\w+)\.view\((\*[^()]*(?:\([^()]*\))?[^()]*?),\s*-1\)")
+
+    def propose(self, info, diagnoses):
+        lines_at = {}
+        for d in diagnoses:
+            if "reshape tensor of 0 elements" not in d.message + d.traceback:
+                continue
+            where = [(d.file, d.line)] if d.file and d.line else []
+            where += [(m.group(1), int(m.group(2))) for m in self.AT.finditer(d.message)]
+            for file, line in where:
+                lines_at.setdefault(file, set()).add(line)
+        patches = []
+        for rel, lines in lines_at.items():
+            if rel not in info.python_files:
+                continue
+            text = _read(info, rel)
+            out = text.splitlines(True)
+            for line in lines:
+                out[line - 1] = self.VIEW.sub(lambda m: f"{m.group(1)}.reshape({m.group(2)}, {m.group(1)}.shape[-1])",
+                                              out[line - 1])
+            after = "".join(out)
+            if after != text:
+                patches.append(Patch(rel, text, after, "stiff-case", "reshape with a named last dimension, so a "
+                                     "batch without samples keeps its shape", self.name))
+        return patches
+
+
 def default_fixers() -> List[Fixer]:
-    return [OptimizerGroupFixer(), InterlevelLossFixer(), DtypeDeviceFixer(), ExpGuardFixer()]
+    return [OptimizerGroupFixer(), InterlevelLossFixer(), DtypeDeviceFixer(), ExpGuardFixer(), EmptyReshapeFixer()]
