@@ -3,10 +3,9 @@ rule and message; those with a deterministic fix are repaired and then pass; san
 stopped and reported while our process survives."""
 
 import pytest
+from verify_helpers import broken_plugin, corpus, load_case, reference_plugins  # noqa: F401  (fixture)
 
 from nerfify_ns.verify import run_ladder
-
-from verify_helpers import broken_plugin, corpus, load_case, reference_plugins  # noqa: F401  (fixture)
 
 BASE = "kplanes-static"
 ORDER = ["static", "contract", "stability", "smoke"]
@@ -18,21 +17,38 @@ def _rungs(case: dict) -> list:
     return ORDER[: ORDER.index(case["expect"]["rung"]) + 1]
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if load_case(n).get("slow") else n
-                                  for n in corpus()])
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if load_case(n).get("slow") else n for n in corpus()]
+)
 def test_broken_plugin_is_caught(name, reference_plugins, tiny_scene, tmp_path):
     case = load_case(name)
     outside = tmp_path / "escaped.txt"
     plugin = broken_plugin(name, reference_plugins[BASE], tmp_path / "plugin", outside)
     expect = case["expect"]
-    report = run_ladder(plugin, scene=tiny_scene, out_dir=tmp_path / "out", repair=True, rungs=_rungs(case),
-                        timeout=case.get("timeout", 240), smoke_iterations=20)
+    report = run_ladder(
+        plugin,
+        scene=tiny_scene,
+        out_dir=tmp_path / "out",
+        repair=True,
+        rungs=_rungs(case),
+        timeout=case.get("timeout", 240),
+        smoke_iterations=20,
+    )
     # the first failing rung of some round (a deterministic repair may fix something else first, e.g. the
     # exp guard the reference plugins still need) is the expected one, with the expected rule and message
-    caught = [next(r for r in rnd if r.status == "fail") for rnd in report.rounds if any(r.status == "fail" for r in rnd)]
+    caught = [
+        next(r for r in rnd if r.status == "fail")
+        for rnd in report.rounds
+        if any(r.status == "fail" for r in rnd)
+    ]
     assert caught, f"{name}: nothing caught: {[(r.name, r.status) for r in report.rounds[0]]}"
-    hits = [d for r in caught if r.name == expect["rung"] for d in r.failures
-            if d.rule == expect["rule"] and expect["message"] in d.message]
+    hits = [
+        d
+        for r in caught
+        if r.name == expect["rung"]
+        for d in r.failures
+        if d.rule == expect["rule"] and expect["message"] in d.message
+    ]
     assert hits, f"{name}: expected {expect}, got {[(r.name, [str(d) for d in r.failures]) for r in caught]}"
     if expect["rung"] in ("static", "contract") and expect["rule"] != "timeout":
         assert any(d.file for d in hits), f"{name}: diagnosis names no file: {[str(d) for d in hits]}"

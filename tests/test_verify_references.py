@@ -5,12 +5,11 @@ import json
 import shutil
 
 import pytest
+from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 from nerfify_ns.synthesis.resources import reference_plans
 from nerfify_ns.verify import component_suite, run_ladder
 from nerfify_ns.verify.harness import HARNESSES
-
-from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 
 @pytest.mark.slow
@@ -32,8 +31,13 @@ def test_full_ladder_kplanes_static(reference_plugins, tiny_scene, tmp_path):
     assert "no-network" in smoke.details["isolation"] and "read-only-fs" in smoke.details["isolation"]
     data = json.loads((tmp_path / "out" / "verify.json").read_text())
     cases = [c for r in data["rungs"] if r["name"] == "stability" for c in r["details"]["cases"]]
-    assert {c["case"] for c in cases if c["component"] == "<model>"} >= {"far_1e5", "near_eq_far", "grazing_rays",
-                                                                         "density_1e8", "scene_scale_1e3"}
+    assert {c["case"] for c in cases if c["component"] == "<model>"} >= {
+        "far_1e5",
+        "near_eq_far",
+        "grazing_rays",
+        "density_1e8",
+        "scene_scale_1e3",
+    }
     for p in report.patches:  # every repair is recorded as a revertible unified diff
         assert p["diff"].endswith(".diff") and "patch -R" in p["revert"]
 

@@ -4,14 +4,13 @@ import json
 import sys
 
 import pytest
+from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
-from nerfify_ns.verify import Diagnosis, NotAPluginError, RungResult, LadderReport
+from nerfify_ns.verify import Diagnosis, LadderReport, NotAPluginError, RungResult
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import ExpGuardFixer, OptimizerGroupFixer
 from nerfify_ns.verify.sandbox import isolation_available, run_sandboxed
 from nerfify_ns.verify.static import ast_checks
-
-from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 
 def test_not_a_plugin(tmp_path):
@@ -38,10 +37,12 @@ def test_syntax_error_names_file_and_line(reference_plugins, tmp_path):
 @pytest.mark.skipif(not isolation_available(), reason="needs root and unshare for namespaces")
 def test_sandbox_blocks_network_writes_and_time(tmp_path):
     outside = tmp_path / "outside.txt"
-    code = (f"import socket\nopen('inside.txt','w').write('ok')\n"
-            f"try:\n  open({str(outside)!r},'w').write('x'); print('WROTE')\nexcept OSError as e: print('RO', e.errno)\n"
-            "try:\n  socket.create_connection(('1.1.1.1', 80), timeout=3); print('NET')\n"
-            "except OSError as e: print('NONET', e.errno)\n")
+    code = (
+        f"import socket\nopen('inside.txt','w').write('ok')\n"
+        f"try:\n  open({str(outside)!r},'w').write('x'); print('WROTE')\nexcept OSError as e: print('RO', e.errno)\n"
+        "try:\n  socket.create_connection(('1.1.1.1', 80), timeout=3); print('NET')\n"
+        "except OSError as e: print('NONET', e.errno)\n"
+    )
     r = run_sandboxed([sys.executable, "-c", code], tmp_path / "work", timeout=60)
     log = r.log_path.read_text()
     assert r.returncode == 0 and "RO 30" in log and "NONET" in log, log
@@ -62,9 +63,15 @@ def test_optimizer_group_fixer(reference_plugins, tmp_path):
     config = plugin / "kplanes_static" / "config.py"
     config.write_text(config.read_text().replace('"proposal_networks": {', '"proposal_network": {'))
     line = next(i for i, t in enumerate(config.read_text().splitlines(), 1) if "optimizers=" in t)
-    d = Diagnosis("static", "param-groups", "model parameter groups ['fields', 'proposal_networks'] != optimizer keys "
-                  "['fields', 'proposal_network'] (missing optimizers: ['proposal_networks']; optimizers without a "
-                  "group: ['proposal_network'])", "kplanes_static/config.py", line)
+    d = Diagnosis(
+        "static",
+        "param-groups",
+        "model parameter groups ['fields', 'proposal_networks'] != optimizer keys "
+        "['fields', 'proposal_network'] (missing optimizers: ['proposal_networks']; optimizers without a "
+        "group: ['proposal_network'])",
+        "kplanes_static/config.py",
+        line,
+    )
     (patch,) = OptimizerGroupFixer().propose(load_plugin(plugin), [d])
     assert "'proposal_networks':" in patch.after and '"proposal_network"' not in patch.after
     assert patch.diff().startswith("--- a/kplanes_static/config.py")
@@ -75,7 +82,9 @@ def test_exp_guard_fixer(reference_plugins, tmp_path):
     import shutil
 
     plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
-    d = Diagnosis("stability", "stiff-case", "assembled model, case density_raw_1e8: ...", case="density_raw_1e8")
+    d = Diagnosis(
+        "stability", "stiff-case", "assembled model, case density_raw_1e8: ...", case="density_raw_1e8"
+    )
     patches = {p.file: p for p in ExpGuardFixer().propose(load_plugin(plugin), [d])}
     assert "trunc_exp((density_raw.to(hidden)).clamp(max=20.0))" in patches["kplanes_static/field.py"].after
     assert "kplanes_static/components/kplanes.py" not in patches  # already guarded
@@ -86,4 +95,8 @@ def test_report_round_trip():
     r.fail(Diagnosis("static", "import", "boom", "p/field.py", 3))
     report = LadderReport("x", rungs=[r, RungResult("contract", "skip")])
     data = json.loads(json.dumps(report.to_dict()))
-    assert data["ok"] is False and data["failures"][0]["line"] == 3 and str(report.failures[0]).startswith("[static/import]")
+    assert (
+        data["ok"] is False
+        and data["failures"][0]["line"] == 3
+        and str(report.failures[0]).startswith("[static/import]")
+    )

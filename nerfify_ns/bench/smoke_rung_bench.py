@@ -31,18 +31,29 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         scene = write_scene("default", root / "scene", resolution=32, n_train=12, n_val=2, n_test=2)
-        plugin = compose(prune_plan(load_reference_plan(args.method), probe_scene(scene)), root / "plugin",
-                         record=False).out
+        plugin = compose(
+            prune_plan(load_reference_plan(args.method), probe_scene(scene)), root / "plugin", record=False
+        ).out
         info = load_plugin(plugin)
         times, runs = [], []
         for i in range(args.runs):
             result = smoke_rung(info, scene, root / f"smoke-{i}", iterations=args.iterations, timeout=600)
             times.append(result.seconds)
-            runs.append({"status": result.status, "seconds": round(result.seconds, 1), **{
-                k: result.details.get(k) for k in ("iterations", "photometric_first", "photometric_last")}})
+            runs.append(
+                {
+                    "status": result.status,
+                    "seconds": round(result.seconds, 1),
+                    **{
+                        k: result.details.get(k)
+                        for k in ("iterations", "photometric_first", "photometric_last")
+                    },
+                }
+            )
             print(json.dumps(runs[-1]), flush=True)
-        print(f"smoke rung ({args.method}, {args.iterations} iterations, sandboxed ns-train): "
-              f"median {statistics.median(times):.1f} s over {args.runs} runs")
+        print(
+            f"smoke rung ({args.method}, {args.iterations} iterations, sandboxed ns-train): "
+            f"median {statistics.median(times):.1f} s over {args.runs} runs"
+        )
 
 
 if __name__ == "__main__":

@@ -13,5 +13,17 @@ from nerfify_ns.verify.repair import Fixer, Patch, default_fixers
 from nerfify_ns.verify.report import RUNGS, Diagnosis, LadderReport, RungResult
 from nerfify_ns.verify.suite import component_suite
 
-__all__ = ["Diagnosis", "Fixer", "LadderReport", "NotAPluginError", "Patch", "RUNGS", "RungResult", "VerifyError",
-           "component_suite", "default_fixers", "revert_patches", "run_ladder"]
+__all__ = [
+    "Diagnosis",
+    "Fixer",
+    "LadderReport",
+    "NotAPluginError",
+    "Patch",
+    "RUNGS",
+    "RungResult",
+    "VerifyError",
+    "component_suite",
+    "default_fixers",
+    "revert_patches",
+    "run_ladder",
+]

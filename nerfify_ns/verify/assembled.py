@@ -4,15 +4,26 @@ RayBundle, losses backpropagated; nominal and stiff cases. Runs only inside a pr
 from __future__ import annotations
 
 import copy
-from typing import Dict, List, Optional, Tuple
+from typing import Dict, List, Tuple
 
 import torch
 from torch import nn
 
 from nerfify_ns.verify.harness import AABB, collide, finite_problem, ray_bundle
 
-MODEL_CASES = ("near_eq_far", "far_1e5", "grazing_rays", "missing_rays", "scene_scale_1e-3", "scene_scale_1e3",
-               "empty_batch", "density_0", "density_1e8", "density_raw_1e8", "half")
+MODEL_CASES = (
+    "near_eq_far",
+    "far_1e5",
+    "grazing_rays",
+    "missing_rays",
+    "scene_scale_1e-3",
+    "scene_scale_1e3",
+    "empty_batch",
+    "density_0",
+    "density_1e8",
+    "density_raw_1e8",
+    "half",
+)
 DENSITY_MODULES = ("backbone", "density_head", "mlp_base", "mlp_base_mlp", "linear")
 """Field submodules whose output is (or starts with) the pre-activation density."""
 
@@ -34,8 +45,11 @@ def build_model(spec, scale: float = 1.0):
 def plugin_fields(model, package: str) -> List[Tuple[str, nn.Module]]:
     from nerfstudio.fields.base_field import Field
 
-    return [(name, m) for name, m in model.named_modules()
-            if isinstance(m, Field) and name and type(m).__module__.split(".")[0] == package]
+    return [
+        (name, m)
+        for name, m in model.named_modules()
+        if isinstance(m, Field) and name and type(m).__module__.split(".")[0] == package
+    ]
 
 
 def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
@@ -47,8 +61,11 @@ def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
     samples = UniformSampler(num_samples=8)(bundle)
     samples.camera_indices = torch.zeros(*samples.shape, 1, dtype=torch.long)
     out = field(samples)
-    return {("density" if k == FieldHeadNames.DENSITY else getattr(k, "value", str(k))): v
-            for k, v in out.items() if isinstance(v, torch.Tensor)}
+    return {
+        ("density" if k == FieldHeadNames.DENSITY else getattr(k, "value", str(k))): v
+        for k, v in out.items()
+        if isinstance(v, torch.Tensor)
+    }
 
 
 def before_iteration(model, step: int = 0) -> None:
@@ -112,18 +129,24 @@ def patch_density(model, package: str, case: str):
     if case in ("density_0", "density_1e8"):
         value = 0.0 if case == "density_0" else 1e8
         for _, f in fields:
+
             def forced(ray_samples, _orig=f.get_density):
                 result = _orig(ray_samples)
                 if isinstance(result, tuple):
                     return (result[0] * 0.0 + value, *result[1:])
                 return result * 0.0 + value
+
             f.get_density = forced
             undo.append(lambda f=f: f.__dict__.pop("get_density", None))
     else:
         for _, f in fields:
-            module = next((getattr(f, n) for n in DENSITY_MODULES if isinstance(getattr(f, n, None), nn.Module)), None)
+            module = next(
+                (getattr(f, n) for n in DENSITY_MODULES if isinstance(getattr(f, n, None), nn.Module)), None
+            )
             if module is not None:
-                handle = module.register_forward_hook(lambda m, i, o: o + 1e8 if isinstance(o, torch.Tensor) else o)
+                handle = module.register_forward_hook(
+                    lambda m, i, o: o + 1e8 if isinstance(o, torch.Tensor) else o
+                )
                 undo.append(handle.remove)
         if not undo:
             return "no field submodule producing the pre-activation density " + str(DENSITY_MODULES), None
@@ -131,4 +154,5 @@ def patch_density(model, package: str, case: str):
     def restore() -> None:
         for fn in undo:
             fn()
+
     return None, restore

@@ -23,8 +23,13 @@ def print_report(report: LadderReport, console: Optional[Console] = None) -> Non
     style = {"pass": "green", "fail": "red", "skip": "yellow"}
     for r in report.rungs:
         first = str(r.failures[0]) if r.failures else "; ".join(r.notes)
-        table.add_row(r.name, f"[{style.get(r.status, '')}]{r.status}[/]", str(r.checks), f"{r.seconds:.1f}",
-                      first[:160])
+        table.add_row(
+            r.name,
+            f"[{style.get(r.status, '')}]{r.status}[/]",
+            str(r.checks),
+            f"{r.seconds:.1f}",
+            first[:160],
+        )
     console.print(table)
     for p in report.patches:
         console.print(f"patched {p['file']} ({p['fixer']}): {p['reason']}  [dim]{p['diff']}[/]")
@@ -56,9 +61,16 @@ class Verify:
     def main(self) -> None:
         if not self.plugin.is_dir():
             raise VerifyError(f"{self.plugin} is not a folder")
-        report = run_ladder(self.plugin, scene=self.data, out_dir=self.out, repair=self.repair,
-                            max_rounds=self.max_rounds, rungs=self.rungs, smoke_iterations=self.iterations,
-                            timeout=self.timeout)
+        report = run_ladder(
+            self.plugin,
+            scene=self.data,
+            out_dir=self.out,
+            repair=self.repair,
+            max_rounds=self.max_rounds,
+            rungs=self.rungs,
+            smoke_iterations=self.iterations,
+            timeout=self.timeout,
+        )
         print_report(report)
         out = self.out or self.plugin / ".verify"
         Console().print(f"report: {Path(out) / 'verify.json'}")

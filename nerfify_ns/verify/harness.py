@@ -20,11 +20,28 @@ R = 16  # rays per batch
 AABB = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))
 
 POINT_CASES = ("empty_batch", "points_outside_contraction", "scene_scale_1e-3", "scene_scale_1e3", "half")
-RAY_CASES = ("near_eq_far", "far_1e5", "grazing_rays", "missing_rays", "scene_scale_1e-3", "scene_scale_1e3",
-             "empty_batch")
+RAY_CASES = (
+    "near_eq_far",
+    "far_1e5",
+    "grazing_rays",
+    "missing_rays",
+    "scene_scale_1e-3",
+    "scene_scale_1e3",
+    "empty_batch",
+)
 DENSITY_CASES = ("density_raw_0", "density_raw_1e8", "density_raw_-1e8", "empty_batch", "half")
-COMPOSITE_CASES = ("density_0", "density_1e8", "step_zero", "step_tiny", "step_huge", "near_eq_far", "far_1e5",
-                   "density_1e8_step_huge", "empty_batch", "half")
+COMPOSITE_CASES = (
+    "density_0",
+    "density_1e8",
+    "step_zero",
+    "step_tiny",
+    "step_huge",
+    "near_eq_far",
+    "far_1e5",
+    "density_1e8_step_huge",
+    "empty_batch",
+    "half",
+)
 VALUE_CASES = ("zeros", "values_1e8", "empty_batch", "half")
 CASES = {
     "nominal": "small random inputs of the contract's shapes",
@@ -97,7 +114,9 @@ def _points(case: str, domain: str = "signed_unit") -> Tensor:
 
 
 def _directions(case: str) -> Tensor:
-    d = torch.nn.functional.normalize(torch.randn(_n(case), 3, generator=torch.Generator().manual_seed(1)), dim=-1)
+    d = torch.nn.functional.normalize(
+        torch.randn(_n(case), 3, generator=torch.Generator().manual_seed(1)), dim=-1
+    )
     if case == "zeros":
         d = torch.zeros_like(d)
     elif case == "values_1e8":
@@ -130,9 +149,12 @@ def ray_bundle(case: str, rays: int = R):
         directions = torch.tensor([[-1.0, 0.0, 0.0]]).repeat(rays, 1)
     elif case == "missing_rays":
         directions = -directions
-    bundle = RayBundle(origins=origins * scale, directions=directions,
-                       pixel_area=torch.full((rays, 1), 1e-4 * scale * scale),
-                       camera_indices=torch.zeros(rays, 1, dtype=torch.long))
+    bundle = RayBundle(
+        origins=origins * scale,
+        directions=directions,
+        pixel_area=torch.full((rays, 1), 1e-4 * scale * scale),
+        camera_indices=torch.zeros(rays, 1, dtype=torch.long),
+    )
     if case in ("grazing_rays", "missing_rays"):
         return bundle
     if case == "near_eq_far":
@@ -159,21 +181,39 @@ def composite_samples(case: str, samples: int = 8):
     from nerfstudio.cameras.rays import Frustums, RaySamples
 
     rays = 0 if case == "empty_batch" else R
-    step = {"step_zero": 0.0, "step_tiny": 1e-10, "step_huge": 1e10, "density_1e8_step_huge": 1e10,
-            "near_eq_far": 0.0}.get(case, 0.5)
+    step = {
+        "step_zero": 0.0,
+        "step_tiny": 1e-10,
+        "step_huge": 1e10,
+        "density_1e8_step_huge": 1e10,
+        "near_eq_far": 0.0,
+    }.get(case, 0.5)
     t0 = 1e5 if case == "far_1e5" else 2.0
     spacing = (1e5 - 2.0) / samples if case == "far_1e5" else step
     starts = (2.0 if case == "far_1e5" else t0) + spacing * torch.arange(samples, dtype=torch.float32)
     starts = starts.view(1, samples, 1).expand(rays, samples, 1).contiguous()
     ends = starts + spacing
-    frustums = Frustums(origins=torch.zeros(rays, samples, 3), directions=torch.tensor([0.0, 0.0, 1.0]).expand(rays, samples, 3),
-                        starts=starts, ends=ends, pixel_area=torch.ones(rays, samples, 1))
-    ray_samples = RaySamples(frustums=frustums, spacing_starts=starts / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
-                             spacing_ends=ends / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
-                             spacing_to_euclidean_fn=lambda x: x, deltas=ends - starts)
+    frustums = Frustums(
+        origins=torch.zeros(rays, samples, 3),
+        directions=torch.tensor([0.0, 0.0, 1.0]).expand(rays, samples, 3),
+        starts=starts,
+        ends=ends,
+        pixel_area=torch.ones(rays, samples, 1),
+    )
+    ray_samples = RaySamples(
+        frustums=frustums,
+        spacing_starts=starts / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
+        spacing_ends=ends / max(float(ends.max()) if ends.numel() else 1.0, 1e-12),
+        spacing_to_euclidean_fn=lambda x: x,
+        deltas=ends - starts,
+    )
     value = {"density_0": 0.0, "density_1e8": 1e8, "density_1e8_step_huge": 1e8}.get(case)
     gen = torch.Generator().manual_seed(4)
-    densities = torch.rand(rays, samples, 1, generator=gen) * 5 if value is None else torch.full((rays, samples, 1), value)
+    densities = (
+        torch.rand(rays, samples, 1, generator=gen) * 5
+        if value is None
+        else torch.full((rays, samples, 1), value)
+    )
     return ray_samples, densities.requires_grad_(True)
 
 
@@ -181,16 +221,38 @@ def composite_samples(case: str, samples: int = 8):
 def small(terminal: str, params: dict) -> dict:
     """The terminal's parameters shrunk for a quick test (the structure kept)."""
     p = dict(params)
-    caps = {"num_levels": 4, "log2_hashmap_size": 12, "max_res": 64, "num_components": 8, "resolution": 16,
-            "init_resolution": 16, "final_resolution": 16, "layer_width": 32, "num_layers": 3,
-            "density_components": 4, "color_components": 6, "num_coarse_samples": 8, "num_importance_samples": 8,
-            "nerf_samples": 8, "grid_resolution": 16, "grid_levels": 1, "network_max_res": 32,
-            "network_num_levels": 2, "network_log2_hashmap_size": 10, "num_frequencies": 6,
-            "resolutions": 16, "samples_per_ray": 8, "time_resolution": 4, "dim": 8}
+    caps = {
+        "num_levels": 4,
+        "log2_hashmap_size": 12,
+        "max_res": 64,
+        "num_components": 8,
+        "resolution": 16,
+        "init_resolution": 16,
+        "final_resolution": 16,
+        "layer_width": 32,
+        "num_layers": 3,
+        "density_components": 4,
+        "color_components": 6,
+        "num_coarse_samples": 8,
+        "num_importance_samples": 8,
+        "nerf_samples": 8,
+        "grid_resolution": 16,
+        "grid_levels": 1,
+        "network_max_res": 32,
+        "network_num_levels": 2,
+        "network_log2_hashmap_size": 10,
+        "num_frequencies": 6,
+        "resolutions": 16,
+        "samples_per_ray": 8,
+        "time_resolution": 4,
+        "dim": 8,
+    }
     for key, cap in caps.items():
         if key in p and p[key] is not None:
             value = p[key]
-            p[key] = [min(int(v), cap) for v in value] if isinstance(value, list) else type(value)(min(value, cap))
+            p[key] = (
+                [min(int(v), cap) for v in value] if isinstance(value, list) else type(value)(min(value, cap))
+            )
     if "skip_connections" in p:
         p["skip_connections"] = [s for s in p["skip_connections"] or [] if s < p.get("num_layers", 3)]
     if "min_res" in p:
@@ -206,8 +268,13 @@ def _encoding(terminal: str):
         dt, n = _dtype(case), _n(case)
         inputs: List[Tensor] = []
         if terminal in ("positional", "integrated_positional"):
-            module = enc.NeRFEncoding(in_dim=3, num_frequencies=p["num_frequencies"], min_freq_exp=p["min_freq_exp"],
-                                      max_freq_exp=p["max_freq_exp"], include_input=p["include_input"])
+            module = enc.NeRFEncoding(
+                in_dim=3,
+                num_frequencies=p["num_frequencies"],
+                min_freq_exp=p["min_freq_exp"],
+                max_freq_exp=p["max_freq_exp"],
+                include_input=p["include_input"],
+            )
             x = _points(case, "raw")
             covs = None
             if terminal == "integrated_positional":
@@ -216,17 +283,26 @@ def _encoding(terminal: str):
             out = module(x, covs=covs)
             dim = 3 * 2 * p["num_frequencies"] + (3 if p["include_input"] else 0)
         elif terminal == "hash":
-            module = enc.HashEncoding(num_levels=p["num_levels"], min_res=p["min_res"], max_res=p["max_res"],
-                                      log2_hashmap_size=p["log2_hashmap_size"],
-                                      features_per_level=p["features_per_level"], implementation="torch")
+            module = enc.HashEncoding(
+                num_levels=p["num_levels"],
+                min_res=p["min_res"],
+                max_res=p["max_res"],
+                log2_hashmap_size=p["log2_hashmap_size"],
+                features_per_level=p["features_per_level"],
+                implementation="torch",
+            )
             x = _points(case, "unit")
             out = module(x)
             dim = p["num_levels"] * p["features_per_level"]
         elif terminal in ("kplanes", "kplanes_time"):
             from nerfify_ns.components.kplanes import MultiScaleKPlanes
 
-            module = MultiScaleKPlanes(resolutions=p["resolutions"], num_components=p["num_components"],
-                                       reduce=p["reduce"], time_resolution=p.get("time_resolution"))
+            module = MultiScaleKPlanes(
+                resolutions=p["resolutions"],
+                num_components=p["num_components"],
+                reduce=p["reduce"],
+                time_resolution=p.get("time_resolution"),
+            )
             x = _points(case)
             times = None
             if terminal == "kplanes_time":
@@ -235,8 +311,9 @@ def _encoding(terminal: str):
             out = module.to(dt)(x, times)
             dim = len(p["resolutions"]) * p["num_components"]
         elif terminal == "triplane":
-            module = enc.TriplaneEncoding(resolution=p["resolution"], num_components=p["num_components"],
-                                          reduce=p["reduce"])
+            module = enc.TriplaneEncoding(
+                resolution=p["resolution"], num_components=p["num_components"], reduce=p["reduce"]
+            )
             x = _points(case)
             out = module.to(dt)(x)
             dim = p["num_components"]
@@ -253,12 +330,18 @@ def _encoding(terminal: str):
             out = module(x)
             dim = p["levels"] ** 2
         else:  # frequency
-            module = enc.NeRFEncoding(in_dim=3, num_frequencies=p["num_frequencies"], min_freq_exp=p["min_freq_exp"],
-                                      max_freq_exp=p["max_freq_exp"], include_input=p["include_input"])
+            module = enc.NeRFEncoding(
+                in_dim=3,
+                num_frequencies=p["num_frequencies"],
+                min_freq_exp=p["min_freq_exp"],
+                max_freq_exp=p["max_freq_exp"],
+                include_input=p["include_input"],
+            )
             x = _directions(case)
             out = module(x)
             dim = 3 * 2 * p["num_frequencies"] + (3 if p["include_input"] else 0)
         return Run({"features": out}, {"features": (n, dim)}, module=module, inputs=[x, *inputs], dtype=dt)
+
     return run
 
 
@@ -270,21 +353,41 @@ def _mlp(terminal: str):
         in_dim = 16
         if terminal == "tensorial_appearance":
             in_dim = 12 + 3
-            module = MLP(in_dim=in_dim, num_layers=p["num_layers"], layer_width=p["layer_width"], out_dim=3,
-                         activation=nn.ReLU(), out_activation=nn.Sigmoid(), implementation="torch")
+            module = MLP(
+                in_dim=in_dim,
+                num_layers=p["num_layers"],
+                layer_width=p["layer_width"],
+                out_dim=3,
+                activation=nn.ReLU(),
+                out_activation=nn.Sigmoid(),
+                implementation="torch",
+            )
             key, dim, bounds = "rgb", 3, (0.0, 1.0)
         elif terminal == "rgb_mlp":
-            module = MLP(in_dim=in_dim, num_layers=p["num_layers"], layer_width=p["layer_width"], out_dim=3,
-                         activation=nn.ReLU(), out_activation=nn.Sigmoid(), implementation="torch")
+            module = MLP(
+                in_dim=in_dim,
+                num_layers=p["num_layers"],
+                layer_width=p["layer_width"],
+                out_dim=3,
+                activation=nn.ReLU(),
+                out_activation=nn.Sigmoid(),
+                implementation="torch",
+            )
             key, dim, bounds = "rgb", 3, (0.0, 1.0)
         else:
-            module = MLP(in_dim=in_dim, num_layers=p["num_layers"], layer_width=p["layer_width"],
-                         skip_connections=tuple(p["skip_connections"]) or None, activation=nn.ReLU(),
-                         implementation="torch")
+            module = MLP(
+                in_dim=in_dim,
+                num_layers=p["num_layers"],
+                layer_width=p["layer_width"],
+                skip_connections=tuple(p["skip_connections"]) or None,
+                activation=nn.ReLU(),
+                implementation="torch",
+            )
             key, dim, bounds = "hidden", p["layer_width"], (None, None)
         x = _values(case if case != "empty_batch" else "nominal", (n, in_dim), -1.0, 1.0)
         out = module.to(dt)(x)
         return Run({key: out}, {key: (n, dim)}, {key: bounds}, module=module, inputs=[x], dtype=dt)
+
     return run
 
 
@@ -313,8 +416,15 @@ def _density(terminal: str):
             raw = raw * 0 + offset if case.startswith("density_raw") else raw
             density, geo = act(raw), hidden
             geo_dim = width
-        return Run({"density": density, "geo_features": geo}, {"density": (n, 1), "geo_features": (n, geo_dim)},
-                   {"density": (0.0, None)}, module=module, inputs=[hidden], dtype=dt)
+        return Run(
+            {"density": density, "geo_features": geo},
+            {"density": (n, 1), "geo_features": (n, geo_dim)},
+            {"density": (0.0, None)},
+            module=module,
+            inputs=[hidden],
+            dtype=dt,
+        )
+
     return run
 
 
@@ -323,8 +433,13 @@ def _contraction(p: dict, case: str) -> Run:
 
     x = _points(case, "raw")
     out = SceneContraction(order=float("inf") if p["order"] == "inf" else None)(x)
-    return Run({"positions": out}, {"positions": (_n(case), 3)}, {"positions": (-2.0, 2.0)}, inputs=[x],
-               dtype=_dtype(case))
+    return Run(
+        {"positions": out},
+        {"positions": (_n(case), 3)},
+        {"positions": (-2.0, 2.0)},
+        inputs=[x],
+        dtype=_dtype(case),
+    )
 
 
 def _embedding(p: dict, case: str) -> Run:
@@ -346,10 +461,12 @@ def _renderer(p: dict, case: str) -> Run:
     weights = ray_samples.get_weights(densities_in)
     rgb = torch.rand(rays, samples, 3).to(dt).requires_grad_(True)
     background = p["background"] if p["background"] != "random" else "white"
-    out = {"rgb": RGBRenderer(background_color=background)(rgb=rgb, weights=weights),
-           "accumulation": AccumulationRenderer()(weights=weights),
-           "depth": DepthRenderer(method="median")(weights=weights, ray_samples=ray_samples),
-           "expected_depth": DepthRenderer(method="expected")(weights=weights, ray_samples=ray_samples)}
+    out = {
+        "rgb": RGBRenderer(background_color=background)(rgb=rgb, weights=weights),
+        "accumulation": AccumulationRenderer()(weights=weights),
+        "depth": DepthRenderer(method="median")(weights=weights, ray_samples=ray_samples),
+        "expected_depth": DepthRenderer(method="expected")(weights=weights, ray_samples=ray_samples),
+    }
     shapes = {k: (rays, 3 if k == "rgb" else 1) for k in out}
     bounds = {"rgb": (0.0, 1.0), "accumulation": (0.0, 1.0 + 1e-3)}
     return Run(out, shapes, bounds, inputs=[densities, rgb], dtype=dt)
@@ -371,13 +488,18 @@ def _sampler(terminal: str):
             far = 1e5 if case == "far_1e5" else p["far_plane"] * scale
             near = far if case == "near_eq_far" else p["near_plane"] * scale
             b = NearFarCollider(near_plane=near, far_plane=far)(bundle)
-            return Run({"nears": b.nears, "fars": b.fars}, {"nears": (rays, 1), "fars": (rays, 1)},
-                       {"nears": (0.0, None)})
+            return Run(
+                {"nears": b.nears, "fars": b.fars},
+                {"nears": (rays, 1), "fars": (rays, 1)},
+                {"nears": (0.0, None)},
+            )
         if terminal == "hierarchical":
             coarse = rs.UniformSampler(num_samples=p["num_coarse_samples"])(bundle)
             weights = torch.rand(rays, p["num_coarse_samples"], 1).requires_grad_(True)
             samples = rs.PDFSampler(num_samples=p["num_importance_samples"])(bundle, coarse, weights)
-            expected = p["num_importance_samples"] + p["num_coarse_samples"] + 1  # include_original: bin edges
+            expected = (
+                p["num_importance_samples"] + p["num_coarse_samples"] + 1
+            )  # include_original: bin edges
             inputs = [weights]
         elif terminal == "proposal":
             from nerfstudio.data.scene_box import SceneBox
@@ -386,19 +508,32 @@ def _sampler(terminal: str):
             if p["network"] == "kplanes":
                 from nerfify_ns.components.kplanes import KPlanesDensityField
 
-                nets = [KPlanesDensityField(aabb, resolution=r, num_components=4) for r in p["network_max_res"]]
+                nets = [
+                    KPlanesDensityField(aabb, resolution=r, num_components=4) for r in p["network_max_res"]
+                ]
             else:
                 from nerfstudio.fields.density_fields import HashMLPDensityField
 
-                nets = [HashMLPDensityField(aabb, num_levels=p["network_num_levels"], max_res=r,
-                                            log2_hashmap_size=p["network_log2_hashmap_size"], implementation="torch")
-                        for r in p["network_max_res"]]
+                nets = [
+                    HashMLPDensityField(
+                        aabb,
+                        num_levels=p["network_num_levels"],
+                        max_res=r,
+                        log2_hashmap_size=p["network_log2_hashmap_size"],
+                        implementation="torch",
+                    )
+                    for r in p["network_max_res"]
+                ]
             module = nn.ModuleList(nets)
             sampler = rs.ProposalNetworkSampler(
-                num_proposal_samples_per_ray=tuple(p["samples_per_ray"]), num_nerf_samples_per_ray=p["nerf_samples"],
-                num_proposal_network_iterations=len(p["samples_per_ray"]), single_jitter=p["single_jitter"],
+                num_proposal_samples_per_ray=tuple(p["samples_per_ray"]),
+                num_nerf_samples_per_ray=p["nerf_samples"],
+                num_proposal_network_iterations=len(p["samples_per_ray"]),
+                single_jitter=p["single_jitter"],
                 initial_sampler=rs.UniformSampler(single_jitter=p["single_jitter"])
-                if p["initial_sampler"] == "uniform" else None)
+                if p["initial_sampler"] == "uniform"
+                else None,
+            )
             samples, weights_list, _ = sampler(bundle, density_fns=[n.density_fn for n in nets])
             expected = p["nerf_samples"]
             out["weights_list"] = torch.cat([w.reshape(rays, -1) for w in weights_list], dim=-1)
@@ -407,25 +542,38 @@ def _sampler(terminal: str):
         else:  # occupancy_grid
             import nerfacc
 
-            grid = nerfacc.OccGridEstimator(roi_aabb=torch.tensor(AABB).flatten(), resolution=p["grid_resolution"],
-                                            levels=p["grid_levels"])
+            grid = nerfacc.OccGridEstimator(
+                roi_aabb=torch.tensor(AABB).flatten(),
+                resolution=p["grid_resolution"],
+                levels=p["grid_levels"],
+            )
             module = nn.Linear(3, 1)
-            sampler = rs.VolumetricSampler(occupancy_grid=grid,
-                                           density_fn=lambda x: torch.nn.functional.softplus(module(x)))
+            sampler = rs.VolumetricSampler(
+                occupancy_grid=grid, density_fn=lambda x: torch.nn.functional.softplus(module(x))
+            )
             if case == "empty_batch":
                 raise NotApplicable("nerfacc's marcher takes at least one ray")
-            samples, ray_indices = sampler(bundle, render_step_size=0.05, near_plane=float(bundle.nears.min()),
-                                           far_plane=float(bundle.fars.max()), alpha_thre=p["alpha_thre"],
-                                           cone_angle=p["cone_angle"])
+            samples, ray_indices = sampler(
+                bundle,
+                render_step_size=0.05,
+                near_plane=float(bundle.nears.min()),
+                far_plane=float(bundle.fars.max()),
+                alpha_thre=p["alpha_thre"],
+                cone_angle=p["cone_angle"],
+            )
             m = samples.frustums.starts.shape[0]
             starts, ends = samples.frustums.starts, samples.frustums.ends
-            return Run({"ray_samples": torch.cat([starts, ends], -1), "ray_indices": ray_indices.float()},
-                       {"ray_samples": (m, 2), "ray_indices": (m,)}, module=None)
+            return Run(
+                {"ray_samples": torch.cat([starts, ends], -1), "ray_indices": ray_indices.float()},
+                {"ray_samples": (m, 2), "ray_indices": (m,)},
+                module=None,
+            )
         starts, ends = samples.frustums.starts, samples.frustums.ends
         out["ray_samples"] = torch.cat([starts, ends], -1)
         out["positions"] = samples.frustums.get_positions()
         shapes = {"ray_samples": (rays, expected, 2), "positions": (rays, expected, 3)}
         return Run(out, shapes, module=module, inputs=inputs)
+
     return run
 
 
@@ -446,6 +594,7 @@ def _photometric(terminal: str):
 
             loss = MSELoss()(pred, target)
         return Run({"loss": loss}, {"loss": ()}, {"loss": (0.0, None)}, inputs=[pred], dtype=dt)
+
     return run
 
 
@@ -461,6 +610,7 @@ def _sampler_loss(terminal: str):
         else:
             loss = p["weight"] * losses.distortion_loss([w1], [rs1]).mean()
         return Run({"loss": loss}, {"loss": ()}, {"loss": (0.0, None)}, inputs=[d1, d2])
+
     return run
 
 
@@ -470,9 +620,14 @@ def _regularizer(terminal: str):
 
         dt = _dtype(case)
         if terminal in ("plane_tv", "time_smoothness", "plane_l1"):
-            planes = [] if case == "empty_batch" else [_values(case, (1, 4, 8, 8)), _values(case, (1, 4, 6, 8))]
-            fn = {"plane_tv": reg.plane_tv, "time_smoothness": reg.time_smoothness,
-                  "plane_l1": reg.plane_l1_to_one}[terminal]
+            planes = (
+                [] if case == "empty_batch" else [_values(case, (1, 4, 8, 8)), _values(case, (1, 4, 6, 8))]
+            )
+            fn = {
+                "plane_tv": reg.plane_tv,
+                "time_smoothness": reg.time_smoothness,
+                "plane_l1": reg.plane_l1_to_one,
+            }[terminal]
             loss, inputs = fn(planes), planes
         elif terminal == "ray_entropy":
             w = _values(case, (0 if case == "empty_batch" else R, 8, 1))
@@ -480,7 +635,10 @@ def _regularizer(terminal: str):
         else:
             d = _values(case, (0 if case == "empty_batch" else R, 8, 1), 0.0, 5.0)
             loss, inputs = reg.density_sparsity(d, scale=p["scale"]), [d]
-        return Run({"loss": p["weight"] * loss}, {"loss": ()}, {"loss": (0.0, None)}, inputs=list(inputs), dtype=dt)
+        return Run(
+            {"loss": p["weight"] * loss}, {"loss": ()}, {"loss": (0.0, None)}, inputs=list(inputs), dtype=dt
+        )
+
     return run
 
 
@@ -489,14 +647,19 @@ def _camera(terminal: str):
         from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 
         module = CameraOptimizerConfig(mode="SO3xR3" if terminal == "so3xr3" else "SE3").setup(
-            num_cameras=4, device="cpu")
+            num_cameras=4, device="cpu"
+        )
         with torch.no_grad():
             module.pose_adjustment.normal_(0, 1e-2)
         bundle = ray_bundle(case)
         module.apply_to_raybundle(bundle)
         rays = bundle.origins.shape[0]
-        return Run({"origins": bundle.origins, "directions": bundle.directions},
-                   {"origins": (rays, 3), "directions": (rays, 3)}, module=module)
+        return Run(
+            {"origins": bundle.origins, "directions": bundle.directions},
+            {"origins": (rays, 3), "directions": (rays, 3)},
+            module=module,
+        )
+
     return run
 
 
@@ -505,12 +668,27 @@ HARNESSES: Dict[str, Harness] = {}
 
 def _add(names, make, cases) -> None:
     for name in names:
-        HARNESSES[name] = Harness(name, make(name) if callable(make) and make.__code__.co_argcount == 1 else make,
-                                  ("nominal", *cases))
+        HARNESSES[name] = Harness(
+            name,
+            make(name) if callable(make) and make.__code__.co_argcount == 1 else make,
+            ("nominal", *cases),
+        )
 
 
-_add(["positional", "integrated_positional", "hash", "kplanes", "kplanes_time", "triplane", "tensor_vm", "tensor_cp"],
-     _encoding, POINT_CASES)
+_add(
+    [
+        "positional",
+        "integrated_positional",
+        "hash",
+        "kplanes",
+        "kplanes_time",
+        "triplane",
+        "tensor_vm",
+        "tensor_cp",
+    ],
+    _encoding,
+    POINT_CASES,
+)
 _add(["sh", "frequency"], _encoding, ("zeros", "values_1e8", "empty_batch", "half"))
 _add(["mlp", "rgb_mlp", "tensorial_appearance"], _mlp, ("values_1e8", "empty_batch", "half"))
 _add(["density_linear", "density_split"], _density, DENSITY_CASES)
@@ -519,10 +697,25 @@ _add(["appearance_embedding"], _embedding, ("empty_batch",))
 _add(["renderer"], _renderer, COMPOSITE_CASES)
 _add(["near_far", "hierarchical", "proposal", "occupancy_grid"], _sampler, RAY_CASES)
 _add(["l2", "l1", "charbonnier"], _photometric, VALUE_CASES)
-_add(["interlevel", "distortion"], _sampler_loss, ("density_0", "density_1e8", "step_zero", "step_huge",
-                                                     "near_eq_far", "far_1e5", "density_1e8_step_huge", "empty_batch"))
-_add(["plane_tv", "time_smoothness", "plane_l1", "ray_entropy", "density_sparsity"], _regularizer, VALUE_CASES)
+_add(
+    ["interlevel", "distortion"],
+    _sampler_loss,
+    (
+        "density_0",
+        "density_1e8",
+        "step_zero",
+        "step_huge",
+        "near_eq_far",
+        "far_1e5",
+        "density_1e8_step_huge",
+        "empty_batch",
+    ),
+)
+_add(
+    ["plane_tv", "time_smoothness", "plane_l1", "ray_entropy", "density_sparsity"], _regularizer, VALUE_CASES
+)
 _add(["so3xr3", "se3"], _camera, ("empty_batch", "far_1e5"))
+
 
 def _kplanes_density(p: dict, case: str) -> Run:
     from nerfify_ns.components.kplanes import KPlanesDensityField
@@ -533,12 +726,24 @@ def _kplanes_density(p: dict, case: str) -> Run:
         module.linear.register_forward_hook(lambda m, i, o: o * 0 + offset)
     x = _points(case, "raw")
     density = module.density_fn(x.float() if case == "half" else x)
-    return Run({"density": density}, {"density": (_n(case), 1)}, {"density": (0.0, None)}, module=module, inputs=[x])
+    return Run(
+        {"density": density}, {"density": (_n(case), 1)}, {"density": (0.0, None)}, module=module, inputs=[x]
+    )
 
 
-HARNESSES["KPlanesDensityField"] = Harness("KPlanesDensityField", _kplanes_density,
-                                           ("nominal", "density_raw_0", "density_raw_1e8", "density_raw_-1e8",
-                                            "empty_batch", "points_outside_contraction", "scene_scale_1e3"))
+HARNESSES["KPlanesDensityField"] = Harness(
+    "KPlanesDensityField",
+    _kplanes_density,
+    (
+        "nominal",
+        "density_raw_0",
+        "density_raw_1e8",
+        "density_raw_-1e8",
+        "empty_batch",
+        "points_outside_contraction",
+        "scene_scale_1e3",
+    ),
+)
 OURS_EXTRA = {"KPlanesDensityField": "nerfify_ns.components.kplanes.KPlanesDensityField"}
 """Components of ours that fill a terminal indirectly (a proposal network of k-planes)."""
 
@@ -565,7 +770,11 @@ def check_run(run: Run, grads_required: bool) -> List[str]:
             problems.append(f"{key}: shape {tuple(value.shape)}, contract says {tuple(shape)}")
         if value.device.type != "cpu":
             problems.append(f"{key}: on {value.device}, inputs on cpu")
-        if value.is_floating_point() and run.dtype == torch.float32 and value.dtype not in (torch.float32, torch.float64):
+        if (
+            value.is_floating_point()
+            and run.dtype == torch.float32
+            and value.dtype not in (torch.float32, torch.float64)
+        ):
             problems.append(f"{key}: dtype {value.dtype} from float32 inputs")
         problems += [p for p in [finite_problem(key, value)] if p]
         low, high = run.bounds.get(key, (None, None))
@@ -582,7 +791,11 @@ def check_run(run: Run, grads_required: bool) -> List[str]:
         total.backward()
     except RuntimeError as exc:
         return problems + [f"backward failed: {str(exc).splitlines()[0]}"]
-    params = [(n, p) for n, p in (run.module.named_parameters() if run.module is not None else []) if p.requires_grad]
+    params = [
+        (n, p)
+        for n, p in (run.module.named_parameters() if run.module is not None else [])
+        if p.requires_grad
+    ]
     for name, param in params:
         if param.grad is None:
             if grads_required:

@@ -15,8 +15,15 @@ from nerfify_ns.verify.rungs import PROBE_RUNGS, run_probe, static_ast
 from nerfify_ns.verify.smoke import smoke_rung
 
 
-def _round(plugin_dir: Path, rungs: Sequence[str], work: Path, scene: Optional[Path], smoke_iterations: int,
-           timeout: float, notes: List[str]) -> List[RungResult]:
+def _round(
+    plugin_dir: Path,
+    rungs: Sequence[str],
+    work: Path,
+    scene: Optional[Path],
+    smoke_iterations: int,
+    timeout: float,
+    notes: List[str],
+) -> List[RungResult]:
     info = load_plugin(plugin_dir)
     results: List[RungResult] = []
     if "static" in rungs:
@@ -29,12 +36,17 @@ def _round(plugin_dir: Path, rungs: Sequence[str], work: Path, scene: Optional[P
         for name in probe_rungs:
             results.append(found.get(name) or RungResult(name, "skip", notes=["an earlier rung failed"]))
         if info.plan is None and "contract" in rungs:
-            note = "no plan.yaml: plan-based contract checks skipped; the assembled field and model were checked"
+            note = (
+                "no plan.yaml: plan-based contract checks skipped; the assembled field and model were checked"
+            )
             next(r for r in results if r.name == "contract").notes.append(note)
     if "smoke" in rungs:
         if all(r.status == "pass" for r in results):
-            results.append(smoke_rung(info, scene or _scene(work), work / "smoke", iterations=smoke_iterations,
-                                      timeout=timeout))
+            results.append(
+                smoke_rung(
+                    info, scene or _scene(work), work / "smoke", iterations=smoke_iterations, timeout=timeout
+                )
+            )
         else:
             results.append(RungResult("smoke", "skip", notes=["an earlier rung failed"]))
     return results
@@ -49,9 +61,18 @@ def _scene(work: Path) -> Path:
     return path
 
 
-def run_ladder(plugin_dir, *, scene=None, out_dir=None, repair: bool = True, max_rounds: int = 3,
-               rungs: Optional[Sequence[str]] = None, smoke_iterations: int = 30, timeout: float = 300,
-               fixers: Optional[Sequence[Fixer]] = None) -> LadderReport:
+def run_ladder(
+    plugin_dir,
+    *,
+    scene=None,
+    out_dir=None,
+    repair: bool = True,
+    max_rounds: int = 3,
+    rungs: Optional[Sequence[str]] = None,
+    smoke_iterations: int = 30,
+    timeout: float = 300,
+    fixers: Optional[Sequence[Fixer]] = None,
+) -> LadderReport:
     """Verify the plugin in ``plugin_dir``; write ``verify.json`` (and patches) to ``out_dir``."""
     plugin_dir = Path(plugin_dir).resolve()
     rungs = list(rungs or RUNGS)
@@ -67,8 +88,9 @@ def run_ladder(plugin_dir, *, scene=None, out_dir=None, repair: bool = True, max
     for round_no in range(max_rounds + 1):
         work = out / f"round-{round_no}"
         start = time.perf_counter()
-        results = _round(plugin_dir, rungs, work, Path(scene) if scene else None, smoke_iterations, timeout,
-                         report.notes)
+        results = _round(
+            plugin_dir, rungs, work, Path(scene) if scene else None, smoke_iterations, timeout, report.notes
+        )
         report.rounds.append(results)
         report.rungs = results
         report.notes.append(f"round {round_no}: {time.perf_counter() - start:.1f} s")
@@ -100,8 +122,14 @@ def _record(patch: Patch, out: Path, plugin_dir: Path, round_no: int, report: La
     name = f"{len(report.patches) + 1:02d}-{patch.fixer}-{patch.file.replace('/', '_')}.diff"
     (folder / name).write_text(patch.diff())
     patch.apply(plugin_dir)
-    report.patches.append({**patch.summary(), "round": round_no, "diff": str(folder / name),
-                           "revert": f"patch -R -p1 -d {plugin_dir} < {folder / name}"})
+    report.patches.append(
+        {
+            **patch.summary(),
+            "round": round_no,
+            "diff": str(folder / name),
+            "revert": f"patch -R -p1 -d {plugin_dir} < {folder / name}",
+        }
+    )
 
 
 def revert_patches(report: LadderReport) -> None:
@@ -109,5 +137,6 @@ def revert_patches(report: LadderReport) -> None:
     import subprocess
 
     for p in reversed(report.patches):
-        subprocess.run(["patch", "-R", "-p1", "-d", report.plugin, "-i", p["diff"]], check=True,
-                       capture_output=True)
+        subprocess.run(
+            ["patch", "-R", "-p1", "-d", report.plugin, "-i", p["diff"]], check=True, capture_output=True
+        )

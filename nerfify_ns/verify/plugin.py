@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import List, Optional
 
+import tomllib
 import yaml
 
 from nerfify_ns.verify.errors import NotAPluginError
@@ -48,7 +48,10 @@ def _entry_point(root: Path):
     if not entries:
         return None
     method, target = next(iter(entries.items()))
-    line = next((i for i, text in enumerate(path.read_text().splitlines(), 1) if text.strip().startswith(method)), None)
+    line = next(
+        (i for i, text in enumerate(path.read_text().splitlines(), 1) if text.strip().startswith(method)),
+        None,
+    )
     return method, target, line
 
 
@@ -65,17 +68,31 @@ def load_plugin(root: Path) -> PluginInfo:
             meta = {}
     entry = _entry_point(root)
     if entry is None and not meta.get("config"):
-        raise NotAPluginError(f"{root} has no [project.entry-points.\"{ENTRY_GROUP}\"] in pyproject.toml "
-                              "and no nerfify.json: not a Nerfstudio plugin folder")
+        raise NotAPluginError(
+            f'{root} has no [project.entry-points."{ENTRY_GROUP}"] in pyproject.toml '
+            "and no nerfify.json: not a Nerfstudio plugin folder"
+        )
     method, target, line = entry if entry else (meta["method"], meta["config"], None)
     package = meta.get("package") or target.split(".")[0]
-    files = sorted(str(p.relative_to(root)) for p in root.rglob("*.py")
-                   if not any(part.startswith(".") or part in ("__pycache__", "build") for part in p.relative_to(root).parts))
+    files = sorted(
+        str(p.relative_to(root))
+        for p in root.rglob("*.py")
+        if not any(
+            part.startswith(".") or part in ("__pycache__", "build") for part in p.relative_to(root).parts
+        )
+    )
     plan = None
     if (root / "plan.yaml").is_file():
         try:
             plan = yaml.safe_load((root / "plan.yaml").read_text())
         except yaml.YAMLError:
             plan = None
-    return PluginInfo(root=root, method=method, package=package, config=target, python_files=files,
-                      plan=plan if isinstance(plan, dict) else None, entry_line=line)
+    return PluginInfo(
+        root=root,
+        method=method,
+        package=package,
+        config=target,
+        python_files=files,
+        plan=plan if isinstance(plan, dict) else None,
+        entry_line=line,
+    )

@@ -45,15 +45,25 @@ def plugin_frame(tb) -> tuple:
 FAILED = set()
 
 
-def diagnose(rung: str, rule: str, message: str, file=None, line=None, exc: Optional[BaseException] = None,
-             **extra) -> None:
+def diagnose(
+    rung: str, rule: str, message: str, file=None, line=None, exc: Optional[BaseException] = None, **extra
+) -> None:
     FAILED.add(rung)
     text = ""
     if exc is not None:
         text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)[-6:])[-2000:]
         if file is None:
             file, line = plugin_frame(exc.__traceback__)
-    emit(event="diagnosis", rung=rung, rule=rule, message=message, file=file, line=line, traceback=text, **extra)
+    emit(
+        event="diagnosis",
+        rung=rung,
+        rule=rule,
+        message=message,
+        file=file,
+        line=line,
+        traceback=text,
+        **extra,
+    )
 
 
 def class_line(cls) -> tuple:
@@ -84,8 +94,11 @@ def check_imports(files: List[str]) -> Dict[str, object]:
             if isinstance(node, ast.Import):
                 targets = [(a.name, None) for a in node.names]
             elif isinstance(node, ast.ImportFrom):
-                base = importlib.util.resolve_name("." * node.level + (node.module or ""), package) if node.level \
+                base = (
+                    importlib.util.resolve_name("." * node.level + (node.module or ""), package)
+                    if node.level
                     else node.module
+                )
                 targets = [(base, a.name) for a in node.names]
             else:
                 continue
@@ -96,13 +109,20 @@ def check_imports(files: List[str]) -> Dict[str, object]:
                         importlib.import_module(f"{mod}.{attr}")
                 except Exception as exc:  # any failure of untrusted code is a finding
                     what = f"{mod}.{attr}" if attr else mod
-                    diagnose("static", "import", f"import of {what} fails: {type(exc).__name__}: {exc}",
-                             rel, node.lineno, exc if not isinstance(exc, ImportError) else None)
+                    diagnose(
+                        "static",
+                        "import",
+                        f"import of {what} fails: {type(exc).__name__}: {exc}",
+                        rel,
+                        node.lineno,
+                        exc if not isinstance(exc, ImportError) else None,
+                    )
         try:
             modules[rel] = importlib.import_module(name)
         except Exception as exc:
-            diagnose("static", "import", f"module {name} cannot be imported: {type(exc).__name__}: {exc}",
-                     exc=exc)
+            diagnose(
+                "static", "import", f"module {name} cannot be imported: {type(exc).__name__}: {exc}", exc=exc
+            )
     return modules
 
 
@@ -122,12 +142,20 @@ def check_classes(modules, base: Optional[dict]) -> None:
         name = cls.__name__
         if name.endswith("ModelConfig") and not issubclass(cls, ModelConfig):
             diagnose("static", "base-class", f"{name} must subclass nerfstudio ModelConfig", file, line)
-        elif not name.endswith("Config") and (name.endswith("Model") or "populate_modules" in vars(cls)) \
-                and not issubclass(cls, Model):
+        elif (
+            not name.endswith("Config")
+            and (name.endswith("Model") or "populate_modules" in vars(cls))
+            and not issubclass(cls, Model)
+        ):
             diagnose("static", "base-class", f"{name} must subclass nerfstudio's Model", file, line)
         elif (name.endswith("Field") or "get_density" in vars(cls)) and not issubclass(cls, Field):
-            diagnose("static", "base-class", f"{name} must subclass nerfstudio's Field "
-                     "(nerfstudio.fields.base_field.Field)", file, line)
+            diagnose(
+                "static",
+                "base-class",
+                f"{name} must subclass nerfstudio's Field " "(nerfstudio.fields.base_field.Field)",
+                file,
+                line,
+            )
         if isinstance(cls, type) and issubclass(cls, ModelConfig) and cls is not ModelConfig:
             check_target(cls, file, line, base)
 
@@ -142,18 +170,38 @@ def check_target(cfg_cls, file, line, base: Optional[dict]) -> None:
         return
     tline = _target_line(cfg_cls) or line
     if not (isinstance(target, type) and issubclass(target, Model)):
-        diagnose("static", "config-target", f"{cfg_cls.__name__}._target is {target!r}, not a Model class",
-                 file, tline)
+        diagnose(
+            "static",
+            "config-target",
+            f"{cfg_cls.__name__}._target is {target!r}, not a Model class",
+            file,
+            tline,
+        )
         return
     annotated = target.__dict__.get("__annotations__", {}).get("config")
     annotated = getattr(annotated, "__name__", annotated)
     expected = cfg_cls.__name__[: -len("Config")]
-    if annotated is not None and annotated != cfg_cls.__name__ or annotated is None and target.__name__ != expected:
-        diagnose("static", "config-target", f"{cfg_cls.__name__}._target builds {target.__module__}."
-                 f"{target.__name__}, not the model this config belongs to ({expected})", file, tline)
+    if (
+        annotated is not None
+        and annotated != cfg_cls.__name__
+        or annotated is None
+        and target.__name__ != expected
+    ):
+        diagnose(
+            "static",
+            "config-target",
+            f"{cfg_cls.__name__}._target builds {target.__module__}."
+            f"{target.__name__}, not the model this config belongs to ({expected})",
+            file,
+            tline,
+        )
     elif base and not issubclass(target, _import(f"{base['module']}.{base['model_class']}")):
-        diagnose("static", "base-class", f"{target.__name__} must derive from the plan's base "
-                 f"{base['model_class']}", *class_line(target))
+        diagnose(
+            "static",
+            "base-class",
+            f"{target.__name__} must derive from the plan's base " f"{base['model_class']}",
+            *class_line(target),
+        )
 
 
 def _target_line(cls) -> Optional[int]:
@@ -176,12 +224,23 @@ def load_spec(config: str, entry_line):
     try:
         spec = getattr(importlib.import_module(module_name_), var)
     except Exception as exc:
-        diagnose("static", "entry-point", f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
-                 "pyproject.toml", entry_line, exc if not isinstance(exc, (ImportError, AttributeError)) else None)
+        diagnose(
+            "static",
+            "entry-point",
+            f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
+            "pyproject.toml",
+            entry_line,
+            exc if not isinstance(exc, (ImportError, AttributeError)) else None,
+        )
         return None
     if not isinstance(spec, MethodSpecification):
-        diagnose("static", "entry-point", f"entry point {config} is a {type(spec).__name__}, not a "
-                 "MethodSpecification", "pyproject.toml", entry_line)
+        diagnose(
+            "static",
+            "entry-point",
+            f"entry point {config} is a {type(spec).__name__}, not a " "MethodSpecification",
+            "pyproject.toml",
+            entry_line,
+        )
         return None
     return spec
 
@@ -192,7 +251,9 @@ def optimizers_line(config_module: str) -> tuple:
         tree = ast.parse((ROOT / rel).read_text())
     except (OSError, SyntaxError):
         return rel, None
-    line = next((n.lineno for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "optimizers"), None)
+    line = next(
+        (n.lineno for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "optimizers"), None
+    )
     return rel, line
 
 
@@ -214,8 +275,12 @@ def check_param_groups(spec, config_module: str):
     try:
         model = shared_model(spec)
     except Exception as exc:
-        diagnose("static", "model-build", f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
-                 exc=exc)
+        diagnose(
+            "static",
+            "model-build",
+            f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
+            exc=exc,
+        )
         return None
     groups = {k: v for k, v in model.get_param_groups().items()}
     keys = set(spec.config.optimizers)
@@ -223,9 +288,16 @@ def check_param_groups(spec, config_module: str):
     missing, extra = sorted(set(groups) - keys), sorted(keys - set(groups))
     empty = sorted(k for k, v in groups.items() if not list(v))
     if missing or extra:
-        diagnose("static", "param-groups", f"model parameter groups {sorted(groups)} != optimizer keys "
-                 f"{sorted(keys)} (missing optimizers: {missing}; optimizers without a group: {extra})", file, line,
-                 missing=missing, extra=extra)
+        diagnose(
+            "static",
+            "param-groups",
+            f"model parameter groups {sorted(groups)} != optimizer keys "
+            f"{sorted(keys)} (missing optimizers: {missing}; optimizers without a group: {extra})",
+            file,
+            line,
+            missing=missing,
+            extra=extra,
+        )
     if empty:
         diagnose("static", "param-groups", f"parameter groups without parameters: {empty}", file, line)
     return model
@@ -279,8 +351,14 @@ def contract_rung(spec, plan: Optional[dict]) -> None:
             result = run_component("contract", terminal, plan_value(plan, path) or {}, ["nominal"])[0]
             emit(event="component", rung="contract", component=terminal, path=path, **result)
             if result["status"] == "fail":
-                diagnose("contract", "component-contract", f"{terminal} ({path}): " + "; ".join(result["problems"]),
-                         "plan.yaml", None, component=terminal)
+                diagnose(
+                    "contract",
+                    "component-contract",
+                    f"{terminal} ({path}): " + "; ".join(result["problems"]),
+                    "plan.yaml",
+                    None,
+                    component=terminal,
+                )
     assembled_contract(spec)
 
 
@@ -296,8 +374,13 @@ def assembled_contract(spec) -> None:
         try:
             out = field_forward(field)
         except Exception as exc:
-            diagnose("contract", "field-contract", f"field {name} ({type(field).__name__}) fails on a small batch: "
-                     f"{type(exc).__name__}: {exc}", exc=exc)
+            diagnose(
+                "contract",
+                "field-contract",
+                f"field {name} ({type(field).__name__}) fails on a small batch: "
+                f"{type(exc).__name__}: {exc}",
+                exc=exc,
+            )
             continue
         problems = []
         shape = (16, 8)
@@ -314,16 +397,30 @@ def assembled_contract(spec) -> None:
             if value.dtype != torch.float32:
                 problems.append(f"{key} dtype {value.dtype}, expected float32")
             problems += [p for p in [finite_problem(key, value)] if p]
-            if value.numel() and float(value.min()) < low - 1e-5 or high is not None and float(value.max()) > high + 1e-5:
+            if (
+                value.numel()
+                and float(value.min()) < low - 1e-5
+                or high is not None
+                and float(value.max()) > high + 1e-5
+            ):
                 problems.append(f"{key} outside [{low}, {high}]")
         if problems:
-            diagnose("contract", "field-contract", f"field {name} ({type(field).__name__}): " + "; ".join(problems),
-                     file, line)
+            diagnose(
+                "contract",
+                "field-contract",
+                f"field {name} ({type(field).__name__}): " + "; ".join(problems),
+                file,
+                line,
+            )
     try:
         outputs, losses, total = model_step(model)
     except Exception as exc:
-        diagnose("contract", "model-contract", f"a training step of the model fails: {type(exc).__name__}: {exc}",
-                 exc=exc)
+        diagnose(
+            "contract",
+            "model-contract",
+            f"a training step of the model fails: {type(exc).__name__}: {exc}",
+            exc=exc,
+        )
         return
     problems = output_problems(outputs, losses)
     if not losses:
@@ -338,9 +435,16 @@ def assembled_contract(spec) -> None:
         groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
     for prefix, names in groups.items():
         file, line = owner_line(model, names[0])
-        diagnose("contract", "detached-parameter", f"trainable parameter(s) {', '.join(names[:4])}"
-                 f"{' ...' if len(names) > 4 else ''} receive no gradient from the losses (a wiring bug: detached, "
-                 "unused, or outside the graph)", file, line, parameter=names[0])
+        diagnose(
+            "contract",
+            "detached-parameter",
+            f"trainable parameter(s) {', '.join(names[:4])}"
+            f"{' ...' if len(names) > 4 else ''} receive no gradient from the losses (a wiring bug: detached, "
+            "unused, or outside the graph)",
+            file,
+            line,
+            parameter=names[0],
+        )
 
 
 def owner_line(model, pname: str) -> tuple:
@@ -384,12 +488,25 @@ def stability_rung(spec, plan: Optional[dict], suite: str) -> None:
     for terminal in names:
         implementation = grammar_terms.get(terminal) or OURS_EXTRA.get(terminal, "")
         owner = "ours" if implementation.startswith("nerfify_ns.") else "nerfstudio"
-        for result in run_component("stability", terminal, params.get(terminal, {}), HARNESSES[terminal].cases):
-            emit(event="case", rung="stability", component=terminal, implementation=implementation, owner=owner,
-                 **result)
+        for result in run_component(
+            "stability", terminal, params.get(terminal, {}), HARNESSES[terminal].cases
+        ):
+            emit(
+                event="case",
+                rung="stability",
+                component=terminal,
+                implementation=implementation,
+                owner=owner,
+                **result,
+            )
             if result["status"] == "fail" and owner == "ours":
-                diagnose("stability", "stiff-case", f"{terminal}, case {result['case']}: "
-                         + "; ".join(result["problems"]), component=terminal, case=result["case"])
+                diagnose(
+                    "stability",
+                    "stiff-case",
+                    f"{terminal}, case {result['case']}: " + "; ".join(result["problems"]),
+                    component=terminal,
+                    case=result["case"],
+                )
     if spec is not None:
         assembled_stability(spec)
 
@@ -413,20 +530,35 @@ def assembled_stability(spec) -> None:
         torch.manual_seed(0)
         problems: List[str] = []
         if case == "half" and not spec.config.mixed_precision:
-            emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status="n/a",
-                 problems=["the method trains in float32 (trainer.mixed_precision off)"])
+            emit(
+                event="case",
+                rung="stability",
+                component="<model>",
+                owner="plugin",
+                case=case,
+                status="n/a",
+                problems=["the method trains in float32 (trainer.mixed_precision off)"],
+            )
             continue
         scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
         try:
             model = shared_model(spec, scale)
             why, restore = patch_density(model, PACKAGE, case) if case.startswith("density") else (None, None)
             if why:
-                emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status="n/a",
-                     problems=[why])
+                emit(
+                    event="case",
+                    rung="stability",
+                    component="<model>",
+                    owner="plugin",
+                    case=case,
+                    status="n/a",
+                    problems=[why],
+                )
                 continue
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "half"):
-                outputs, losses, _ = model_step(model, "nominal" if case.startswith("density") or case == "half"
-                                                else case)
+                outputs, losses, _ = model_step(
+                    model, "nominal" if case.startswith("density") or case == "half" else case
+                )
             problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
             if restore:
                 restore()
@@ -438,11 +570,23 @@ def assembled_stability(spec) -> None:
             _MODELS.pop(scale, None)  # possibly left patched or half-updated
         gating = case not in ADVISORY_CASES
         status = ("fail" if gating else "warn") if problems else "pass"
-        emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status=status,
-             problems=problems[:6])
+        emit(
+            event="case",
+            rung="stability",
+            component="<model>",
+            owner="plugin",
+            case=case,
+            status=status,
+            problems=problems[:6],
+        )
         if problems and gating:
-            diagnose("stability", "stiff-case", f"assembled model, case {case}: " + "; ".join(problems[:4]),
-                     component="<model>", case=case)
+            diagnose(
+                "stability",
+                "stiff-case",
+                f"assembled model, case {case}: " + "; ".join(problems[:4]),
+                component="<model>",
+                case=case,
+            )
 
 
 # ----------------------------------------------------------------------------- main

@@ -33,8 +33,11 @@ class Patch:
     fixer: str = ""
 
     def diff(self) -> str:
-        return "".join(difflib.unified_diff(self.before.splitlines(True), self.after.splitlines(True),
-                                            f"a/{self.file}", f"b/{self.file}"))
+        return "".join(
+            difflib.unified_diff(
+                self.before.splitlines(True), self.after.splitlines(True), f"a/{self.file}", f"b/{self.file}"
+            )
+        )
 
     def apply(self, root: Path) -> None:
         (root / self.file).write_text(self.after)
@@ -76,15 +79,31 @@ class OptimizerGroupFixer:
             if d.rule != "param-groups" or not d.file or not d.line:
                 continue
             text = _read(info, d.file)
-            missing = re.findall(r"'([^']+)'", d.message.split("missing optimizers:")[1].split(";")[0]) \
-                if "missing optimizers:" in d.message else []
-            extra = re.findall(r"'([^']+)'", d.message.split("without a group:")[1]) if "without a group:" in d.message else []
-            node = next((n.value for n in ast.walk(ast.parse(text)) if isinstance(n, ast.keyword)
-                         and n.arg == "optimizers" and isinstance(n.value, ast.Dict)), None)
+            missing = (
+                re.findall(r"'([^']+)'", d.message.split("missing optimizers:")[1].split(";")[0])
+                if "missing optimizers:" in d.message
+                else []
+            )
+            extra = (
+                re.findall(r"'([^']+)'", d.message.split("without a group:")[1])
+                if "without a group:" in d.message
+                else []
+            )
+            node = next(
+                (
+                    n.value
+                    for n in ast.walk(ast.parse(text))
+                    if isinstance(n, ast.keyword) and n.arg == "optimizers" and isinstance(n.value, ast.Dict)
+                ),
+                None,
+            )
             if node is None:
                 continue
-            entries = {k.value: ast.get_source_segment(text, v) for k, v in zip(node.keys, node.values)
-                       if isinstance(k, ast.Constant)}
+            entries = {
+                k.value: ast.get_source_segment(text, v)
+                for k, v in zip(node.keys, node.values)
+                if isinstance(k, ast.Constant)
+            }
             template = entries.get("fields") or next((v for k, v in entries.items() if k not in extra), None)
             if template is None and missing:
                 continue
@@ -92,8 +111,17 @@ class OptimizerGroupFixer:
             kept.update({k: template for k in missing})
             body = "{\n" + "".join(f"            {k!r}: {v},\n" for k, v in kept.items()) + "        }"
             after = _segment_replace(text, node, body)
-            patches.append(Patch(d.file, text, after, d.rule, f"optimizers for groups {missing} added (copied from "
-                                 f"'fields'), optimizers without a group {extra} removed", self.name))
+            patches.append(
+                Patch(
+                    d.file,
+                    text,
+                    after,
+                    d.rule,
+                    f"optimizers for groups {missing} added (copied from "
+                    f"'fields'), optimizers without a group {extra} removed",
+                    self.name,
+                )
+            )
         return patches
 
 
@@ -110,20 +138,37 @@ class InterlevelLossFixer:
         after = re.sub(r"interlevel_loss_mult=0(\.0*)?\b", "interlevel_loss_mult=1.0", text)
         if after == text:
             return []
-        return [Patch(rel, text, after, "detached-parameter", "a proposal sampler needs its interlevel loss "
-                      "(Mip-NeRF 360 Eq. 13): interlevel_loss_mult set to 1.0", self.name)]
+        return [
+            Patch(
+                rel,
+                text,
+                after,
+                "detached-parameter",
+                "a proposal sampler needs its interlevel loss "
+                "(Mip-NeRF 360 Eq. 13): interlevel_loss_mult set to 1.0",
+                self.name,
+            )
+        ]
 
 
 class DtypeDeviceFixer:
     """float64 or CUDA-only tensors in plugin code: float32, on the inputs' device."""
 
     name = "dtype-device"
-    RULES = [(r"\.double\(\)", ".float()"), (r"torch\.float64", "torch.float32"), (r"\.cuda\(\)", ""),
-             (r"device=[\"']cuda[\"']", "device=\"cpu\""), (r"\.half\(\)", ".float()")]
+    RULES = [
+        (r"\.double\(\)", ".float()"),
+        (r"torch\.float64", "torch.float32"),
+        (r"\.cuda\(\)", ""),
+        (r"device=[\"']cuda[\"']", 'device="cpu"'),
+        (r"\.half\(\)", ".float()"),
+    ]
 
     def propose(self, info, diagnoses):
-        relevant = [d for d in diagnoses if re.search(r"dtype|device|cuda|Double|Half|Expected all tensors",
-                                                      d.message + d.traceback)]
+        relevant = [
+            d
+            for d in diagnoses
+            if re.search(r"dtype|device|cuda|Double|Half|Expected all tensors", d.message + d.traceback)
+        ]
         patches = []
         for rel in info.python_files if relevant else []:
             text = _read(info, rel)
@@ -131,8 +176,16 @@ class DtypeDeviceFixer:
             for pattern, repl in self.RULES:
                 after = re.sub(pattern, repl, after)
             if after != text:
-                patches.append(Patch(rel, text, after, relevant[0].rule, "float64/half/CUDA-only tensors made "
-                                     "float32 on the inputs' device", self.name))
+                patches.append(
+                    Patch(
+                        rel,
+                        text,
+                        after,
+                        relevant[0].rule,
+                        "float64/half/CUDA-only tensors made " "float32 on the inputs' device",
+                        self.name,
+                    )
+                )
         return patches
 
 
@@ -143,8 +196,10 @@ class ExpGuardFixer:
     CALLS = ("trunc_exp", "torch.exp", "exp")
 
     def propose(self, info, diagnoses):
-        if not any(d.rung == "stability" and d.case in ("density_raw_1e8", "density_1e8") or "overflow" in d.message
-                   for d in diagnoses):
+        if not any(
+            d.rung == "stability" and d.case in ("density_raw_1e8", "density_1e8") or "overflow" in d.message
+            for d in diagnoses
+        ):
             return []
         patches = []
         for rel in info.python_files:
@@ -153,15 +208,32 @@ class ExpGuardFixer:
                 tree = ast.parse(text)
             except SyntaxError:
                 continue
-            calls = [n for n in ast.walk(tree) if isinstance(n, ast.Call) and len(n.args) == 1
-                     and ast.unparse(n.func) in self.CALLS and "clamp" not in ast.unparse(n.args[0])]
+            calls = [
+                n
+                for n in ast.walk(tree)
+                if isinstance(n, ast.Call)
+                and len(n.args) == 1
+                and ast.unparse(n.func) in self.CALLS
+                and "clamp" not in ast.unparse(n.args[0])
+            ]
             after = text
             for call in sorted(calls, key=lambda n: (n.args[0].lineno, n.args[0].col_offset), reverse=True):
                 arg = call.args[0]
-                after = _segment_replace(after, arg, f"({ast.get_source_segment(text, arg)}).clamp(max={EXP_CAP})")
+                after = _segment_replace(
+                    after, arg, f"({ast.get_source_segment(text, arg)}).clamp(max={EXP_CAP})"
+                )
             if after != text:
-                patches.append(Patch(rel, text, after, "stiff-case", f"exp-type activations clamped at {EXP_CAP} "
-                                     "before exp (finite density and gradients for huge pre-activations)", self.name))
+                patches.append(
+                    Patch(
+                        rel,
+                        text,
+                        after,
+                        "stiff-case",
+                        f"exp-type activations clamped at {EXP_CAP} "
+                        "before exp (finite density and gradients for huge pre-activations)",
+                        self.name,
+                    )
+                )
         return patches
 
 
@@ -189,14 +261,29 @@ class EmptyReshapeFixer:
             text = _read(info, rel)
             out = text.splitlines(True)
             for line in lines:
-                out[line - 1] = self.VIEW.sub(lambda m: f"{m.group(1)}.reshape({m.group(2)}, {m.group(1)}.shape[-1])",
-                                              out[line - 1])
+                out[line - 1] = self.VIEW.sub(
+                    lambda m: f"{m.group(1)}.reshape({m.group(2)}, {m.group(1)}.shape[-1])", out[line - 1]
+                )
             after = "".join(out)
             if after != text:
-                patches.append(Patch(rel, text, after, "stiff-case", "reshape with a named last dimension, so a "
-                                     "batch without samples keeps its shape", self.name))
+                patches.append(
+                    Patch(
+                        rel,
+                        text,
+                        after,
+                        "stiff-case",
+                        "reshape with a named last dimension, so a " "batch without samples keeps its shape",
+                        self.name,
+                    )
+                )
         return patches
 
 
 def default_fixers() -> List[Fixer]:
-    return [OptimizerGroupFixer(), InterlevelLossFixer(), DtypeDeviceFixer(), ExpGuardFixer(), EmptyReshapeFixer()]
+    return [
+        OptimizerGroupFixer(),
+        InterlevelLossFixer(),
+        DtypeDeviceFixer(),
+        ExpGuardFixer(),
+        EmptyReshapeFixer(),
+    ]

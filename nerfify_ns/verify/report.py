@@ -83,10 +83,14 @@ class LadderReport:
 
     def to_dict(self) -> dict:
         return {
-            "plugin": self.plugin, "ok": self.ok,
+            "plugin": self.plugin,
+            "ok": self.ok,
             "rungs": [r.to_dict() for r in self.rungs],
             "failures": [asdict(d) for d in self.failures],
-            "patches": self.patches, "notes": self.notes,
-            "rounds": [[{"name": r.name, "status": r.status, "failures": [str(d) for d in r.failures]} for r in rnd]
-                       for rnd in self.rounds],
+            "patches": self.patches,
+            "notes": self.notes,
+            "rounds": [
+                [{"name": r.name, "status": r.status, "failures": [str(d) for d in r.failures]} for r in rnd]
+                for rnd in self.rounds
+            ],
         }

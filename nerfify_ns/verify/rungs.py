@@ -27,17 +27,23 @@ def read_events(path: Path) -> List[dict]:
     return events
 
 
-def run_probe(info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float,
-              suite: str = "plan") -> Dict[str, RungResult]:
+def run_probe(
+    info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan"
+) -> Dict[str, RungResult]:
     """Probe ``rungs`` in one sandboxed process; a rung it never finished is failed (timeout or crash)."""
     workdir.mkdir(parents=True, exist_ok=True)
     events_path = workdir / "events.jsonl"
     events_path.unlink(missing_ok=True)
     plugin = str(info.root) if info else "-"
     start = time.perf_counter()
-    result = run_sandboxed(python_cmd("nerfify_ns.verify.probe", plugin, str(events_path), "--rungs",
-                                      ",".join(rungs), "--suite", suite), workdir, timeout=timeout,
-                           log_name="probe.log")
+    result = run_sandboxed(
+        python_cmd(
+            "nerfify_ns.verify.probe", plugin, str(events_path), "--rungs", ",".join(rungs), "--suite", suite
+        ),
+        workdir,
+        timeout=timeout,
+        log_name="probe.log",
+    )
     events = read_events(events_path)
     rungs_out: Dict[str, RungResult] = {}
     started: Dict[str, float] = {}
@@ -55,21 +61,34 @@ def run_probe(info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *
             r.fail(Diagnosis.from_dict(e))
         elif kind in ("case", "component"):
             r.checks += 1
-            r.details.setdefault("cases", []).append({k: e.get(k) for k in
-                                                      ("component", "implementation", "owner", "case", "status",
-                                                       "problems", "path")})
+            r.details.setdefault("cases", []).append(
+                {
+                    k: e.get(k)
+                    for k in ("component", "implementation", "owner", "case", "status", "problems", "path")
+                }
+            )
     for rung in rungs:
         r = rungs_out.get(rung)
         if r is None:
             if any(not x.ok or not x.details.get("finished") for x in rungs_out.values()):
                 continue  # an earlier rung failed or never finished: this one did not run
             rungs_out[rung] = r = RungResult(rung)
-            r.fail(Diagnosis(rung, "probe", f"the probe stopped before this rung (exit {result.returncode}):\n"
-                             f"{result.tail(12)}"))
+            r.fail(
+                Diagnosis(
+                    rung,
+                    "probe",
+                    f"the probe stopped before this rung (exit {result.returncode}):\n" f"{result.tail(12)}",
+                )
+            )
         elif not r.details.get("finished"):
-            why = (f"timed out after {timeout:.0f} s (an infinite loop, or far too slow)" if result.timed_out
-                   else f"the process died (exit {result.returncode}; memory limit or crash)")
-            r.fail(Diagnosis(rung, "timeout" if result.timed_out else "crash", why, traceback=result.tail(15)))
+            why = (
+                f"timed out after {timeout:.0f} s (an infinite loop, or far too slow)"
+                if result.timed_out
+                else f"the process died (exit {result.returncode}; memory limit or crash)"
+            )
+            r.fail(
+                Diagnosis(rung, "timeout" if result.timed_out else "crash", why, traceback=result.tail(15))
+            )
         r.details.pop("finished", None)
         r.details["isolation"] = result.isolation
     elapsed = time.perf_counter() - start

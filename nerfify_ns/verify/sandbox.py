@@ -61,6 +61,7 @@ def _limits(memory: int):
         if memory:
             resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+
     return apply
 
 
@@ -68,15 +69,30 @@ def sandbox_env(workdir: Path, extra: Optional[Dict[str, str]] = None) -> Dict[s
     tmp = workdir / ".tmp"
     tmp.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
-    env.update({"TMPDIR": str(tmp), "MPLCONFIGDIR": str(tmp / "mpl"), "PYTHONDONTWRITEBYTECODE": "1",
-                "PYTHONWARNINGS": "ignore", "XDG_CACHE_HOME": str(tmp / "cache"), "NERFIFY_SANDBOX": "1"})
+    env.update(
+        {
+            "TMPDIR": str(tmp),
+            "MPLCONFIGDIR": str(tmp / "mpl"),
+            "PYTHONDONTWRITEBYTECODE": "1",
+            "PYTHONWARNINGS": "ignore",
+            "XDG_CACHE_HOME": str(tmp / "cache"),
+            "NERFIFY_SANDBOX": "1",
+        }
+    )
     env.update(extra or {})
     return env
 
 
-def run_sandboxed(cmd: Sequence[str], workdir: Path, *, timeout: float, log_name: str = "run.log",
-                  memory: int = DEFAULT_MEMORY, env: Optional[Dict[str, str]] = None,
-                  isolate: bool = True) -> SandboxResult:
+def run_sandboxed(
+    cmd: Sequence[str],
+    workdir: Path,
+    *,
+    timeout: float,
+    log_name: str = "run.log",
+    memory: int = DEFAULT_MEMORY,
+    env: Optional[Dict[str, str]] = None,
+    isolate: bool = True,
+) -> SandboxResult:
     """Run ``cmd`` with its working directory ``workdir`` (created), output to ``workdir/log_name``."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
@@ -85,9 +101,15 @@ def run_sandboxed(cmd: Sequence[str], workdir: Path, *, timeout: float, log_name
     log_path = workdir / log_name
     start = time.perf_counter()
     with open(log_path, "w") as log:
-        proc = subprocess.Popen([*prefix, *cmd], stdout=log, stderr=subprocess.STDOUT, cwd=workdir,
-                                env=sandbox_env(workdir, env), start_new_session=True,
-                                preexec_fn=_limits(memory))
+        proc = subprocess.Popen(
+            [*prefix, *cmd],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=workdir,
+            env=sandbox_env(workdir, env),
+            start_new_session=True,
+            preexec_fn=_limits(memory),
+        )
         try:
             code = proc.wait(timeout=timeout)
             timed_out = False

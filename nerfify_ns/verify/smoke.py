@@ -15,12 +15,26 @@ from nerfify_ns.verify.report import Diagnosis, RungResult
 from nerfify_ns.verify.sandbox import run_sandboxed
 
 METHOD = "nerfify-generated"
-SMOKE_ARGS = ["--pipeline.datamanager.train-num-rays-per-batch", "128",
-              "--pipeline.datamanager.eval-num-rays-per-batch", "128",
-              "--pipeline.model.eval-num-rays-per-chunk", "256",
-              "--steps-per-eval-batch", "100000", "--steps-per-eval-image", "100000",
-              "--steps-per-eval-all-images", "1000000", "--steps-per-save", "100000",
-              "--machine.device-type", "cpu", "--mixed-precision", "False"]
+SMOKE_ARGS = [
+    "--pipeline.datamanager.train-num-rays-per-batch",
+    "128",
+    "--pipeline.datamanager.eval-num-rays-per-batch",
+    "128",
+    "--pipeline.model.eval-num-rays-per-chunk",
+    "256",
+    "--steps-per-eval-batch",
+    "100000",
+    "--steps-per-eval-image",
+    "100000",
+    "--steps-per-eval-all-images",
+    "1000000",
+    "--steps-per-save",
+    "100000",
+    "--machine.device-type",
+    "cpu",
+    "--mixed-precision",
+    "False",
+]
 LEARNING_RATIO = 0.9
 """The photometric loss over the last quarter must be below this fraction of the first quarter's."""
 
@@ -65,20 +79,53 @@ def photometric(scalars: Dict[str, Dict[int, float]]) -> Dict[int, float]:
     return {s: sum(scalars[t][s] for t in tags) for s in sorted(steps)}
 
 
-def smoke_rung(info: PluginInfo, scene: Path, workdir: Path, *, iterations: int = 20, timeout: float = 120,
-               extra_args: Optional[List[str]] = None) -> RungResult:
+def smoke_rung(
+    info: PluginInfo,
+    scene: Path,
+    workdir: Path,
+    *,
+    iterations: int = 20,
+    timeout: float = 120,
+    extra_args: Optional[List[str]] = None,
+) -> RungResult:
     r = RungResult("smoke")
     workdir = Path(workdir).resolve()
     start = time.perf_counter()
-    cmd = [_bin("ns-train"), METHOD, "--data", str(Path(scene).resolve()), "--output-dir", str(workdir),
-           "--experiment-name", "run", "--timestamp", "run", "--max-num-iterations", str(iterations),
-           "--vis", "tensorboard", "--logging.steps-per-log", "1", "--viewer.quit-on-train-completion", "True",
-           *SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or []), "blender-data"]
+    cmd = [
+        _bin("ns-train"),
+        METHOD,
+        "--data",
+        str(Path(scene).resolve()),
+        "--output-dir",
+        str(workdir),
+        "--experiment-name",
+        "run",
+        "--timestamp",
+        "run",
+        "--max-num-iterations",
+        str(iterations),
+        "--vis",
+        "tensorboard",
+        "--logging.steps-per-log",
+        "1",
+        "--viewer.quit-on-train-completion",
+        "True",
+        *SMOKE_ARGS,
+        *warmup_args(info.plan),
+        *(extra_args or []),
+        "blender-data",
+    ]
     env = {"NERFIFY_GENERATED": str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
     result = run_sandboxed(cmd, workdir, timeout=timeout, log_name="train.log", env=env)
     r.seconds = time.perf_counter() - start
-    r.details.update({"isolation": result.isolation, "returncode": result.returncode, "wall_s": round(result.seconds, 1),
-                      "log": str(result.log_path)})
+    r.details.update(
+        {
+            "isolation": result.isolation,
+            "returncode": result.returncode,
+            "wall_s": round(result.seconds, 1),
+            "log": str(result.log_path),
+        }
+    )
     run_dir = workdir / "run" / METHOD / "run"
     scalars = read_scalars(run_dir) if run_dir.is_dir() else {}
     total = scalars.get("Train Loss", {})
@@ -87,22 +134,46 @@ def smoke_rung(info: PluginInfo, scene: Path, workdir: Path, *, iterations: int 
     r.details.update({"iterations": reached, "final_loss": total.get(reached - 1)})
     r.checks = 4
     if result.timed_out:
-        r.fail(Diagnosis("smoke", "timeout", f"training did not finish within {timeout:.0f} s "
-                         f"(reached {reached} of {iterations} iterations)", traceback=result.tail(15)))
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "timeout",
+                f"training did not finish within {timeout:.0f} s "
+                f"(reached {reached} of {iterations} iterations)",
+                traceback=result.tail(15),
+            )
+        )
         return r
     bad = sorted(s for s, v in total.items() if not math.isfinite(v))
     if bad:
-        r.fail(Diagnosis("smoke", "non-finite-loss", f"the training loss is not finite from step {bad[0]} "
-                         f"(read from the run's tensorboard events)", traceback=result.tail(15)))
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "non-finite-loss",
+                f"the training loss is not finite from step {bad[0]} "
+                f"(read from the run's tensorboard events)",
+                traceback=result.tail(15),
+            )
+        )
         return r
     if result.returncode != 0:
-        r.fail(Diagnosis("smoke", "exit-code", f"ns-train exited with {result.returncode}",
-                         traceback=result.tail(20)))
+        r.fail(
+            Diagnosis(
+                "smoke", "exit-code", f"ns-train exited with {result.returncode}", traceback=result.tail(20)
+            )
+        )
         return r
     config = run_dir / "config.yml"
     if config.is_file() and info.package not in config.read_text(errors="replace"):
-        r.fail(Diagnosis("smoke", "wrong-method", f"ns-train did not train {info.package} (the plugin failed to "
-                         "load and the fallback method ran)", traceback=result.tail(15)))
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "wrong-method",
+                f"ns-train did not train {info.package} (the plugin failed to "
+                "load and the fallback method ran)",
+                traceback=result.tail(15),
+            )
+        )
         return r
     if reached < iterations:
         r.fail(Diagnosis("smoke", "iterations", f"reached {reached} of {iterations} iterations"))
@@ -112,6 +183,12 @@ def smoke_rung(info: PluginInfo, scene: Path, workdir: Path, *, iterations: int 
     first, last = statistics.mean(values[:q]), statistics.mean(values[-q:])
     r.details.update({"photometric_first": first, "photometric_last": last})
     if not last < LEARNING_RATIO * first:
-        r.fail(Diagnosis("smoke", "no-learning", f"the photometric loss does not decrease: first quarter "
-                         f"{first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)"))
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "no-learning",
+                f"the photometric loss does not decrease: first quarter "
+                f"{first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)",
+            )
+        )
     return r

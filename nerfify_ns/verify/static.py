@@ -23,12 +23,27 @@ def ast_checks(info: PluginInfo) -> List[Diagnosis]:
     module, _, var = info.config.partition(":")
     rel = info.module_file(module)
     if rel not in trees and rel not in {d.file for d in found}:
-        found.append(Diagnosis("static", "entry-point", f"entry point {info.config}: no module file {rel}",
-                               "pyproject.toml", info.entry_line))
-    elif rel in trees and not any(isinstance(n, (ast.Assign, ast.AnnAssign)) and var in _targets(n)
-                                  for n in trees[rel].body):
-        found.append(Diagnosis("static", "entry-point", f"entry point {info.config}: {rel} assigns no {var}",
-                               "pyproject.toml", info.entry_line))
+        found.append(
+            Diagnosis(
+                "static",
+                "entry-point",
+                f"entry point {info.config}: no module file {rel}",
+                "pyproject.toml",
+                info.entry_line,
+            )
+        )
+    elif rel in trees and not any(
+        isinstance(n, (ast.Assign, ast.AnnAssign)) and var in _targets(n) for n in trees[rel].body
+    ):
+        found.append(
+            Diagnosis(
+                "static",
+                "entry-point",
+                f"entry point {info.config}: {rel} assigns no {var}",
+                "pyproject.toml",
+                info.entry_line,
+            )
+        )
     return found
 
 
