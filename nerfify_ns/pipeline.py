@@ -13,7 +13,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Callable, Optional, Tuple
 
 from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
 from nerfify_ns.evaluate.smoke import (GENERATED, SmokeResult, SmokeTrainError, generated_env, generated_smoke_args,
@@ -76,14 +76,8 @@ def run_paper(
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
     with atomic_dir(final, overwrite) as staging:
         _write_paper_artefacts(staging, doc, derived, graph)
-        if data is None:
-            progress(f"rendering scene '{scene}'")
-            data = write_scene(scene, staging / "scene")
-        facts = probe_scene(data)
-        plan = adopt_scene(derived.plan, facts) if keep_all else prune_plan(derived.plan, facts)
-        progress(f"generating the plugin '{plan['method']}'")
-        write_plugin(plan, staging)
-        stages = _verify_train_report(staging, Path(data), plan, iterations, every, patch_rounds, progress)
+        plan, data, _ = _plugin_for_scene(derived.plan, staging, data, scene, keep_all, progress)
+        stages = _verify_train_report(staging, data, plan, iterations, every, patch_rounds, progress)
         _rewrite_saved_paths(staging, final)
     record_generated(final)
     return PaperResult(out=final, document=doc, derived=derived, graph=graph, plan=plan, stages=stages)
@@ -150,13 +144,7 @@ def run_compose(
     with atomic_dir(out, overwrite) as staging:
         progress("validating the plan against the grammar")
         validate(plan)
-        if data is None:
-            progress(f"rendering scene '{scene}'")
-            data = write_scene(scene, staging / "smoke" / "scene")
-        facts = probe_scene(data)
-        plan = adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts)
-        progress(f"generating the plugin '{plan['method']}'")
-        plugin = write_plugin(plan, staging)
+        plan, data, plugin = _plugin_for_scene(plan, staging, data, scene, keep_all, progress)
         smoke = None
         if train:
             progress(f"smoke-training {plan['method']} for {iterations} iterations with Nerfstudio's trainer")
@@ -167,6 +155,18 @@ def run_compose(
     record_generated(final)
     plugin.out = final
     return ComposeResult(out=final, plugin=plugin, plan=plan, smoke=smoke)
+
+
+def _plugin_for_scene(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool,
+                      progress: Progress) -> Tuple[dict, Path, ComposedPlugin]:
+    """Render (or take) the scene, prune the plan for it unless ``keep_all``, write the plugin into ``folder``."""
+    if data is None:
+        progress(f"rendering scene '{scene}'")
+        data = write_scene(scene, folder / "scene")
+    facts = probe_scene(data)
+    plan = adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts)
+    progress(f"generating the plugin '{plan['method']}'")
+    return plan, Path(data), write_plugin(plan, folder)
 
 
 def _smoke(plan: dict, plugin_dir: Path, data: Path, iterations: int) -> SmokeResult:

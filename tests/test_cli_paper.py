@@ -115,3 +115,22 @@ def test_existing_output_folder_is_refused(tmp_path):
     out = run_cli(str(paper), "--out", str(target), cwd=tmp_path)
     assert out.returncode == 2 and "exists and is not empty" in out.stdout
     assert (target / "notes.txt").read_text() == "keep me" and sorted(p.name for p in target.iterdir()) == ["notes.txt"]
+
+
+def test_compose_a_reference_plan_without_training(tmp_path):
+    env_cache = tmp_path / "cache"
+    out = subprocess.run([str(CLI), "compose", "--method", "kplanes-static", "--no-train", "--out",
+                          str(tmp_path / "kp")], capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                         env={**__import__("os").environ, "NERFIFY_CACHE": str(env_cache)})
+    assert out.returncode == 0, out.stdout + out.stderr
+    plugin = tmp_path / "kp"
+    assert (plugin / "kplanes_static" / "model.py").is_file() and (plugin / "scene" / "scene.json").is_file()
+    plan = __import__("yaml").safe_load((plugin / "plan.yaml").read_text())
+    assert any(r["rule"] == "kplanes_resolution_for_small_images" for r in plan["pruned"])
+    assert "pruned" in out.stdout and "ns-train nerfify-generated" in out.stdout
+    assert str(plugin) in (env_cache / "generated" / "last.json").read_text()
+
+
+def test_compose_needs_exactly_one_plan_source(tmp_path):
+    out = run_cli("compose", cwd=tmp_path)
+    assert out.returncode == 2 and "give a plan file or --method NAME" in out.stdout
