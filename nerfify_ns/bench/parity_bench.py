@@ -33,6 +33,7 @@ from nerfify_ns.synthesis.scene_probe import probe_scene
 # arguments both sides get (instant-ngp's dynamic batch would otherwise grow to 262,144 samples).
 BUDGET = {"vanilla-nerf": (100, 64), "nerfacto": (150, 1024), "instant-ngp": (150, 1024), "tensorf": (150, 1024)}
 EVERY = {"vanilla-nerf": 50}  # checkpoints evaluated per run: rendering is the NeRF's bottleneck
+QUICK = {"vanilla-nerf": (30, 64), "nerfacto": (60, 512), "instant-ngp": (60, 512), "tensorf": (60, 512)}
 EXTRA = {"instant-ngp": ["--pipeline.target-num-samples", "32768"]}
 
 
@@ -83,6 +84,7 @@ def parity(method: str, scene: Path, out: Path, every: int, seed: int) -> Dict:
 
 def pruning(scene: Path, out: Path, every: int, seed: int) -> Dict:
     iterations, rays = BUDGET["nerfacto"]
+    every = EVERY.get("nerfacto", every)
     plan = load_reference_plan("nerfacto")
     runs = {}
     for label, variant in (("kept", plan), ("pruned", prune_plan(plan, probe_scene(scene)))):
@@ -106,7 +108,11 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=42)
     parser.add_argument("--resolution", type=int, default=64)
     parser.add_argument("--skip-pruning", action="store_true")
+    parser.add_argument("--quick", action="store_true", help="a short budget (QUICK) for a first look")
     ns = parser.parse_args()
+    if ns.quick:
+        BUDGET.update(QUICK)
+        EVERY.update({m: n // 2 for m, (n, _) in QUICK.items()})
     # Few test views: every checkpoint renders all of them, and the MLP-only NeRF renders ~100 rays/s.
     scene = write_scene("default", ns.out / "scene", resolution=ns.resolution, n_test=3, overwrite=True)
     results = {"parity": [parity(m, scene, ns.out / m, ns.every, ns.seed) for m in ns.methods]}
