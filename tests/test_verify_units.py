@@ -82,6 +82,10 @@ def test_exp_guard_fixer(reference_plugins, tmp_path):
     import shutil
 
     plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
+    field = plugin / "kplanes_static" / "field.py"
+    guarded = "trunc_exp((density_raw.to(hidden)).clamp(max=20.0))"
+    assert guarded in field.read_text()  # the template guards it; unguard it to exercise the fixer
+    field.write_text(field.read_text().replace(guarded, "trunc_exp(density_raw.to(hidden))"))
     d = Diagnosis(
         "stability", "stiff-case", "assembled model, case density_raw_1e8: ...", case="density_raw_1e8"
     )
