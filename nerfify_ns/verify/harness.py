@@ -350,20 +350,8 @@ def _mlp(terminal: str):
         from nerfstudio.field_components.mlp import MLP
 
         dt, n = _dtype(case), _n(case)
-        in_dim = 16
-        if terminal == "tensorial_appearance":
-            in_dim = 12 + 3
-            module = MLP(
-                in_dim=in_dim,
-                num_layers=p["num_layers"],
-                layer_width=p["layer_width"],
-                out_dim=3,
-                activation=nn.ReLU(),
-                out_activation=nn.Sigmoid(),
-                implementation="torch",
-            )
-            key, dim, bounds = "rgb", 3, (0.0, 1.0)
-        elif terminal == "rgb_mlp":
+        in_dim = 12 + 3 if terminal == "tensorial_appearance" else 16
+        if terminal in ("tensorial_appearance", "rgb_mlp"):
             module = MLP(
                 in_dim=in_dim,
                 num_layers=p["num_layers"],
