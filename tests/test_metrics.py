@@ -60,20 +60,17 @@ def test_ssim_matches_skimage_on_the_valid_region():
     """skimage filters with reflect padding, then averages the map cropped by (win-1)/2 = 5 px,
     which is exactly mip-NeRF's valid region: maps agree there and so do the means."""
     pred, gt = _pair()
-    value, full = structural_similarity(
-        pred,
-        gt,
-        gaussian_weights=True,
-        sigma=1.5,
-        use_sample_covariance=False,
-        data_range=1,
-        channel_axis=-1,
-        full=True,
-    )
+    value, full = _skimage_ssim(pred, gt)
     ours = m.ssim_map(pred, gt)
     assert ours.shape == (30, 42, 3)
     assert np.max(np.abs(ours - full[5:-5, 5:-5])) < 1e-10
     assert m.ssim(pred, gt) == pytest.approx(value, abs=1e-10)
+
+
+def _skimage_ssim(pred, gt):
+    """scikit-image's SSIM with mip-NeRF's window (Gaussian, sigma 1.5, population covariance): (mean, map)."""
+    return structural_similarity(pred, gt, gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+                                 data_range=1, channel_axis=-1, full=True)
 
 
 def _independent_ssim(x, y):
@@ -100,16 +97,7 @@ def test_ssim_matches_independent_implementation(seed, noise):
 def test_ssim_differs_from_padded_variant_on_small_images():
     """The padded (torchmetrics-style) mean over the full map is a different number."""
     pred, gt = _pair(3, (24, 24, 3), 0.2)
-    _, full = structural_similarity(
-        pred,
-        gt,
-        gaussian_weights=True,
-        sigma=1.5,
-        use_sample_covariance=False,
-        data_range=1,
-        channel_axis=-1,
-        full=True,
-    )
+    _, full = _skimage_ssim(pred, gt)
     assert abs(float(full.mean()) - m.ssim(pred, gt)) > 1e-3
 
 

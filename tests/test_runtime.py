@@ -36,7 +36,7 @@ def probe(prelude: str = "", env: dict | None = None) -> dict:
 
 def test_active_without_cuda():
     state = probe()
-    assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default"]
+    assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers"]
     assert state["lpips"] == "OfflineLPIPS"
     assert state["hash"] == "nerfify_ns.runtime.hashgrid"
     assert state["nerfacc"] is True

@@ -58,3 +58,15 @@ def test_reference_methods_train_offline_on_cpu(method, tiny_scene, tmp_path):
     metrics = ns_eval(run.config_path, tmp_path / "eval.json", env=NO_WEIGHTS_ENV)
     assert math.isfinite(metrics["psnr"]) and math.isfinite(metrics["ssim"])
     assert metrics["lpips"] is None
+
+
+def test_same_seed_same_nerfacto_run(tiny_scene, tmp_path):
+    """nerfacto samples rays in a spawned worker: with the runtime's seeded workers, one
+    ``--machine.seed`` gives the same losses step for step (without them step 0 already differs)."""
+    args = ["--machine.seed", "7", "--pipeline.datamanager.train-num-rays-per-batch", "256"]
+    runs = [ns_train("nerfacto", tiny_scene, tmp_path / f"run{k}", iterations=4,
+                     method_args=[*preset_args("nerfacto"), *args], env=NO_WEIGHTS_ENV) for k in range(2)]
+    for run in runs:
+        assert run.ok and run.last_step == 3, run.log_tail()
+    assert len(runs[0].losses) == 4 and len(set(runs[0].losses.values())) > 1
+    assert runs[0].losses == runs[1].losses

@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from nerfify_ns.bench.ingest_bench import make_two_column_pdf
+from nerfify_ns.bench.ingest_bench import make_two_column_pdf, time_ingest
 
 TARGET_SECONDS = 10.0
 
@@ -40,13 +40,7 @@ def main() -> None:
     ns = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         paper = ns.paper or make_two_column_pdf(Path(tmp) / "bench.pdf", ns.pages)
-        from nerfify_ns.paper import ingest
-
-        ingest_times = []
-        for _ in range(ns.runs):
-            start = time.perf_counter()
-            ingest(paper)
-            ingest_times.append(time.perf_counter() - start)
+        _, ingest_times = time_ingest(paper, ns.runs)
         times = [time_dry_run(paper) for _ in range(ns.runs)]
     median = statistics.median(times)
     print(f"{paper.name if ns.paper else f'{ns.pages}-page two-column PDF'}: ns-nerfify --dry-run median {median:.2f} s "

@@ -19,7 +19,7 @@ Imports only torch: generated plugins import this module.
 from __future__ import annotations
 
 import math
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import torch
 from torch import Tensor
@@ -52,6 +52,17 @@ def _mean_or_zero(x: Tensor) -> Tensor:
     return x.mean() if x.numel() > 0 else x.sum()
 
 
+def _mean_over_planes(planes: Iterable[Tensor] | Tensor, per_plane: Callable[[Tensor], Tensor]) -> Tensor:
+    """Mean of ``per_plane`` over the planes (each upcast to float32 at least); 0 for no planes."""
+    planes = _as_list(planes)
+    if not planes:
+        return _zero(planes)
+    total = _zero(planes)
+    for plane in planes:
+        total = total + per_plane(_upcast(plane))
+    return total / len(planes)
+
+
 def plane_tv(planes: Iterable[Tensor] | Tensor) -> Tensor:
     """Total variation of planes (K-Planes Eq. 4), averaged over planes.
 
@@ -61,16 +72,12 @@ def plane_tv(planes: Iterable[Tensor] | Tensor) -> Tensor:
     its own count of neighbour pairs. The result is the mean of TV(P) over the planes given (pass
     ``MultiScaleKPlanes.spatial_planes``). Computed in float32 at least.
     """
-    planes = _as_list(planes)
-    if not planes:
-        return _zero(planes)
-    total = _zero(planes)
-    for plane in planes:
-        p = _upcast(plane)
+    def tv(p: Tensor) -> Tensor:
         dh = p[..., 1:, :] - p[..., :-1, :]
         dw = p[..., :, 1:] - p[..., :, :-1]
-        total = total + _mean_or_zero(dh.square()) + _mean_or_zero(dw.square())
-    return total / len(planes)
+        return _mean_or_zero(dh.square()) + _mean_or_zero(dw.square())
+
+    return _mean_over_planes(planes, tv)
 
 
 def time_smoothness(planes: Iterable[Tensor] | Tensor) -> Tensor:
@@ -80,15 +87,10 @@ def time_smoothness(planes: Iterable[Tensor] | Tensor) -> Tensor:
         L(P) = mean_{c,t,i} (P[c,t-1,i] - 2 P[c,t,i] + P[c,t+1,i])^2
     Planes with fewer than 3 time steps contribute 0. Computed in float32 at least.
     """
-    planes = _as_list(planes)
-    if not planes:
-        return _zero(planes)
-    total = _zero(planes)
-    for plane in planes:
-        p = _upcast(plane)
-        lap = p[..., :-2, :] - 2.0 * p[..., 1:-1, :] + p[..., 2:, :]
-        total = total + _mean_or_zero(lap.square())
-    return total / len(planes)
+    def smoothness(p: Tensor) -> Tensor:
+        return _mean_or_zero((p[..., :-2, :] - 2.0 * p[..., 1:-1, :] + p[..., 2:, :]).square())
+
+    return _mean_over_planes(planes, smoothness)
 
 
 def plane_l1_to_one(planes: Iterable[Tensor] | Tensor) -> Tensor:
@@ -97,13 +99,7 @@ def plane_l1_to_one(planes: Iterable[Tensor] | Tensor) -> Tensor:
     For each plane P: L(P) = mean_{c,t,i} |1 - P[c,t,i]|; a plane equal to 1 makes the Hadamard
     product ignore time there, so this favours static content. Computed in float32 at least.
     """
-    planes = _as_list(planes)
-    if not planes:
-        return _zero(planes)
-    total = _zero(planes)
-    for plane in planes:
-        total = total + _mean_or_zero((1.0 - _upcast(plane)).abs())
-    return total / len(planes)
+    return _mean_over_planes(planes, lambda p: _mean_or_zero((1.0 - p).abs()))
 
 
 def ray_entropy(weights: Tensor, threshold: float = 0.1, eps: float = 1e-10) -> Tensor:

@@ -10,7 +10,9 @@ nothing when CUDA is available, unless forced. Each patch is small and named:
                     (:mod:`nerfify_ns.runtime.nerfacc_cpu`);
 * ``hashgrid``      a fast torch multi-resolution hash encoding in place of Nerfstudio's fallback,
                     same parameter layout (:mod:`nerfify_ns.runtime.hashgrid`);
-* ``cpu_default``   ``--machine.device-type`` defaults to ``cpu`` for every registered method.
+* ``cpu_default``   ``--machine.device-type`` defaults to ``cpu`` for every registered method;
+* ``seeded_workers`` the parallel datamanager's ray-sampling workers are seeded from
+                    ``--machine.seed``, so a seed fixes the whole run (:mod:`nerfify_ns.runtime.seeding`).
 
 One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
 device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
@@ -82,11 +84,18 @@ def _patch_cpu_default() -> None:
             machine.device_type = "cpu"
 
 
+def _patch_seeded_workers() -> None:
+    from nerfify_ns.runtime.seeding import seed_parallel_workers
+
+    seed_parallel_workers()
+
+
 PATCHES: Dict[str, Callable[[], None]] = {
     "lpips": _patch_lpips,
     "nerfacc": _patch_nerfacc,
     "hashgrid": _patch_hashgrid,
     "cpu_default": _patch_cpu_default,
+    "seeded_workers": _patch_seeded_workers,
 }
 
 

@@ -331,7 +331,9 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
                       "model.field.MLPField.spatial_distortion (absent: disabled)"))
     if "use_appearance_embedding" in fields:
         has = "appearance_embedding" in mlp
-        out.append(KW("use_appearance_embedding", py(has), "model.field.MLPField.appearance_embedding"))
+        inverted = "use_appearance_embedding" in bases()[base_name].get("inverted_flags", [])
+        out.append(KW("use_appearance_embedding", py(has != inverted),
+                      "model.field.MLPField.appearance_embedding" + (" (the base inverts this flag)" if inverted else "")))
     if "average_init_density" in fields and ctx.used("model.field.MLPField.density_head.density_split"):
         value = ctx.params("model.field.MLPField.density_head.density_split")["init_density"]
         out.append(KW("average_init_density", py(value), "model.field.MLPField.density_head.density_split.init_density"))

@@ -9,21 +9,10 @@ from typing import Dict, List, Tuple
 import torch
 from torch import nn
 
-from nerfify_ns.verify.harness import AABB, collide, finite_problem, ray_bundle
+from nerfify_ns.verify.harness import AABB, RAY_CASES, collide, finite_problem, ray_bundle
 
-MODEL_CASES = (
-    "near_eq_far",
-    "far_1e5",
-    "grazing_rays",
-    "missing_rays",
-    "scene_scale_1e-3",
-    "scene_scale_1e3",
-    "empty_batch",
-    "density_0",
-    "density_1e8",
-    "density_raw_1e8",
-    "half",
-)
+MODEL_CASES = (*RAY_CASES, "density_0", "density_1e8", "density_raw_1e8", "half")
+"""The ray cases of the harness plus densities forced through the assembled field and half precision."""
 DENSITY_MODULES = ("backbone", "density_head", "mlp_base", "mlp_base_mlp", "linear")
 """Field submodules whose output is (or starts with) the pre-activation density."""
 

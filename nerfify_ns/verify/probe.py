@@ -521,6 +521,12 @@ ADVISORY_CASES = ("empty_batch", "half")
 """Model cases recorded but not gating: Nerfstudio's own samplers and losses fail on them (see the report)."""
 
 
+def _emit_model_case(case: str, status: str, problems: List[str]) -> None:
+    """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
+    emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status=status,
+         problems=problems)
+
+
 def assembled_stability(spec) -> None:
     import torch
 
@@ -530,30 +536,14 @@ def assembled_stability(spec) -> None:
         torch.manual_seed(0)
         problems: List[str] = []
         if case == "half" and not spec.config.mixed_precision:
-            emit(
-                event="case",
-                rung="stability",
-                component="<model>",
-                owner="plugin",
-                case=case,
-                status="n/a",
-                problems=["the method trains in float32 (trainer.mixed_precision off)"],
-            )
+            _emit_model_case(case, "n/a", ["the method trains in float32 (trainer.mixed_precision off)"])
             continue
         scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
         try:
             model = shared_model(spec, scale)
             why, restore = patch_density(model, PACKAGE, case) if case.startswith("density") else (None, None)
             if why:
-                emit(
-                    event="case",
-                    rung="stability",
-                    component="<model>",
-                    owner="plugin",
-                    case=case,
-                    status="n/a",
-                    problems=[why],
-                )
+                _emit_model_case(case, "n/a", [why])
                 continue
             with torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "half"):
                 outputs, losses, _ = model_step(
@@ -570,15 +560,7 @@ def assembled_stability(spec) -> None:
             _MODELS.pop(scale, None)  # possibly left patched or half-updated
         gating = case not in ADVISORY_CASES
         status = ("fail" if gating else "warn") if problems else "pass"
-        emit(
-            event="case",
-            rung="stability",
-            component="<model>",
-            owner="plugin",
-            case=case,
-            status=status,
-            problems=problems[:6],
-        )
+        _emit_model_case(case, status, problems[:6])
         if problems and gating:
             diagnose(
                 "stability",

@@ -112,15 +112,8 @@ class OptimizerGroupFixer:
             body = "{\n" + "".join(f"            {k!r}: {v},\n" for k, v in kept.items()) + "        }"
             after = _segment_replace(text, node, body)
             patches.append(
-                Patch(
-                    d.file,
-                    text,
-                    after,
-                    d.rule,
-                    f"optimizers for groups {missing} added (copied from "
-                    f"'fields'), optimizers without a group {extra} removed",
-                    self.name,
-                )
+                Patch(d.file, text, after, d.rule, f"optimizers for groups {missing} added (copied from "
+                      f"'fields'), optimizers without a group {extra} removed", self.name)
             )
         return patches
 
@@ -139,15 +132,8 @@ class InterlevelLossFixer:
         if after == text:
             return []
         return [
-            Patch(
-                rel,
-                text,
-                after,
-                "detached-parameter",
-                "a proposal sampler needs its interlevel loss "
-                "(Mip-NeRF 360 Eq. 13): interlevel_loss_mult set to 1.0",
-                self.name,
-            )
+            Patch(rel, text, after, "detached-parameter", "a proposal sampler needs its interlevel loss "
+                  "(Mip-NeRF 360 Eq. 13): interlevel_loss_mult set to 1.0", self.name)
         ]
 
 
@@ -177,14 +163,8 @@ class DtypeDeviceFixer:
                 after = re.sub(pattern, repl, after)
             if after != text:
                 patches.append(
-                    Patch(
-                        rel,
-                        text,
-                        after,
-                        relevant[0].rule,
-                        "float64/half/CUDA-only tensors made " "float32 on the inputs' device",
-                        self.name,
-                    )
+                    Patch(rel, text, after, relevant[0].rule,
+                          "float64/half/CUDA-only tensors made float32 on the inputs' device", self.name)
                 )
         return patches
 
@@ -224,15 +204,8 @@ class ExpGuardFixer:
                 )
             if after != text:
                 patches.append(
-                    Patch(
-                        rel,
-                        text,
-                        after,
-                        "stiff-case",
-                        f"exp-type activations clamped at {EXP_CAP} "
-                        "before exp (finite density and gradients for huge pre-activations)",
-                        self.name,
-                    )
+                    Patch(rel, text, after, "stiff-case", f"exp-type activations clamped at {EXP_CAP} before "
+                          "exp (finite density and gradients for huge pre-activations)", self.name)
                 )
         return patches
 
@@ -267,14 +240,8 @@ class EmptyReshapeFixer:
             after = "".join(out)
             if after != text:
                 patches.append(
-                    Patch(
-                        rel,
-                        text,
-                        after,
-                        "stiff-case",
-                        "reshape with a named last dimension, so a " "batch without samples keeps its shape",
-                        self.name,
-                    )
+                    Patch(rel, text, after, "stiff-case",
+                          "reshape with a named last dimension, so a batch without samples keeps its shape", self.name)
                 )
         return patches
 
