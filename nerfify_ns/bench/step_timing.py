@@ -1,0 +1,108 @@
+"""Training-step time of a generated plugin's model against Nerfstudio's built-in model, interleaved.
+
+    python -m nerfify_ns.bench.step_timing PLUGIN_DIR BUILTIN_METHOD [--rays 1024] [--repeats 15]
+
+``ns-train`` rays/s of two separate processes differ by up to ~10% on a shared 2-core machine even
+for computationally identical models (measured: vanilla-nerf 77 vs 68 rays/s, same losses). This
+measures what the parity claim is about, the model's training step, without the process-level
+noise: both models are built in ONE process from their own configs (same seed, same scene box),
+then alternate forward + losses + backward on the same ray batch; the medians and their ratio are
+printed as JSON. The plugin is imported here, so the parity bench runs this module in a
+subprocess (generated code never runs in the bench's own process).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from typing import Callable, Dict, List
+
+
+def _build(config, seed: int = 0):
+    import torch
+    from nerfstudio.data.scene_box import SceneBox
+
+    torch.manual_seed(seed)
+    aabb = torch.tensor([[-1.5] * 3, [1.5] * 3])
+    return config.pipeline.model.setup(scene_box=SceneBox(aabb=aabb), num_train_data=4, metadata={}, device="cpu")
+
+
+def ray_batch(rays: int, seed: int = 1):
+    """``rays`` rays from a 4-unit sphere towards the scene box (as the bundled scenes' cameras), with
+    random colours: a RayBundle and the batch dict a model's losses read."""
+    import torch
+    from nerfstudio.cameras.rays import RayBundle
+
+    g = torch.Generator().manual_seed(seed)
+    origins = torch.nn.functional.normalize(torch.randn(rays, 3, generator=g), dim=-1) * 4.0
+    targets = (torch.rand(rays, 3, generator=g) - 0.5) * 1.8
+    directions = torch.nn.functional.normalize(targets - origins, dim=-1)
+    bundle = RayBundle(origins=origins, directions=directions, pixel_area=torch.full((rays, 1), 1e-4),
+                       camera_indices=torch.zeros(rays, 1, dtype=torch.long),
+                       nears=torch.full((rays, 1), 2.0), fars=torch.full((rays, 1), 6.0))
+    return bundle, {"image": torch.rand(rays, 3, generator=g)}
+
+
+def _step_fn(model, bundle, batch) -> Callable[[], float]:
+    """One training step as the trainer does it: the model's before-iteration callbacks (Instant-NGP
+    updates its occupancy grid there), forward, losses, backward. A fresh copy of the rays each time:
+    a camera optimiser adjusts them in place."""
+    import copy
+
+    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
+
+    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None))
+    count = iter(range(10**9))
+
+    def step() -> float:
+        rays = copy.deepcopy(bundle)
+        model.train()
+        model.zero_grad(set_to_none=True)
+        index = next(count)
+        start = time.perf_counter()
+        for callback in callbacks:
+            callback.run_callback_at_location(index, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+        outputs = model.get_outputs(rays)
+        losses = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
+        sum(losses.values()).backward()
+        return time.perf_counter() - start
+
+    return step
+
+
+def time_steps(plugin_dir: str, builtin: str, rays: int, repeats: int, warmup: int = 2) -> Dict[str, object]:
+    from nerfstudio.configs.method_configs import all_methods
+
+    from nerfify_ns.runtime import activate
+    from nerfify_ns.synthesis.registry import load_plugin_method
+
+    activate()
+    bundle, batch = ray_batch(rays)
+    steps = {"generated": _step_fn(_build(load_plugin_method(plugin_dir).config), bundle, batch),
+             "builtin": _step_fn(_build(all_methods[builtin]), bundle, batch)}
+    times: Dict[str, List[float]] = {name: [] for name in steps}
+    for k in range(warmup + repeats):
+        for name in (("builtin", "generated") if k % 2 == 0 else ("generated", "builtin")):
+            seconds = steps[name]()
+            if k >= warmup:
+                times[name].append(seconds)
+    median = {name: statistics.median(t) for name, t in times.items()}
+    return {"builtin": builtin, "rays": rays, "repeats": repeats,
+            "median_step_seconds_builtin": median["builtin"], "median_step_seconds_generated": median["generated"],
+            "throughput_ratio": median["builtin"] / median["generated"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("plugin_dir")
+    parser.add_argument("builtin")
+    parser.add_argument("--rays", type=int, default=1024)
+    parser.add_argument("--repeats", type=int, default=15)
+    ns = parser.parse_args()
+    print(json.dumps(time_steps(ns.plugin_dir, ns.builtin, ns.rays, ns.repeats)))
+
+
+if __name__ == "__main__":
+    main()
