@@ -154,7 +154,23 @@ _BUILD = textwrap.dedent('''
     same_init = all(torch.equal(x, y) for x, y in zip(
         sorted((p for p in a.parameters()), key=lambda t: (tuple(t.shape), t.sum().item())),
         sorted((p for p in b.parameters()), key=lambda t: (tuple(t.shape), t.sum().item()))))
+    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
+    from nerfify_ns.bench.step_timing import ray_batch
+    bundle, _ = ray_batch(256)
+    rgb_max_diff = {}
+    for training in (True, False):
+        rgbs = []
+        for model in (a, b):
+            model.train(training)
+            torch.manual_seed(3)
+            for cb in model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None)) * training:
+                cb.run_callback_at_location(0, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+            with torch.no_grad():
+                outputs = model.get_outputs(bundle._apply_fn_to_fields(torch.clone))
+            rgbs.append(outputs["rgb_fine"] if "rgb_fine" in outputs else outputs["rgb"])
+        rgb_max_diff["train" if training else "eval"] = (rgbs[0] - rgbs[1]).abs().max().item()
     print(json.dumps({"type": type(a).__mro__[1].__name__, "builtin": type(b).__name__,
+                      "rgb_max_diff": rgb_max_diff,
                       "params": sum(p.numel() for p in a.parameters()),
                       "builtin_params": sum(p.numel() for p in b.parameters()),
                       "groups": groups, "optimizers": sorted(generated.optimizers), "same_init": same_init,
@@ -192,3 +208,6 @@ def test_generated_model_matches_the_builtin_method(plugins, name):
     assert result["same_init"], result
     assert result["same_rng_after_init"], "the generated model draws a different number of random values"
     assert _unexplained_config_differences(result) == [], result["config_differs"]
+    # the same weights render the same colours, while training (stratified jitter under one seed) and
+    # when rendering a held-out view (where e.g. an unseen image's appearance code is chosen)
+    assert result["rgb_max_diff"] == {"train": 0.0, "eval": 0.0}, result["rgb_max_diff"]
