@@ -122,15 +122,13 @@ def test_compose_records_the_last_plugin_and_the_env_overrides(tmp_path, monkeyp
 
 
 _BUILD = textwrap.dedent('''
-    import dataclasses, json, re, sys, torch
+    import dataclasses, json, sys, torch
     from nerfstudio.configs.method_configs import all_methods
-    from nerfstudio.data.scene_box import SceneBox
+    from nerfify_ns.bench.step_timing import build_model, ray_batch, run_before_iteration_callbacks
     from nerfify_ns.synthesis.registry import load_plugin_method
 
     def build(config):
-        torch.manual_seed(0)
-        model = config.pipeline.model.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.5] * 3, [1.5] * 3])),
-                                            num_train_data=4, metadata={}, device="cpu")
+        model = build_model(config, seed=0)
         return model, torch.random.get_rng_state()
 
     def flat(obj, prefix=""):
@@ -154,8 +152,6 @@ _BUILD = textwrap.dedent('''
     same_init = all(torch.equal(x, y) for x, y in zip(
         sorted((p for p in a.parameters()), key=lambda t: (tuple(t.shape), t.sum().item())),
         sorted((p for p in b.parameters()), key=lambda t: (tuple(t.shape), t.sum().item()))))
-    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
-    from nerfify_ns.bench.step_timing import ray_batch
     bundle, _ = ray_batch(256)
     rgb_max_diff = {}
     for training in (True, False):
@@ -163,8 +159,8 @@ _BUILD = textwrap.dedent('''
         for model in (a, b):
             model.train(training)
             torch.manual_seed(3)
-            for cb in model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None)) * training:
-                cb.run_callback_at_location(0, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+            if training:  # nerfacc's occupancy grid refuses updates in eval mode; eval keeps the trained grid
+                run_before_iteration_callbacks(model, 0)
             with torch.no_grad():
                 outputs = model.get_outputs(bundle._apply_fn_to_fields(torch.clone))
             rgbs.append(outputs["rgb_fine"] if "rgb_fine" in outputs else outputs["rgb"])

@@ -42,7 +42,7 @@ from nerfify_ns.synthesis.scene_probe import probe_scene
 BUDGET = {"vanilla-nerf": (50, 64), "nerfacto": (150, 1024), "instant-ngp": (150, 1024), "tensorf": (150, 1024)}
 EVERY = {"vanilla-nerf": 50}  # checkpoints evaluated per run: rendering is the NeRF's bottleneck
 QUICK = {"vanilla-nerf": (30, 64), "nerfacto": (60, 512), "instant-ngp": (60, 512), "tensorf": (60, 512)}
-REPEATS = {"vanilla-nerf": 1}  # bit-reproducible (same PSNR to 15 digits): one seed is the comparison
+REPEATS = {"vanilla-nerf": 1}  # its rendering is the slowest; runs are reproducible, so one seed suffices
 EXTRA = {"instant-ngp": ["--pipeline.target-num-samples", "32768"]}
 
 
@@ -95,14 +95,14 @@ def _side(runs: List[Dict]) -> Dict:
 
 def parity(method: str, scene: Path, out: Path, every: int, seed: int, repeats: int, train: bool = True) -> Dict:
     """Built-in and generated, ``repeats`` seeds each, interleaved (built-in, generated, built-in, ...)
-    so that a drift in machine load hits both sides alike. Nerfstudio's parallel datamanager
-    (nerfacto, tensorf) samples rays in a worker process that is not seeded, so those methods are not
-    bit-reproducible: the comparison is of means over seeds, next to the built-in's own spread."""
+    so that a drift in machine load hits both sides alike; PSNR is the mean over the seeds, next to
+    the built-in's own spread. With the runtime's seeded workers a seed fixes a run of either side,
+    so equal PSNR per seed is what equivalence looks like. ``train=False``: the step timing only."""
     iterations, rays = BUDGET[method]
     every = EVERY.get(method, every)
     plugin = compose(load_reference_plan(method), out / "plugin", overwrite=True, record=False)
     timing = step_timing(method, plugin.out)
-    if train is False:
+    if not train:
         return {"method": method, "rays_per_batch": rays, "step_timing": timing}
     sides: Dict[str, List[Dict]] = {"builtin": [], "generated": []}
     for k in range(REPEATS.get(method, repeats)):

@@ -14,13 +14,15 @@ subprocess (generated code never runs in the bench's own process).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import statistics
 import time
 from typing import Callable, Dict, List
 
 
-def _build(config, seed: int = 0):
+def build_model(config, seed: int = 0):
+    """The model of a method config, built on the CPU from ``seed`` with a [-1.5, 1.5]^3 scene box."""
     import torch
     from nerfstudio.data.scene_box import SceneBox
 
@@ -45,25 +47,29 @@ def ray_batch(rays: int, seed: int = 1):
     return bundle, {"image": torch.rand(rays, 3, generator=g)}
 
 
+def run_before_iteration_callbacks(model, step: int) -> None:
+    """The model's own before-iteration training callbacks, as the trainer runs them (Instant-NGP
+    updates its occupancy grid there); they need no optimisers or trainer."""
+    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
+
+    for callback in model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None)):
+        callback.run_callback_at_location(step, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+
+
 def _step_fn(model, bundle, batch) -> Callable[[], float]:
     """One training step as the trainer does it: the model's before-iteration callbacks (Instant-NGP
     updates its occupancy grid there), forward, losses, backward. A fresh copy of the rays each time:
     a camera optimiser adjusts them in place."""
     import copy
 
-    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
-
-    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None))
-    count = iter(range(10**9))
+    count = itertools.count()
 
     def step() -> float:
         rays = copy.deepcopy(bundle)
         model.train()
         model.zero_grad(set_to_none=True)
-        index = next(count)
         start = time.perf_counter()
-        for callback in callbacks:
-            callback.run_callback_at_location(index, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+        run_before_iteration_callbacks(model, next(count))
         outputs = model.get_outputs(rays)
         losses = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
         sum(losses.values()).backward()
@@ -80,8 +86,8 @@ def time_steps(plugin_dir: str, builtin: str, rays: int, repeats: int, warmup: i
 
     activate()
     bundle, batch = ray_batch(rays)
-    steps = {"generated": _step_fn(_build(load_plugin_method(plugin_dir).config), bundle, batch),
-             "builtin": _step_fn(_build(all_methods[builtin]), bundle, batch)}
+    steps = {"generated": _step_fn(build_model(load_plugin_method(plugin_dir).config), bundle, batch),
+             "builtin": _step_fn(build_model(all_methods[builtin]), bundle, batch)}
     times: Dict[str, List[float]] = {name: [] for name in steps}
     for k in range(warmup + repeats):
         for name in (("builtin", "generated") if k % 2 == 0 else ("generated", "builtin")):
