@@ -1,0 +1,266 @@
+"""The plan: one type and one path API, used by every stage that reads or changes a plan.
+
+A plan is a derivation of the grammar (``scene``, ``base``, ``trainer``, ``datamanager``, ``model``,
+``optimizers``) plus annotations (``method``, ``description``, ``paper``, ``evidence``, ``pruned``,
+``holes``, ``notes``). It is the mapping a plan YAML file holds, so ``Plan`` is a ``dict``: YAML,
+JSON, templates and ``validate`` read it as they read any mapping. Every path operation goes through
+its methods:
+
+    plan = Plan.load("method_configs/nerfacto.yaml")
+    plan.get("model.sampler.proposal.nerf_samples")          # None when absent
+    plan.set("model.losses.distortion.weight", 0.01)         # creates missing mappings
+    plan.delete("model.camera_optimizer")                    # returns the removed value
+    plan.expand("optimizers.*.optimizer")                    # wildcard -> concrete paths
+    plan.leaves()                                            # every leaf path and value
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Iterator, List, Optional, Tuple, Union
+
+import yaml
+
+from nerfify_ns.errors import NerfifyError
+
+DERIVATION_KEYS = ("method", "scene", "base", "trainer", "datamanager", "model", "optimizers")
+"""Top-level keys of the derivation (``method`` names it)."""
+ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes")
+"""Top-level keys that annotate a plan (not part of the derivation)."""
+
+_MISSING = object()
+
+
+class PlanPathError(NerfifyError):
+    """A path that does not exist where it must, or runs through something that is not a mapping."""
+
+
+class PlanFileError(NerfifyError):
+    """A plan file that cannot be read as a YAML mapping."""
+
+
+def split_path(path: str) -> List[str]:
+    """``"model.sampler.proposal"`` -> ``["model", "sampler", "proposal"]`` (empty parts dropped)."""
+    return [part for part in str(path).split(".") if part]
+
+
+def join_path(*parts: str) -> str:
+    return ".".join(p for p in parts if p)
+
+
+@dataclass
+class Hole:
+    """A part of the paper no technique card covers: not implemented until something fills it; the base's
+    part stands in (``stands_in``) and the report says so."""
+
+    production: str
+    slot: str
+    contract: dict
+    text: str
+    equations: List[dict]
+    status: str = "not implemented"
+    stands_in: str = ""
+    section: str = ""
+    where: str = ""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Pruning:
+    """One pruning of the plan for its scene: the rule, the path, what happened, and why."""
+
+    rule: str
+    path: str
+    action: str
+    before: Any = None
+    after: Any = None
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        return {"rule": self.rule, "path": self.path, "action": self.action, "from": self.before,
+                "to": self.after, "reason": self.reason}
+
+
+class Plan(dict):
+    """A plan mapping with the one path API (see the module docstring)."""
+
+    # ------------------------------------------------------------------ construction and files
+    @classmethod
+    def of(cls, value: Union["Plan", dict]) -> "Plan":
+        """``value`` itself when it already is a Plan, else a deep copy of the mapping as a Plan."""
+        if isinstance(value, Plan):
+            return value
+        if not isinstance(value, dict):
+            raise PlanFileError(f"a plan is a mapping, not a {type(value).__name__}")
+        return cls(copy.deepcopy(value))
+
+    @classmethod
+    def load(cls, path: Union[str, Path]) -> "Plan":
+        """Read a plan from YAML (or JSON); anything else raises PlanFileError naming the file."""
+        try:
+            data = yaml.safe_load(Path(path).read_text())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise PlanFileError(f"cannot read plan {path}: {str(exc).splitlines()[0]}; "
+                                "a plan is a YAML mapping (see method_configs/)") from None
+        if not isinstance(data, dict):
+            raise PlanFileError(f"{path} is not a plan (a YAML mapping; see method_configs/ for examples)")
+        return cls(data)
+
+    def copy(self) -> "Plan":  # type: ignore[override]
+        """A deep copy (plans nest mappings; a shallow copy would share them)."""
+        return Plan(copy.deepcopy(dict(self)))
+
+    def to_dict(self) -> dict:
+        """A plain, deep-copied mapping (for JSON, YAML or a subprocess)."""
+        return _plain(self)
+
+    def dump(self) -> str:
+        """The plan as YAML text, keys in their order."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, width=110, allow_unicode=True)
+
+    # ------------------------------------------------------------------ paths
+    def get(self, path: str, default: Any = None) -> Any:  # type: ignore[override]
+        """The value at the dot ``path``, ``default`` when any part of it is absent."""
+        node: Any = self
+        for key in split_path(path):
+            if not isinstance(node, dict) or key not in node:
+                return default
+            node = dict.__getitem__(node, key) if isinstance(node, Plan) else node[key]
+        return node
+
+    def has(self, path: str) -> bool:
+        """Whether ``path`` exists (a ``*`` matches any key)."""
+        if "*" in path:
+            return any(self.get(p, _MISSING) is not _MISSING for p in self.expand(path))
+        return self.get(path, _MISSING) is not _MISSING
+
+    def set(self, path: str, value: Any, *, create: bool = True) -> Any:
+        """Set ``path`` to ``value``; returns the value before (None if absent). Missing mappings on the way
+        are created unless ``create`` is False (then PlanPathError)."""
+        parent, key = self._parent(path, create=create)
+        before = parent.get(key) if isinstance(parent, dict) else None
+        parent[key] = value
+        return before
+
+    def delete(self, path: str, *, missing_ok: bool = True) -> Any:
+        """Remove ``path``; returns the removed value (None when it was absent and ``missing_ok``)."""
+        try:
+            parent, key = self._parent(path, create=False)
+        except PlanPathError:
+            if missing_ok:
+                return None
+            raise
+        if key not in parent:
+            if missing_ok:
+                return None
+            raise PlanPathError(f"{path}: not in the plan")
+        return parent.pop(key)
+
+    def parent(self, path: str) -> Tuple[Optional[dict], str]:
+        """(the mapping holding the last key of ``path`` or None, that key)."""
+        try:
+            return self._parent(path, create=False)
+        except PlanPathError:
+            return None, split_path(path)[-1] if split_path(path) else ""
+
+    def expand(self, pattern: str) -> List[str]:
+        """Concrete paths matching ``pattern``: ``*`` matches every key of a mapping; a last part that
+        is absent is kept (so ``set`` can add it)."""
+        results: List[Tuple[List[str], Any]] = [([], self)]
+        parts = split_path(pattern)
+        for i, key in enumerate(parts):
+            found = []
+            for prefix, node in results:
+                if key == "*":
+                    if isinstance(node, dict):
+                        found.extend((prefix + [k], v) for k, v in node.items())
+                elif i == len(parts) - 1 or (isinstance(node, dict) and key in node):
+                    found.append((prefix + [key], node.get(key) if isinstance(node, dict) else None))
+            results = found
+        return [".".join(p) for p, _ in results]
+
+    def leaves(self, root: str = "") -> Iterator[Tuple[str, Any]]:
+        """Every (path, value) under ``root`` whose value is not a non-empty mapping."""
+        node = self.get(root) if root else self
+        yield from _leaves(node, root)
+
+    def _parent(self, path: str, *, create: bool) -> Tuple[dict, str]:
+        parts = split_path(path)
+        if not parts:
+            raise PlanPathError("an empty plan path")
+        node: Any = self
+        for i, key in enumerate(parts[:-1]):
+            if not isinstance(node, dict):
+                raise PlanPathError(f"{path}: {'.'.join(parts[:i]) or '<plan>'} is not a mapping")
+            if key not in node:
+                if not create:
+                    raise PlanPathError(f"{path}: {key!r} is not in the plan")
+                node[key] = {}
+            node = node[key]
+        if not isinstance(node, dict):
+            raise PlanPathError(f"{path}: {'.'.join(parts[:-1])} is not a mapping")
+        return node, parts[-1]
+
+    # ------------------------------------------------------------------ annotations
+    @property
+    def method(self) -> str:
+        return str(dict.get(self, "method", ""))
+
+    @property
+    def base(self) -> str:
+        return str(dict.get(self, "base", ""))
+
+    @property
+    def evidence(self) -> Dict[str, str]:
+        """Plan path -> where in the paper (or the base, a card, a citation) the value comes from."""
+        return self.setdefault("evidence", {})
+
+    @property
+    def holes(self) -> List[dict]:
+        return self.setdefault("holes", [])
+
+    @property
+    def pruned(self) -> List[dict]:
+        return self.setdefault("pruned", [])
+
+    @property
+    def notes(self) -> List[str]:
+        return self.setdefault("notes", [])
+
+    def evidence_for(self, path: str) -> str:
+        """The evidence of ``path``: its own entry, else that of the nearest enclosing path that has one."""
+        table = dict.get(self, "evidence") or {}
+        parts = split_path(path)
+        for i in range(len(parts), 0, -1):
+            hit = table.get(".".join(parts[:i]))
+            if hit:
+                return str(hit)
+        return ""
+
+    def derivation(self) -> dict:
+        """The derivation part alone (no annotations)."""
+        return {k: copy.deepcopy(v) for k, v in self.items() if k not in ANNOTATION_KEYS}
+
+
+def _leaves(node: Any, prefix: str) -> Iterator[Tuple[str, Any]]:
+    if isinstance(node, dict) and node:
+        for key, value in node.items():
+            yield from _leaves(value, f"{prefix}.{key}" if prefix else str(key))
+    else:
+        yield prefix, node
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return copy.deepcopy(value)
+
+
+yaml.add_representer(Plan, yaml.representer.SafeRepresenter.represent_dict, Dumper=yaml.SafeDumper)
+yaml.add_representer(Plan, yaml.representer.Representer.represent_dict, Dumper=yaml.Dumper)
