@@ -21,16 +21,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
-import subprocess
 import sys
 from pathlib import Path
 from typing import Dict, List
 
 from nerfify_ns.evaluate.curve import Curve, plot_curves, record_curve, train_for_curve, write_curve_csv
-from nerfify_ns.evaluate.smoke import GENERATED, generated_env
-from nerfify_ns.runtime.launch import offline_prefix
+from nerfify_ns.evaluate.smoke import generated_env
+from nerfify_ns.runtime.launch import GENERATED_METHOD, offline_prefix, run_logged
 from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.compose import compose
 from nerfify_ns.synthesis.prune import prune_plan
@@ -76,14 +74,15 @@ def _psnr_at(curve: Curve, seconds: float) -> float:
 
 def step_timing(method: str, plugin_dir: Path, repeats: int = 15) -> Dict:
     """The interleaved training-step timing of :mod:`nerfify_ns.bench.step_timing`, in a subprocess
-    without network (it imports the generated plugin)."""
+    without network (it imports the generated plugin); its result is the last JSON line of its log."""
     cmd = [*offline_prefix(), sys.executable, "-m", "nerfify_ns.bench.step_timing", str(plugin_dir), method,
            "--rays", str(BUDGET[method][1]), "--repeats", str(repeats)]
-    out = subprocess.run(cmd, capture_output=True, text=True, timeout=1800,
-                         env={**os.environ, "PYTHONWARNINGS": "ignore"})
-    if out.returncode != 0:
-        raise SystemExit(f"{method}: step timing failed: {out.stderr.strip().splitlines()[-1:]}")
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    log = Path(plugin_dir).parent / "step_timing.log"
+    result = run_logged(cmd, log, Path(plugin_dir).parent, timeout=1800, env={"PYTHONWARNINGS": "ignore"})
+    lines = [line for line in result.tail(200).splitlines() if line.startswith("{")]
+    if result.returncode != 0 or result.timed_out or not lines:
+        raise SystemExit(f"{method}: step timing failed (exit {result.returncode}); see {log}")
+    return json.loads(lines[-1])
 
 
 def _side(runs: List[Dict]) -> Dict:
@@ -109,7 +108,7 @@ def parity(method: str, scene: Path, out: Path, every: int, seed: int, repeats: 
         args = _args(method, rays, seed + k)
         sides["builtin"].append(_run(method, f"{method} (Nerfstudio) seed {seed + k}", scene,
                                      out / f"builtin-{k}", iterations, every, args))
-        sides["generated"].append(_run(GENERATED, f"{method} (generated) seed {seed + k}", scene,
+        sides["generated"].append(_run(GENERATED_METHOD, f"{method} (generated) seed {seed + k}", scene,
                                        out / f"generated-{k}", iterations, every, args,
                                        env=generated_env(plugin.out)))
     curves = [r["curve"] for runs in sides.values() for r in runs]
@@ -133,7 +132,7 @@ def pruning(scene: Path, out: Path, every: int, seed: int) -> Dict:
     runs = {}
     for label, variant in (("kept", plan), ("pruned", prune_plan(plan, probe_scene(scene)))):
         plugin = compose(variant, out / label / "plugin", overwrite=True, record=False)
-        runs[label] = _run(GENERATED, f"nerfacto {label}", scene, out / label, iterations, every,
+        runs[label] = _run(GENERATED_METHOD, f"nerfacto {label}", scene, out / label, iterations, every,
                            _args("nerfacto", rays, seed), env=generated_env(plugin.out))
     horizon = min(r["curve"].points[-1].train_seconds for r in runs.values())
     plot_curves([r["curve"] for r in runs.values()], out / "curves.png")

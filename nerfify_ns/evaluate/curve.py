@@ -28,11 +28,10 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Sequence, Union
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.runtime.launch import TrainRun, _run, ns_train, offline_prefix
+from nerfify_ns.runtime.events import ITER_TIME_TAG, read_scalars
+from nerfify_ns.runtime.launch import ProgressHook, TrainRun, ns_train, offline_prefix, run_logged
 
 CURVE_COLUMNS = ("label", "step", "train_seconds", "psnr", "loss")
-ITER_TIME_TAG = "Train Iter (time)"
-LOSS_TAG = "Train Loss"
 
 
 class CurveError(NerfifyError):
@@ -88,6 +87,7 @@ def train_for_curve(
     method_args: Sequence[str] = (),
     timeout: float = 900,
     env: Optional[dict] = None,
+    on_progress: Optional[ProgressHook] = None,
 ) -> TrainRun:
     """``ns_train`` with :func:`curve_train_args` appended to ``method_args``."""
     return ns_train(
@@ -98,19 +98,8 @@ def train_for_curve(
         method_args=[*method_args, *curve_train_args(every)],
         timeout=timeout,
         env=env,
+        on_progress=on_progress,
     )
-
-
-def _scalars(run_dir: Path, tag: str) -> Dict[int, float]:
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    values: Dict[int, float] = {}
-    for events in sorted(Path(run_dir).glob("events.out.tfevents.*")):
-        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
-        acc.Reload()
-        if tag in acc.Tags().get("scalars", []):
-            values.update({e.step: float(e.value) for e in acc.Scalars(tag)})
-    return values
 
 
 def _buffer_size(run_dir: Path) -> int:
@@ -131,7 +120,7 @@ def undo_running_mean(means: Dict[int, float], buffer: int) -> Dict[int, float]:
 
 def step_seconds(run_dir: Path) -> Dict[int, float]:
     """Cumulative training seconds at the end of each step, from the run's events."""
-    means = _scalars(run_dir, ITER_TIME_TAG)
+    means = read_scalars(run_dir).get(ITER_TIME_TAG, {})
     if not means:
         raise CurveError(f"no '{ITER_TIME_TAG}' events in {run_dir}")
     durations = undo_running_mean(means, _buffer_size(run_dir))
@@ -172,13 +161,13 @@ def evaluate_checkpoints(
     if save_dir is not None:
         cmd += ["--save-dir", str(Path(save_dir).resolve())]
     log = out_json.with_suffix(".log")
-    code, seconds, timed_out = _run(cmd, log, out_json.parent, timeout, env)
-    if code != 0 or timed_out or not out_json.exists():
-        tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:]) if log.exists() else ""
+    result = run_logged(cmd, log, out_json.parent, timeout=timeout, env=env)
+    if result.returncode != 0 or result.timed_out or not out_json.exists():
         raise CurveError(
-            f"checkpoint evaluation failed (exit {code}, timed out: {timed_out}); log {log}:\n{tail}"
+            f"checkpoint evaluation failed (exit {result.returncode}, timed out: {result.timed_out}); "
+            f"log {log}:\n{result.tail(15)}"
         )
-    return json.loads(out_json.read_text())["results"], seconds
+    return json.loads(out_json.read_text())["results"], result.seconds
 
 
 def record_curve(

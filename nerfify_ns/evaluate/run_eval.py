@@ -1,6 +1,6 @@
 """Error against run time for one generated plugin: train, curve, renders, error maps, consistency.
 
-:func:`evaluate_run` trains a composed plugin (``ns-train nerfify-generated`` with
+:func:`evaluate_run` trains a composed plugin (``ns-train GENERATED_METHOD`` with
 ``$NERFIFY_GENERATED`` pointing at it) with :func:`nerfify_ns.evaluate.curve.train_for_curve`
 (checkpoints every ``every`` steps, evaluation time excluded from the training seconds), then in
 ``out_dir`` writes:
@@ -38,9 +38,8 @@ from nerfify_ns.evaluate.consistency import check_consistency, views_from_transf
 from nerfify_ns.evaluate.curve import CurveError, CurveSource, plot_curves, record_curve, train_for_curve
 from nerfify_ns.evaluate.error_maps import analyze_views
 from nerfify_ns.evaluate.metrics import as_rgb, lpips, psnr, ssim, to_float
+from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook
 
-GENERATED_METHOD = "nerfify-generated"
-ENV_GENERATED = "NERFIFY_GENERATED"
 CPU_ARGS = ("--mixed-precision", "False", "--pipeline.datamanager.train-num-rays-per-batch", "512")
 ACCUMULATION_SURFACE = 0.5  # rendered pixels with less accumulation have no surface (consistency)
 HIGH_FREQUENCY_QUANTILE = 0.8  # the top 20% of ground-truth gradient magnitude is "high frequency"
@@ -167,12 +166,14 @@ def evaluate_run(
     compare_labels: Optional[Sequence[str]] = None,
     env: Optional[dict] = None,
     timeout: float = 900,
+    on_progress: Optional[ProgressHook] = None,
 ) -> dict:
     """Train the plugin in ``plugin_dir`` on ``scene`` and evaluate it into ``out_dir``.
 
     ``method_args`` are ns-train arguments (default: CPU settings, 512 rays per batch); ``seed``
     adds ``--machine.seed``. ``compare`` adds curves (CSV paths, curves or point lists, e.g. the
-    reference method's) to ``curve.png``. Returns the summary also written to ``summary.json``.
+    reference method's) to ``curve.png``; ``on_progress(step, total)`` is called while it trains. Returns
+    the summary also written to ``summary.json``.
     """
     plugin_dir, scene, out_dir = Path(plugin_dir).resolve(), Path(scene).resolve(), Path(out_dir).resolve()
     if not (plugin_dir / "nerfify.json").is_file():
@@ -183,7 +184,7 @@ def evaluate_run(
     args = [*method_args, *(["--machine.seed", str(seed)] if seed is not None else [])]
     run = train_for_curve(
         GENERATED_METHOD, scene, out_dir / "train", iterations=iterations, every=every, method_args=args,
-        timeout=timeout, env=run_env,
+        timeout=timeout, env=run_env, on_progress=on_progress,
     )
     summary: dict = {
         "label": label,

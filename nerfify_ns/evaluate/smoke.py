@@ -16,7 +16,7 @@ from typing import Dict, List, Optional
 import yaml
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.runtime.launch import TrainRun, ns_eval, ns_train
+from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook, TrainRun, ns_eval, ns_train
 
 
 class SmokeTrainError(NerfifyError):
@@ -42,7 +42,8 @@ def preset_args(method: str) -> List[str]:
     return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
 
 
-GENERATED = "nerfify-generated"
+GENERATED = GENERATED_METHOD
+"""The generated method (re-exported from :mod:`nerfify_ns.runtime.launch`, its one home)."""
 
 
 def generated_smoke_args(base: str) -> List[str]:
@@ -62,8 +63,8 @@ def generated_smoke_args(base: str) -> List[str]:
 
 
 def generated_env(plugin_dir: Path) -> dict:
-    """The environment under which ``nerfify-generated`` is the plugin in ``plugin_dir``."""
-    return {**os.environ, "NERFIFY_GENERATED": str(Path(plugin_dir).absolute())}
+    """The environment under which ``GENERATED_METHOD`` is the plugin in ``plugin_dir``."""
+    return {**os.environ, ENV_GENERATED: str(Path(plugin_dir).absolute())}
 
 
 @dataclass
@@ -96,10 +97,13 @@ def smoke_train(
     evaluate: bool = True,
     timeout: float = 900,
     env: Optional[dict] = None,
+    on_progress: Optional[ProgressHook] = None,
 ) -> SmokeResult:
-    """Train ``method`` for ``iterations`` on ``data`` and evaluate it; raises when it failed."""
+    """Train ``method`` for ``iterations`` on ``data`` and evaluate it; raises when it failed.
+    ``on_progress(step, total)`` is called while it trains."""
     run = ns_train(method, data, out_dir, iterations=iterations,
-                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout, env=env)
+                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout, env=env,
+                   on_progress=on_progress)
     if not run.ok or run.last_step + 1 < iterations:
         reason = "timed out" if run.timed_out else f"exit code {run.returncode}, reached step {run.last_step}"
         raise SmokeTrainError(method, reason, run.log_path)

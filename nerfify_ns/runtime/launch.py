@@ -1,9 +1,15 @@
-"""Run Nerfstudio's own ``ns-train`` and ``ns-eval`` in a separate process and read what they logged.
+"""The one Nerfstudio-run layer: build ``ns-train`` / ``ns-eval`` command lines, know where a run puts its
+files, run them, and read back what they logged.
 
-Training never runs in our process: a subprocess with a time limit, no network (``unshare -n``
-where available) and its working directory inside the output folder. Results (iterations reached,
-losses, rays per second) are read back from the run's own tensorboard events and files, never
-from text printed by a generator.
+Training never runs in our process: a subprocess (:func:`nerfify_ns.runtime.process.run_process`) with a
+time limit, no network (``unshare -n`` where available, or the sandbox's prefix given by the caller)
+and its working directory inside the output folder. Results (iterations reached, losses, rays per
+second) are read from the run's own tensorboard events (:mod:`nerfify_ns.runtime.events`), never from
+text printed by a generator. ``on_progress(step, total)`` is called while a training runs (about every
+second, when the step changed), ``step`` being the iterations done so far.
+
+The generated method's name lives here (:data:`GENERATED_METHOD`); everything that trains or names it
+imports it.
 """
 
 from __future__ import annotations
@@ -12,18 +18,64 @@ import json
 import math
 import os
 import shutil
-import subprocess
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 from nerfify_ns.runtime.errors import RuntimeLayerError
+from nerfify_ns.runtime.events import EventReader, Scalars, losses, rays_per_sec
+from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
+
+GENERATED_METHOD = "nerfify-generated"
+"""The method ``ns-train`` trains for the plugin generated last (our ``nerfstudio.method_configs`` entry point)."""
+ENV_GENERATED = "NERFIFY_GENERATED"
+"""Environment variable naming the plugin folder ``GENERATED_METHOD`` loads (else the one generated last)."""
+
+ProgressHook = Callable[[int, int], None]
+"""``on_progress(step, total)``: iterations done so far, iterations asked for."""
 
 
 class TrainLaunchError(RuntimeLayerError):
     """ns-train or ns-eval could not be run, or produced nothing usable."""
+
+
+@dataclass(frozen=True)
+class RunLayout:
+    """Where one ``ns-train`` run puts its files: ``OUTPUT/EXPERIMENT/METHOD/TIMESTAMP/`` holds
+    ``config.yml``, the tensorboard events and ``nerfstudio_models/step-*.ckpt``; the log is ours."""
+
+    output_dir: Path
+    """``--output-dir`` (also the process's working directory)."""
+    method: str
+    """The method trained (a folder level of Nerfstudio's layout)."""
+    experiment: str = "run"
+    """``--experiment-name``."""
+    timestamp: str = "run"
+    """``--timestamp`` (fixed, so the run folder is known before the run)."""
+    log_name: str = ""
+    """File name of the process log in ``output_dir`` (default ``METHOD.train.log``)."""
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.output_dir) / self.experiment / self.method / self.timestamp
+
+    @property
+    def config(self) -> Path:
+        return self.run_dir / "config.yml"
+
+    @property
+    def checkpoints(self) -> Path:
+        return self.run_dir / "nerfstudio_models"
+
+    @property
+    def log(self) -> Path:
+        return Path(self.output_dir) / (self.log_name or f"{self.method}.train.log")
+
+    def args(self) -> List[str]:
+        """The ns-train arguments that put the run here."""
+        return ["--output-dir", str(self.output_dir), "--experiment-name", self.experiment,
+                "--timestamp", self.timestamp]
 
 
 @dataclass
@@ -41,6 +93,8 @@ class TrainRun:
     """Train loss per logged step."""
     rays_per_sec: List[float] = field(default_factory=list)
     """Nerfstudio's per-step ``Train Rays / Sec`` (steps after the first two)."""
+    scalars: Scalars = field(default_factory=dict)
+    """Every scalar the run logged (tag -> step -> value)."""
 
     @property
     def last_step(self) -> int:
@@ -66,7 +120,7 @@ class TrainRun:
         return "\n".join(text.splitlines()[-lines:])
 
 
-def _bin(name: str) -> str:
+def console_script(name: str) -> str:
     """The console script ``name`` of the interpreter we run under."""
     candidate = Path(sys.executable).with_name(name)
     return str(candidate) if candidate.exists() else (shutil.which(name) or name)
@@ -80,37 +134,73 @@ def offline_prefix() -> List[str]:
     return []
 
 
-def _run(cmd: Sequence[str], log_path: Path, cwd: Path, timeout: float, env: Optional[dict]) -> tuple[int, float, bool]:
-    start = time.perf_counter()
-    full_env = dict(os.environ, **(env or {}))
-    full_env.setdefault("PYTHONWARNINGS", "ignore::FutureWarning,ignore::UserWarning")
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(list(cmd), stdout=log, stderr=subprocess.STDOUT, cwd=cwd, env=full_env,
-                                start_new_session=True)
-        try:
-            code = proc.wait(timeout=timeout)
-            return code, time.perf_counter() - start, False
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, 9)
-            proc.wait()
-            return -9, time.perf_counter() - start, True
+def launch_env(env: Optional[Mapping[str, str]] = None) -> Dict[str, str]:
+    """Our environment with ``env`` on top; Nerfstudio's Future/User warnings off unless set."""
+    full = dict(os.environ, **(env or {}))
+    full.setdefault("PYTHONWARNINGS", "ignore::FutureWarning,ignore::UserWarning")
+    return full
 
 
-def read_events(run_dir: Path) -> tuple[Dict[int, float], List[float]]:
-    """Train loss per step and per-step rays/s from the run's tensorboard event files."""
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+def train_command(
+    method: str,
+    data: Path,
+    layout: RunLayout,
+    *,
+    iterations: int,
+    method_args: Sequence[str] = (),
+    dataparser: str = "blender-data",
+    dataparser_args: Sequence[str] = (),
+    prefix: Sequence[str] = (),
+) -> List[str]:
+    """The ``ns-train`` command line: ``prefix`` (``unshare -n``, a sandbox, or nothing), the method, the
+    data, the run layout, the iterations, tensorboard logging every step, then ``method_args`` (presets and
+    extra arguments) and the dataparser subcommand with its arguments."""
+    return [
+        *prefix,
+        console_script("ns-train"), method,
+        "--data", str(Path(data).resolve()),
+        *layout.args(),
+        "--max-num-iterations", str(iterations),
+        "--vis", "tensorboard",
+        "--logging.steps-per-log", "1",
+        "--viewer.quit-on-train-completion", "True",
+        *method_args,
+        dataparser, *dataparser_args,
+    ]
 
-    losses: Dict[int, float] = {}
-    rays: List[float] = []
-    for events in sorted(run_dir.glob("events.out.tfevents.*")):
-        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
-        acc.Reload()
-        tags = acc.Tags().get("scalars", [])
-        if "Train Loss" in tags:
-            losses.update({e.step: e.value for e in acc.Scalars("Train Loss")})
-        if "Train Rays / Sec" in tags:
-            rays.extend(e.value for e in acc.Scalars("Train Rays / Sec"))
-    return losses, rays
+
+def eval_command(config_path: Path, output_path: Path, *, prefix: Sequence[str] = ()) -> List[str]:
+    """The ``ns-eval`` command line for a trained run's ``config.yml``."""
+    return [*prefix, console_script("ns-eval"), "--load-config", str(config_path), "--output-path", str(output_path)]
+
+
+def progress_poll(run_dir: Path, total: int, on_progress: Optional[ProgressHook]) -> Optional[Poll]:
+    """A poll hook for :func:`run_process` calling ``on_progress(step, total)`` when the run's events show
+    a new step (None when there is no hook)."""
+    if on_progress is None:
+        return None
+    reader, reported = EventReader(run_dir), [-1]
+
+    def poll() -> None:
+        if not reader.run_dir.is_dir():
+            return
+        reader.poll()
+        done = reader.last_step() + 1
+        if done > reported[0]:
+            reported[0] = done
+            on_progress(done, total)
+
+    return poll
+
+
+def read_run(run: TrainRun, layout: RunLayout) -> TrainRun:
+    """Fill ``run`` from its folder: run dir, config, scalars, losses and rays/s (left empty without a folder)."""
+    if layout.run_dir.is_dir():
+        run.run_dir = layout.run_dir
+        run.config_path = layout.config if layout.config.exists() else None
+        run.scalars = EventReader(layout.run_dir).poll()
+        run.losses, run.rays_per_sec = losses(run.scalars), rays_per_sec(run.scalars)
+    return run
 
 
 def ns_train(
@@ -125,34 +215,21 @@ def ns_train(
     timeout: float = 900,
     env: Optional[dict] = None,
     offline: bool = True,
+    on_progress: Optional[ProgressHook] = None,
 ) -> TrainRun:
     """Train ``method`` on ``data`` with Nerfstudio's trainer in a subprocess."""
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
-    cmd = [
-        *(offline_prefix() if offline else []),
-        _bin("ns-train"), method,
-        "--data", str(Path(data).resolve()),
-        "--output-dir", str(out_dir),
-        "--experiment-name", "run",
-        "--timestamp", "run",
-        "--max-num-iterations", str(iterations),
-        "--vis", "tensorboard",
-        "--logging.steps-per-log", "1",
-        "--viewer.quit-on-train-completion", "True",
-        *method_args,
-        dataparser, *dataparser_args,
-    ]
-    log_path = out_dir / f"{method}.train.log"
-    code, seconds, timed_out = _run(cmd, log_path, out_dir, timeout, env)
-    run = TrainRun(method=method, returncode=code, wall_seconds=seconds, log_path=log_path, timed_out=timed_out)
-    run_dir = out_dir / "run" / method / "run"
-    if run_dir.is_dir():
-        run.run_dir = run_dir
-        config = run_dir / "config.yml"
-        run.config_path = config if config.exists() else None
-        run.losses, run.rays_per_sec = read_events(run_dir)
-    return run
+    layout = RunLayout(out_dir, method)
+    cmd = train_command(method, data, layout, iterations=iterations, method_args=method_args, dataparser=dataparser,
+                        dataparser_args=dataparser_args, prefix=offline_prefix() if offline else ())
+    poll = progress_poll(layout.run_dir, iterations, on_progress)
+    result = run_process(cmd, layout.log, cwd=out_dir, timeout=timeout, env=launch_env(env), poll=poll)
+    if poll is not None:
+        poll()  # the last steps, logged after the previous poll
+    run = TrainRun(method=method, returncode=result.returncode, wall_seconds=result.seconds, log_path=layout.log,
+                   timed_out=result.timed_out)
+    return read_run(run, layout)
 
 
 def headline_metrics(results: dict) -> Dict[str, Optional[float]]:
@@ -163,15 +240,21 @@ def headline_metrics(results: dict) -> Dict[str, Optional[float]]:
     return {"psnr": pick("psnr"), "ssim": pick("ssim"), "lpips": pick("lpips")}
 
 
+def run_logged(cmd: Sequence[str], log_path: Path, cwd: Path, *, timeout: float,
+               env: Optional[dict] = None) -> ProcessResult:
+    """:func:`run_process` under :func:`launch_env` (for helpers such as ns-eval or the checkpoint renderer)."""
+    return run_process(cmd, log_path, cwd=cwd, timeout=timeout, env=launch_env(env))
+
+
 def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: Optional[dict] = None) -> dict:
     """Evaluate a trained run with ``ns-eval``; returns its headline metrics (LPIPS ``None`` when unavailable)
     merged over all of ``results``."""
     output_path = Path(output_path).resolve()
-    cmd = [*offline_prefix(), _bin("ns-eval"), "--load-config", str(config_path), "--output-path", str(output_path)]
     log_path = output_path.with_suffix(".log")
-    code, _, timed_out = _run(cmd, log_path, output_path.parent, timeout, env)
-    if code != 0 or timed_out or not output_path.exists():
-        tail = "\n".join(log_path.read_text(errors="replace").splitlines()[-15:])
-        raise TrainLaunchError(f"ns-eval failed for {config_path} (exit {code}, timed out: {timed_out}):\n{tail}")
+    result = run_logged(eval_command(config_path, output_path, prefix=offline_prefix()), log_path,
+                        output_path.parent, timeout=timeout, env=env)
+    if result.returncode != 0 or result.timed_out or not output_path.exists():
+        raise TrainLaunchError(f"ns-eval failed for {config_path} (exit {result.returncode}, timed out: "
+                               f"{result.timed_out}):\n{result.tail(15)}")
     results = json.loads(output_path.read_text())["results"]
     return {**results, **headline_metrics(results)}

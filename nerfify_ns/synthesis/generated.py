@@ -1,4 +1,4 @@
-"""The ``nerfify-generated`` method: what ``ns-train nerfify-generated`` trains.
+"""The generated method (``GENERATED_METHOD``): what ``ns-train nerfify-generated`` trains.
 
 It is the plugin generated last (or the folder named by $NERFIFY_GENERATED), imported from its
 folder, so a user can train it without installing it. Before any plugin exists, or when the
@@ -23,12 +23,11 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from nerfify_ns.runtime import default_device_type
+from nerfify_ns.runtime.launch import GENERATED_METHOD
 from nerfify_ns.synthesis.registry import GeneratedPluginError, generated_plugin_dir, load_plugin_method
 
-METHOD_NAME = "nerfify-generated"
 
-
-def cpu_nerfacto_config(method_name: str = METHOD_NAME) -> TrainerConfig:
+def cpu_nerfacto_config(method_name: str = GENERATED_METHOD) -> TrainerConfig:
     """Nerfacto sized for a small bounded synthetic scene on the CPU."""
     return TrainerConfig(
         method_name=method_name,
@@ -80,16 +79,16 @@ def _fallback(reason: str) -> MethodSpecification:
 
 
 def generated_method() -> MethodSpecification:
-    """The method ``ns-train nerfify-generated`` resolves to."""
+    """The method ``ns-train GENERATED_METHOD`` resolves to."""
     plugin = generated_plugin_dir()
     if plugin is None:
         return _fallback("no plugin generated yet (ns-nerfify compose / ns-nerfify PAPER)")
     try:
         spec = load_plugin_method(plugin)
     except GeneratedPluginError as exc:
-        print(f"nerfify-generated: {exc}", file=sys.stderr)
+        print(f"{GENERATED_METHOD}: {exc}", file=sys.stderr)
         return _fallback(f"the plugin in {plugin} cannot be loaded")
     config = copy.deepcopy(spec.config)
-    config.method_name = METHOD_NAME
+    config.method_name = GENERATED_METHOD
     config.machine.device_type = default_device_type()
     return MethodSpecification(config=config, description=f"nerfify: the plugin generated last ({plugin})")

@@ -1,7 +1,8 @@
 """Which plugin ``ns-train nerfify-generated`` trains: the one generated last, or $NERFIFY_GENERATED.
 
 The composer records every plugin it writes; the entry point imports the recorded plugin's
-config from its folder (no installation needed) and renames the method ``nerfify-generated``.
+config from its folder (no installation needed) and renames the method ``GENERATED_METHOD``
+(:mod:`nerfify_ns.runtime.launch`).
 """
 
 from __future__ import annotations
@@ -14,9 +15,11 @@ from pathlib import Path
 from typing import Optional
 
 from nerfify_ns.errors import NerfifyError
+from nerfify_ns.runtime.launch import ENV_GENERATED
 from nerfify_ns.runtime.paths import nerfify_cache_dir
 
-ENV_GENERATED = "NERFIFY_GENERATED"
+__all__ = ["ENV_GENERATED", "GeneratedPluginError", "generated_plugin_dir", "load_plugin_method",
+           "record_generated"]
 
 
 class GeneratedPluginError(NerfifyError):

@@ -12,13 +12,12 @@ from __future__ import annotations
 import os
 import resource
 import shutil
-import signal
-import subprocess
 import sys
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
+
+from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
 
 DEFAULT_MEMORY = 12 << 30
 
@@ -31,18 +30,10 @@ _INNER = (
 
 
 @dataclass
-class SandboxResult:
-    """How the sandboxed process ended."""
+class SandboxResult(ProcessResult):
+    """How the sandboxed process ended, and which isolation it had."""
 
-    returncode: int
-    seconds: float
-    timed_out: bool
-    log_path: Path
-    isolation: List[str]
-
-    def tail(self, lines: int = 30) -> str:
-        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
-        return "\n".join(text.splitlines()[-lines:])
+    isolation: List[str] = field(default_factory=list)
 
 
 def isolation_available() -> bool:
@@ -92,32 +83,18 @@ def run_sandboxed(
     memory: int = DEFAULT_MEMORY,
     env: Optional[Dict[str, str]] = None,
     isolate: bool = True,
+    poll: Optional[Poll] = None,
 ) -> SandboxResult:
-    """Run ``cmd`` with its working directory ``workdir`` (created), output to ``workdir/log_name``."""
+    """Run ``cmd`` with its working directory ``workdir`` (created), output to ``workdir/log_name``, through
+    the runtime's process runner (time limit, process group killed) inside the isolation prefix and under
+    the memory limit; ``poll`` is called about every second while it runs."""
     workdir = Path(workdir).resolve()
     workdir.mkdir(parents=True, exist_ok=True)
     prefix = sandbox_prefix(workdir, isolate)
     isolation = ["timeout", "rlimit_as"] + (["no-network", "read-only-fs"] if prefix else [])
-    log_path = workdir / log_name
-    start = time.perf_counter()
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [*prefix, *cmd],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            cwd=workdir,
-            env=sandbox_env(workdir, env),
-            start_new_session=True,
-            preexec_fn=_limits(memory),
-        )
-        try:
-            code = proc.wait(timeout=timeout)
-            timed_out = False
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-            code, timed_out = -9, True
-    return SandboxResult(code, time.perf_counter() - start, timed_out, log_path, isolation)
+    result = run_process([*prefix, *cmd], workdir / log_name, cwd=workdir, timeout=timeout,
+                         env=sandbox_env(workdir, env), preexec_fn=_limits(memory), poll=poll)
+    return SandboxResult(result.returncode, result.seconds, result.timed_out, result.log_path, isolation)
 
 
 def python_cmd(module: str, *args: str) -> List[str]:

@@ -10,11 +10,13 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from nerfify_ns.runtime.events import LOSS_TAG, Scalars, read_scalars
+from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout, progress_poll,
+                                      train_command)
 from nerfify_ns.verify.plugin import PluginInfo
 from nerfify_ns.verify.report import Diagnosis, RungResult
 from nerfify_ns.verify.sandbox import run_sandboxed
 
-METHOD = "nerfify-generated"
 SMOKE_ARGS = [
     "--pipeline.datamanager.train-num-rays-per-batch",
     "128",
@@ -52,29 +54,11 @@ def warmup_args(plan: Optional[dict]) -> List[str]:
     return args
 
 
-def _bin(name: str) -> str:
-    import sys
-
-    return str(Path(sys.executable).with_name(name))
-
-
-def read_scalars(run_dir: Path) -> Dict[str, Dict[int, float]]:
-    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
-
-    scalars: Dict[str, Dict[int, float]] = {}
-    for events in sorted(run_dir.glob("events.out.tfevents.*")):
-        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
-        acc.Reload()
-        for tag in acc.Tags().get("scalars", []):
-            scalars.setdefault(tag, {}).update({e.step: e.value for e in acc.Scalars(tag)})
-    return scalars
-
-
-def photometric(scalars: Dict[str, Dict[int, float]]) -> Dict[int, float]:
+def photometric(scalars: Scalars) -> Dict[int, float]:
     """Sum of the ``rgb`` losses per step (Train Loss Dict/rgb_loss, rgb_loss_coarse/fine), else the total."""
     tags = [t for t in scalars if t.startswith("Train Loss Dict/") and "rgb" in t]
     if not tags:
-        return scalars.get("Train Loss", {})
+        return scalars.get(LOSS_TAG, {})
     steps = set.intersection(*(set(scalars[t]) for t in tags))
     return {s: sum(scalars[t][s] for t in tags) for s in sorted(steps)}
 
@@ -87,36 +71,18 @@ def smoke_rung(
     iterations: int = 20,
     timeout: float = 120,
     extra_args: Optional[List[str]] = None,
+    on_progress: Optional[ProgressHook] = None,
 ) -> RungResult:
+    """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` in the sandbox and judge the run."""
     r = RungResult("smoke")
     workdir = Path(workdir).resolve()
     start = time.perf_counter()
-    cmd = [
-        _bin("ns-train"),
-        METHOD,
-        "--data",
-        str(Path(scene).resolve()),
-        "--output-dir",
-        str(workdir),
-        "--experiment-name",
-        "run",
-        "--timestamp",
-        "run",
-        "--max-num-iterations",
-        str(iterations),
-        "--vis",
-        "tensorboard",
-        "--logging.steps-per-log",
-        "1",
-        "--viewer.quit-on-train-completion",
-        "True",
-        *SMOKE_ARGS,
-        *warmup_args(info.plan),
-        *(extra_args or []),
-        "blender-data",
-    ]
-    env = {"NERFIFY_GENERATED": str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
-    result = run_sandboxed(cmd, workdir, timeout=timeout, log_name="train.log", env=env)
+    layout = RunLayout(workdir, GENERATED_METHOD, log_name="train.log")
+    cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
+                        method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
+    env = {ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
+    result = run_sandboxed(cmd, workdir, timeout=timeout, log_name=layout.log_name, env=env,
+                           poll=progress_poll(layout.run_dir, iterations, on_progress))
     r.seconds = time.perf_counter() - start
     r.details.update(
         {
@@ -126,9 +92,9 @@ def smoke_rung(
             "log": str(result.log_path),
         }
     )
-    run_dir = workdir / "run" / METHOD / "run"
-    scalars = read_scalars(run_dir) if run_dir.is_dir() else {}
-    total = scalars.get("Train Loss", {})
+    run_dir = layout.run_dir
+    scalars = read_scalars(run_dir)
+    total = scalars.get(LOSS_TAG, {})
     rgb = photometric(scalars)
     reached = max(total) + 1 if total else 0
     r.details.update({"iterations": reached, "final_loss": total.get(reached - 1)})
@@ -163,7 +129,7 @@ def smoke_rung(
             )
         )
         return r
-    config = run_dir / "config.yml"
+    config = layout.config
     if config.is_file() and info.package not in config.read_text(errors="replace"):
         r.fail(
             Diagnosis(
