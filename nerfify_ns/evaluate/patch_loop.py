@@ -52,6 +52,7 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.curve import CurvePoint, read_curve_csv
 from nerfify_ns.evaluate.run_eval import CPU_ARGS, evaluate_run, write_json
 from nerfify_ns.grammar import PlanError, derive, load_grammar, validate
+from nerfify_ns.plan import Plan, PlanPathError, split_path
 from nerfify_ns.synthesis.compose import compose
 
 NOISE_DEFINITION = (
@@ -75,9 +76,10 @@ class PatchLoopError(NerfifyError):
 
 
 @dataclass(frozen=True)
-class Diagnosis:
-    """Something wrong with a run, found by a critic: its name (a rule-table key), how bad it is
-    (higher first), the evidence in words, and which artefact showed it."""
+class Finding:
+    """Something wrong with a trained run, found by a critic: its name (a rule-table key), how bad it is
+    (higher first), the evidence in words, and which artefact showed it. (The verification ladder's
+    ``Diagnosis`` is a broken rule of plugin code; a ``Finding`` is about a run's renders and curves.)"""
 
     name: str
     severity: float
@@ -101,11 +103,12 @@ class Edit:
 
 
 @dataclass
-class Patch:
-    """A candidate plan change: its edits, the rule that proposed it, the diagnosis and why."""
+class PlanPatch:
+    """A candidate plan change: its edits, the rule that proposed it, the finding it answers and why.
+    (The ladder's ``CodePatch`` changes plugin code; a ``PlanPatch`` changes the plan.)"""
 
     rule: str
-    diagnosis: Diagnosis
+    finding: Finding
     edits: List[Edit]
     reason: str
     before: Dict[str, Any] = field(default_factory=dict)  # path -> value before (None if absent)
@@ -113,7 +116,7 @@ class Patch:
     def to_json(self) -> dict:
         return {
             "rule": self.rule,
-            "diagnosis": self.diagnosis.name,
+            "diagnosis": self.finding.name,
             "reason": self.reason,
             "edits": [e.to_json() for e in self.edits],
             "before": self.before,
@@ -159,7 +162,7 @@ class Critic(Protocol):
 
     name: str
 
-    def diagnose(self, artifacts: RunArtifacts) -> List[Diagnosis]:
+    def diagnose(self, artifacts: RunArtifacts) -> List[Finding]:
         ...
 
 
@@ -202,16 +205,16 @@ class DeterministicCritic:
     def _on(self, name: str) -> Optional[dict]:
         return self.t.get(name) if name in self.t else None
 
-    def diagnose(self, artifacts: RunArtifacts) -> List[Diagnosis]:
+    def diagnose(self, artifacts: RunArtifacts) -> List[Finding]:
         s = artifacts.summary
-        out: List[Diagnosis] = []
+        out: List[Finding] = []
         losses = s.get("losses") or {}
         if self._on("divergence") is not None:
             psnr = s.get("psnr")
             if s.get("status") == "failed" or losses.get("finite") is False or psnr is None:
                 step = losses.get("first_nonfinite_step")
                 why = s.get("reason") or "no finite PSNR"
-                out.append(Diagnosis("divergence", 100.0, f"training failed: {why}"
+                out.append(Finding("divergence", 100.0, f"training failed: {why}"
                                      + (f" (first non-finite loss at step {step})" if step is not None else ""),
                                      "curve"))
                 return out  # nothing else is measurable
@@ -219,13 +222,13 @@ class DeterministicCritic:
         if t is not None and losses.get("first") and losses.get("last") is not None:
             ratio = losses["last"] / losses["first"]
             if ratio >= t.get("min_ratio", 1.25):
-                out.append(Diagnosis("loss_rising", 10.0 * ratio, f"train loss rose {ratio:.2f}x "
+                out.append(Finding("loss_rising", 10.0 * ratio, f"train loss rose {ratio:.2f}x "
                                      f"({losses['first']:.4g} -> {losses['last']:.4g})", "curve"))
         t = self._on("floaters")
         if t is not None and artifacts.consistency:
             bad = 1.0 - float(artifacts.consistency.get("mean_score", 1.0))
             if bad >= t.get("min_inconsistent_fraction", 0.05):
-                out.append(Diagnosis("floaters", 20.0 * bad, f"{100 * bad:.1f}% of checked surface pixels lie in "
+                out.append(Finding("floaters", 20.0 * bad, f"{100 * bad:.1f}% of checked surface pixels lie in "
                                      "space other views see as empty", "consistency"))
         diag = s.get("diagnostics") or {}
         t = self._on("background_errors")
@@ -234,7 +237,7 @@ class DeterministicCritic:
             bg_psnr = diag.get("background_psnr")
             if (share >= t.get("min_share", 0.5) and frac >= t.get("min_background_fraction", 0.05)
                     and (bg_psnr is None or bg_psnr <= t.get("max_background_psnr", 30.0))):
-                out.append(Diagnosis("background_errors", 10.0 * share,
+                out.append(Finding("background_errors", 10.0 * share,
                                      f"{100 * share:.0f}% of the squared error is on background pixels (GT alpha 0"
                                      f", {100 * frac:.0f}% of the image; background PSNR "
                                      f"{'n/a' if bg_psnr is None else f'{bg_psnr:.1f} dB'})", "error_maps"))
@@ -242,7 +245,7 @@ class DeterministicCritic:
         sharp, hf = diag.get("sharpness"), diag.get("high_frequency_error_ratio")
         if t is not None and sharp is not None and hf is not None:
             if sharp <= t.get("max_sharpness", 0.7) or hf >= t.get("min_high_frequency_error_ratio", 2.0):
-                out.append(Diagnosis("blur_high_frequency", 10.0 * max(1.0 - sharp, 0.0) + hf,
+                out.append(Finding("blur_high_frequency", 10.0 * max(1.0 - sharp, 0.0) + hf,
                                      f"renders keep {100 * sharp:.0f}% of the ground truth's gradient energy; "
                                      f"error is {hf:.1f}x higher in high-frequency regions", "error_maps"))
         t = self._on("large_error_regions")
@@ -254,7 +257,7 @@ class DeterministicCritic:
             if frac >= t.get("min_area_fraction", 0.1):
                 worst = min((r["local_psnr"] for v in artifacts.error_maps for r in v.get("regions", [])),
                             default=float("nan"))
-                out.append(Diagnosis("large_error_regions", 10.0 * frac,
+                out.append(Finding("large_error_regions", 10.0 * frac,
                                      f"worst regions cover {100 * frac:.0f}% of the test pixels (worst box "
                                      f"{worst:.1f} dB)", "error_maps"))
         return sorted(out, key=lambda d: -d.severity)
@@ -273,41 +276,6 @@ def _view_pixels(artifacts: RunArtifacts, view: dict) -> int:
 # ---------------------------------------------------------------------------------------- patches
 
 
-def _split(path: str) -> List[str]:
-    return [p for p in path.split(".") if p]
-
-
-def expand_path(plan: dict, path: str) -> List[str]:
-    """Concrete dot paths matching ``path`` (``*`` matches any key of a mapping)."""
-    results = [([], plan)]
-    parts = _split(path)
-    for i, key in enumerate(parts):
-        nxt = []
-        for prefix, node in results:
-            if key == "*":
-                if isinstance(node, dict):
-                    nxt.extend((prefix + [k], v) for k, v in node.items())
-            elif i == len(parts) - 1 or (isinstance(node, dict) and key in node):
-                nxt.append((prefix + [key], node.get(key) if isinstance(node, dict) else None))
-        results = nxt
-    return [".".join(p) for p, _ in results]
-
-
-def get_path(plan: dict, path: str, default: Any = None) -> Any:
-    node: Any = plan
-    for key in _split(path):
-        if not isinstance(node, dict) or key not in node:
-            return default
-        node = node[key]
-    return node
-
-
-def has_path(plan: dict, path: str) -> bool:
-    sentinel = object()
-    return any(get_path(plan, p, sentinel) is not sentinel for p in expand_path(plan, path)) if "*" in path \
-        else get_path(plan, path, sentinel) is not sentinel
-
-
 def _grammar_default(plan: dict, path: str) -> Any:
     """The grammar default of a terminal parameter left out of the plan (``None`` if not one)."""
     parent, _, param = path.rpartition(".")
@@ -321,49 +289,44 @@ def _grammar_default(plan: dict, path: str) -> Any:
     return copy.deepcopy(g.terminals[terminal].params[param].default)
 
 
-def apply_edit(plan: dict, edit: Edit) -> Any:
-    """Apply one edit in place; returns the value before (``None`` if absent)."""
-    parts = _split(edit.path)
-    if not parts:
+def apply_edit(plan: Plan, edit: Edit) -> Any:
+    """Apply one edit to ``plan`` in place; returns the value before (``None`` if absent). ``set`` needs the
+    path to exist or to be a parameter with a grammar default; ``add`` needs it absent (mappings on the way
+    are created); ``remove`` needs it present."""
+    if not split_path(edit.path):
         raise PatchError("an edit needs a path")
-    node = plan
-    for key in parts[:-1]:
-        if key not in node:
-            if edit.op != "add":
-                raise PatchError(f"{edit.path}: {key!r} is not in the plan")
-            node[key] = {}
-        node = node[key]
-        if not isinstance(node, dict):
-            raise PatchError(f"{edit.path}: {key!r} is not a mapping")
-    last = parts[-1]
-    before = copy.deepcopy(node.get(last))
-    if edit.op == "set":
-        if last not in node and _grammar_default(plan, edit.path) is None:
-            raise PatchError(f"set {edit.path}: no such slot or parameter in the plan")
-        node[last] = copy.deepcopy(edit.value)
-    elif edit.op == "add":
-        if last in node:
-            raise PatchError(f"add {edit.path}: already present")
-        node[last] = copy.deepcopy(edit.value)
-    elif edit.op == "remove":
-        if last not in node:
-            raise PatchError(f"remove {edit.path}: not present")
-        node.pop(last)
-    else:
+    if edit.op not in ("set", "add", "remove"):
         raise PatchError(f"unknown op {edit.op!r} (set, add, remove)")
+    present = plan.has(edit.path)
+    before = copy.deepcopy(plan.get(edit.path))
+    try:
+        if edit.op == "add":
+            if present:
+                raise PatchError(f"add {edit.path}: already present")
+            plan.set(edit.path, copy.deepcopy(edit.value))
+        elif edit.op == "remove":
+            if not present:
+                raise PatchError(f"remove {edit.path}: not present")
+            plan.delete(edit.path)
+        else:
+            if not present and _grammar_default(plan, edit.path) is None:
+                raise PatchError(f"set {edit.path}: no such slot or parameter in the plan")
+            plan.set(edit.path, copy.deepcopy(edit.value), create=False)
+    except PlanPathError as exc:
+        raise PatchError(str(exc)) from None
     return before
 
 
-def apply_patch(plan: dict, patch: Patch) -> dict:
+def apply_patch(plan: dict, patch: PlanPatch) -> Plan:
     """A validated copy of ``plan`` with the patch applied; records the old values on the patch."""
-    patched = copy.deepcopy(plan)
+    patched = Plan.of(plan).copy()
     patch.before = {}
     for edit in patch.edits:
         patch.before[edit.path] = apply_edit(patched, edit)
     # the grammar's plan annotations have no 'patches' entry: the patch is recorded as a note
     edits = "; ".join(f"{e.op} {e.path}" + ("" if e.op == "remove" else f" = {e.value}") for e in patch.edits)
     patched["notes"] = list(patched.get("notes") or []) + [
-        f"patch loop: {patch.rule} ({patch.diagnosis.name}): {edits}; {patch.reason}"
+        f"patch loop: {patch.rule} ({patch.finding.name}): {edits}; {patch.reason}"
     ]
     validate(patched)
     return patched
@@ -392,23 +355,25 @@ def _format_reason(template: str, evidence: str, env: dict) -> str:
         return template
 
 
-def propose_patches(plan: dict, diagnoses: Sequence[Diagnosis], rules: Sequence[dict], scene: Path) -> List[Patch]:
-    """Candidate patches for ``diagnoses``: applicable, changing the plan, each set of edits once.
-    Ordered round-robin over the diagnoses (most severe first): the first rule of every diagnosis,
-    then the second ones, ..., so a short candidate budget covers every diagnosis."""
+def propose_patches(plan: dict, findings: Sequence[Finding], rules: Sequence[dict],
+                    scene: Path) -> List[PlanPatch]:
+    """Candidate patches for ``findings``: applicable, changing the plan, each set of edits once.
+    Ordered round-robin over the findings (most severe first): the first rule of every finding,
+    then the second ones, ..., so a short candidate budget covers every finding."""
     env = scene_bounds(scene)
-    per_diagnosis: List[List[Patch]] = []
+    plan = Plan.of(plan)
+    per_finding: List[List[PlanPatch]] = []
     seen = set()
-    for diagnosis in diagnoses:
-        patches: List[Patch] = []
-        per_diagnosis.append(patches)
+    for finding in findings:
+        patches: List[PlanPatch] = []
+        per_finding.append(patches)
         for rule in rules:
             names = rule["diagnosis"] if isinstance(rule["diagnosis"], list) else [rule["diagnosis"]]
-            if diagnosis.name not in names:
+            if finding.name not in names:
                 continue
-            if any(not has_path(plan, p) for p in rule.get("if_present") or []):
+            if any(not plan.has(p) for p in rule.get("if_present") or []):
                 continue
-            if any(has_path(plan, p) for p in rule.get("if_absent") or []):
+            if any(plan.has(p) for p in rule.get("if_absent") or []):
                 continue
             try:
                 edits = _concrete_edits(plan, rule, env)
@@ -420,19 +385,20 @@ def propose_patches(plan: dict, diagnoses: Sequence[Diagnosis], rules: Sequence[
             if key in seen:
                 continue
             seen.add(key)
-            patches.append(Patch(rule["name"], diagnosis, edits, _format_reason(rule["reason"], diagnosis.evidence, env)))
-    ordered: List[Patch] = []
-    for rank in range(max((len(p) for p in per_diagnosis), default=0)):
-        ordered.extend(p[rank] for p in per_diagnosis if rank < len(p))
+            patches.append(PlanPatch(rule["name"], finding, edits,
+                                     _format_reason(rule["reason"], finding.evidence, env)))
+    ordered: List[PlanPatch] = []
+    for rank in range(max((len(p) for p in per_finding), default=0)):
+        ordered.extend(p[rank] for p in per_finding if rank < len(p))
     return ordered
 
 
-def _concrete_edits(plan: dict, rule: dict, env: dict) -> List[Edit]:
+def _concrete_edits(plan: Plan, rule: dict, env: dict) -> List[Edit]:
     edits: List[Edit] = []
     for spec in rule["edits"]:
-        paths = expand_path(plan, spec["path"]) if "*" in spec["path"] else [spec["path"]]
+        paths = plan.expand(spec["path"]) if "*" in spec["path"] else [spec["path"]]
         for path in paths:
-            current = get_path(plan, path)
+            current = plan.get(path)
             if current is None and spec["op"] == "set":
                 current = _grammar_default(plan, path)
             if spec["op"] == "remove":
@@ -543,7 +509,7 @@ class PatchLoop:
             validate(plan)
         except PlanError as exc:
             raise PatchLoopError(f"the starting plan is invalid: {exc}") from None
-        self.plan = copy.deepcopy(plan)
+        self.plan = Plan.of(plan).copy()
         self.scene = Path(scene).resolve()
         self.out = Path(out_dir).resolve()
         self.iterations, self.every = iterations, every or iterations
@@ -584,7 +550,7 @@ class PatchLoop:
 
     def run(self) -> PatchLoopResult:
         self.out.mkdir(parents=True, exist_ok=True)
-        best = copy.deepcopy(self.plan)
+        best = self.plan.copy()
         best_path = _write_plan(self.out / "best_plan.yaml", best)
         _write_plan(self.out / "start_plan.yaml", best)
         history: dict = {
@@ -641,7 +607,7 @@ class PatchLoop:
                 stopped = "no diagnosis remains"
                 break
             patches = [p for p in propose_patches(best, diagnoses, self.rules, self.scene)]
-            candidates: List[Tuple[Patch, dict]] = []
+            candidates: List[Tuple[PlanPatch, dict]] = []
             for patch in patches:
                 try:
                     patched = apply_patch(best, patch)
@@ -666,7 +632,7 @@ class PatchLoop:
                 cand_folder = folder / f"c{k:02d}_{patch.rule}"
                 _write_plan(cand_folder / "plan.yaml", patched)
                 write_json(cand_folder / "patch.json", patch.to_json())
-                self.progress(f"round {rnd}: trying {patch.rule} ({patch.diagnosis.name})")
+                self.progress(f"round {rnd}: trying {patch.rule} ({patch.finding.name})")
                 summary = self._evaluate(patched, cand_folder, self.seeds[0], patch.rule)
                 results.append((patch, patched, cand_folder, summary))
             best_gain, best_index = None, None
@@ -715,13 +681,13 @@ class PatchLoop:
         self.progress(f"stopped: {stopped}")
         return PatchLoopResult(self.out, best, best_path, history.get("best_psnr"), history, path)
 
-    def _entry(self, rnd: int, patch: Patch, mean: Optional[float], measurement: Measurement,
+    def _entry(self, rnd: int, patch: PlanPatch, mean: Optional[float], measurement: Measurement,
                noise: Optional[float], threshold: float, summary: Optional[dict], decision: str, reason: str,
                folder: Optional[Path]) -> dict:
         psnr = summary.get("psnr") if summary else None
         return {
             "round": rnd,
-            "diagnosis": patch.diagnosis.to_json(),
+            "diagnosis": patch.finding.to_json(),
             "patch": patch.to_json(),
             "psnr_before": mean,
             "psnr_before_runs": measurement.psnrs,

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import json
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import yaml
 
 from nerfify_ns.evaluate import patch_loop as pl
 from nerfify_ns.grammar import PlanError, validate
+from nerfify_ns.plan import Plan
 
 NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "none"}
 WEAK_SAMPLES = {"samples_per_ray": [4, 4], "nerf_samples": 2}
@@ -49,9 +49,9 @@ def weakened(scene: Path) -> dict:
 
 def test_edits_set_add_remove_and_wildcards(floaters_scene):
     plan = weakened(floaters_scene)
-    paths = pl.expand_path(plan, "optimizers.*.optimizer.*.lr")
+    paths = Plan.of(plan).expand("optimizers.*.optimizer.*.lr")
     assert sorted(paths) == ["optimizers.fields.optimizer.adam.lr", "optimizers.proposal_networks.optimizer.adam.lr"]
-    edited = copy.deepcopy(plan)
+    edited = Plan.of(plan).copy()
     assert pl.apply_edit(edited, pl.Edit("add", "model.losses.distortion", {"weight": 0.002})) is None
     assert pl.apply_edit(edited, pl.Edit("set", "model.losses.distortion.weight", 0.01)) == 0.002
     assert pl.apply_edit(edited, pl.Edit("remove", "model.losses.distortion")) == {"weight": 0.01}
@@ -67,7 +67,7 @@ def test_edits_set_add_remove_and_wildcards(floaters_scene):
 def test_patches_come_from_the_rule_table_and_stay_valid(floaters_scene):
     plan = weakened(floaters_scene)
     rules = pl.load_rules()["rules"]
-    diagnoses = [pl.Diagnosis("floaters", 3.0, "many floaters"), pl.Diagnosis("blur_high_frequency", 2.0, "blurry")]
+    diagnoses = [pl.Finding("floaters", 3.0, "many floaters"), pl.Finding("blur_high_frequency", 2.0, "blurry")]
     patches = pl.propose_patches(plan, diagnoses, rules, floaters_scene)
     names = [p.rule for p in patches]
     # round-robin over diagnoses, rules in table order; raise_distortion_loss needs a distortion loss
@@ -88,12 +88,12 @@ def test_patches_come_from_the_rule_table_and_stay_valid(floaters_scene):
     assert samples.before == {"model.sampler.proposal.samples_per_ray": [4, 4],
                               "model.sampler.proposal.nerf_samples": 2}
     # a rule whose edit breaks a grammar duty is refused by validate
-    bad = pl.Patch("drop_interlevel", diagnoses[0], [pl.Edit("remove", "model.losses.interlevel")], "test")
+    bad = pl.PlanPatch("drop_interlevel", diagnoses[0], [pl.Edit("remove", "model.losses.interlevel")], "test")
     with pytest.raises(PlanError):
         pl.apply_patch(plan, bad)
     # nothing is proposed that would not change the plan
     assert not any(p.rule == "white_background" for p in
-                   pl.propose_patches(plan, [pl.Diagnosis("background_errors", 1, "")], rules, floaters_scene))
+                   pl.propose_patches(plan, [pl.Finding("background_errors", 1, "")], rules, floaters_scene))
 
 
 def test_critic_reads_run_artifacts(tmp_path, floaters_scene):
