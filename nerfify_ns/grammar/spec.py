@@ -10,12 +10,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import lru_cache
-from importlib import resources
 from pathlib import Path
 from typing import Any, Dict, Iterator, List, Optional, Tuple
 
 import yaml
 
+from nerfify_ns.data import grammar_spec_path
 from nerfify_ns.errors import NerfifyError
 
 KINDS = ("sequence", "choice", "enum", "set", "map")
@@ -186,6 +186,5 @@ def parse_grammar(text: str, source: str = "") -> Grammar:
 def load_grammar(path: Optional[str] = None) -> Grammar:
     """The grammar in ``path`` (default: the project's ``grammar_spec.yaml``)."""
     if path is None:
-        text = resources.files("nerfify_ns.grammar").joinpath("grammar_spec.yaml").read_text()
-        return parse_grammar(text, "grammar_spec.yaml")
+        return parse_grammar(grammar_spec_path().read_text(), "grammar_spec.yaml")
     return parse_grammar(Path(path).read_text(), str(path))

@@ -1,18 +1,18 @@
 """The synthesis stage's data: Jinja2 templates, terminal snippets, base models, reference plans.
 
-They live at the top of the repository (``templates/``, ``method_configs/``) and are reached
-through the package (symlinked into ``nerfify_ns/synthesis``) so an installed copy finds them.
+They live at the top of the repository (``templates/``, ``method_configs/``); :mod:`nerfify_ns.data`
+finds them there or, in an installed wheel, inside the package.
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
-from importlib import resources
 from pathlib import Path
 from typing import Dict, List
 
 import yaml
 
+from nerfify_ns import data
 from nerfify_ns.errors import NerfifyError
 
 
@@ -20,31 +20,31 @@ class UnknownReferencePlanError(NerfifyError):
     """No reference plan of that name in method_configs/."""
 
 
-def _root(name: str) -> Path:
-    return Path(str(resources.files("nerfify_ns.synthesis").joinpath(name)))
-
-
 def templates_dir() -> Path:
-    return _root("templates")
+    """The folder of the plugin templates (``*.j2``, ``snippets.yaml``, ``bases.yaml``)."""
+    return data.templates_dir()
 
 
 @lru_cache(maxsize=1)
 def snippets() -> Dict[str, dict]:
+    """Terminal code snippets (``templates/snippets.yaml``)."""
     return yaml.safe_load((templates_dir() / "snippets.yaml").read_text())
 
 
 @lru_cache(maxsize=1)
 def bases() -> Dict[str, dict]:
+    """Base models (``templates/bases.yaml``)."""
     return yaml.safe_load((templates_dir() / "bases.yaml").read_text())
 
 
 def reference_plans() -> List[str]:
     """Names of the reference plans (``method_configs/<name>.yaml``)."""
-    return sorted(p.stem for p in _root("method_configs").glob("*.yaml"))
+    return sorted(p.stem for p in data.method_configs_dir().glob("*.yaml"))
 
 
 def reference_plan_path(name: str) -> Path:
-    path = _root("method_configs") / f"{name}.yaml"
+    """The file of reference plan ``name``; :class:`UnknownReferencePlanError` if there is none."""
+    path = data.method_configs_dir() / f"{name}.yaml"
     if not path.is_file():
         raise UnknownReferencePlanError(
             f"no reference plan {name!r}; known: {', '.join(reference_plans())} (method_configs/)")
@@ -52,4 +52,5 @@ def reference_plan_path(name: str) -> Path:
 
 
 def load_reference_plan(name: str) -> dict:
+    """Reference plan ``name`` as a mapping."""
     return yaml.safe_load(reference_plan_path(name).read_text())
