@@ -20,10 +20,13 @@ import math
 from dataclasses import dataclass
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
-from nerfify_ns.grammar.spec import Grammar, GrammarSpecError, Param, load_grammar
-from nerfify_ns.grammar.validate import ANNOTATIONS
+from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, GrammarSpecError, Param, load_grammar
+from nerfify_ns.grammar.validate import ANNOTATIONS, duties_at
 
 ABSENT = None
+_IDENT = '[A-Za-z_] [A-Za-z0-9_]*'
+CUSTOM_NAMES = {"module": f'"\\"components" ( "." {_IDENT} )+ "\\""', "class": f'"\\"" {_IDENT} "\\""'}
+"""GBNF of a custom component's module (inside the plugin's components package) and class name."""
 ROOT_HEAD = ("method", "description", "paper")
 ROOT_TAIL = ("evidence", "pruned", "holes", "notes")
 
@@ -34,6 +37,8 @@ boolean ::= "true" | "false"
 value ::= object | array | string | number | boolean | "null"
 object ::= "{" ( string ":" value ( "," string ":" value )* )? "}"
 array ::= "[" ( value ( "," value )* )? "]"
+identkey ::= "\"" [A-Za-z_] [A-Za-z0-9_]* "\""
+mapping ::= "{" ( identkey ":" value ( "," identkey ":" value )* )? "}"
 methodname ::= "\"" [a-z] [a-z0-9-]{RANGE} "\""'''
 
 
@@ -66,7 +71,13 @@ def _canonical(g: Grammar, symbol: Optional[str], value: Any) -> Any:
         slots = {s.name: s.symbol for s in nt.slots}
         return {k: _canonical(g, slots.get(k), value[k]) for k in _ordered(value, list(slots))}
     if nt.kind in ("choice", "set"):
-        return {k: _canonical(g, k if k in nt.alternatives else None, value[k]) for k in _ordered(value, nt.alternatives)}
+        def member(k: str) -> Optional[str]:
+            return k if k in nt.alternatives else (CUSTOM if nt.custom and CUSTOM_MEMBER.match(str(k)) else None)
+        return {k: _canonical(g, member(k), value[k]) for k in _ordered(value, nt.alternatives)}
+    if nt.kind == "open":
+        if set(value) == {CUSTOM}:
+            return {CUSTOM: _canonical(g, CUSTOM, value[CUSTOM])}
+        return _canonical(g, nt.terminal, value)
     if nt.kind == "map":
         return {k: _canonical(g, nt.value if k in nt.keys else None, value[k]) for k in _ordered(value, nt.keys)}
     return value
@@ -143,6 +154,10 @@ def param_rule(param: Param, item_rule: Optional[str] = None) -> str:
         return "( " + " | ".join(_lit(json.dumps(v)) for v in param.values) + " )"
     if param.type in ("int_list", "float_list"):
         return _list(item_rule or f"( {_scalar(param, param.type.split('_')[0])} )", param.length)
+    if param.type == "str_list":
+        return _list("string", param.length)
+    if param.type == "mapping":
+        return "mapping"
     return _scalar(param, param.type)
 
 
@@ -259,7 +274,7 @@ def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions) -> Optional[_Eff
             continue
         term = g.terminals[choice]
         groups |= set(term.param_groups)
-        for duty in term.duties:
+        for duty in duties_at(g, f"{path}.{choice}" if choice == CUSTOM else path, choice):
             held = _holds(g, duty, ctx)
             if held is False:
                 return None
@@ -318,17 +333,32 @@ class _Emitter:
         inner = f"( {' | '.join(options)} ){'?' if all_optional else ''}"
         return self.rule(hint, f'"{{" {inner} "}}"')
 
+    def custom_set(self, symbol: str, members: List[Tuple[str, str, bool]], fx: _Effects) -> str:
+        """A set's object: its optional members in order, then any number of custom members
+        (``"custom"`` or ``"custom_<name>"``)."""
+        key = self.rule("custom-key", '"\\"custom" ( "_" [a-z0-9_]+ )? "\\":"')
+        member = self.rule("custom-member", f"{key} {self.terminal(CUSTOM, fx)}")
+        items = [f"{_lit(json.dumps(k) + ':')} {r}" for k, r, _ in members]
+        options = []
+        for first, text in enumerate(items):
+            tail = " ".join(f"( \",\" {t} )?" for t in items[first + 1:])
+            options.append(f"( {text} {tail} ( \",\" {member} )* )")
+        options.append(f"( {member} ( \",\" {member} )* )")
+        return self.rule(symbol, f'"{{" ( {" | ".join(options)} )? "}}"')
+
     def terminal(self, name: str, fx: _Effects) -> str:
         term = self.g.terminals[name]
         consts = dict(fx.scene) if name == "scene" else {}
         members = []
         for pname, param in term.params.items():
-            if pname in consts:
+            if name == CUSTOM and pname in CUSTOM_NAMES:
+                members.append((pname, self.rule(f"custom-{pname}", CUSTOM_NAMES[pname]), True))
+            elif pname in consts:
                 value = json.dumps(consts[pname])
                 members.append((pname, self.rule(f"{name}-{pname}-{value}", _lit(value)), consts[pname] != param.default))
             else:
                 item = None
-                if param.type.endswith("_list"):
+                if param.type in ("int_list", "float_list"):
                     item = self.rule(f"{name}-{pname}-item", _scalar(param, param.type.split("_")[0]))
                 members.append((pname, self.rule(f"{name}-{pname}", param_rule(param, item)), False))
         return self.obj(name, members)
@@ -357,7 +387,11 @@ class _Emitter:
                 members.append((slot.name, self.symbol(slot.symbol, sub, fx), required))
             return self.obj(symbol, members)
         if nt.kind == "set":
-            return self.obj(symbol, [(m, self.terminal(m, fx), False) for m in nt.members if join(m) not in fx.forbidden])
+            members = [(m, self.terminal(m, fx), False) for m in nt.members if join(m) not in fx.forbidden]
+            return self.custom_set(symbol, members, fx) if nt.custom else self.obj(symbol, members)
+        if nt.kind == "open":
+            custom = self.obj(f"{symbol}-custom", [(CUSTOM, self.terminal(CUSTOM, fx), True)])
+            return self.rule(symbol, f"{custom} | {self.terminal(nt.terminal, fx)}")
         value = nt.value
         return self.obj(symbol, [(k, self.symbol(value, join(k), fx), True) for k in nt.keys if k in fx.groups])
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Optional
 
-from nerfify_ns.grammar.spec import Grammar, Param, Terminal, load_grammar
-from nerfify_ns.grammar.validate import ANNOTATIONS, METHOD_NAME
+from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Param, Terminal, load_grammar
+from nerfify_ns.grammar.validate import ANNOTATIONS, IDENTIFIER, METHOD_NAME, MODULE, duties_at
 
 _JSON_TYPES = {str: "string", dict: "object", list: "array"}
 
@@ -36,6 +36,13 @@ def param_schema(param: Param) -> Dict[str, Any]:
         return {"type": "string"}
     if param.type == "enum":
         return {"enum": list(param.values)}
+    if param.type == "str_list":
+        schema = {"type": "array", "items": {"type": "string"}}
+        if param.length:
+            schema["minItems"], schema["maxItems"] = param.length
+        return schema
+    if param.type == "mapping":
+        return {"type": "object", "propertyNames": {"pattern": IDENTIFIER.pattern}}
     item = _number(param, "integer" if param.type == "int_list" else "number")
     schema: Dict[str, Any] = {"type": "array", "items": item}
     if param.length:
@@ -44,8 +51,13 @@ def param_schema(param: Param) -> Dict[str, Any]:
 
 
 def _terminal_schema(term: Terminal) -> Dict[str, Any]:
-    return {"type": "object", "description": term.doc, "additionalProperties": False,
-            "properties": {name: param_schema(p) for name, p in term.params.items()}}
+    schema = {"type": "object", "description": term.doc, "additionalProperties": False,
+              "properties": {name: param_schema(p) for name, p in term.params.items()}}
+    if term.name == CUSTOM:  # a module inside the plugin and a class name (validate checks the same)
+        schema["properties"]["module"] = {"type": "string", "pattern": MODULE.pattern}
+        schema["properties"]["class"] = {"type": "string", "pattern": IDENTIFIER.pattern}
+        schema["required"] = ["module", "class"]
+    return schema
 
 
 def _ref(symbol: str) -> Dict[str, str]:
@@ -64,9 +76,16 @@ def _nonterminal_schema(g: Grammar, name: str) -> Dict[str, Any]:
         return {"type": "object", "description": nt.doc, "additionalProperties": False,
                 "properties": {s.name: _ref(s.symbol) for s in nt.slots},
                 "required": [s.name for s in nt.slots if not s.optional]}
+    if nt.kind == "open":
+        custom = {"type": "object", "properties": {CUSTOM: _ref(CUSTOM)}, "required": [CUSTOM],
+                  "additionalProperties": False}
+        return {"description": nt.doc, "oneOf": [custom, _ref(nt.terminal)]}
     keys = nt.keys if nt.kind == "map" else nt.members
-    return {"type": "object", "description": nt.doc, "additionalProperties": False,
-            "properties": {k: _ref(nt.value if nt.kind == "map" else k) for k in keys}}
+    schema = {"type": "object", "description": nt.doc, "additionalProperties": False,
+              "properties": {k: _ref(nt.value if nt.kind == "map" else k) for k in keys}}
+    if nt.custom:
+        schema["patternProperties"] = {CUSTOM_MEMBER.pattern: _ref(CUSTOM)}
+    return schema
 
 
 def _at(path: str, leaf: Dict[str, Any]) -> Dict[str, Any]:
@@ -117,9 +136,21 @@ def _duty_schema(g: Grammar, duty: dict) -> Dict[str, Any]:
     raise ValueError(f"unknown duty {rule}")
 
 
+def _custom_duties(g: Grammar) -> List[Dict[str, Any]]:
+    """Duties of custom components, per production (e.g. a custom sampler only under some bases)."""
+    clauses = []
+    for path, symbol in g.symbol_paths():
+        if symbol != CUSTOM:
+            continue
+        for duty in duties_at(g, path, CUSTOM):
+            clauses.append({"if": _at(path, {}), "then": _duty_schema(g, duty)})
+    return clauses
+
+
 def _duties(g: Grammar) -> List[Dict[str, Any]]:
     clauses = [{"if": _used(g, name), "then": _duty_schema(g, duty)}
                for name, term in g.terminals.items() for duty in term.duties]
+    clauses += _custom_duties(g)
     for key in g.nonterminals["Optimizers"].keys:
         providers = [name for name, term in g.terminals.items() if key in term.param_groups]
         clauses.append({"if": {"anyOf": [_used(g, p) for p in providers]},

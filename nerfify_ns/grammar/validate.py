@@ -13,13 +13,16 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.grammar.spec import Grammar, Nonterminal, Param, Terminal, load_grammar
+from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Nonterminal, Param, Terminal, load_grammar
 
 METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}$")
 ANNOTATIONS: Dict[str, type] = {
     "method": str, "description": str, "paper": dict, "evidence": dict, "pruned": list, "holes": list,
-    "notes": list,
+    "notes": list, "repairs": list,
 }
+IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+MODULE = re.compile(r"^components(\.[A-Za-z_][A-Za-z0-9_]*)+$")
+"""A custom component's module: inside the plugin's ``components`` package."""
 
 
 @dataclass(frozen=True)
@@ -83,7 +86,31 @@ def _in_range(param: Param, value: Any) -> bool:
     return (lo is None or value >= lo) and (hi is None or value <= hi)
 
 
+def _json_like(value: Any, depth: int = 0) -> bool:
+    """A value a plan may carry in a mapping parameter: numbers, strings, booleans, lists and mappings."""
+    if depth > 8:
+        return False
+    if value is None or isinstance(value, (bool, str)) or _is_number(value):
+        return True
+    if isinstance(value, list):
+        return all(_json_like(v, depth + 1) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and IDENTIFIER.match(k) and _json_like(v, depth + 1) for k, v in value.items())
+    return False
+
+
 def _check_param(d: Derivation, path: str, production: str, param: Param, value: Any) -> None:
+    if param.type == "mapping":
+        if not isinstance(value, dict) or not _json_like(value):
+            d.fail(path, production, "param_type", f"{param.name} must be a mapping of identifiers to numbers, "
+                   f"strings, booleans or lists, got {value!r}")
+        return
+    if param.type == "str_list":
+        if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+            d.fail(path, production, "param_type", f"{param.name} must be a list of strings, got {value!r}")
+        elif param.length and not param.length[0] <= len(value) <= param.length[1]:
+            d.fail(path, production, "param_length", f"{param.name} must have {param.length[0]}..{param.length[1]} items")
+        return
     if param.type in ("int_list", "float_list"):
         item_kind = param.type.split("_")[0]
         if not isinstance(value, list):
@@ -117,6 +144,18 @@ def _check_terminal(g: Grammar, d: Derivation, term: Terminal, value: Any, path:
                    f"{term.name} has no parameter {name!r} (it has: {', '.join(term.params) or 'none'})")
         else:
             _check_param(d, path, term.name, param, item)
+    if term.name == CUSTOM:
+        _check_custom(d, value, path)
+
+
+def _check_custom(d: Derivation, value: dict, path: str) -> None:
+    """A custom component names a module inside the plugin and a class: both must be identifiers."""
+    module, cls = value.get("module"), value.get("class")
+    if not isinstance(module, str) or not MODULE.match(module):
+        d.fail(path, CUSTOM, "custom_component",
+               f"module must be a module of the plugin's components package (e.g. components.my_head), got {module!r}")
+    if not isinstance(cls, str) or not IDENTIFIER.match(cls):
+        d.fail(path, CUSTOM, "custom_component", f"class must be a Python class name, got {cls!r}")
 
 
 def _check_mapping(d: Derivation, nt: Nonterminal, value: Any, path: str) -> bool:
@@ -156,7 +195,9 @@ def _check_choice(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path:
 def _check_set(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path: str) -> None:
     allowed = nt.keys if nt.kind == "map" else nt.members
     for key, inner in value.items():
-        if key not in allowed:
+        if nt.custom and isinstance(key, str) and CUSTOM_MEMBER.match(key):
+            _check_terminal(g, d, g.terminals[CUSTOM], inner, _join(path, key))
+        elif key not in allowed:
             d.fail(_join(path, key), nt.name, "unknown_member",
                    f"{key!r} is not allowed in {nt.name} (allowed: {', '.join(allowed)})")
         else:
@@ -178,8 +219,18 @@ def _check_symbol(g: Grammar, d: Derivation, symbol: str, value: Any, path: str)
         return
     if not _check_mapping(d, nt, value, path):
         return
-    {"sequence": _check_sequence, "choice": _check_choice, "set": _check_set, "map": _check_set}[nt.kind](
-        g, d, nt, value, path)
+    {"sequence": _check_sequence, "choice": _check_choice, "set": _check_set, "map": _check_set,
+     "open": _check_open}[nt.kind](g, d, nt, value, path)
+
+
+def _check_open(g: Grammar, d: Derivation, nt: Nonterminal, value: dict, path: str) -> None:
+    """An open slot: its terminal's parameters, or ``{custom: {...}}`` (a component of the plugin)."""
+    if set(value) == {CUSTOM}:
+        d.choices[path] = CUSTOM
+        _check_terminal(g, d, g.terminals[CUSTOM], value[CUSTOM], _join(path, CUSTOM))
+    else:
+        d.choices[path] = nt.terminal
+        _check_terminal(g, d, g.terminals[nt.terminal], value, path)
 
 
 # ---------------------------------------------------------------------------------- duties
@@ -213,9 +264,19 @@ def expected_param_groups(g: Grammar, d: Derivation) -> List[str]:
     return list(dict.fromkeys(groups))
 
 
+def duties_at(g: Grammar, path: str, term: str) -> tuple:
+    """The duties of the terminal used at ``path``: its own, and for a custom component its production's."""
+    if term != CUSTOM:
+        return g.terminals[term].duties
+    interface = g.interfaces.get(g.production_at(path) or "")
+    duties = getattr(interface, "duties", None) if interface is not None and not isinstance(interface, dict) \
+        else (interface or {}).get("duties")
+    return tuple(duties or ())
+
+
 def _check_duties(g: Grammar, d: Derivation, plan: dict) -> None:
     for path, term in d.used.items():
-        for duty in g.terminals[term].duties:
+        for duty in duties_at(g, path, term):
             problem = _duty_holds(g, d, plan, duty)
             if problem:
                 d.fail(path, term, next(iter(duty)), f"{term} {problem}")

@@ -28,6 +28,9 @@ def gbnf():
     return GbnfGrammar(to_gbnf())
 
 
+CUSTOM = {"module": "components.novel", "class": "NovelPart", "implements": ["Eq. 7"], "source": "hand"}
+
+
 def ref(name: str) -> dict:
     return copy.deepcopy(load_reference_plan(name))
 
@@ -73,6 +76,19 @@ VALID: Dict[str, dict] = {
         field(p).update(pos_encoding={"triplane": {"resolution": 64, "num_components": 16}}))),
     "no regulariser set at all": mutate("kplanes-static", lambda p: p["model"].pop("regularizers")),
     "integral float for an int": mutate("nerfacto", lambda p: p["trainer"].update(max_num_iterations=100.0)),
+    "random Fourier features": mutate("vanilla-nerf", lambda p: field(p).update(
+        pos_encoding={"fourier_features": {"num_frequencies": 128, "scale": 10.0}})),
+    "custom colour head, position encoding and loss": mutate("vanilla-nerf", lambda p: (
+        field(p).update(rgb_head={"custom": {**CUSTOM, "params": {"width": 32, "sizes": [1, 2]}}},
+                        pos_encoding={"custom": {**CUSTOM, "input_domain": "unit"}}),
+        p["model"]["losses"].update(rgb={"custom": CUSTOM}))),
+    "custom regularisers, renderer, density head, backbone": mutate("nerfacto", lambda p: (
+        p["model"].update(regularizers={"ray_entropy": {}, "custom": {**CUSTOM, "inputs": ["weights"]},
+                                        "custom_memory": {**CUSTOM, "weight": 0.1}},
+                          renderer={"custom": CUSTOM}),
+        field(p).update(density_head={"custom": CUSTOM}, backbone={"custom": CUSTOM}))),
+    "custom field and importance sampler": mutate("vanilla-nerf", lambda p: p["model"].update(
+        field={"custom": CUSTOM}, sampler={"custom": CUSTOM})),
 }
 
 # (rule the violation must name, plan)
@@ -82,7 +98,7 @@ INVALID: Dict[str, Tuple[str, dict]] = {
     "two alternatives": ("choice_arity", mutate("vanilla-nerf", lambda p: p["model"]["sampler"].update(
         proposal={}))),
     "unknown production": ("unknown_alternative", mutate("nerfacto", lambda p: field(p).update(
-        pos_encoding={"fourier_features": {}}))),
+        pos_encoding={"wavelet_features": {}}))),
     "unknown base": ("unknown_alternative", mutate("nerfacto", lambda p: p.update(base="nerf-w"))),
     "unknown regulariser": ("unknown_member", mutate("kplanes-static", lambda p: p["model"]["regularizers"].update(
         magic_tv={}))),
@@ -132,6 +148,20 @@ INVALID: Dict[str, Tuple[str, dict]] = {
         "camera_optimizer"))),
     "bad method name": ("method_name", mutate("nerfacto", lambda p: p.update(method="Nerfacto Ref"))),
     "annotation of the wrong type": ("annotation", mutate("nerfacto", lambda p: p.update(evidence=["a quote"]))),
+    "custom component outside the plugin": ("custom_component", mutate("nerfacto", lambda p: field(p).update(
+        rgb_head={"custom": {**CUSTOM, "module": "os.path"}}) or field(p)["rgb_head"]["custom"].update(
+        module="nerfstudio.fields"))),
+    "custom class not an identifier": ("custom_component", mutate("nerfacto", lambda p: field(p).update(
+        rgb_head={"custom": {**CUSTOM, "class": "__import__('os')"}}))),
+    "custom with an unknown key": ("unknown_param", mutate("nerfacto", lambda p: field(p).update(
+        rgb_head={"custom": {**CUSTOM, "code": "print(1)"}}))),
+    "custom params not a mapping of names": ("param_type", mutate("nerfacto", lambda p: field(p).update(
+        rgb_head={"custom": {**CUSTOM, "params": {"not a name": 1}}}))),
+    "custom sampler on a proposal base": ("requires_base", mutate("nerfacto", lambda p: (
+        p["model"].update(sampler={"custom": CUSTOM}), p["model"]["losses"].pop("interlevel"),
+        p["model"]["losses"].pop("distortion"), p["optimizers"].pop("proposal_networks")))),
+    "custom regulariser with a bad key": ("unknown_member", mutate("nerfacto", lambda p: p["model"].update(
+        regularizers={"customs": CUSTOM}))),
 }
 
 

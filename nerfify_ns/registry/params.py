@@ -1,0 +1,124 @@
+"""Typed terminal parameters: a dataclass per terminal, one field per parameter, as Nerfstudio's configs.
+
+    @dataclass
+    class Hash:
+        num_levels: int = param(16, range=(1, 32))
+        '''Number of resolution levels L.'''
+
+``param_specs(Hash)`` reads the type from the annotation (``int``, ``float``, ``bool``, ``str``,
+``Literal[...]`` for an enum, ``List[int]`` / ``List[float]`` / ``List[str]`` for lists, ``Dict[str, Any]``
+for a mapping), the default, range and list length from ``param(...)``, and the documentation from
+the docstring under the field (read from the class source, as tyro does).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import textwrap
+import typing
+from dataclasses import dataclass
+from typing import Any, Dict, Optional, Tuple
+
+PARAM_TYPES = ("int", "float", "bool", "str", "enum", "int_list", "float_list", "str_list", "mapping")
+
+_META = "nerfify"
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A typed terminal parameter: type, inclusive range, allowed values, list length, default, doc."""
+
+    name: str
+    type: str
+    default: Any = None
+    range: Optional[Tuple[Optional[float], Optional[float]]] = None
+    values: Tuple[Any, ...] = ()
+    length: Optional[Tuple[int, int]] = None
+    doc: str = ""
+
+    def to_data(self) -> dict:
+        """The parameter as the grammar export writes it."""
+        data: Dict[str, Any] = {"type": self.type}
+        if self.values:
+            data["values"] = list(self.values)
+        if self.length is not None:
+            data["length"] = list(self.length)
+        if self.range is not None:
+            data["range"] = list(self.range)
+        data["default"] = self.default
+        if self.doc:
+            data["doc"] = self.doc
+        return data
+
+
+def param(default: Any, *, range: Optional[Tuple[Optional[float], Optional[float]]] = None,
+          length: Optional[Tuple[int, int]] = None) -> Any:
+    """A dataclass field holding a terminal parameter: its default, numeric range and list length."""
+    meta = {_META: {"range": range, "length": length}}
+    if isinstance(default, (list, dict)):
+        value = default
+        return dataclasses.field(default_factory=lambda: _copy(value), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def _copy(value: Any) -> Any:
+    return [*value] if isinstance(value, list) else dict(value)
+
+
+def field_docs(cls: type) -> Dict[str, str]:
+    """The docstring written under each field of ``cls`` or of a base class it inherits the field from."""
+    docs: Dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if klass is not object:
+            docs.update(_own_field_docs(klass))
+    return docs
+
+
+def _own_field_docs(cls: type) -> Dict[str, str]:
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError, SyntaxError):
+        return {}
+    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+    docs: Dict[str, str] = {}
+    for node, after in zip(body, body[1:]):
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) \
+                and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) \
+                and isinstance(after.value.value, str):
+            docs[node.target.id] = " ".join(after.value.value.split())
+    return docs
+
+
+def _kind(annotation: Any) -> Tuple[str, Tuple[Any, ...]]:
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if annotation in (int, float, bool, str):
+        return annotation.__name__, ()
+    if origin is typing.Literal:
+        return "enum", tuple(args)
+    if origin in (list, tuple) and args:
+        item = args[0]
+        if item in (int, float, str):
+            return f"{item.__name__}_list", ()
+    if origin is dict or annotation is dict:
+        return "mapping", ()
+    raise TypeError(f"unsupported parameter annotation {annotation!r}")
+
+
+def param_specs(cls: type) -> Dict[str, ParamSpec]:
+    """The ParamSpecs of a parameter dataclass, in field order."""
+    hints = typing.get_type_hints(cls)
+    docs = field_docs(cls)
+    specs: Dict[str, ParamSpec] = {}
+    for f in dataclasses.fields(cls):
+        kind, values = _kind(hints[f.name])
+        meta = f.metadata.get(_META, {})
+        default = f.default_factory() if f.default_factory is not dataclasses.MISSING else f.default
+        rng = meta.get("range")
+        name = f.name.rstrip("_")  # `class_` is the parameter `class` (a Python keyword)
+        specs[name] = ParamSpec(name=name, type=kind, default=default, values=values,
+                                range=tuple(rng) if rng is not None else None,
+                                length=tuple(meta["length"]) if meta.get("length") else None,
+                                doc=docs.get(f.name, ""))
+    return specs

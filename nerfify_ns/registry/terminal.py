@@ -1,0 +1,133 @@
+"""One grammar terminal, defined once: production, typed parameters, card, implementation, the code it
+renders into a plugin, its contract as data, and how the ladder builds and runs it at small sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple
+
+from nerfify_ns.registry.contract import Contract
+from nerfify_ns.registry.params import ParamSpec, param_specs
+
+Build = Callable[[Dict[str, Any], Dict[str, Any]], Any]
+"""(small parameters, contract environment) -> the component (a module or a callable)."""
+Call = Callable[[Any, Dict[str, Any], Dict[str, Any]], Dict[str, Any]]
+"""(component, example inputs by contract name, environment: sizes, parameters and ``case``) -> outputs by
+contract name."""
+
+
+@dataclass(frozen=True)
+class Code:
+    """What the terminal renders into a generated plugin.
+
+    ``ctor`` is a Jinja2 expression over the parameters ``p`` building the component; ``expr`` is a
+    Jinja2 expression evaluated in the plugin (``{{ x }}`` is its input where it has one; a
+    regulariser's may use ``self``, ``outputs`` and ``batch``); ``imports`` are added to the file that
+    uses it; ``component`` names a module of ``nerfify_ns/components`` copied into the plugin;
+    ``traits`` are facts the templates read (``domain``, ``normalized_input``, ``times``, ...)."""
+
+    imports: Tuple[str, ...] = ()
+    ctor: Optional[str] = None
+    expr: Optional[str] = None
+    component: Optional[str] = None
+    traits: Dict[str, Any] = field(default_factory=dict)
+
+    def to_data(self) -> dict:
+        data = {k: v for k, v in (("imports", list(self.imports)), ("ctor", self.ctor), ("expr", self.expr),
+                                  ("component", self.component)) if v}
+        data.update(self.traits)
+        return data
+
+
+@dataclass(frozen=True)
+class Harness:
+    """How the contract and stability rungs run the terminal at small sizes.
+
+    ``build`` makes the component (default: evaluate ``code.ctor`` with its imports); ``call`` runs it on
+    the example inputs (default: the component called with the inputs in contract order, its result
+    named as the contract's single output); ``cases`` are the stiff cases that apply; ``small`` caps
+    parameters for a quick run. ``in_model``: the terminal lives inside a Nerfstudio model and is
+    checked through the assembled model only."""
+
+    build: Optional[Build] = None
+    call: Optional[Call] = None
+    cases: Tuple[str, ...] = ()
+    small: Dict[str, int] = field(default_factory=dict)
+    in_model: bool = False
+
+
+@dataclass(frozen=True)
+class TerminalDef:
+    """A grammar terminal and everything the stages need to know about it."""
+
+    name: str
+    production: str
+    """The nonterminal this terminal is an alternative or member of (or whose slot it fills)."""
+    params: Optional[type]
+    """The dataclass of the terminal's parameters (None: no parameters)."""
+    doc: str
+    implementation: str
+    """The Nerfstudio class or function, or the component of ours, that implements the technique."""
+    card: Optional[str] = None
+    """The knowledge-base card of the technique."""
+    contract: Contract = field(default_factory=Contract)
+    code: Code = field(default_factory=Code)
+    harness: Harness = field(default_factory=Harness)
+    duties: Tuple[Dict[str, Any], ...] = ()
+    param_groups: Tuple[str, ...] = ()
+    config: Dict[str, Dict[str, str]] = field(default_factory=dict)
+    """Per base model: parameter -> field of the base's Nerfstudio model config."""
+    config_class: Optional[str] = None
+    input_domain: Optional[str] = None
+
+    @property
+    def param_specs(self) -> Dict[str, ParamSpec]:
+        return param_specs(self.params) if self.params is not None else {}
+
+    def defaults(self) -> Dict[str, Any]:
+        return {name: p.default for name, p in self.param_specs.items()}
+
+    def with_defaults(self, given: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+        """The terminal's parameters: the plan's values over the defaults."""
+        return {**self.defaults(), **dict(given or {})}
+
+    def small(self, given: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+        """The parameters shrunk for a quick contract/stability run (the structure kept)."""
+        p = self.with_defaults(given)
+        for key, cap in self.harness.small.items():
+            value = p.get(key)
+            if isinstance(value, list):
+                p[key] = [min(int(v), cap) for v in value]
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                p[key] = type(value)(min(value, cap))
+        return p
+
+    def to_grammar_data(self) -> dict:
+        """The terminal as ``grammar_spec.yaml`` writes it (an export of this definition)."""
+        data: Dict[str, Any] = {"doc": self.doc, "production": self.production,
+                                "implementation": self.implementation}
+        for key in ("config_class", "card", "input_domain"):
+            if getattr(self, key):
+                data[key] = getattr(self, key)
+        if self.param_groups:
+            data["param_groups"] = list(self.param_groups)
+        if self.params is not None:
+            data["params"] = {name: spec.to_data() for name, spec in self.param_specs.items()}
+        if self.config:
+            data["config"] = {k: dict(v) for k, v in self.config.items()}
+        if not self.contract.empty:
+            data["contract"] = self.contract.to_data()
+        if self.duties:
+            data["duties"] = [dict(d) for d in self.duties]
+        code = self.code.to_data()
+        if code:
+            data["code"] = code
+        if self.harness.cases:
+            data["cases"] = list(self.harness.cases)
+        return data
+
+
+def replace(defn: TerminalDef, **changes: Any) -> TerminalDef:
+    """A copy of ``defn`` with some fields changed (tests corrupt contracts with it)."""
+    return dataclasses.replace(defn, **changes)

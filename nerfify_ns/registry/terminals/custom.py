@@ -1,0 +1,186 @@
+"""The ``custom`` alternative: a component of the plugin that implements a production's interface.
+
+A paper's novel part lives here: ``custom: {module, class, params, implements, source, evidence}``
+names a class inside the generated plugin (``<package>.<module>``). The composer builds it where the
+production's terminal would be; the ladder builds it the same way and checks it against the
+production's contract (``INTERFACES``), like any terminal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Dict, List, Literal, Tuple
+
+from nerfify_ns.registry.contract import Contract, T
+from nerfify_ns.registry.examples import (COMPOSITE_CASES, DENSITY_CASES, DIRECTION_CASES, POINT_CASES, RAY_CASES,
+                                          VALUE_CASES)
+from nerfify_ns.registry.params import param
+from nerfify_ns.registry.terminal import Call, TerminalDef
+
+
+@dataclass
+class Custom:
+    module: str = param("components.custom")
+    """Dotted module inside the plugin package that defines the class (e.g. ``components.sh_head``)."""
+    class_: str = param("Component")
+    """The class implementing the production's interface."""
+    params: Dict[str, Any] = param({})
+    """Constructor arguments of the class (beyond those the interface passes)."""
+    implements: List[str] = param([])
+    """The paper's equations the component implements (e.g. ``Eq. 7``)."""
+    source: Literal["compiler", "model", "hand"] = param("hand")
+    """Who wrote the component: the equation compiler, a language model, or a person."""
+    evidence: str = param("")
+    """Where in the paper the part is described (quote, section, page)."""
+    input_domain: Literal["raw", "unit", "signed_unit"] = param("signed_unit")
+    """Position encodings only: the domain the component expects its positions in."""
+    weight: float = param(1.0, range=(0.0, 100.0))
+    """Regularisers only: weight of the term in the total loss."""
+    inputs: List[str] = param(["weights"])
+    """Regularisers only: what the term reads (``weights`` of the rays, ``densities`` of the samples)."""
+
+
+@dataclass(frozen=True)
+class Interface:
+    """What a component of one production takes and returns: constructor arguments the composer passes
+    (beyond ``params``), the contract, how the ladder calls it, and the stiff cases that apply."""
+
+    production: str
+    doc: str
+    ctor: Tuple[str, ...]
+    contract: Contract
+    call: Call
+    cases: Tuple[str, ...] = ()
+    out_dim: bool = False
+    """The component reports its output width through ``get_out_dim()``."""
+    duties: Tuple[Dict[str, Any], ...] = ()
+    """Duties of a custom component in this production (as a terminal's)."""
+
+    def contract_for(self, params: Dict[str, Any]) -> Contract:
+        """The contract, with the position range of the component's input domain where it has one."""
+        if self.production != "PosEncoding":
+            return self.contract
+        rng = DOMAIN_RANGES[params.get("input_domain", "signed_unit")]
+        positions = T("[N, 3]", range=rng, grad=True, role="positions", doc="sample positions")
+        return Contract({"positions": positions}, self.contract.outputs)
+
+    def to_data(self) -> dict:
+        data = {"doc": self.doc, "ctor": list(self.ctor), "contract": self.contract.to_data(),
+                "cases": list(self.cases)}
+        if self.duties:
+            data["duties"] = [dict(d) for d in self.duties]
+        return data
+
+
+DOMAIN_RANGES = {"raw": (None, None), "unit": (0.0, 1.0), "signed_unit": (-1.0, 1.0)}
+
+
+def _one(inp: str, out: str) -> Call:
+    def call(module, inputs, env):
+        x = inputs[inp]
+        return {out: module.to(x.dtype)(x) if hasattr(module, "to") else module(x)}
+
+    return call
+
+
+def _density_head(module, inputs, env):
+    density, geo = module(inputs["hidden"])
+    return {"density": density, "geo_features": geo}
+
+
+def _renderer(module, inputs, env):
+    ray_samples, densities = inputs["ray_samples"]
+    inputs["densities"] = densities
+    return {"rgb": module(rgb=inputs["rgb"], weights=ray_samples.get_weights(densities))}
+
+
+def _loss(module, inputs, env):
+    return {"loss": module(inputs["pred"], inputs["target"])}
+
+
+def _regularizer(module, inputs, env):
+    return {"loss": module(**{k: inputs[k] for k in env["inputs"] if k in inputs})}
+
+
+def _sampler(module, inputs, env):
+    import torch
+    from nerfstudio.model_components.ray_samplers import UniformSampler
+
+    bundle = inputs["ray_bundle"]
+    coarse = UniformSampler(num_samples=int(env["S"]))(bundle)
+    weights = torch.rand(bundle.origins.shape[0], int(env["S"]), 1).requires_grad_(True)
+    samples = module(bundle, coarse, weights)
+    return {"ray_samples": torch.cat([samples.frustums.starts, samples.frustums.ends], -1)}
+
+
+def _field(module, inputs, env):
+    import torch
+    from nerfstudio.field_components.field_heads import FieldHeadNames
+    from nerfstudio.model_components.ray_samplers import UniformSampler
+
+    samples = UniformSampler(num_samples=int(env["S"]))(inputs["ray_bundle"])
+    samples.camera_indices = torch.zeros(*samples.shape, 1, dtype=torch.long)
+    out = module(samples)
+    return {"density": out[FieldHeadNames.DENSITY], "rgb": out[FieldHeadNames.RGB]}
+
+
+FEATURES = {"features": T("[N, out_dim]", doc="encoded features (width: the component's get_out_dim())")}
+LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
+RAYS = {"ray_bundle": T("[R]", "rays", role="rays")}
+
+INTERFACES: Dict[str, Interface] = {i.production: i for i in [
+    Interface("PosEncoding", "forward(positions [N, 3]) -> [N, get_out_dim()]", (),
+              Contract({"positions": T("[N, 3]", range=(-1.0, 1.0), grad=True, role="positions")}, FEATURES),
+              _one("positions", "features"), POINT_CASES, out_dim=True),
+    Interface("DirEncoding", "forward(directions [N, 3]) -> [N, get_out_dim()]", (),
+              Contract({"directions": T("[N, 3]", grad=True, role="directions")}, FEATURES),
+              _one("directions", "features"), DIRECTION_CASES, out_dim=True),
+    Interface("Backbone", "__init__(in_dim, out_dim=None, ...); forward(features [N, in_dim]) -> [N, get_out_dim()]",
+              ("in_dim", "out_dim"),
+              Contract({"features": T("[N, in_dim]", grad=True)}, {"hidden": T("[N, out_dim]")}),
+              _one("features", "hidden"), ("values_1e8", "empty_batch"), out_dim=True),
+    Interface("DensityHead", "__init__(in_dim, ...); forward(hidden [N, in_dim]) -> (density [N, 1] >= 0, "
+              "geometry features [N, get_out_dim()])", ("in_dim",),
+              Contract({"hidden": T("[N, in_dim]", grad=True, role="pre_density")},
+                       {"density": T("[N, 1]", range=(0.0, None)), "geo_features": T("[N, out_dim]")}),
+              _density_head, DENSITY_CASES, out_dim=True),
+    Interface("RGBHead", "__init__(in_dim, ...); forward(features [N, in_dim]) -> rgb [N, 3] in [0, 1]", ("in_dim",),
+              Contract({"features": T("[N, in_dim]", grad=True)}, {"rgb": T("[N, 3]", range=(0.0, 1.0))}),
+              _one("features", "rgb"), ("values_1e8", "empty_batch")),
+    Interface("SpatialDistortion", "forward(positions [N, 3]) -> positions [N, 3] with norm < 2", (),
+              Contract({"positions": T("[N, 3]", grad=True, role="positions")},
+                       {"positions": T("[N, 3]", range=(-2.0, 2.0))}),
+              _one("positions", "positions"), POINT_CASES),
+    Interface("TensorDecomposition", "__init__(resolution, num_components, ...); forward(positions [N, 3] in [-1, 1]) "
+              "-> [N, get_out_dim()]; upsample_grid(resolution)", ("resolution", "num_components"),
+              Contract({"positions": T("[N, 3]", range=(-1.0, 1.0), grad=True, role="positions")}, FEATURES),
+              _one("positions", "features"), POINT_CASES, out_dim=True),
+    Interface("Sampler", "__init__(num_samples, ...); forward(ray_bundle, coarse ray_samples, weights [R, S, 1]) -> "
+              "RaySamples [R, K] (the base's importance sampler)", ("num_samples",),
+              Contract(RAYS, {"ray_samples": T("[R, K, 2]")}, free=("K",)), _sampler, RAY_CASES,
+              duties=({"requires_base": ["vanilla-nerf", "mipnerf", "tensorf"]},)),
+    Interface("Renderer", "__init__(background_color, ...); forward(rgb=[R, S, 3], weights=[R, S, 1]) -> rgb [R, 3]",
+              ("background_color",),
+              Contract({"ray_samples": T("[R, S]", "samples", role="samples"),
+                        "rgb": T("[R, S, 3]", range=(0.0, 1.0), grad=True)},
+                       {"rgb": T("[R, 3]", range=(0.0, 1.0))}), _renderer, COMPOSITE_CASES),
+    Interface("RGBLoss", "forward(pred [R, 3], target [R, 3]) -> scalar >= 0", (),
+              Contract({"pred": T("[R, 3]", range=(0.0, 1.0), grad=True), "target": T("[R, 3]", range=(0.0, 1.0))},
+                       LOSS), _loss, VALUE_CASES),
+    Interface("Regularizers", "forward(**inputs) -> scalar >= 0; inputs from `inputs`: weights [R, S, 1] (the "
+              "rays' weights), densities [R, S, 1] (sigma at the samples)", (),
+              Contract({"weights": T("[R, S, 1]", range=(0.0, 1.0), grad=True, role="weights"),
+                        "densities": T("[R, S, 1]", range=(0.0, 5.0), grad=True, role="densities")}, LOSS),
+              _regularizer, VALUE_CASES),
+    Interface("Field", "a nerfstudio Field: __init__(aabb, num_images, ...); forward(ray_samples [R, S]) -> "
+              "{DENSITY: [R, S, 1] >= 0, RGB: [R, S, 3] in [0, 1]}", ("aabb", "num_images"),
+              Contract(RAYS, {"density": T("[R, S, 1]", range=(0.0, None)),
+                              "rgb": T("[R, S, 3]", range=(0.0, 1.0))}), _field, RAY_CASES),
+]}
+"""The interface of every production that accepts ``custom``."""
+
+TERMINALS = [
+    TerminalDef("custom", "*", Custom,
+                "A component of the plugin implementing the production's interface (a paper's novel part).",
+                "<the plugin's own module>"),
+]
