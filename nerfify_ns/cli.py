@@ -4,18 +4,22 @@ from __future__ import annotations
 
 import json
 import sys
-import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional, Union
 
+import rich.markup
+import rich.progress
 import tyro
 from rich.console import Console
 from rich.table import Table
-from typing_extensions import Annotated
+from typing_extensions import Annotated, Literal
 
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.report_command import Report
+from nerfify_ns.outcome import NOT_RUN, Outcome, Progress
+from nerfify_ns.runlog import quiet_console
 from nerfify_ns.verify.command import Verify
 
 
@@ -25,30 +29,55 @@ class UsageError(NerfifyError):
 CONSOLE = Console(width=120)
 
 
-class Stages:
-    """Rich progress of a multi-stage run: a spinner on the current stage, a line per finished one."""
+class ConsoleProgress(Progress):
+    """What a user sees of a run, as ``ns-*`` commands show it: a rich progress bar with an ETA for the current
+    stage (steps when the stage reports them: training iterations, checkpoints), one line per finished stage,
+    one red line naming a failed stage and its reason. Nothing else reaches the terminal (see ``runlog``)."""
 
-    def __init__(self, title: str) -> None:
-        self.title, self.current, self.started = title, None, 0.0
+    def __init__(self, console: Console = CONSOLE) -> None:
+        self.console, self.task = console, None
+        self.bars = rich.progress.Progress(
+            rich.progress.SpinnerColumn(), rich.progress.TextColumn("[bold yellow]{task.description}"),
+            rich.progress.BarColumn(), rich.progress.MofNCompleteColumn(), rich.progress.TimeElapsedColumn(),
+            rich.progress.TextColumn("ETA"), rich.progress.TimeRemainingColumn(), console=console, transient=True)
 
-    def __enter__(self) -> "Stages":
-        self.status = CONSOLE.status(f"[bold yellow]{self.title}")
-        self.status.__enter__()
+    def __enter__(self) -> "ConsoleProgress":
+        self.bars.start()
         return self
 
-    def __call__(self, stage: str) -> None:
-        self._finish()
-        self.current, self.started = stage, time.monotonic()
-        self.status.update(f"[bold yellow]{stage}")
+    def __exit__(self, *exc) -> None:
+        self._drop()
+        self.bars.stop()
 
-    def _finish(self) -> None:
-        if self.current is not None:
-            CONSOLE.print(f"[green]done[/green] {self.current} ({time.monotonic() - self.started:.1f} s)")
+    def _drop(self) -> None:
+        if self.task is not None:
+            self.bars.remove_task(self.task)
+            self.task = None
 
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self._finish()
-        self.status.__exit__(exc_type, exc, tb)
+    def start(self, stage: str, label: str, total: Optional[int] = None) -> None:
+        self._drop()
+        self.task = self.bars.add_task(label, total=total)
+
+    def advance(self, done: int, total: Optional[int] = None) -> None:
+        if self.task is not None:
+            self.bars.update(self.task, completed=done, **({"total": total} if total is not None else {}))
+
+    def note(self, text: str) -> None:
+        if self.task is not None:
+            self.bars.update(self.task, description=text)
+
+    def finish(self, stage: str, summary: str, seconds: float) -> None:
+        self._drop()
+        text = rich.markup.escape(f"{stage}: {summary}" if summary else stage)
+        self.console.print(f"[green]done[/green] {text} ({seconds:.1f} s)", soft_wrap=True, highlight=False)
+
+    def fail(self, stage: str, reason: str, seconds: float) -> None:
+        self._drop()
+        self.console.print(f"[bold red]failed[/bold red] [red]{stage}: {rich.markup.escape(reason)}[/red]",
+                           soft_wrap=True, highlight=False)
+
+    def abandon(self, stage: str) -> None:
+        self._drop()
 
 
 def _set_lpips(path: Optional[Path]) -> None:
@@ -82,9 +111,9 @@ class Demo:
         from nerfify_ns.pipeline import run_demo
 
         _set_lpips(self.lpips_weights)
-        with Stages("nerfify demo") as stages:
+        with ConsoleProgress() as progress:
             result = run_demo(self.out, method=self.method, scene=self.scene, data=self.data,
-                              iterations=self.iterations, overwrite=self.overwrite, progress=stages)
+                              iterations=self.iterations, overwrite=self.overwrite, progress=progress)
         summary = result.smoke.summary()
         table = Table(title=f"{self.method} on the CPU, {summary['iterations']} iterations")
         table.add_column("metric")
@@ -97,11 +126,16 @@ class Demo:
         CONSOLE.print(f"outputs: {result.out}  (scene: {result.scene}, Nerfstudio config: {summary['config']})")
 
 
+Stage = Literal["plan", "plugin", "verify", "train"]
+
+
 @dataclass
 class Paper:
     """The main job: a NeRF paper (.pdf, .tex, a LaTeX folder or tarball, .md, .txt) -> a plan with evidence for
     every choice -> a pip-installable Nerfstudio plugin -> verification ladder -> training on the CPU with
-    error against time -> evaluation maps -> report.html, all in nerfify-out/<method>/. No network, no LLM."""
+    error against time -> evaluation maps -> report.html, all in nerfify-out/<method>/. No network, no LLM.
+    Exit code 0: every stage that ran passed; 1: a stage failed (the output folder and its report say which and
+    why); 2: bad input (nothing written)."""
 
     paper: tyro.conf.Positional[Path]
     """The paper to implement."""
@@ -111,10 +145,15 @@ class Paper:
     """Train on this Blender-format scene instead of rendering the bundled one."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
-    iterations: int = 200
+    iterations: int = PAPER_BUDGET.iterations
     """Training iterations for the evaluation run."""
-    every: int = 50
-    """Checkpoint cadence of the error-against-time curve (iterations)."""
+    every: int = PAPER_BUDGET.every
+    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
+    smoke_iterations: int = PAPER_BUDGET.smoke_iterations
+    """Iterations of the verification ladder's smoke-training rung."""
+    until: Optional[Stage] = None
+    """Stop after this stage (plan, plugin, verify or train); the output folder and its report are still written
+    and say which stages ran."""
     dry_run: bool = False
     """Stop after the plan: print it with its evidence and holes, write nothing."""
     keep_all: bool = False
@@ -130,38 +169,57 @@ class Paper:
         from nerfify_ns.pipeline import run_paper
 
         _set_lpips(self.lpips_weights)
-        with Stages("nerfify") as stages:
-            result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, iterations=self.iterations,
-                               every=self.every, dry_run=self.dry_run, keep_all=self.keep_all,
-                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=stages)
+        budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
+                         smoke_iterations=self.smoke_iterations)
+        with ConsoleProgress() as progress:
+            result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
+                               until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
+                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress)
         _print_plan(result)
         if result.out is not None:
-            CONSOLE.print(f"outputs: {result.out}  (report: {result.out / 'report.html'})")
+            _conclude(result.outcome, result.out)
+
+
+def _conclude(outcome: Outcome, out: Path) -> None:
+    """Where the outputs are, what was not run, and exit code 1 when a stage failed (its line is printed)."""
+    stopped = [r.name for r in outcome.records if r.status == NOT_RUN and r.reason.startswith("stopped")]
+    if stopped:
+        CONSOLE.print(f"stopped after {outcome.until} (--until {outcome.until}); not run: {', '.join(stopped)}")
+    CONSOLE.print(f"outputs: {out}  (report: {out / 'report.html'}, log: {out / 'nerfify.log'})", soft_wrap=True)
+    if outcome.failed is not None:
+        raise SystemExit(1)
 
 
 def _print_plan(result) -> None:
+    """The paper's plan: its base and holes; for a dry run also the evidence of every entry and the plan."""
     import yaml
 
     derived = result.derived
-    CONSOLE.print(f"[bold]{result.document.title or result.document.source}[/bold]: base {derived.base} ({derived.base_reason})")
-    table = Table(title="evidence", show_lines=False)
-    table.add_column("plan entry")
-    table.add_column("from")
-    for path, line in sorted((result.plan.get("evidence") or {}).items()):
-        table.add_row(path, str(line))
-    CONSOLE.print(table)
-    for hole in derived.holes:
-        CONSOLE.print(f"[bold red]hole[/bold red] {hole['production']} ({hole['slot']}): not implemented; "
-                      f"{hole.get('stands_in', '')}")
+    title = rich.markup.escape(str(result.document.title or result.document.source))
+    CONSOLE.print(f"[bold]{title}[/bold]: {rich.markup.escape(f'base {derived.base} ({derived.base_reason})')}",
+                  highlight=False)
     if result.out is None:
-        CONSOLE.print(yaml.safe_dump(result.plan, sort_keys=False, width=110))
+        table = Table(title="evidence", show_lines=False)
+        table.add_column("plan entry")
+        table.add_column("from")
+        for path, line in sorted((result.plan.get("evidence") or {}).items()):
+            table.add_row(path, str(line))
+        CONSOLE.print(table)
+    for hole in derived.holes:
+        text = f"{hole['production']} ({hole['slot']}): not implemented; {hole.get('stands_in', '')}"
+        CONSOLE.print(f"[bold red]hole[/bold red] {rich.markup.escape(text)}", highlight=False)
+    if result.out is None:
+        CONSOLE.print(yaml.safe_dump(dict(result.plan), sort_keys=False, width=110), highlight=False, markup=False)
 
 
 @dataclass
 class Compose:
-    """Plan -> validate against the grammar -> prune for the scene -> generate a pip-installable plugin ->
-    smoke-train it with Nerfstudio's trainer on a bundled scene (or --data) -> print a summary.
-    Afterwards `ns-train nerfify-generated` trains it, or `pip install -e OUT` registers it by name."""
+    """Plan -> validate against the grammar -> prune for the scene -> generate a pip-installable plugin -> the
+    same sandboxed verification ladder as 'ns-nerfify PAPER' (static, contract, stability, smoke) -> only if it
+    passes, train with Nerfstudio's trainer on a bundled scene (or --data) and evaluate -> report. The default
+    budget fits a CPU (about 2 minutes); --iterations and --every train longer. Afterwards
+    `ns-train nerfify-generated` trains it, or `pip install -e OUT` registers it by name. Exit codes as for
+    'ns-nerfify PAPER' (1: a stage failed, the folder is still written; 2: bad input, nothing written)."""
 
     plan: tyro.conf.Positional[Optional[Path]] = None
     """A plan YAML (a derivation of grammar_spec.yaml); or use --method."""
@@ -174,12 +232,20 @@ class Compose:
     """Train on this Blender-format scene instead of rendering one."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
-    iterations: int = 100
-    """Smoke-training iterations."""
+    iterations: int = COMPOSE_BUDGET.iterations
+    """Training iterations of the evaluation run."""
+    every: int = COMPOSE_BUDGET.every
+    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
+    smoke_iterations: int = COMPOSE_BUDGET.smoke_iterations
+    """Iterations of the verification ladder's smoke-training rung."""
+    train: bool = True
+    """Train and evaluate the plugin once the ladder passed (--no-train stops after the ladder)."""
+    until: Optional[Stage] = None
+    """Stop after this stage (plan, plugin, verify or train); the folder and its report are still written."""
     keep_all: bool = False
     """Do not prune the plan for the scene (keep contraction, appearance codes, sizes...)."""
-    no_train: bool = False
-    """Generate the plugin only."""
+    patch_rounds: int = 0
+    """Rounds of the visual-feedback patch loop after the first evaluation."""
     overwrite: bool = False
     """Replace an existing output folder."""
 
@@ -192,25 +258,36 @@ class Compose:
             raise UsageError("give a plan file or --method NAME (one of them)")
         plan = load_plan(self.plan) if self.plan is not None else load_reference_plan(self.method)
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
-        with Stages("nerfify compose") as stages:
-            result = run_compose(plan, out, data=self.data, scene=self.scene, iterations=self.iterations,
-                                 keep_all=self.keep_all, train=not self.no_train, overwrite=self.overwrite,
-                                 progress=stages)
+        budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
+                         smoke_iterations=self.smoke_iterations)
+        with ConsoleProgress() as progress:
+            result = run_compose(plan, out, data=self.data, scene=self.scene, budget=budget, until=self._until(),
+                                 keep_all=self.keep_all, patch_rounds=self.patch_rounds, overwrite=self.overwrite,
+                                 progress=progress)
         _print_compose(result)
+        _conclude(result.outcome, result.out)
+
+    def _until(self) -> Optional[str]:
+        """``--until``, or ``verify`` for --no-train (whichever stops first)."""
+        if self.train or self.until in ("plan", "plugin", "verify"):
+            return self.until
+        return "verify"
 
 
 def _print_compose(result) -> None:
     table = Table(title=f"{result.plan['method']} (base {result.plan['base']})", show_header=False)
     table.add_row("plugin", str(result.out))
-    table.add_row("files", ", ".join(result.plugin.files))
+    table.add_row("files", ", ".join(result.files) or "-")
     for item in result.plan.get("pruned") or []:
         table.add_row(f"pruned {item['path']}", f"{item['action']} -> {item['to']}: {item['reason']}")
-    if result.smoke is not None:
-        for key, value in result.smoke.summary().items():
+    for key in ("psnr", "ssim", "lpips", "iterations_done", "seconds", "eval_seconds"):
+        value = (result.summary or {}).get(key)
+        if value is not None:
             table.add_row(key, f"{value:.4g}" if isinstance(value, float) else str(value))
     CONSOLE.print(table)
-    CONSOLE.print(f"train it: ns-train nerfify-generated --data DATA   or   pip install -e {result.out} && "
-                  f"ns-train {result.plan['method']} --data DATA")
+    if result.files:
+        CONSOLE.print(f"train it: ns-train nerfify-generated --data DATA   or   pip install -e {result.out} && "
+                      f"ns-train {result.plan['method']} --data DATA")
 
 
 @dataclass
@@ -320,6 +397,7 @@ SUBCOMMANDS = ("paper", "compose", "verify", "report", "grammar", "demo", "scene
 
 def entrypoint() -> None:
     """Console script ``ns-nerfify``."""
+    quiet_console()  # before anything heavy is imported: warnings go to the run's log, not the terminal
     tyro.extras.set_accent_color("bright_yellow")
     args = sys.argv[1:]
     if args and not args[0].startswith("-") and args[0] not in SUBCOMMANDS:

@@ -1,9 +1,15 @@
 """The whole nerfify flow on one screen.
 
-    paper -> knowledge -> plan (grammar) -> prune for the scene -> compose plugin -> verify -> train/evaluate -> report
+    paper -> knowledge -> plan (grammar) -> prune for the scene -> plugin -> verify -> train/evaluate -> report
 
-``run_compose`` starts from a plan (a file or a reference plan); ``run_demo`` smoke-trains a
-built-in method. Every run writes its output folder atomically.
+``run_paper`` starts from a paper, ``run_compose`` from a plan (a file or a reference plan); both then go
+through :func:`_build`, the same stages in the same order: the plan fitted to the scene, the plugin, the
+sandboxed verification ladder (static, contract, stability, smoke), training and evaluation only when the
+ladder passed, the patch loop, the report. ``until`` stops after a stage. A stage that fails (verification,
+training, evaluation) is recorded and the later ones are not run; the output folder is still written, with
+``run.json`` (which stages ran, failed or were not run, and why), ``nerfify.log`` (warnings and other
+packages' output) and the report. ``run_demo`` smoke-trains a built-in method. Every run writes its output
+folder atomically.
 """
 
 from __future__ import annotations
@@ -11,32 +17,31 @@ from __future__ import annotations
 import json
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Tuple
 
 from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
-from nerfify_ns.evaluate.smoke import (GENERATED, SmokeResult, SmokeTrainError, generated_env, generated_smoke_args,
-                                       smoke_train)
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.grammar import validate
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
+from nerfify_ns.outcome import Outcome, Progress, Stage
 from nerfify_ns.paper import Document, clean_markdown, ingest, key_terms_report, require_nerf_paper
+from nerfify_ns.plan import Plan
+from nerfify_ns.runlog import run_log
 from nerfify_ns.scenes import write_scene
-from nerfify_ns.synthesis.compose import ComposedPlugin, write_plugin
+from nerfify_ns.synthesis.compose import write_plugin
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.registry import record_generated
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
-Progress = Callable[[str], None]
-
-
-@dataclass
-class DemoResult:
-    out: Path
-    scene: Path
-    smoke: SmokeResult
+LOG_FILE = "nerfify.log"
+"""The run's log in its output folder: warnings and other packages' output, stage by stage."""
 
 
 @dataclass
@@ -46,7 +51,18 @@ class PaperResult:
     derived: DerivedPlan
     graph: CitationGraph
     plan: dict
-    stages: dict
+    outcome: Outcome
+    summary: Optional[dict] = None
+    """The evaluation's summary (eval/summary.json) when training ran."""
+
+
+@dataclass
+class ComposeResult:
+    out: Path
+    plan: dict
+    outcome: Outcome
+    files: list
+    summary: Optional[dict] = None
 
 
 def run_paper(
@@ -55,32 +71,166 @@ def run_paper(
     *,
     data: Optional[Path] = None,
     scene: str = "default",
-    iterations: int = 200,
-    every: int = 50,
+    budget: Optional[Budget] = None,
+    until: Optional[str] = None,
     dry_run: bool = False,
     keep_all: bool = False,
     patch_rounds: int = 0,
     overwrite: bool = False,
-    progress: Progress = lambda stage: None,
+    progress: Progress = Progress(),
 ) -> PaperResult:
-    """Paper -> plan with evidence -> (unless dry_run) plugin, verification, training, evaluation, report."""
-    progress(f"reading {Path(paper).name}")
-    doc = ingest(paper)
-    require_nerf_paper(doc)
-    progress("detecting techniques and recovering what the paper borrows from its citations")
-    detections = detect_techniques(doc)
-    graph = build_citation_graph(doc, detections)
-    derived = derive_plan(doc, detections, graph)
+    """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``."""
+    outcome = Outcome("paper", until, progress)
+    with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
+        doc = ingest(paper)
+        require_nerf_paper(doc)
+        detections = detect_techniques(doc)
+        graph = build_citation_graph(doc, detections)
+        derived = derive_plan(doc, detections, graph)
+        stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
+                         f"{len(derived.holes)} hole(s)")
     if dry_run:
-        return PaperResult(out=None, document=doc, derived=derived, graph=graph, plan=derived.plan, stages={})
+        return PaperResult(None, doc, derived, graph, derived.plan, outcome)
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
-    with atomic_dir(final, overwrite) as staging:
+    with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
-        plan, data, _ = _plugin_for_scene(derived.plan, staging, data, scene, keep_all, progress)
-        stages = _verify_train_report(staging, data, plan, iterations, every, patch_rounds, progress)
+        plan, summary = _build(derived.plan, staging, data, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
+                               outcome)
         _rewrite_saved_paths(staging, final)
-    record_generated(final)
-    return PaperResult(out=final, document=doc, derived=derived, graph=graph, plan=plan, stages=stages)
+    _remember(final, outcome)
+    return PaperResult(final, doc, derived, graph, plan, outcome, summary)
+
+
+def run_compose(
+    plan: dict,
+    out: Path,
+    *,
+    data: Optional[Path] = None,
+    scene: str = "default",
+    budget: Optional[Budget] = None,
+    until: Optional[str] = None,
+    keep_all: bool = False,
+    patch_rounds: int = 0,
+    overwrite: bool = False,
+    progress: Progress = Progress(),
+) -> ComposeResult:
+    """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``."""
+    outcome = Outcome("compose", until, progress)
+    validate(plan)  # a plan the grammar rejects is bad input: nothing is written
+    final = Path(out).absolute()
+    with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
+        plan, summary = _build(plan, staging, data, scene, keep_all, budget or COMPOSE_BUDGET, patch_rounds,
+                               outcome)
+        files = _plugin_files(staging)
+        _rewrite_saved_paths(staging, final)
+    _remember(final, outcome)
+    return ComposeResult(final, plan, outcome, files, summary)
+
+
+def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool, budget: Budget,
+           patch_rounds: int, outcome: Outcome) -> Tuple[dict, Optional[dict]]:
+    """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
+    passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary."""
+    from nerfify_ns.evaluate.run_eval import evaluate_run
+    from nerfify_ns.verify import run_ladder
+
+    with outcome.stage("plan", "fitting the plan to the scene") as stage:
+        plan, data = _plan_for_scene(plan, folder, data, scene, keep_all, budget, stage)
+    if outcome.wants("plugin"):
+        with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
+            stage.summary = f"{len(write_plugin(plan, folder).files)} files"
+    if outcome.wants("verify"):
+        with outcome.stage("verify", "verification ladder (static, contract, stability, smoke; sandboxed)",
+                           failures=(NerfifyError,)) as stage:
+            ladder = run_ladder(folder, scene=data, out_dir=folder / "verify", timeout=budget.timeout,
+                                smoke_iterations=budget.smoke_iterations)
+            (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
+            _judge_ladder(ladder, stage)
+    summary = None
+    if outcome.wants("train"):
+        with outcome.stage("train", f"training {plan['method']} for {budget.iterations} iterations, evaluating "
+                           "its checkpoints", total=budget.iterations, failures=(NerfifyError,)) as stage:
+            summary = evaluate_run(folder, data, folder / "eval", iterations=budget.iterations,
+                                   every=budget.every, label=plan["method"], on_progress=_training_progress(stage))
+            _judge_evaluation(summary, stage)
+    if not patch_rounds:
+        outcome.skip("patches", "not requested (--patch-rounds 0)")
+    elif outcome.wants("patches"):
+        from nerfify_ns.evaluate.patch_loop import run_patch_loop
+
+        with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
+            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations)
+            stage.summary = f"stopped: {loop.stopped}"
+    _report(folder, outcome)
+    return plan, summary
+
+
+def _plan_for_scene(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool, budget: Budget,
+                    stage: Stage) -> Tuple[dict, Path]:
+    """Render (or take) the scene, prune the plan for it unless ``keep_all``, write ``plan.yaml``."""
+    if data is None:
+        stage.note(f"rendering scene '{scene}'")
+        data = write_scene(scene, folder / "scene", **budget.scene)
+    facts = probe_scene(data)
+    plan = Plan.of(adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts))
+    (folder / "plan.yaml").write_text(plan.dump())
+    stage.summary = (f"{plan['method']} (base {plan['base']}), {len(plan.get('pruned') or [])} pruning(s), "
+                     f"{len(plan.get('holes') or [])} hole(s)")
+    return plan, Path(data)
+
+
+def _judge_ladder(ladder, stage: Stage) -> None:
+    """The ladder's verdict on the stage: its first broken rule (rung, rule, where, why), else the rungs."""
+    if ladder.ok:
+        stage.summary = ", ".join(f"{r.name} {r.status}" for r in ladder.rungs) + (
+            f"; {len(ladder.patches)} repair(s)" if ladder.patches else "")
+        return
+    first = ladder.failures[0] if ladder.failures else None
+    stage.fail(f"{first.rung} rung, {first.rule} ({first.where()}): {first.message}" if first
+               else "no rung passed")
+
+
+def _training_progress(stage: Stage) -> Callable[[int, int], None]:
+    """``on_progress(step, total)`` of a training: the stage's bar, then a note once the checkpoints are scored."""
+    def hook(step: int, total: int) -> None:
+        stage.advance(step, total)
+        if step >= total:
+            stage.note("rendering and scoring the checkpoints on the test views")
+    return hook
+
+
+def _judge_evaluation(summary: dict, stage: Stage) -> None:
+    """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR."""
+    if summary.get("status") != "ok":
+        stage.fail(summary.get("reason") or "training failed")
+        return
+    lpips = summary.get("lpips")
+    stage.summary = (f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
+                     f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
+                     f"{'unavailable' if lpips is None else f'{lpips:.3f}'}")
+
+
+def _report(folder: Path, outcome: Outcome) -> None:
+    """``run.json`` (the outcome) and the report that states it at its top."""
+    from nerfify_ns.evaluate.report import write_report
+
+    start = time.perf_counter()
+    outcome.write(folder / "run.json")
+    outcome.progress.start("report", "writing the report")
+    write_report(folder)
+    outcome.progress.finish("report", "report.html, report.json", time.perf_counter() - start)
+
+
+def _plugin_files(folder: Path) -> list:
+    """The files of the plugin generated into ``folder`` (none when the plugin stage did not run)."""
+    meta = folder / "nerfify.json"
+    return json.loads(meta.read_text())["files"] if meta.is_file() else []
+
+
+def _remember(final: Path, outcome: Outcome) -> None:
+    """Make the plugin ``nerfify-generated`` (trained by a plain ``ns-train``) unless it failed verification."""
+    if outcome.record("plugin").status == "ran" and outcome.record("verify").status != "failed":
+        record_generated(final)
 
 
 def _write_paper_artefacts(folder: Path, doc: Document, derived: DerivedPlan, graph: CitationGraph) -> None:
@@ -93,95 +243,11 @@ def _write_paper_artefacts(folder: Path, doc: Document, derived: DerivedPlan, gr
     graph.draw(folder / "citations.png")
 
 
-def _verify_train_report(folder: Path, data: Path, plan: dict, iterations: int, every: int, patch_rounds: int,
-                         progress: Progress) -> dict:
-    """The verification ladder, training with error against time, evaluation maps, patches, the report."""
-    from nerfify_ns.evaluate.report import write_report
-    from nerfify_ns.evaluate.run_eval import evaluate_run
-    from nerfify_ns.verify import run_ladder
-
-    progress("verifying the plugin (static, contracts, stability, smoke training)")
-    ladder = run_ladder(folder, scene=data, out_dir=folder / "verify")
-    (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
-    stages = {"verify": ladder.ok}
-    if ladder.ok:
-        progress(f"training {plan['method']} for {iterations} iterations (error against time) and evaluating")
-        stages["eval"] = evaluate_run(folder, data, folder / "eval", iterations=iterations, every=every,
-                                      label=plan["method"])
-        if patch_rounds:
-            from nerfify_ns.evaluate.patch_loop import run_patch_loop
-
-            progress(f"patch loop ({patch_rounds} rounds)")
-            stages["patches"] = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds,
-                                               iterations=iterations)
-    progress("writing the report")
-    write_report(folder)
-    return stages
-
-
 @dataclass
-class ComposeResult:
+class DemoResult:
     out: Path
-    plugin: ComposedPlugin
-    plan: dict
-    smoke: Optional[SmokeResult]
-
-
-def run_compose(
-    plan: dict,
-    out: Path,
-    *,
-    data: Optional[Path] = None,
-    scene: str = "default",
-    iterations: int = 100,
-    keep_all: bool = False,
-    train: bool = True,
-    overwrite: bool = False,
-    progress: Progress = lambda stage: None,
-) -> ComposeResult:
-    """Plan -> validate -> prune for the scene -> generate the plugin into ``out`` -> smoke-train it."""
-    final = Path(out).absolute()
-    with atomic_dir(out, overwrite) as staging:
-        progress("validating the plan against the grammar")
-        validate(plan)
-        plan, data, plugin = _plugin_for_scene(plan, staging, data, scene, keep_all, progress)
-        smoke = None
-        if train:
-            progress(f"smoke-training {plan['method']} for {iterations} iterations with Nerfstudio's trainer")
-            smoke = _smoke(plan, staging, data, iterations)
-            (staging / "smoke" / "summary.json").write_text(json.dumps(smoke.summary(), indent=2))
-            _rewrite_saved_paths(staging, final)
-            _rebase(smoke, staging, final)
-    record_generated(final)
-    plugin.out = final
-    return ComposeResult(out=final, plugin=plugin, plan=plan, smoke=smoke)
-
-
-def _plugin_for_scene(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool,
-                      progress: Progress) -> Tuple[dict, Path, ComposedPlugin]:
-    """Render (or take) the scene, prune the plan for it unless ``keep_all``, write the plugin into ``folder``."""
-    if data is None:
-        progress(f"rendering scene '{scene}'")
-        data = write_scene(scene, folder / "scene")
-    facts = probe_scene(data)
-    plan = adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts)
-    progress(f"generating the plugin '{plan['method']}'")
-    return plan, Path(data), write_plugin(plan, folder)
-
-
-def _smoke(plan: dict, plugin_dir: Path, data: Path, iterations: int) -> SmokeResult:
-    try:
-        return smoke_train(GENERATED, data, plugin_dir / "smoke", iterations=iterations,
-                           extra_args=generated_smoke_args(plan["base"]), env=generated_env(plugin_dir))
-    except SmokeTrainError as exc:
-        raise exc.with_log(_keep_log(exc.log_path, plan["method"])) from None
-
-
-def _keep_log(log_path: Path, name: str) -> Path:
-    """A copy of a failed run's log outside the staging folder, which is about to go."""
-    kept = Path(tempfile.gettempdir()) / f"nerfify-{name}-failed.log"
-    shutil.copy(log_path, kept)
-    return kept
+    scene: Path
+    smoke: SmokeResult
 
 
 def run_demo(
@@ -192,24 +258,35 @@ def run_demo(
     data: Optional[Path] = None,
     iterations: int = 100,
     overwrite: bool = False,
-    progress: Progress = lambda stage: None,
+    progress: Progress = Progress(),
 ) -> DemoResult:
     """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
+    outcome = Outcome("demo", progress=progress)
     final = Path(out).absolute()
-    with atomic_dir(out, overwrite) as staging:
+    with atomic_dir(out, overwrite) as staging, run_log(staging / LOG_FILE):
         if data is None:
-            progress(f"rendering scene '{scene}'")
-            data = write_scene(scene, staging / "scene")
-        progress(f"training {method} for {iterations} iterations with Nerfstudio's trainer")
-        try:
-            result = smoke_train(method, data, staging / "train", iterations=iterations)
-        except SmokeTrainError as exc:
-            raise exc.with_log(_keep_log(exc.log_path, method)) from None
+            with outcome.stage("scene", f"rendering scene '{scene}'"):
+                data = write_scene(scene, staging / "scene")
+        with outcome.stage("train", f"training {method} for {iterations} iterations with Nerfstudio's trainer, "
+                           "then ns-eval", total=iterations) as stage:
+            try:
+                result = smoke_train(method, data, staging / "train", iterations=iterations,
+                                     on_progress=stage.advance)
+            except SmokeTrainError as exc:
+                raise exc.with_log(_keep_log(exc.log_path, method)) from None
+            stage.summary = f"PSNR {result.summary()['psnr']}"
         scene_path = final / "scene" if data.is_relative_to(staging) else data
         (staging / "summary.json").write_text(json.dumps(result.summary(), indent=2))
         _rewrite_saved_paths(staging, final)
         _rebase(result, staging, final)
     return DemoResult(out=final, scene=scene_path, smoke=result)
+
+
+def _keep_log(log_path: Path, name: str) -> Path:
+    """A copy of a failed run's log outside the staging folder, which is about to go."""
+    kept = Path(tempfile.gettempdir()) / f"nerfify-{name}-failed.log"
+    shutil.copy(log_path, kept)
+    return kept
 
 
 def _rewrite_saved_paths(staging: Path, final: Path) -> None:

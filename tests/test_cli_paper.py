@@ -117,9 +117,9 @@ def test_existing_output_folder_is_refused(tmp_path):
     assert (target / "notes.txt").read_text() == "keep me" and sorted(p.name for p in target.iterdir()) == ["notes.txt"]
 
 
-def test_compose_a_reference_plan_without_training(tmp_path):
+def test_compose_a_reference_plan_until_the_plugin(tmp_path):
     env_cache = tmp_path / "cache"
-    out = subprocess.run([str(CLI), "compose", "--method", "kplanes-static", "--no-train", "--out",
+    out = subprocess.run([str(CLI), "compose", "--method", "kplanes-static", "--until", "plugin", "--out",
                           str(tmp_path / "kp")], capture_output=True, text=True, cwd=tmp_path, timeout=300,
                          env={**__import__("os").environ, "NERFIFY_CACHE": str(env_cache)})
     assert out.returncode == 0, out.stdout + out.stderr
@@ -128,6 +128,7 @@ def test_compose_a_reference_plan_without_training(tmp_path):
     plan = __import__("yaml").safe_load((plugin / "plan.yaml").read_text())
     assert any(r["rule"] == "kplanes_resolution_for_small_images" for r in plan["pruned"])
     assert "pruned" in out.stdout and "ns-train nerfify-generated" in out.stdout
+    assert "not run: verify, train" in out.stdout and not (plugin / "verify.json").exists()
     assert str(plugin) in (env_cache / "generated" / "last.json").read_text()
 
 

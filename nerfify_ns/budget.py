@@ -1,0 +1,31 @@
+"""How much a run computes on the CPU: the scene, the ladder's smoke rung, training and evaluation.
+
+A leaf module (standard library only): the CLI reads the defaults for its ``--help`` without importing the
+pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smoke-iterations``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Budget:
+    """The CPU budget of one run."""
+
+    iterations: int = 200
+    """Training iterations of the evaluation run."""
+    every: int = 50
+    """Checkpoint cadence of the error-against-time curve (each checkpoint is rendered and scored)."""
+    smoke_iterations: int = 30
+    """Iterations of the verification ladder's smoke-training rung."""
+    timeout: float = 300.0
+    """Time limit of each sandboxed verification process, seconds."""
+    scene: dict = field(default_factory=dict)
+    """Settings of a rendered scene (``write_scene`` keywords: resolution, n_train, n_val, n_test)."""
+
+
+PAPER_BUDGET = Budget()
+"""``ns-nerfify PAPER``: the evaluation run the report is about."""
+COMPOSE_BUDGET = Budget()
+"""``ns-nerfify compose``: every reference plan within about 2 minutes on a 2-core CPU (measured in README)."""
