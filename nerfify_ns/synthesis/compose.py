@@ -11,7 +11,7 @@ import ast
 import json
 import subprocess
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import List, Optional
@@ -25,6 +25,7 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, load_grammar, validate
 from nerfify_ns.synthesis.context import Context, Names, build_context, py
 from nerfify_ns.synthesis.registry import record_generated
+from nerfify_ns.synthesis.repairs import reapply_repairs
 from nerfify_ns.synthesis.resources import templates_dir
 
 
@@ -52,6 +53,9 @@ class ComposedPlugin:
     package: str
     files: List[str]
     plan: dict
+    repairs: List[dict] = field(default_factory=list)
+    """What became of each code repair recorded in the plan (``repairs``): applied, already present or
+    does not apply."""
 
 
 def load_plan(path: Path) -> dict:
@@ -161,11 +165,13 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_text(text)
         written.append(name)
+    repairs = reapply_repairs(plan, Path(folder))  # recorded ladder repairs, reported in README.md
     meta = {"method": ctx["method"], "package": ctx["package"],
-            "config": f"{ctx['package']}.config:{ctx['config']['var']}", "files": written}
+            "config": f"{ctx['package']}.config:{ctx['config']['var']}", "files": written,
+            **({"repairs": repairs} if repairs else {})}
     (Path(folder) / "nerfify.json").write_text(json.dumps(meta, indent=2))
     return ComposedPlugin(out=Path(folder).absolute(), method=ctx["method"], package=ctx["package"],
-                          files=written, plan=plan)
+                          files=written, plan=plan, repairs=repairs)
 
 
 def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,

@@ -1,30 +1,79 @@
-"""``run_ladder``: static -> contract -> stability -> smoke, with bounded deterministic repair rounds."""
+"""``run_ladder``: static -> contract -> stability -> smoke, with bounded deterministic repair rounds.
+
+What happens to repairs is explicit (``repair``):
+
+* ``"off"``: the ladder only.
+* ``"propose"`` (``ns-nerfify verify DIR``): the ladder runs on the folder; when it fails and a
+  deterministic repair exists, the repair is applied to a scratch copy (``OUT/proposal/plugin``), the
+  ladder re-runs there to show whether the repair makes it pass, and the unified diff of the whole
+  repair is written to ``OUT/repair.diff``. The folder itself is not changed.
+* ``"apply"`` (``ns-nerfify verify DIR --fix``, and the default for Python callers such as the pipeline,
+  which verifies the plugin it generated in a staging folder it owns): repairs are applied to the folder,
+  each recorded as a revertible diff under ``OUT/patches/``, and the ladder re-runs.
+
+A plugin with a ``plan.yaml`` (a generated one) records its repairs in its plan, as plan edits where the
+fix has a plan equivalent and as code repairs in the ``repairs`` annotation otherwise (the composer
+re-applies those), so recomposing the plan keeps them. That change of ``plan.yaml`` is itself a recorded,
+revertible patch.
+"""
 
 from __future__ import annotations
 
+import difflib
 import json
+import shutil
+import subprocess
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional, Sequence
+from typing import Callable, Dict, List, Literal, Optional, Sequence, Union
 
+from nerfify_ns.plan import Plan, PlanFileError
+from nerfify_ns.runtime.launch import ProgressHook
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.plugin import load_plugin
-from nerfify_ns.verify.repair import Fixer, Patch, default_fixers
-from nerfify_ns.verify.report import RUNGS, LadderReport, RungResult
+from nerfify_ns.verify.repair import CodePatch, Fixer, default_fixers, record_in_plan
+from nerfify_ns.verify.report import RUNGS, Diagnosis, LadderReport, RungResult
 from nerfify_ns.verify.rungs import PROBE_RUNGS, run_probe, static_ast
 from nerfify_ns.verify.smoke import smoke_rung
 
+RepairMode = Literal["off", "propose", "apply"]
+REPAIR_MODES = ("off", "propose", "apply")
+DIFF_NAME = "repair.diff"
+"""The unified diff of every repair of a run (applied or proposed), in the output folder."""
 
-def _round(
-    plugin_dir: Path,
-    rungs: Sequence[str],
-    work: Path,
-    scene: Optional[Path],
-    smoke_iterations: int,
-    timeout: float,
-    notes: List[str],
-) -> List[RungResult]:
+
+@dataclass
+class _Settings:
+    """What every round of one ladder run shares."""
+
+    rungs: List[str]
+    scene: Optional[Path]
+    smoke_iterations: int
+    timeout: float
+    fixers: List[Fixer]
+    max_rounds: int
+    on_progress: Optional[ProgressHook] = None
+
+
+@dataclass
+class _Climb:
+    """The rounds on one plugin folder, the patches applied to it and each patched file's first text."""
+
+    rounds: List[List[RungResult]] = field(default_factory=list)
+    patches: List[dict] = field(default_factory=list)
+    originals: Dict[str, str] = field(default_factory=dict)
+    notes: List[str] = field(default_factory=list)
+
+
+def _passed(results: Sequence[RungResult]) -> bool:
+    return bool(results) and all(r.ok for r in results)
+
+
+def _round(plugin_dir: Path, work: Path, st: _Settings) -> List[RungResult]:
+    """One climb of the ladder on ``plugin_dir``; rungs after a failure are skipped."""
     info = load_plugin(plugin_dir)
+    rungs = st.rungs
     results: List[RungResult] = []
     if "static" in rungs:
         ast_result = static_ast(info)
@@ -32,7 +81,7 @@ def _round(
             return [ast_result] + [RungResult(r, "skip", notes=["an earlier rung failed"]) for r in rungs[1:]]
     probe_rungs = [r for r in rungs if r in PROBE_RUNGS]
     if probe_rungs:
-        found = run_probe(info, probe_rungs, work / "probe", timeout=timeout)
+        found = run_probe(info, probe_rungs, work / "probe", timeout=st.timeout)
         for name in probe_rungs:
             results.append(found.get(name) or RungResult(name, "skip", notes=["an earlier rung failed"]))
         if info.plan is None and "contract" in rungs:
@@ -42,11 +91,9 @@ def _round(
             next(r for r in results if r.name == "contract").notes.append(note)
     if "smoke" in rungs:
         if all(r.status == "pass" for r in results):
-            results.append(
-                smoke_rung(
-                    info, scene or _scene(work), work / "smoke", iterations=smoke_iterations, timeout=timeout
-                )
-            )
+            scene = st.scene or _scene(work)
+            results.append(smoke_rung(info, scene, work / "smoke", iterations=st.smoke_iterations,
+                                      timeout=st.timeout, on_progress=st.on_progress))
         else:
             results.append(RungResult("smoke", "skip", notes=["an earlier rung failed"]))
     return results
@@ -61,81 +108,181 @@ def _scene(work: Path) -> Path:
     return path
 
 
+def _climb(target: Path, out: Path, st: _Settings, *, repair: bool,
+           first: Optional[List[RungResult]] = None) -> _Climb:
+    """Rounds on ``target`` (work folders and patches under ``out``), repairing it between rounds when
+    ``repair``; ``first`` is an already known result of round 0 on the same files."""
+    climb = _Climb()
+    for round_no in range(st.max_rounds + 1):
+        if round_no == 0 and first is not None:
+            results = first
+        else:
+            start = time.perf_counter()
+            results = _round(target, out / f"round-{round_no}", st)
+            climb.notes.append(f"round {round_no}: {time.perf_counter() - start:.1f} s")
+        climb.rounds.append(results)
+        if _passed(results) or not repair or round_no == st.max_rounds:
+            break
+        patches = _propose(load_plugin(target), [d for r in results for d in r.failures], st.fixers)
+        if not patches:
+            break
+        patches += _plan_record(target, patches, climb.notes)
+        for patch in patches:
+            _record(patch, out, target, round_no, climb)
+    return climb
+
+
+def _repair_mode(repair: Union[str, bool]) -> str:
+    """``repair`` as a mode (``True`` is ``"apply"``, ``False`` is ``"off"``, as before modes existed)."""
+    if isinstance(repair, bool):
+        return "apply" if repair else "off"
+    if repair not in REPAIR_MODES:
+        raise VerifyError(f"unknown repair mode {repair!r}; the modes are {', '.join(REPAIR_MODES)}")
+    return repair
+
+
 def run_ladder(
     plugin_dir,
     *,
     scene=None,
     out_dir=None,
-    repair: bool = True,
+    repair: Union[RepairMode, bool] = "apply",
     max_rounds: int = 3,
     rungs: Optional[Sequence[str]] = None,
     smoke_iterations: int = 30,
     timeout: float = 300,
     fixers: Optional[Sequence[Fixer]] = None,
+    on_progress: Optional[ProgressHook] = None,
 ) -> LadderReport:
-    """Verify the plugin in ``plugin_dir``; write ``verify.json`` (and patches) to ``out_dir``."""
+    """Verify the plugin in ``plugin_dir``; write ``verify.json`` (and patches, ``repair.diff``) to
+    ``out_dir`` (default ``PLUGIN/.verify``). ``repair``: ``"off"``, ``"propose"`` (repair a scratch copy,
+    leave the folder alone) or ``"apply"`` (repair the folder); see the module docstring.
+    ``on_progress(step, total)`` is called while the smoke rung trains."""
     plugin_dir = Path(plugin_dir).resolve()
+    mode = _repair_mode(repair)
     rungs = list(rungs or RUNGS)
     unknown = [r for r in rungs if r not in RUNGS]
     if unknown:
         raise VerifyError(f"unknown rung(s) {unknown}; the rungs are {', '.join(RUNGS)}")
-    rungs = [r for r in RUNGS if r in rungs]
     out = Path(out_dir).resolve() if out_dir else plugin_dir / ".verify"
     out.mkdir(parents=True, exist_ok=True)
     load_plugin(plugin_dir)  # NotAPluginError early
-    report = LadderReport(plugin=str(plugin_dir))
-    fixers = list(default_fixers() if fixers is None else fixers)
-    for round_no in range(max_rounds + 1):
-        work = out / f"round-{round_no}"
-        start = time.perf_counter()
-        results = _round(
-            plugin_dir, rungs, work, Path(scene) if scene else None, smoke_iterations, timeout, report.notes
-        )
-        report.rounds.append(results)
-        report.rungs = results
-        report.notes.append(f"round {round_no}: {time.perf_counter() - start:.1f} s")
-        if report.ok or not repair or round_no == max_rounds:
-            break
-        patches = _propose(load_plugin(plugin_dir), report, fixers)
-        if not patches:
-            break
-        for patch in patches:
-            _record(patch, out, plugin_dir, round_no, report)
+    st = _Settings([r for r in RUNGS if r in rungs], Path(scene) if scene else None, smoke_iterations,
+                   timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress)
+    report = LadderReport(plugin=str(plugin_dir), repair=mode)
+    climb = _climb(plugin_dir, out, st, repair=mode == "apply")
+    report.rounds, report.rungs, report.patches = climb.rounds, climb.rounds[-1], climb.patches
+    report.notes += climb.notes
+    if mode == "apply" and climb.patches:
+        report.diff = combined_diff(climb.originals, plugin_dir)
+    if mode == "propose" and not report.ok:
+        report.proposal = _proposal(plugin_dir, out, st, climb.rounds[0], report)
+    (out / DIFF_NAME).unlink(missing_ok=True)
+    if report.diff:
+        (out / DIFF_NAME).write_text(report.diff)
     (out / "verify.json").write_text(json.dumps(report.to_dict(), indent=2, default=str))
     return report
 
 
-def _propose(info, report: LadderReport, fixers: Sequence[Fixer]) -> List[Patch]:
-    patches: List[Patch] = []
+def _copy_ignore(plugin_dir: Path, out: Path) -> Callable[[str, List[str]], set]:
+    """Leave caches and the verification output (when it lies inside the plugin) out of the scratch copy."""
+    def ignore(folder: str, names: List[str]) -> set:
+        here = Path(folder).resolve()
+        return {n for n in names if n == "__pycache__" or here / n in (out, plugin_dir / ".verify")}
+
+    return ignore
+
+
+def _proposal(plugin_dir: Path, out: Path, st: _Settings, first: List[RungResult],
+              report: LadderReport) -> dict:
+    """Repair a scratch copy of the plugin and climb the ladder on it; the folder itself is not touched."""
+    scratch = out / "proposal"
+    shutil.rmtree(scratch, ignore_errors=True)
+    copy = scratch / "plugin"
+    shutil.copytree(plugin_dir, copy, ignore=_copy_ignore(plugin_dir, out))
+    climb = _climb(copy, scratch, st, repair=True, first=first)
+    report.notes += [f"proposal {note}" for note in climb.notes]
+    if not climb.patches:
+        return {"plugin": str(copy), "ok": False, "patches": [],
+                "note": "no deterministic repair for these failures"}
+    report.diff = combined_diff(climb.originals, copy)
+    last = climb.rounds[-1]
+    return {
+        "plugin": str(copy),
+        "ok": _passed(last),
+        "rungs": [r.to_dict() for r in last],
+        "rounds": [[{"name": r.name, "status": r.status, "failures": [str(d) for d in r.failures]}
+                    for r in rnd] for rnd in climb.rounds],
+        "patches": climb.patches,
+        "diff": str(out / DIFF_NAME),
+        "apply": f"ns-nerfify verify {plugin_dir} --fix  (or: patch -p1 -d {plugin_dir} < {out / DIFF_NAME})",
+    }
+
+
+def combined_diff(originals: Dict[str, str], root: Path) -> str:
+    """One unified diff (``a/FILE`` -> ``b/FILE``, for ``patch -p1``) from each file's original text to its
+    text in ``root`` now."""
+    parts = []
+    for rel in sorted(originals):
+        after = (root / rel).read_text() if (root / rel).exists() else ""
+        parts.append("".join(difflib.unified_diff(originals[rel].splitlines(True), after.splitlines(True),
+                                                  f"a/{rel}", f"b/{rel}")))
+    return "".join(parts)
+
+
+def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> List[CodePatch]:
+    """The fixers' patches for ``failures``: one per file (the first fixer wins), each a real change."""
+    patches: List[CodePatch] = []
     seen = set()
     for fixer in fixers:
-        for patch in fixer.propose(info, report.failures):
+        for patch in fixer.propose(info, failures):
             if patch.file not in seen and patch.after != patch.before:
                 seen.add(patch.file)
                 patches.append(patch)
     return patches
 
 
-def _record(patch: Patch, out: Path, plugin_dir: Path, round_no: int, report: LadderReport) -> None:
+def _plan_record(target: Path, patches: Sequence[CodePatch], notes: List[str]) -> List[CodePatch]:
+    """The change of ``target/plan.yaml`` that records ``patches`` in the plan (none without a plan)."""
+    path = target / "plan.yaml"
+    if not path.is_file():
+        return []
+    try:
+        plan = Plan.load(path)
+    except PlanFileError:
+        notes.append("plan.yaml is not a plan: the repairs are not recorded in it")
+        return []
+    before = path.read_text()
+    lines = record_in_plan(plan, patches)
+    after = plan.dump()
+    if after == before:
+        return []
+    notes.extend(f"recorded in the plan: {line}" for line in lines)
+    return [CodePatch("plan.yaml", before, after, "record-repair",
+                      "the repairs recorded in the plan, so recomposing it keeps them: " + "; ".join(lines),
+                      "plan-record")]
+
+
+def _record(patch: CodePatch, out: Path, target: Path, round_no: int, climb: _Climb) -> None:
+    """Write the patch's diff under ``out/patches``, apply it to ``target``, list it with how to revert it."""
     folder = out / "patches"
-    folder.mkdir(exist_ok=True)
-    name = f"{len(report.patches) + 1:02d}-{patch.fixer}-{patch.file.replace('/', '_')}.diff"
+    folder.mkdir(parents=True, exist_ok=True)
+    name = f"{len(climb.patches) + 1:02d}-{patch.fixer}-{patch.file.replace('/', '_')}.diff"
     (folder / name).write_text(patch.diff())
-    patch.apply(plugin_dir)
-    report.patches.append(
+    climb.originals.setdefault(patch.file, patch.before)
+    patch.apply(target)
+    climb.patches.append(
         {
             **patch.summary(),
             "round": round_no,
             "diff": str(folder / name),
-            "revert": f"patch -R -p1 -d {plugin_dir} < {folder / name}",
+            "revert": f"patch -R -p1 -d {target} < {folder / name}",
         }
     )
 
 
 def revert_patches(report: LadderReport) -> None:
     """Undo every recorded patch of ``report`` (newest first)."""
-    import subprocess
-
     for p in reversed(report.patches):
         subprocess.run(
             ["patch", "-R", "-p1", "-d", report.plugin, "-i", p["diff"]], check=True, capture_output=True

@@ -20,6 +20,8 @@ class Diagnosis:
     traceback: str = ""
     component: Optional[str] = None
     case: Optional[str] = None
+    data: Dict[str, Any] = field(default_factory=dict)
+    """Structured facts the probe reported with it (e.g. ``missing`` / ``extra`` optimiser groups)."""
 
     def where(self) -> str:
         if not self.file:
@@ -31,7 +33,11 @@ class Diagnosis:
 
     @classmethod
     def from_dict(cls, data: dict) -> "Diagnosis":
-        return cls(**{k: data.get(k) for k in cls.__dataclass_fields__ if k in data})
+        """From a probe event or ``verify.json``: known fields as such, any other key (but the event's kind)
+        into ``data``."""
+        known = {k: data.get(k) for k in cls.__dataclass_fields__ if k in data and k != "data"}
+        extra = {k: v for k, v in data.items() if k not in cls.__dataclass_fields__ and k != "event"}
+        return cls(**known, data={**(data.get("data") or {}), **extra})
 
 
 @dataclass
@@ -62,13 +68,19 @@ class RungResult:
 
 @dataclass
 class LadderReport:
-    """Every rung of every round; ``rungs`` are those of the last round."""
+    """Every rung of every round on the plugin; ``rungs`` are those of the last round. ``repair`` is the
+    mode it ran with (off, propose, apply); ``patches`` are the repairs applied to the plugin (apply);
+    ``proposal`` is the repair computed on a scratch copy without touching the plugin (propose); ``diff``
+    is the unified diff of all repairs (applied or proposed), as text."""
 
     plugin: str
     rungs: List[RungResult] = field(default_factory=list)
     rounds: List[List[RungResult]] = field(default_factory=list)
     patches: List[dict] = field(default_factory=list)
     notes: List[str] = field(default_factory=list)
+    repair: str = "apply"
+    proposal: Optional[dict] = None
+    diff: str = ""
 
     @property
     def ok(self) -> bool:
@@ -89,6 +101,8 @@ class LadderReport:
             "failures": [asdict(d) for d in self.failures],
             "patches": self.patches,
             "notes": self.notes,
+            "repair": self.repair,
+            "proposal": self.proposal,
             "rounds": [
                 [{"name": r.name, "status": r.status, "failures": [str(d) for d in r.failures]} for r in rnd]
                 for rnd in self.rounds

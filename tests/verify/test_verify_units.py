@@ -1,5 +1,6 @@
 """Fast checks of the ladder's parts: plugin loading, AST rung, sandbox, fixers, report."""
 
+import ast
 import json
 import sys
 
@@ -56,26 +57,61 @@ def test_sandbox_memory_limit(tmp_path):
     assert r.returncode != 0 and "MemoryError" in r.log_path.read_text()
 
 
-def test_optimizer_group_fixer(reference_plugins, tmp_path):
+def _param_groups(plugin, missing, extra) -> Diagnosis:
+    """The static rung's diagnosis for a config whose optimiser keys differ from the parameter groups."""
+    config = next(plugin.glob("*/config.py"))
+    line = next(i for i, t in enumerate(config.read_text().splitlines(), 1) if "optimizers=" in t)
+    return Diagnosis("static", "param-groups", f"model parameter groups != optimizer keys (missing optimizers: "
+                     f"{missing}; optimizers without a group: {extra})", str(config.relative_to(plugin)), line,
+                     data={"missing": missing, "extra": extra})
+
+
+def test_optimizer_group_fixer_renames_a_misspelled_key_keeping_its_settings(reference_plugins, tmp_path):
     import shutil
 
     plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
     config = plugin / "kplanes_static" / "config.py"
-    config.write_text(config.read_text().replace('"proposal_networks": {', '"proposal_network": {'))
-    line = next(i for i, t in enumerate(config.read_text().splitlines(), 1) if "optimizers=" in t)
-    d = Diagnosis(
-        "static",
-        "param-groups",
-        "model parameter groups ['fields', 'proposal_networks'] != optimizer keys "
-        "['fields', 'proposal_network'] (missing optimizers: ['proposal_networks']; optimizers without a "
-        "group: ['proposal_network'])",
-        "kplanes_static/config.py",
-        line,
-    )
+    text = config.read_text()
+    start = text.index('"proposal_networks": {')
+    lr = text.index("lr=", start)
+    text = text[:start] + '"proposal_network": {' + text[start + len('"proposal_networks": {'):lr] + "lr=0.0123," \
+        + text[text.index(",", lr) + 1:]
+    config.write_text(text)
+    d = _param_groups(plugin, ["proposal_networks"], ["proposal_network"])
     (patch,) = OptimizerGroupFixer().propose(load_plugin(plugin), [d])
-    assert "'proposal_networks':" in patch.after and '"proposal_network"' not in patch.after
+    assert '"proposal_networks": {' in patch.after and '"proposal_network": {' not in patch.after
+    assert "lr=0.0123," in patch.after  # the author's settings stay with the renamed key
+    changed = [line for line in patch.diff().splitlines() if line[:1] in "+-" and line[:3] not in ("+++", "---")]
+    assert changed == ['-            "proposal_network": {', '+            "proposal_networks": {'], changed
     assert patch.diff().startswith("--- a/kplanes_static/config.py")
+    assert [(e.op, e.path, e.value) for e in patch.plan_edits] == [
+        ("rename", "optimizers.proposal_network", "optimizers.proposal_networks")]
     compile(patch.after, "config.py", "exec")
+
+
+def test_optimizer_group_fixer_adds_and_removes_when_nothing_is_close(reference_plugins, tmp_path):
+    import shutil
+
+    plugin = shutil.copytree(reference_plugins["kplanes-static"], tmp_path / "p")
+    config = plugin / "kplanes_static" / "config.py"
+    config.write_text(config.read_text().replace('"proposal_networks": {', '"camera_opt": {'))
+    d = _param_groups(plugin, ["proposal_networks"], ["camera_opt"])
+    (patch,) = OptimizerGroupFixer().propose(load_plugin(plugin), [d])
+    optimizers = next(n.value for n in ast.walk(ast.parse(patch.after))
+                      if isinstance(n, ast.keyword) and n.arg == "optimizers")
+    keys = [k.value for k in optimizers.keys]
+    assert keys == ["fields", "proposal_networks"] and "\"camera_opt\"" not in patch.after, keys
+    fields_src, new_src = (ast.get_source_segment(patch.after, v) for v in optimizers.values)
+    assert new_src == fields_src  # a group without a plausible key gets a copy of 'fields'
+    assert "added (a copy of 'fields')" in patch.reason and "'camera_opt' removed" in patch.reason
+
+
+def test_pair_misspelled_is_one_to_one():
+    from nerfify_ns.verify.repair import pair_misspelled
+
+    assert pair_misspelled(["proposal_networks", "fields"], ["proposal_network", "field", "camera_opt"]) == {
+        "proposal_network": "proposal_networks", "field": "fields"}
+    assert pair_misspelled(["fields"], ["camera_opt"]) == {}
 
 
 def test_exp_guard_fixer(reference_plugins, tmp_path):
