@@ -192,8 +192,10 @@ def check_outputs(contract: Contract, outputs: Mapping[str, Any], env: Mapping[s
             problems.append(f"{name}: not a tensor ({type(value).__name__})")
             continue
         _bind_free(contract, spec, value, env)
-        expected = contract.shape(spec, env)
-        if tuple(value.shape) != expected:
+        if len(dims(spec.shape)) != value.dim():
+            problems.append(f"{name}: shape {tuple(value.shape)}, contract {spec.shape} "
+                            f"({len(dims(spec.shape))} dimensions)")
+        elif tuple(value.shape) != (expected := contract.shape(spec, env)):
             problems.append(f"{name}: shape {tuple(value.shape)}, contract {spec.shape} = {expected}")
         problems += _dtype_problems(name, spec, value, float_inputs)
         problems += _value_problems(name, spec, value)

@@ -1,6 +1,7 @@
 """From a validated plan to the values the plugin templates render.
 
-Terminal code comes from ``templates/snippets.yaml`` and base models from ``templates/bases.yaml``;
+Terminal code comes from the terminal registry (``nerfify_ns/registry``: each terminal's ``Code``) and
+base models from ``templates/bases.yaml``;
 base-model config values come from each terminal's ``config`` mapping in ``grammar_spec.yaml``.
 Every value carries the plan entry it comes from, so the generated code can say so.
 """
@@ -13,12 +14,14 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-import jinja2
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Derivation, Grammar
 from nerfify_ns.knowledge import card as load_card
-from nerfify_ns.synthesis.resources import bases, snippets
+from nerfify_ns.registry import default_registry
+from nerfify_ns.registry.render import py, render
+from nerfify_ns.registry.terminals.heads import ACTIVATIONS
+from nerfify_ns.synthesis.resources import bases
 
 
 def one(mapping: dict) -> Tuple[str, Any]:
@@ -27,22 +30,23 @@ def one(mapping: dict) -> Tuple[str, Any]:
     return key, value
 
 
-def py(value: Any) -> str:
-    """A Python literal for a plan value (lists become tuples, as Nerfstudio's configs use)."""
-    if isinstance(value, (list, tuple)):
-        items = ", ".join(py(v) for v in value)
-        return f"({items},)" if len(value) == 1 else f"({items})"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{py(k)}: {py(v)}" for k, v in value.items()) + "}"
-    return repr(value)
-
-
-_ENV = jinja2.Environment(undefined=jinja2.StrictUndefined, keep_trailing_newline=False)
-_ENV.filters["tuple_literal"] = py
-
-
 def render_snippet(text: str, params: dict, package: str) -> str:
-    return _ENV.from_string(text).render(p=params, package=package)
+    return render(text, params, package)
+
+
+def snippet(terminal: str) -> Optional[dict]:
+    """What ``terminal`` renders (imports, ctor, expr, component, traits), None when it renders nothing
+    of its own (the base model's config realises it)."""
+    code = default_registry()[terminal].code
+    data = {"imports": list(code.imports), "ctor": code.ctor, "expr": code.expr, "component": code.component,
+            **code.traits}
+    return data if (code.ctor or code.expr or code.imports or code.traits) else None
+
+
+def dataparser_snippet(name: str) -> dict:
+    """The import and constructor of the Nerfstudio dataparser config ``name``."""
+    module, cls = default_registry()["datamanager"].code.traits["dataparsers"][name]
+    return {"imports": [f"from {module} import {cls}"], "ctor": f"{cls}()"}
 
 
 @dataclass
@@ -149,8 +153,8 @@ def _imports(ctx: Context, snippet: dict) -> List[str]:
 
 
 def _activation(kind: str) -> Callable[[str], str]:
-    expr = snippets()["density_activation"][kind]["expr"]
-    return lambda x: expr.format(x=x)
+    expr = ACTIVATIONS[kind].expr
+    return lambda x: render(expr, {}, x=x)
 
 
 def mlp_field(ctx: Context) -> dict:
@@ -161,20 +165,20 @@ def mlp_field(ctx: Context) -> dict:
 
     pe_name, _ = one(fp["pos_encoding"])
     pe_path = f"{root}.pos_encoding.{pe_name}"
-    pe = snippets()["pos_encoding"][pe_name]
+    pe = snippet(pe_name)
     imports += _imports(ctx, pe)
     ctx.part("field.py", "position encoding", pe_path, ctx.grammar.terminals[pe_name].doc)
 
     de_name, _ = one(fp["dir_encoding"])
     de_path = f"{root}.dir_encoding.{de_name}"
-    de = snippets()["dir_encoding"][de_name]
+    de = snippet(de_name)
     imports += _imports(ctx, de)
     ctx.part("field.py", "direction encoding", de_path, ctx.grammar.terminals[de_name].doc)
 
     dh_name, _ = one(fp["density_head"])
     dh_path = f"{root}.density_head.{dh_name}"
     dh = ctx.params(dh_path)
-    act = snippets()["density_activation"][dh["activation"]]
+    act = {"imports": list(ACTIVATIONS[dh["activation"]].imports)}
     imports += _imports(ctx, act)
     ctx.part("field.py", "density head", dh_path, ctx.grammar.terminals[dh_name].doc)
 
@@ -187,7 +191,7 @@ def mlp_field(ctx: Context) -> dict:
     if "spatial_distortion" in fp:
         sd_name, _ = one(fp["spatial_distortion"])
         sd_path = f"{root}.spatial_distortion.{sd_name}"
-        sd = snippets()["spatial_distortion"][sd_name]
+        sd = snippet(sd_name)
         imports += _imports(ctx, sd)
         distortion = render_snippet(sd["ctor"], ctx.params(sd_path), pkg)
         ctx.part("field.py", "spatial distortion", sd_path, ctx.grammar.terminals[sd_name].doc)
@@ -231,7 +235,7 @@ def tensorial_field(ctx: Context) -> dict:
     dec_name, _ = one(fp["decomposition"])
     dec_path = f"{root}.decomposition.{dec_name}"
     dec = ctx.params(dec_path)
-    snippet = snippets()["tensor_decomposition"][dec_name]
+    code = snippet(dec_name)
     head = ctx.params(f"{root}.appearance_head")
     ctx.part("field.py", "tensor decomposition", dec_path, ctx.grammar.terminals[dec_name].doc)
     ctx.part("field.py", "appearance head", f"{root}.appearance_head",
@@ -240,8 +244,8 @@ def tensorial_field(ctx: Context) -> dict:
         "cls": f"{ctx.names.prefix}Field",
         "summary": f"Tensorial radiance field of the plan: {dec_name} factors, "
                    f"{dec['density_components']} density / {dec['color_components']} appearance components.",
-        "imports": _imports(ctx, snippet),
-        "decomposition": snippet["cls"],
+        "imports": _imports(ctx, code),
+        "decomposition": code["cls"],
         "density_components": dec["density_components"],
         "color_components": dec["color_components"],
         **{k: head[k] for k in ("appearance_dim", "num_layers", "layer_width", "feature_frequencies",
@@ -268,7 +272,7 @@ def _proposal_networks(ctx: Context) -> Optional[dict]:
 def model_context(ctx: Context) -> dict:
     imports: List[str] = []
     rgb_name, _ = one(get_path(ctx.plan, "model.losses.rgb"))
-    rgb_snippet = snippets()["rgb_loss"][rgb_name]
+    rgb_snippet = snippet(rgb_name)
     rgb_loss = None
     ctx.part("model.py", "photometric loss", f"model.losses.rgb.{rgb_name}", ctx.grammar.terminals[rgb_name].doc)
     if rgb_snippet:
@@ -277,14 +281,14 @@ def model_context(ctx: Context) -> dict:
         rgb_loss = {"name": rgb_name, "ctor": render_snippet(rgb_snippet["ctor"], params, ctx.names.package)}
     regularizers = []
     for name in (get_path(ctx.plan, "model").get("regularizers") or {}):
-        snippet = snippets()["regularizers"].get(name)
-        if snippet is None:  # realised through the base model's own config (e.g. TensoRF's L1/TV)
+        code = snippet(name)
+        if code is None:  # realised through the base model's own config (e.g. TensoRF's L1/TV)
             continue
         path = f"model.regularizers.{name}"
         params = ctx.params(path)
-        imports += _imports(ctx, snippet)
+        imports += _imports(ctx, code)
         regularizers.append({"name": name, "weight": params["weight"],
-                             "expr": render_snippet(snippet["expr"], params, ctx.names.package)})
+                             "expr": render_snippet(code["expr"], params, ctx.names.package)})
         ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
     sampler_name, _ = one(get_path(ctx.plan, "model.sampler"))
     ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
@@ -377,8 +381,8 @@ def _group_ctor(ctx: Context, kind: str, value: Optional[dict], path: str) -> Tu
     if value is None:
         return "None", []
     name, _ = one(value)
-    snippet = snippets()[kind][name]
-    return render_snippet(snippet["ctor"], ctx.params(f"{path}.{name}"), ctx.names.package), snippet["imports"]
+    code = snippet(name)
+    return render_snippet(code["ctor"], ctx.params(f"{path}.{name}"), ctx.names.package), code["imports"]
 
 
 def config_context(ctx: Context, base: dict) -> dict:
@@ -386,7 +390,7 @@ def config_context(ctx: Context, base: dict) -> dict:
     fields = _config_fields(base)
     trainer = ctx.params("trainer")
     dm = ctx.params("datamanager")
-    dataparser = snippets()["datamanager"][dm["dataparser"]]
+    dataparser = dataparser_snippet(dm["dataparser"])
     imports = [
         "from nerfstudio.configs.base_config import ViewerConfig",
         "from nerfstudio.engine.trainer import TrainerConfig",

@@ -1,4 +1,5 @@
-"""The synthesis stage's data: Jinja2 templates, terminal snippets, base models, reference plans.
+"""The synthesis stage's data: Jinja2 templates, base models, reference plans (terminal code lives in the
+terminal registry, ``nerfify_ns/registry``).
 
 They live at the top of the repository (``templates/``, ``method_configs/``); :mod:`nerfify_ns.data`
 finds them there or, in an installed wheel, inside the package.
@@ -21,14 +22,9 @@ class UnknownReferencePlanError(NerfifyError):
 
 
 def templates_dir() -> Path:
-    """The folder of the plugin templates (``*.j2``, ``snippets.yaml``, ``bases.yaml``)."""
+    """The folder of the plugin templates (``*.j2``, ``bases.yaml``)."""
     return data.templates_dir()
 
-
-@lru_cache(maxsize=1)
-def snippets() -> Dict[str, dict]:
-    """Terminal code snippets (``templates/snippets.yaml``)."""
-    return yaml.safe_load((templates_dir() / "snippets.yaml").read_text())
 
 
 @lru_cache(maxsize=1)

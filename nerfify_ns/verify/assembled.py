@@ -9,7 +9,8 @@ from typing import Dict, List, Tuple
 import torch
 from torch import nn
 
-from nerfify_ns.verify.harness import AABB, RAY_CASES, collide, finite_problem, ray_bundle
+from nerfify_ns.registry.contract import finite_problem
+from nerfify_ns.registry.examples import AABB, RAY_CASES, collide, ray_bundle
 
 MODEL_CASES = (*RAY_CASES, "density_0", "density_1e8", "density_raw_1e8", "half")
 """The ray cases of the harness plus densities forced through the assembled field and half precision."""

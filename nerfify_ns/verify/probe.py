@@ -22,6 +22,7 @@ from typing import Dict, List, Optional
 
 ROOT: Path = Path(".")
 PACKAGE = ""
+PLAN = None  # the plugin's plan (a nerfify_ns.plan.Plan) while the probe runs
 _events = None
 
 
@@ -304,69 +305,61 @@ def check_param_groups(spec, config_module: str):
 
 
 # ----------------------------------------------------------------------------- contract / stability
-def plan_value(plan: dict, path: str):
-    node = plan
-    for key in path.split("."):
-        if not isinstance(node, dict) or key not in node:
-            return None
-        node = node[key]
-    return node
-
-
 def used_terminals(plan: dict) -> Dict[str, str]:
     from nerfify_ns.grammar import load_grammar, validate
 
     return dict(validate(plan, load_grammar()).used)
 
 
-def run_component(rung: str, terminal: str, params: dict, cases) -> List[dict]:
-    import torch
-
+def component_of(path: str, terminal: str):
+    """(name, contract-checking function of a case) of the component at ``path``; None when the terminal
+    lives inside a Nerfstudio model (checked through the assembled model) or has no contract."""
     from nerfify_ns.grammar import load_grammar
-    from nerfify_ns.verify.harness import HARNESSES, NotApplicable, check_run, terminal_params
+    from nerfify_ns.registry import default_registry
+    from nerfify_ns.verify.components import run_custom, run_terminal
 
-    harness = HARNESSES[terminal]
-    p = terminal_params(load_grammar(), terminal, params)
-    results = []
-    for case in cases:
-        torch.manual_seed(0)
-        try:
-            problems = check_run(harness.run(p, case), grads_required=case == "nominal")
-            status = "fail" if problems else "pass"
-        except NotApplicable as exc:
-            problems, status = [str(exc)], "n/a"
-        except Exception as exc:
-            problems, status = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"], "fail"
-        results.append({"case": case, "status": status, "problems": problems})
-    return results
+    registry = default_registry()
+    if terminal == "custom":
+        production = load_grammar().production_at(path)
+        interface = registry.interfaces.get(production or "")
+        if interface is None:
+            return None
+        entry = PLAN.get(path) or {}
+        return (f"custom {entry.get('class')} ({production})", interface.cases,
+                lambda case: run_custom(interface, entry, PACKAGE, case))
+    defn = registry[terminal]
+    if defn.harness.in_model or defn.contract.empty:
+        return None
+    params = PLAN.get(path) if isinstance(PLAN.get(path), dict) else {}
+    return terminal, defn.harness.cases, lambda case: run_terminal(defn, params, case)
+
+
+def _plan_components() -> List[tuple]:
+    """(path, terminal, name, cases, run) of every component of the plan with a contract."""
+    found = []
+    for path, terminal in used_terminals(PLAN).items():
+        component = component_of(path, terminal)
+        if component is not None:
+            found.append((path, terminal, *component))
+    return found
 
 
 def contract_rung(spec, plan: Optional[dict]) -> None:
-    from nerfify_ns.verify.harness import HARNESSES
-
     if plan is not None:
-        for path, terminal in used_terminals(plan).items():
-            if terminal not in HARNESSES:
-                continue
-            result = run_component("contract", terminal, plan_value(plan, path) or {}, ["nominal"])[0]
-            emit(event="component", rung="contract", component=terminal, path=path, **result)
+        for path, terminal, name, _cases, run in _plan_components():
+            result = run("nominal").to_dict()
+            emit(event="component", rung="contract", component=name, path=path, **result)
             if result["status"] == "fail":
-                diagnose(
-                    "contract",
-                    "component-contract",
-                    f"{terminal} ({path}): " + "; ".join(result["problems"]),
-                    "plan.yaml",
-                    None,
-                    component=terminal,
-                )
+                diagnose("contract", "component-contract", f"{name} ({path}): " + "; ".join(result["problems"]),
+                         "plan.yaml", None, component=name)
     assembled_contract(spec)
 
 
 def assembled_contract(spec) -> None:
     import torch
 
+    from nerfify_ns.registry.contract import finite_problem
     from nerfify_ns.verify.assembled import field_forward, grad_problems, output_problems, plugin_fields
-    from nerfify_ns.verify.harness import finite_problem
 
     model = shared_model(spec)
     for name, field in plugin_fields(model, PACKAGE):
@@ -473,48 +466,34 @@ def model_step(model, case: str = "nominal"):
 
 
 def stability_rung(spec, plan: Optional[dict], suite: str) -> None:
-    from nerfify_ns.verify.harness import HARNESSES, OURS_EXTRA
-
-    grammar_terms = _grammar_terminals()
+    """Every component on every stiff case that applies; a failure of a component of ours (or of the
+    plugin) gates, one of Nerfstudio's is recorded."""
     if suite == "all":
-        names = list(HARNESSES)
-        params = {}
+        from nerfify_ns.verify.components import suite_components
+
+        components = suite_components()
     else:
-        used = used_terminals(plan) if plan else {}
-        names = [t for t in dict.fromkeys(used.values()) if t in HARNESSES]
-        params = {t: plan_value(plan, p) or {} for p, t in used.items()}
-        if plan and "kplanes" in json.dumps(plan.get("model", {})):
-            names.append("KPlanesDensityField")
-    for terminal in names:
-        implementation = grammar_terms.get(terminal) or OURS_EXTRA.get(terminal, "")
-        owner = "ours" if implementation.startswith("nerfify_ns.") else "nerfstudio"
-        for result in run_component(
-            "stability", terminal, params.get(terminal, {}), HARNESSES[terminal].cases
-        ):
-            emit(
-                event="case",
-                rung="stability",
-                component=terminal,
-                implementation=implementation,
-                owner=owner,
-                **result,
-            )
-            if result["status"] == "fail" and owner == "ours":
-                diagnose(
-                    "stability",
-                    "stiff-case",
-                    f"{terminal}, case {result['case']}: " + "; ".join(result["problems"]),
-                    component=terminal,
-                    case=result["case"],
-                )
+        components = [(name, cases, run, _owner(terminal)) for _p, terminal, name, cases, run in _plan_components()]
+    for name, cases, run, (implementation, owner) in components:
+        for case in ("nominal", *cases):
+            result = run(case).to_dict()
+            emit(event="case", rung="stability", component=name, implementation=implementation, owner=owner,
+                 **result)
+            if result["status"] == "fail" and owner in ("ours", "plugin"):
+                diagnose("stability", "stiff-case", f"{name}, case {case}: " + "; ".join(result["problems"]),
+                         component=name, case=case)
     if spec is not None:
         assembled_stability(spec)
 
 
-def _grammar_terminals() -> Dict[str, str]:
-    from nerfify_ns.grammar import load_grammar
+def _owner(terminal: str) -> tuple:
+    """(implementation, owner) of a terminal: ours (nerfify_ns), the plugin's (custom) or Nerfstudio's."""
+    from nerfify_ns.registry import default_registry
 
-    return {name: t.implementation for name, t in load_grammar().terminals.items()}
+    if terminal == "custom":
+        return "the plugin's own component", "plugin"
+    implementation = default_registry()[terminal].implementation
+    return implementation, "ours" if implementation.startswith("nerfify_ns.") else "nerfstudio"
 
 
 ADVISORY_CASES = ("empty_batch", "half")
@@ -573,7 +552,7 @@ def assembled_stability(spec) -> None:
 
 # ----------------------------------------------------------------------------- main
 def main(argv=None) -> int:
-    global ROOT, PACKAGE, _events
+    global ROOT, PACKAGE, PLAN, _events
     parser = argparse.ArgumentParser()
     parser.add_argument("plugin")
     parser.add_argument("events")
@@ -594,7 +573,10 @@ def main(argv=None) -> int:
     from nerfify_ns.verify.plugin import load_plugin
 
     info = load_plugin(Path(args.plugin))
+    from nerfify_ns.plan import Plan
+
     ROOT, PACKAGE = info.root, info.package
+    PLAN = Plan.of(info.plan) if info.plan else None
     sys.path.insert(0, str(info.root))
     base = None
     if info.plan and info.plan.get("base"):

@@ -9,7 +9,7 @@ from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 from nerfify_ns.synthesis.resources import reference_plans
 from nerfify_ns.verify import component_suite, run_ladder
-from nerfify_ns.verify.harness import HARNESSES
+from nerfify_ns.verify.components import suite_components
 
 
 @pytest.mark.slow
@@ -44,11 +44,11 @@ def test_full_ladder_kplanes_static(reference_plugins, tiny_scene, tmp_path):
 
 @pytest.mark.slow
 def test_component_suite_every_terminal(tmp_path):
-    """Every harnessed terminal on every stiff case; no component of ours fails any case."""
+    """Every terminal with a contract on every stiff case; no component of ours fails any case."""
     result = component_suite(tmp_path)
     assert result.ok, [str(d) for d in result.failures]
     cases = result.details["cases"]
-    assert {c["component"] for c in cases} == set(HARNESSES)
+    assert {c["component"] for c in cases} == {name for name, *_ in suite_components()}
     ours = [c for c in cases if c["owner"] == "ours"]
     assert ours and all(c["status"] in ("pass", "n/a") for c in ours)
     assert {"kplanes", "charbonnier", "plane_tv", "KPlanesDensityField"} <= {c["component"] for c in ours}

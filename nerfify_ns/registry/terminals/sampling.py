@@ -160,7 +160,6 @@ def _build_linear_density(p, env):
 
 
 def _call_renderer(module, inputs, env):
-    import torch
     from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer, RGBRenderer
 
     ray_samples, densities = inputs["ray_samples"]
