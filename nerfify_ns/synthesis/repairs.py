@@ -103,6 +103,13 @@ def is_applied(text: str, diff: str) -> bool:
     return True
 
 
+def diff_text(diff) -> str:
+    """A recorded diff as text: ``plan.yaml`` keeps it as a list of lines (a string is taken as it is)."""
+    if isinstance(diff, list):
+        return "".join(f"{line}\n" for line in diff)
+    return str(diff or "")
+
+
 def reapply_one(folder: Path, repair: dict) -> Tuple[str, str]:
     """Apply one recorded repair in ``folder``: (status, detail) with status ``applied``, ``already present``
     or ``does not apply``."""
@@ -111,7 +118,7 @@ def reapply_one(folder: Path, repair: dict) -> Tuple[str, str]:
     if not rel or not path.is_file():
         return "does not apply", f"no file {rel or '(none named)'} in the plugin"
     text = path.read_text()
-    diff = str(repair.get("diff") or "")
+    diff = diff_text(repair.get("diff"))
     try:
         path.write_text(apply_diff(text, diff))
         return "applied", ""

@@ -417,9 +417,10 @@ REPAIRS_KEY = "repairs"
 
 
 def code_repair(patch: CodePatch) -> dict:
-    """The ``repairs`` entry of a code patch: file, unified diff, rule, reason, fixer."""
+    """The ``repairs`` entry of a code patch: file, rule, reason, fixer and the unified diff as a list of
+    lines (readable in ``plan.yaml``)."""
     return {"file": patch.file, "rule": patch.rule, "reason": patch.reason, "fixer": patch.fixer,
-            "diff": patch.diff()}
+            "diff": patch.diff().splitlines()}
 
 
 def record_in_plan(plan: Plan, patches: Sequence[CodePatch]) -> List[str]:

@@ -67,7 +67,7 @@ def test_code_repair_is_reapplied_after_rendering_or_reported(tmp_path):
     patch = CodePatch(rel, text, fixed, "stiff-case", "a code fix with no plan equivalent", "test-fixer")
     lines = record_in_plan(plan, [patch])
     assert plan["repairs"] == [{"file": rel, "rule": "stiff-case", "reason": patch.reason, "fixer": "test-fixer",
-                                "diff": patch.diff()}], lines
+                                "diff": patch.diff().splitlines()}], lines
     record_in_plan(plan, [patch])
     assert len(plan["repairs"]) == 1  # recorded once
     saved = tmp_path / "plan.yaml"
@@ -82,17 +82,17 @@ def test_code_repair_is_reapplied_after_rendering_or_reported(tmp_path):
 
     healed = plan.copy()  # recorded against a broken rendering; the renderer now produces the fixed text
     broken = text.replace('"""', '"""Broken. ', 1)
-    healed["repairs"] = [{**plan["repairs"][0], "diff": _diff(broken, text, rel)}]
+    healed["repairs"] = [{**plan["repairs"][0], "diff": _diff(broken, text, rel).splitlines()}]
     healed_folder = tmp_path / "healed"
     healed_folder.mkdir()
     assert [o["status"] for o in write_plugin(healed, healed_folder).repairs] == ["already present"]
     assert (healed_folder / rel).read_text() == text
 
     stale = plan.copy()  # a repair recorded against lines the renderer no longer produces
-    diff = patch.diff().splitlines(True)
+    diff = patch.diff().splitlines()
     first_context = next(i for i, line in enumerate(diff) if i > 2 and line.startswith(" "))
-    diff[first_context] = " # a line this rendering does not have\n"
-    stale["repairs"][0]["diff"] = "".join(diff)
+    diff[first_context] = " # a line this rendering does not have"
+    stale["repairs"][0]["diff"] = diff
     stale_folder = tmp_path / "stale"
     stale_folder.mkdir()
     outcome = write_plugin(stale, stale_folder).repairs
