@@ -26,7 +26,8 @@ def _value(value) -> Optional[float]:
         from tensorboard.util import tensor_util
 
         array = tensor_util.make_ndarray(value.tensor)
-        return float(array.reshape(-1)[0]) if array.size == 1 else None
+        numeric = array.dtype.kind in "fiub"  # a text summary (the run's config) is no scalar
+        return float(array.reshape(-1)[0]) if numeric and array.size == 1 else None
     return None
 
 
