@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterable, Mapping, Optional
 
 import yaml
 
@@ -51,6 +50,33 @@ class Signals:
 
 
 @dataclass(frozen=True)
+class HyperparameterMap:
+    """How a hyperparameter the paper states (a name of ``nerfify_ns/paper/hyperparams.yaml``) sets a
+    parameter of the card's terminal.
+
+    ``value`` is an expression of ``value`` (the paper's number) and the terminal's current parameters
+    (``plan_from_paper.evaluate`` reads it; None = skip); ``also`` derives further parameters the same
+    way; ``qualifiers`` are the statement qualifiers accepted, in order of preference ("" = none);
+    ``sentence`` a regular expression the statement must match; ``together`` hyperparameters that must
+    be stated in the same sentence (the entries are then applied as one); ``card_used`` only when the
+    paper itself is found to use the card (a bare "8 layers" may be any network of the paper)."""
+
+    name: str
+    param: str
+    value: str = "value"
+    also: tuple[tuple[str, str], ...] = ()
+    qualifiers: tuple[str, ...] = ()
+    sentence: str = ""
+    together: tuple[str, ...] = ()
+    card_used: bool = False
+
+    @property
+    def grouped(self) -> bool:
+        """Whether it changes several parameters at once (applied to the terminal as a whole)."""
+        return bool(self.also or self.together)
+
+
+@dataclass(frozen=True)
 class Card:
     """A NeRF technique: what it is called, who introduced it, where it goes in the grammar.
 
@@ -73,6 +99,9 @@ class Card:
     notes: str = ""
     related_papers: tuple[str, ...] = ()
     path: Optional[Path] = field(default=None, compare=False)
+    hyperparameters: Mapping[str, tuple[HyperparameterMap, ...]] = field(default_factory=dict, compare=False)
+    implements_equation: bool = True
+    equation_slot: Optional[str] = None
 
     @property
     def terminal(self) -> str:
@@ -88,6 +117,10 @@ class Card:
         if len(self.terminals) == 1:
             return dict(self.parameters)
         return dict(self.parameters.get(terminal) or {})
+
+    def hyperparameters_for(self, terminal: Optional[str] = None) -> tuple[HyperparameterMap, ...]:
+        """How the paper's hyperparameters set ``terminal``'s parameters (in order of priority)."""
+        return tuple(self.hyperparameters.get(terminal or self.terminal, ()))
 
 
 def _fail(path: Path, message: str) -> CardFormatError:
@@ -109,6 +142,51 @@ def _mapping(path: Path, value: Any, what: str, required: tuple[str, ...]) -> di
     if missing:
         raise _fail(path, f"{what} lacks {', '.join(missing)}")
     return value
+
+
+HYPERPARAMETER_FIELDS = ("param", "value", "also", "qualifiers", "sentence", "together", "card_used")
+
+
+def _hyperparameter(path: Path, name: str, raw: Any, terminal: str) -> HyperparameterMap:
+    """One entry of a card's ``hyperparameters``: ``name: param`` or ``name: {param: ..., value: ...}``."""
+    if isinstance(raw, str):
+        raw = {"param": raw}
+    if not isinstance(raw, dict) or not isinstance(raw.get("param"), str):
+        raise _fail(path, f"hyperparameters.{terminal}.{name} must be a parameter name or a mapping with 'param'")
+    unknown = [k for k in raw if k not in HYPERPARAMETER_FIELDS]
+    if unknown:
+        raise _fail(path, f"hyperparameters.{terminal}.{name}: unknown field(s) {', '.join(unknown)} "
+                          f"(known: {', '.join(HYPERPARAMETER_FIELDS)})")
+    also = raw.get("also") or {}
+    if not isinstance(also, dict) or not all(isinstance(v, str) for v in also.values()):
+        raise _fail(path, f"hyperparameters.{terminal}.{name}.also must map parameters to expressions")
+    qualifiers = raw.get("qualifiers") or []
+    if not isinstance(qualifiers, list):
+        raise _fail(path, f"hyperparameters.{terminal}.{name}.qualifiers must be a list")
+    return HyperparameterMap(name=name, param=raw["param"], value=str(raw.get("value") or "value"),
+                             also=tuple((str(k), v) for k, v in also.items()),
+                             qualifiers=tuple(str(q or "") for q in qualifiers), sentence=str(raw.get("sentence") or ""),
+                             together=_strings(path, raw.get("together"), f"hyperparameters.{name}.together"),
+                             card_used=bool(raw.get("card_used", False)))
+
+
+def _hyperparameters(path: Path, raw: Any, terminals: tuple[str, ...]) -> dict[str, tuple[HyperparameterMap, ...]]:
+    """A card's ``hyperparameters``, keyed by terminal (a one-terminal card may leave the terminal out)."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise _fail(path, "hyperparameters must be a mapping")
+    by_terminal = raw if len(terminals) > 1 or set(raw) <= set(terminals) else {terminals[0]: raw}
+    extra = [k for k in by_terminal if k not in terminals]
+    if extra:
+        raise _fail(path, f"hyperparameters of a card with several terminals are keyed by terminal "
+                          f"({list(terminals)}); got {extra}")
+    out = {}
+    for terminal, entries in by_terminal.items():
+        if not isinstance(entries, dict):
+            raise _fail(path, f"hyperparameters.{terminal} must map hyperparameter names to parameters")
+        out[terminal] = tuple(_hyperparameter(path, str(n), v, terminal) for n, v in entries.items())
+    return out
 
 
 def parse_card(data: Any, path: Path) -> Card:
@@ -176,6 +254,9 @@ def parse_card(data: Any, path: Path) -> Card:
         notes=str(data.get("notes") or ""),
         related_papers=_strings(path, data.get("related_papers"), "related_papers"),
         path=path,
+        hyperparameters=_hyperparameters(path, data.get("hyperparameters"), terminals),
+        implements_equation=bool(data.get("implements_equation", True)),
+        equation_slot=None if data.get("equation_slot") is None else str(data["equation_slot"]),
     )
 
 
@@ -187,23 +268,28 @@ def load_card_file(path: Path) -> Card:
     return parse_card(data, Path(path))
 
 
-@lru_cache(maxsize=8)
-def _load_cards_cached(directory: str) -> tuple[tuple[str, Card], ...]:
+def read_cards(directory: Path | str = CARDS_DIR) -> dict[str, Card]:
+    """Every card of the folder ``directory``, by name (read now: no cache; a ``KnowledgeBase`` keeps them)."""
     folder = Path(directory)
     if not folder.is_dir():
-        raise CardFormatError(f"no cards folder at {folder}; reinstall nerfify-ns")
-    cards = [load_card_file(p) for p in sorted(folder.glob("*.yaml"))]
-    return tuple((c.name, c) for c in cards)
+        raise CardFormatError(f"no cards folder at {folder}; reinstall nerfify-ns (or give a folder with cards/)")
+    return {c.name: c for c in (load_card_file(p) for p in sorted(folder.glob("*.yaml")))}
+
+
+def _default_cards() -> dict[str, Card]:
+    from nerfify_ns.knowledge.kb import KnowledgeBase
+
+    return KnowledgeBase.default().cards
 
 
 def load_cards(directory: Optional[Path] = None) -> dict[str, Card]:
-    """Every card, by name (loaded once per folder, then cached)."""
-    return dict(_load_cards_cached(str(Path(directory or CARDS_DIR).resolve())))
+    """Every card, by name: the default knowledge base's (a copy), or those of ``directory`` (read now)."""
+    return read_cards(directory) if directory is not None else dict(_default_cards())
 
 
-def card(name: str) -> Card:
-    """The card called ``name``; raises ``UnknownCardError``."""
-    cards = load_cards()
+def card(name: str, cards: Optional[Mapping[str, Card]] = None) -> Card:
+    """The card called ``name`` (of ``cards``, default: the default knowledge base); raises ``UnknownCardError``."""
+    cards = _default_cards() if cards is None else cards
     try:
         return cards[name]
     except KeyError:
@@ -211,9 +297,10 @@ def card(name: str) -> Card:
         raise UnknownCardError(f"no knowledge card named {name!r}; known cards: {known}") from None
 
 
-def cards_for_terminal(terminal: str) -> list[Card]:
+def cards_for_terminal(terminal: str, cards: Optional[Mapping[str, Card]] = None) -> list[Card]:
     """Cards covering grammar terminal ``terminal`` (primary terminal first)."""
-    found = [c for c in load_cards().values() if terminal in c.terminals]
+    cards = _default_cards() if cards is None else cards
+    found = [c for c in cards.values() if terminal in c.terminals]
     return sorted(found, key=lambda c: (c.terminal != terminal, c.name))
 
 
@@ -227,11 +314,11 @@ class AliasMatch:
     end: int
 
 
-def match_aliases(text: str) -> list[AliasMatch]:
+def match_aliases(text: str, cards: Optional[Iterable[Card]] = None) -> list[AliasMatch]:
     """Every card alias occurring in ``text`` (whole words, case-insensitive, hyphen/space tolerant,
     optional plural), ordered by position; overlapping hits are all kept."""
     hits: list[AliasMatch] = []
-    for c in load_cards().values():
+    for c in (_default_cards().values() if cards is None else cards):
         for alias in c.aliases:
             for m in alias_pattern(alias).finditer(text):
                 hits.append(AliasMatch(card=c, alias=alias, start=m.start(), end=m.end()))
@@ -239,12 +326,12 @@ def match_aliases(text: str) -> list[AliasMatch]:
     return hits
 
 
-def find_by_alias(text: str) -> list[Card]:
+def find_by_alias(text: str, cards: Optional[Iterable[Card]] = None) -> list[Card]:
     """The cards whose aliases occur in ``text``, each once, in order of first occurrence.
 
     Where aliases overlap the longest wins ("integrated positional encoding" is not also
     "positional encoding")."""
-    spans = [(h.start, h.end, h.card) for h in match_aliases(text)]
+    spans = [(h.start, h.end, h.card) for h in match_aliases(text, cards)]
     seen: dict[str, Card] = {}
     for _, _, c in longest_non_overlapping(spans):
         seen.setdefault(c.name, c)

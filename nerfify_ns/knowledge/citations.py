@@ -1,7 +1,7 @@
 """Compositional citation recovery: what a paper takes from the works it cites, followed transitively.
 
-    uses = find_citation_uses(doc)                  # "we use the proposal network of [7]" ...
-    graph = build_citation_graph(doc, detections)   # networkx graph + resolution of the productions
+    uses = find_citation_uses(doc, kb)                  # "we use the proposal network of [7]" ...
+    graph = build_citation_graph(doc, detections, kb=kb)  # networkx graph + resolution of the productions
     graph.resolution.filled / .missing              # production -> component taken, and what is missing
     graph.to_json(); graph.draw("deps.png")
 
@@ -12,6 +12,7 @@ target paper, the cited papers, and the known papers reached through ``builds_on
 edges are labelled with the relation and the components (cards) taken. Resolution stops when every
 needed production is filled, and reports the rest as missing.
 
+``kb`` is the ``KnowledgeBase`` (cards, papers, patterns) to read; None means the default one.
 ``doc`` is any object shaped like ``nerfify_ns.paper.Document`` (the knowledge package does not
 import the paper package).
 """
@@ -22,148 +23,62 @@ import json
 import re
 from collections import deque
 from dataclasses import asdict, dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Iterable, Optional, Sequence
 
 import networkx as nx
-import yaml
 
-from nerfify_ns.knowledge.cards import Card, load_cards
-from nerfify_ns.knowledge.errors import KnowledgeError
-from nerfify_ns.knowledge.papers import PAPERS_FILE, KnownPaper, load_papers, match_paper
+from nerfify_ns.knowledge.cards import Card
+from nerfify_ns.knowledge.kb import AliasTable, KnowledgeBase, first_word
+from nerfify_ns.knowledge.papers import PAPERS_FILE, KnownPaper, read_papers
+from nerfify_ns.knowledge.patterns import PATTERNS_FILE, CitationPattern, PatternSet, read_patterns
 from nerfify_ns.knowledge.sentences import sentences
-from nerfify_ns.knowledge.text import alias_pattern, longest_non_overlapping, normalize_arxiv_id, normalize_title
+from nerfify_ns.knowledge.text import longest_non_overlapping
 
-PATTERNS_FILE = Path(__file__).resolve().parent / "citation_patterns.yaml"
+__all__ = ["TARGET", "CitationPattern", "PatternSet", "CitationUse", "Component", "Resolution", "CitationGraph",
+           "load_patterns", "builds_on", "productions_of", "match_reference", "match_target", "first_word",
+           "card_aliases", "find_spans", "find_citation_uses", "build_citation_graph", "PAPERS_FILE", "PATTERNS_FILE"]
+
 TARGET = "target"
 _TOKEN = "\u27e6{}\u27e7"
-_CITE = r"(?P<cite>\u27e6\d+\u27e7(?:\s*(?:,|and)?\s*\u27e6\d+\u27e7)*)"
 _MARKER = re.compile(r"\[([^\[\]]{1,200})\]")
 _APPENDIX = re.compile(r"\s*(?:[-:(]\s*)?(?:appendix|appendices|supplementary(?: material)?|supplemental(?: material)?)\)?\s*$",
                        re.IGNORECASE)
 
 
 # ------------------------------------------------------------------------------------------ data
-@dataclass(frozen=True)
-class CitationPattern:
-    name: str
-    relation: str
-    regex: re.Pattern
+def load_patterns(path: Optional[str] = None) -> PatternSet:
+    """The compositional citation patterns: the default knowledge base's, or those of the file ``path``."""
+    return read_patterns(path) if path is not None else KnowledgeBase.default().patterns
 
 
-@dataclass(frozen=True)
-class PatternSet:
-    patterns: tuple[CitationPattern, ...]
-    terminal_productions: dict
-    needed_productions: tuple[str, ...]
-    bare_names: tuple[tuple[str, re.Pattern], ...] = ()
-
-
-@lru_cache(maxsize=2)
-def load_patterns(path: str = str(PATTERNS_FILE)) -> PatternSet:
-    """The compositional citation patterns (``citation_patterns.yaml``)."""
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-        patterns = tuple(CitationPattern(p["name"], p["relation"],
-                                         re.compile(p["regex"].replace("{cite}", _CITE), re.IGNORECASE))
-                         for p in data["patterns"])
-        for p in patterns:
-            if p.relation not in ("adopts", "follows", "builds_on"):
-                raise KnowledgeError(f"{path}: pattern {p.name!r} has unknown relation {p.relation!r}")
-        bare = tuple((k, re.compile(v)) for k, v in (data.get("bare_names") or {}).items())
-        return PatternSet(patterns, dict(data.get("terminal_productions") or {}),
-                          tuple(data.get("needed_productions") or ()), bare)
-    except (OSError, KeyError, TypeError, re.error, yaml.YAMLError) as exc:
-        raise KnowledgeError(f"{path}: cannot read the citation patterns ({exc}); fix citation_patterns.yaml") from exc
-
-
-@lru_cache(maxsize=2)
-def builds_on(path: str = str(PAPERS_FILE)) -> dict[str, tuple[str, ...]]:
+def builds_on(path: Optional[str] = None) -> dict[str, tuple[str, ...]]:
     """``builds_on`` of every known paper (papers.yaml): the known papers its method derives from."""
-    raw = yaml.safe_load(Path(path).read_text(encoding="utf-8")).get("papers") or []
-    known = {str(p.get("key")) for p in raw}
-    out: dict[str, tuple[str, ...]] = {}
-    for p in raw:
-        deps = p.get("builds_on") or []
-        if not isinstance(deps, list) or any(d not in known for d in deps):
-            raise KnowledgeError(f"{path}: {p.get('key')!r}.builds_on must list known paper keys, got {deps!r}; "
-                                 "fix papers.yaml")
-        out[str(p["key"])] = tuple(deps)
-    return out
+    if path is not None:
+        return {k: p.builds_on for k, p in read_papers(path).items()}
+    return KnowledgeBase.default().builds_on
 
 
-def productions_of(c: Card) -> list[str]:
+def productions_of(c: Card, kb: Optional[KnowledgeBase] = None) -> list[str]:
     """The card productions a card fills (its own, plus those of its extra terminals)."""
-    extra = load_patterns().terminal_productions
-    out = [c.production]
-    for t in c.terminals:
-        if t in extra and extra[t] not in out:
-            out.append(extra[t])
-    return out
+    return KnowledgeBase.of(kb).productions_of(c)
 
 
-def match_reference(ref: Any, papers: Optional[dict[str, KnownPaper]] = None) -> Optional[KnownPaper]:
+def match_reference(ref: Any, kb: Optional[KnowledgeBase] = None) -> Optional[KnownPaper]:
     """The known paper a ``Reference`` points to: arXiv id, title, then a known title inside the raw entry."""
-    args = (getattr(ref, "title", "") or "", getattr(ref, "arxiv", "") or "", getattr(ref, "raw", "") or "")
-    if papers is None:
-        key = _match_reference_cached(*args)
-        return load_papers()[key] if key else None
-    return _match_reference(*args, papers)
+    return KnowledgeBase.of(kb).match_reference(ref)
 
 
-@lru_cache(maxsize=4096)
-def _match_reference_cached(title: str, arxiv: str, raw: str) -> Optional[str]:
-    found = _match_reference(title, arxiv, raw, load_papers())
-    return found.key if found else None
-
-
-@lru_cache(maxsize=4)
-def _titles(path: str = str(PAPERS_FILE)) -> tuple[tuple[str, str], ...]:
-    return tuple((p.key, p.normalized_title) for p in load_papers().values())
-
-
-def _match_reference(title: str, arxiv: str, raw: str, papers: dict[str, KnownPaper]) -> Optional[KnownPaper]:
-    found = match_paper(title=title or None, arxiv=arxiv or None, papers=papers)
-    if found is not None:
-        return found
-    if re.search(r"arxiv|\d{4}\.\d{4,5}", raw, re.IGNORECASE):
-        found = match_paper(arxiv=normalize_arxiv_id(raw), papers=papers)
-        if found is not None:
-            return found
-    key = f" {normalize_title(raw)} "
-    best: Optional[tuple[str, str]] = None
-    for pkey, ptitle in (_titles() if papers is load_papers() or set(papers) == set(load_papers())
-                         else tuple((p.key, p.normalized_title) for p in papers.values())):
-        if len(ptitle) >= 20 and f" {ptitle} " in key and (best is None or len(ptitle) > len(best[1])):
-            best = (pkey, ptitle)
-    return papers.get(best[0]) if best else None
-
-
-def match_target(doc: Any) -> Optional[KnownPaper]:
+def match_target(doc: Any, kb: Optional[KnowledgeBase] = None) -> Optional[KnownPaper]:
     """The known paper the document itself is, if any (an appendix or supplement counts as its paper)."""
     title = _APPENDIX.sub("", getattr(doc, "title", "") or "").strip()
-    return match_paper(title=title) if title else None
+    return KnowledgeBase.of(kb).match_paper(title=title) if title else None
 
 
 # ------------------------------------------------------------------------------------------ aliases
-_WORD = re.compile(r"[0-9a-z]+")
-
-
-def first_word(alias: str) -> str:
-    words = _WORD.findall(alias.lower())
-    return max(words, key=len) if words else ""
-
-
-@lru_cache(maxsize=1)
-def card_aliases() -> tuple[tuple[str, re.Pattern, object], ...]:
+def card_aliases(kb: Optional[KnowledgeBase] = None) -> AliasTable:
     """(prefilter word, pattern, (card, alias)) for every card alias."""
-    return tuple((first_word(a), alias_pattern(a), (c.name, a)) for c in load_cards().values() for a in c.aliases)
-
-
-@lru_cache(maxsize=1)
-def _paper_aliases() -> tuple[tuple[str, re.Pattern, object], ...]:
-    return tuple((first_word(a), alias_pattern(a), p.key) for p in load_papers().values() for a in p.aliases)
+    return KnowledgeBase.of(kb).card_aliases
 
 
 def find_spans(text: str, table: Sequence[tuple[str, re.Pattern, object]]) -> list[tuple[int, int, object]]:
@@ -217,14 +132,15 @@ def _marker_keys(inner: str, ref_keys: set[str]) -> Optional[list[str]]:
 
 
 def _targets(sentence: str, ref_keys: set[str], ref_papers: dict[str, Optional[str]],
-             papers: dict[str, KnownPaper]) -> list[_Target]:
+             kb: KnowledgeBase) -> list[_Target]:
+    """The citation targets of ``sentence``: markers ([7], [3, 5], [key]) and known papers named by an alias."""
     out: list[_Target] = []
     for m in _MARKER.finditer(sentence):
         keys = _marker_keys(m.group(1), ref_keys)
         if keys:
             out.append(_Target(keys, [p for k in keys if (p := ref_papers.get(k))], m.start(), m.end()))
-    spans = find_spans(sentence, _paper_aliases())
-    spans += [(m.start(), m.end(), key) for key, pat in load_patterns().bare_names for m in pat.finditer(sentence)]
+    spans = find_spans(sentence, kb.paper_aliases)
+    spans += [(m.start(), m.end(), key) for key, pat in kb.patterns.bare_names for m in pat.finditer(sentence)]
     for start, end, key in longest_non_overlapping(spans):
         if all(end <= t.start or start >= t.end for t in out):
             out.append(_Target([], [key], start, end))
@@ -243,31 +159,31 @@ def _tokenize(sentence: str, targets: list[_Target]) -> str:
     return "".join(parts)
 
 
-def _card_hits(text: str, cards: Optional[dict[str, Card]] = None) -> list[str]:
+def _card_hits(text: str, kb: KnowledgeBase) -> list[str]:
     """Card names whose aliases occur in ``text`` (longest alias wins), in order of first occurrence."""
     seen: list[str] = []
-    for _, _, (name, _alias) in longest_non_overlapping(find_spans(text, card_aliases())):
+    for _, _, (name, _alias) in longest_non_overlapping(find_spans(text, kb.card_aliases)):
         if name not in seen:
             seen.append(name)
     return seen
 
 
-def find_citation_uses(doc: Any) -> list[CitationUse]:
+def find_citation_uses(doc: Any, kb: Optional[KnowledgeBase] = None) -> list[CitationUse]:
     """Every sentence where the paper takes something from a cited work (see citation_patterns.yaml).
 
     Sentences about someone else's work (related work, "X et al. [3] proposed ..."), comparisons with
     baselines and contrast clauses ("unlike [4]") are not uses."""
-    papers = load_papers()
-    cards = load_cards()
+    kb = KnowledgeBase.of(kb)
+    papers = kb.papers
     refs = {r.key: r for r in getattr(doc, "references", [])}
-    ref_papers = {k: (p.key if (p := match_reference(r)) else None) for k, r in refs.items()}
-    target = match_target(doc)
+    ref_papers = {k: (p.key if (p := kb.match_reference(r)) else None) for k, r in refs.items()}
+    target = match_target(doc, kb)
     uses: list[CitationUse] = []
-    for unit in sentences(doc):
+    for unit in sentences(doc, kb.rules):
         if unit.role in ("title", "ignore"):
             continue
         ctx = unit.context
-        targets = _targets(unit.text, set(refs), ref_papers, papers)
+        targets = _targets(unit.text, set(refs), ref_papers, kb)
         if not targets:
             continue
         if unit.role == "prior" and not ctx.own:
@@ -278,7 +194,7 @@ def find_citation_uses(doc: Any) -> list[CitationUse]:
             continue
         tokenized = _tokenize(unit.text, targets)
         taken: set[tuple[int, str]] = set()
-        for pattern in load_patterns().patterns:
+        for pattern in kb.patterns.patterns:
             for m in pattern.regex.finditer(tokenized):
                 idx = [int(i) for i in re.findall(r"\u27e6(\d+)\u27e7", m.group("cite"))]
                 idx = [i for i in idx if not ctx.in_contrast(targets[i].start, targets[i].end)]
@@ -292,10 +208,10 @@ def find_citation_uses(doc: Any) -> list[CitationUse]:
                     continue
                 groups = m.groupdict()
                 if groups.get("component") is not None:
-                    named = _card_hits(re.sub(r"\u27e6\d+\u27e7", " ", groups["component"]), cards)
+                    named = _card_hits(re.sub(r"\u27e6\d+\u27e7", " ", groups["component"]), kb)
                 else:
                     provided = {c for p in cited for c in papers[p].provides}
-                    named = [c for c in _card_hits(re.sub(r"\u27e6\d+\u27e7", " ", tokenized), cards) if c in provided]
+                    named = [c for c in _card_hits(re.sub(r"\u27e6\d+\u27e7", " ", tokenized), kb) if c in provided]
                 if pattern.relation == "adopts" and not named:
                     continue
                 taken.update((i, pattern.relation) for i in idx)
@@ -346,7 +262,8 @@ class CitationGraph:
     """The target paper's dependency graph (networkx DiGraph, edges target -> dependency)."""
 
     def __init__(self, graph: nx.DiGraph, uses: list[CitationUse], target_paper: Optional[str],
-                 direct: list[tuple[str, Any]]):
+                 direct: list[tuple[str, Any]], kb: Optional[KnowledgeBase] = None):
+        self.kb = KnowledgeBase.of(kb)
         self.graph = graph
         self.uses = uses
         self.target_paper = target_paper
@@ -364,9 +281,10 @@ class CitationGraph:
     def resolve(self, needed: Optional[Iterable[str]] = None) -> Resolution:
         """Fill every needed production from the paper and its dependencies, following ``builds_on``
         transitively (breadth first); what no paper reached provides is reported missing."""
-        needed = list(needed if needed is not None else load_patterns().needed_productions)
-        cards = load_cards()
-        papers = load_papers()
+        kb = self.kb
+        needed = list(needed if needed is not None else kb.patterns.needed_productions)
+        cards = kb.cards
+        papers = kb.papers
         res = Resolution(needed=needed)
         seen: set[str] = set()
 
@@ -375,7 +293,7 @@ class CitationGraph:
             c = cards.get(card_name)
             if c is None:
                 return False
-            prods = productions_of(c)
+            prods = kb.productions_of(c)
             if only_missing and not any(p in needed and p not in res.filled for p in prods):
                 return False
             if card_name in seen:
@@ -399,7 +317,7 @@ class CitationGraph:
         # 2. techniques the paper itself is detected to use
         for card_name, ev in self._direct:
             c = cards.get(card_name)
-            source = _card_source(c, papers) if c else None
+            source = kb.card_source(c) if c else None
             paper = TARGET if source is None or source == self.target_paper else source
             path = [TARGET] if paper == TARGET else [TARGET, paper]
             take(card_name, paper, path, "detected", getattr(ev, "quote", ""), getattr(ev, "section", ""),
@@ -427,7 +345,7 @@ class CitationGraph:
                      use.page if use else None, use.line if use else None, only_missing=True)
             if own:  # what the registry says the paper itself builds on is not in the input: not followed
                 continue
-            for dep in builds_on().get(key, ()):
+            for dep in papers[key].builds_on:
                 queue.append((dep, [*path, dep], "registry", None))
         res.missing = [p for p in needed if p not in res.filled]
         self.resolution = res
@@ -445,7 +363,7 @@ class CitationGraph:
             path = comp.path
             for a, b in zip(path, path[1:]):
                 if b not in g:
-                    p = load_papers().get(b)
+                    p = self.kb.papers.get(b)
                     g.add_node(b, kind="transitive", title=p.title if p else b, year=p.year if p else None,
                                arxiv=p.arxiv if p else None, provides=list(p.provides) if p else [])
                 if not g.has_edge(a, b):
@@ -529,32 +447,22 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def _card_source(c: Card, papers: Optional[dict[str, KnownPaper]] = None) -> Optional[str]:
-    """The known paper that introduced card ``c``."""
-    return _card_source_cached(c.paper.title, c.paper.arxiv or "")
-
-
-@lru_cache(maxsize=256)
-def _card_source_cached(title: str, arxiv: str) -> Optional[str]:
-    p = match_paper(title=title, arxiv=arxiv or None)
-    return p.key if p else None
-
-
 def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
-                         needed: Optional[Iterable[str]] = None) -> CitationGraph:
+                         needed: Optional[Iterable[str]] = None, kb: Optional[KnowledgeBase] = None) -> CitationGraph:
     """The target paper's citation graph, resolved for ``needed`` productions (default: a field, a
     sampler, a renderer and a loss; see citation_patterns.yaml).
 
     ``detections`` are ``nerfify_ns.knowledge.detect.Detection`` objects; those used count as the
     paper's own components (their card's source paper becomes a dependency)."""
-    papers = load_papers()
-    target = match_target(doc)
+    kb = KnowledgeBase.of(kb)
+    papers = kb.papers
+    target = match_target(doc, kb)
     g = nx.DiGraph()
     g.add_node(TARGET, kind="target", title=getattr(doc, "title", "") or "", known=target.key if target else None,
-               registry_builds_on=list(builds_on().get(target.key, ())) if target else [])
+               registry_builds_on=list(target.builds_on) if target else [])
     refs = list(getattr(doc, "references", []))
     for r in refs:
-        p = match_reference(r)
+        p = kb.match_reference(r)
         node = p.key if p else f"ref:{r.key}"
         if node == (target.key if target else None):
             continue
@@ -565,7 +473,7 @@ def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
         g.nodes[node].setdefault("keys", []).append(r.key)
         if not g.has_edge(TARGET, node):
             g.add_edge(TARGET, node, relation="cites", components=[], quotes=[], keys=[r.key], explicit=[])
-    uses = find_citation_uses(doc)
+    uses = find_citation_uses(doc, kb)
     strength = {"cites": 0, "follows": 1, "builds_on": 2, "adopts": 3}
     for u in uses:
         for p in u.papers:
@@ -588,10 +496,10 @@ def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
         if getattr(d, "used", False):
             ev = next((e for e in d.evidence if getattr(e, "usage", False)), d.evidence[0] if d.evidence else None)
             direct.append((d.card, ev))
-    graph = CitationGraph(g, uses, target.key if target else None, direct)
+    graph = CitationGraph(g, uses, target.key if target else None, direct, kb)
     for card_name, _ in direct:
-        c = load_cards().get(card_name)
-        src = _card_source(c, papers) if c else None
+        c = kb.cards.get(card_name)
+        src = kb.card_source(c) if c else None
         if src and src != graph.target_paper and src not in g:
             kp = papers[src]
             g.add_node(src, kind="technique", title=kp.title, year=kp.year, arxiv=kp.arxiv,

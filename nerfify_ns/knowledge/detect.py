@@ -1,6 +1,6 @@
 """Technique detection: which knowledge-base techniques (cards) a paper uses, with evidence.
 
-    detections = detect_techniques(doc)
+    detections = detect_techniques(doc, kb)     # kb: a KnowledgeBase (None: the default one)
     [d.card for d in detections if d.used]
 
 Signals (weights in ``detect.yaml``): card aliases in the text, the card's equation fragments in the
@@ -21,13 +21,13 @@ from __future__ import annotations
 
 import re
 from dataclasses import asdict, dataclass, field
-from functools import lru_cache
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
-from nerfify_ns.knowledge.cards import Card, load_cards
-from nerfify_ns.knowledge.citations import first_word, card_aliases, find_citation_uses, find_spans, match_reference
-from nerfify_ns.knowledge.sentences import SentenceContext, load_rules, read_sentence, role_of_section, sentences
-from nerfify_ns.knowledge.text import alias_pattern, longest_non_overlapping
+from nerfify_ns.knowledge.cards import Card
+from nerfify_ns.knowledge.citations import find_citation_uses, find_spans
+from nerfify_ns.knowledge.kb import KnowledgeBase
+from nerfify_ns.knowledge.sentences import Rules, SentenceContext, Unit, read_sentence, role_of_section, sentences
+from nerfify_ns.knowledge.text import longest_non_overlapping
 
 STATUSES = ("used", "uncertain", "mentioned_only")
 
@@ -97,6 +97,45 @@ def used_cards(detections: list[Detection]) -> list[str]:
     return [d.card for d in detections if d.used]
 
 
+@dataclass
+class SceneCue:
+    """A fact about the paper's scenes (``timestamps`` = True for a dynamic scene) and the sentence stating it."""
+
+    flag: str
+    value: Any
+    quote: str
+    section: str
+    page: Optional[int]
+    line: Optional[int]
+    cue: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def detect_scene(doc: Any, kb: Optional[KnowledgeBase] = None,
+                 units: Optional[Sequence[Unit]] = None) -> dict[str, SceneCue]:
+    """The scene facts the paper states about its own method (detect.yaml ``scene_cues``), first statement each;
+    related work, mentions of other work and contrast clauses state nothing (``units``: the paper's
+    sentences when the caller has read them already)."""
+    kb = KnowledgeBase.of(kb)
+    found: dict[str, SceneCue] = {}
+    for unit in (units if units is not None else sentences(doc, kb.rules)):
+        if unit.role not in ("title", "abstract", "method"):
+            continue
+        ctx = unit.context
+        if ctx.prior and not ctx.usage:
+            continue
+        for flag, value, patterns in kb.rules.scene_cues:
+            if flag in found:
+                continue
+            m = next((m for pat in patterns for m in pat.finditer(unit.text) if not ctx.in_contrast(m.start(), m.end())),
+                     None)
+            if m is not None:
+                found[flag] = SceneCue(flag, value, unit.text, unit.section, unit.page, unit.line, m.group(0))
+    return found
+
+
 # ------------------------------------------------------------------------------------------ helpers
 _LATEX_NOISE = re.compile(r"\\(?:mathopen|mathclose)\{\}|\\(?:left|right|big|Big|bigg|Bigg|displaystyle|textstyle)\b|"
                           r"\\[,;:! ]|\\q?quad\b|\s+|[{}]")
@@ -107,29 +146,18 @@ def norm_latex(s: str) -> str:
     return _LATEX_NOISE.sub("", s or "")
 
 
-@lru_cache(maxsize=1)
-def _phrase_patterns() -> tuple[tuple[str, str, str, re.Pattern], ...]:
-    out = []
-    for c in load_cards().values():
-        for ph in c.signals.phrases:
-            try:
-                out.append((first_word(ph), c.name, ph, alias_pattern(ph)))
-            except ValueError:
-                continue
-    return tuple(out)
-
-
-def _ctx_weight(role: str, sentence: str = "") -> float:
-    ctx = read_sentence(sentence, role) if sentence else SentenceContext(role, False, False, False, ())
-    return ctx.use_weight()
+def _ctx_weight(role: str, rules: Rules) -> float:
+    """How much evidence in a section of ``role`` counts as a use, without a sentence to read."""
+    return SentenceContext(role, False, False, False, (), context_weights=rules.context_weights).use_weight()
 
 
 # ------------------------------------------------------------------------------------------ detection
-def detect_techniques(doc: Any) -> list[Detection]:
-    """Every card the paper uses or mentions, strongest first (see the module docstring)."""
-    rules = load_rules()
+def detect_techniques(doc: Any, kb: Optional[KnowledgeBase] = None) -> list[Detection]:
+    """Every card of ``kb`` the paper uses or mentions, strongest first (see the module docstring)."""
+    kb = KnowledgeBase.of(kb)
+    rules = kb.rules
     sw = rules.signal_weights
-    cards = load_cards()
+    cards = kb.cards
     found: dict[str, list[Evidence]] = {}
 
     def add(card_name: str, ev: Evidence) -> None:
@@ -138,13 +166,13 @@ def detect_techniques(doc: Any) -> list[Detection]:
             items.append(ev)
 
     # 1. aliases and phrases, sentence by sentence
-    for unit in sentences(doc):
-        for start, end, (name, alias) in longest_non_overlapping(find_spans(unit.text, card_aliases())):
+    for unit in sentences(doc, rules):
+        for start, end, (name, alias) in longest_non_overlapping(find_spans(unit.text, kb.card_aliases)):
             w = unit.context.use_weight(start, end)
             add(name, Evidence(unit.text, unit.section, unit.page, unit.line, "alias", alias, unit.role,
                                round(sw["alias"] * w, 4)))
         low = unit.text.lower()
-        for word, name, phrase, pat in _phrase_patterns():
+        for word, name, phrase, pat in kb.phrase_patterns:
             m = pat.search(unit.text) if word in low else None
             if m:
                 w = unit.context.use_weight(m.start(), m.end())
@@ -152,10 +180,10 @@ def detect_techniques(doc: Any) -> list[Detection]:
                                    round(sw["phrase"] * w, 4)))
     # 2. equations: the cards' key fragments, and aliases written in the equation ("L = MSE(...)")
     for eq in getattr(doc, "equations", []):
-        role = role_of_section(doc, eq.section)
+        role = role_of_section(doc, eq.section, rules)
         if role == "ignore":
             continue
-        w = _ctx_weight(role)
+        w = _ctx_weight(role, rules)
         latex, text = norm_latex(eq.latex), norm_latex(eq.text)
         quote = eq.latex.strip() or eq.text.strip()
         if not quote:
@@ -171,7 +199,7 @@ def detect_techniques(doc: Any) -> list[Detection]:
                     add(c.name, Evidence(quote, eq.section, page, line, "equation", f"{label}: {frag}", role,
                                          round(sw["equation"] * w, 4)))
                     break
-        for _, _, (name, alias) in find_spans(eq.text or "", card_aliases()):
+        for _, _, (name, alias) in find_spans(eq.text or "", kb.card_aliases):
             add(name, Evidence(quote, eq.section, page, line, "equation", f"{label}: {alias}", role,
                                round(sw["equation"] * w, 4)))
     # 3. hyperparameters the paper states
@@ -179,8 +207,8 @@ def detect_techniques(doc: Any) -> list[Detection]:
         names = rules.hyperparameter_cards.get(h.name)
         if not names or not h.sentence:
             continue
-        role = role_of_section(doc, h.section)
-        w = read_sentence(h.sentence, role).use_weight()
+        role = role_of_section(doc, h.section, rules)
+        w = read_sentence(h.sentence, role, rules).use_weight()
         name = names[0]
         if len(names) > 1:  # the candidate with the most other evidence (num_frequencies: PE or IPE)
             name = max(names, key=lambda n: (sum(e.weight for e in found.get(n, []) if e.kind == "alias"), -names.index(n)))
@@ -188,23 +216,23 @@ def detect_techniques(doc: Any) -> list[Detection]:
                            "hyperparameter", f"{h.name} = {h.value}", role, round(sw["hyperparameter"] * w, 4)))
     # 4. citations: explicit "we use X of [k]" uses, then any sentence citing the technique's paper
     explicit: set[str] = set()
-    for u in find_citation_uses(doc):
-        w = read_sentence(u.sentence, u.role).use_weight()
+    for u in find_citation_uses(doc, kb):
+        w = read_sentence(u.sentence, u.role, rules).use_weight()
         for name in u.components:
             explicit.add(u.sentence)
             add(name, Evidence(u.sentence, u.section, u.page, u.line, "citation",
                                f"{u.relation} ({u.pattern}) {', '.join(u.papers) or ', '.join(u.keys)}", u.role,
                                round(sw["citation"] * w, 4)))
     refs = {r.key: r for r in getattr(doc, "references", [])}
-    matched = {k: match_reference(r) for k, r in refs.items()}
+    matched = {k: kb.match_reference(r) for k, r in refs.items()}
     roles_cache: dict[str, str] = {}
     for c in getattr(doc, "citations", []):
         if c.sentence in explicit:
             continue
-        role = roles_cache.setdefault(c.section, role_of_section(doc, c.section))
+        role = roles_cache.setdefault(c.section, role_of_section(doc, c.section, rules))
         if role == "ignore":
             continue
-        ctx = read_sentence(c.sentence, role)
+        ctx = read_sentence(c.sentence, role, rules)
         for key in c.keys:
             p = matched.get(key)
             if p is None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import difflib
 from dataclasses import dataclass, field
-from functools import lru_cache
 from pathlib import Path
 from typing import Optional
 
@@ -38,6 +37,7 @@ class KnownPaper:
     aliases: tuple[str, ...] = ()
     provides: tuple[str, ...] = ()
     notes: str = field(default="", compare=False)
+    builds_on: tuple[str, ...] = field(default=(), compare=False)
 
     @property
     def normalized_title(self) -> str:
@@ -64,11 +64,23 @@ def _parse(entry: object, index: int, path: Path) -> KnownPaper:
                       year=None if entry["year"] is None else int(entry["year"]),
                       venue=None if entry["venue"] is None else str(entry["venue"]),
                       arxiv=None if arxiv is None else str(arxiv), aliases=tuple(entry["aliases"] or ()),
-                      provides=tuple(entry["provides"] or ()), notes=str(entry.get("notes") or ""))
+                      provides=tuple(entry["provides"] or ()), notes=str(entry.get("notes") or ""),
+                      builds_on=_builds_on(entry, path))
 
 
-@lru_cache(maxsize=4)
-def _load_papers_cached(path: str) -> tuple[KnownPaper, ...]:
+def _builds_on(entry: dict, path: Path) -> tuple[str, ...]:
+    deps = entry.get("builds_on") or []
+    if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
+        raise PaperRegistryError(f"{path}: {entry['key']!r}.builds_on must be a list of paper keys, got {deps!r}; "
+                                 "fix papers.yaml")
+    return tuple(deps)
+
+
+def read_papers(path: Path | str = PAPERS_FILE) -> dict[str, KnownPaper]:
+    """Every paper of the registry file ``path``, by key (read now: no cache; a ``KnowledgeBase`` keeps them).
+
+    Raises ``PaperRegistryError`` for a malformed file, a repeated key, arXiv id or title, or a
+    ``builds_on`` naming a paper the registry does not know."""
     file = Path(path)
     try:
         data = yaml.safe_load(file.read_text(encoding="utf-8"))
@@ -90,12 +102,20 @@ def _load_papers_cached(path: str) -> tuple[KnownPaper, ...]:
                 raise PaperRegistryError(f"{file}: {p.key!r} repeats the {kind} of {seen[tag]!r}; "
                                          "fix papers.yaml")
             seen[tag] = p.key
-    return papers
+    for p in papers:
+        if any(f"key:{d}" not in seen for d in p.builds_on):
+            raise PaperRegistryError(f"{file}: {p.key!r}.builds_on must list known paper keys, got "
+                                     f"{list(p.builds_on)!r}; fix papers.yaml")
+    return {p.key: p for p in papers}
 
 
 def load_papers(path: Optional[Path] = None) -> dict[str, KnownPaper]:
-    """Every known paper, by key (loaded once, then cached)."""
-    return {p.key: p for p in _load_papers_cached(str(Path(path or PAPERS_FILE).resolve()))}
+    """Every known paper, by key: the default knowledge base's (``path`` given: that file, read now)."""
+    if path is not None:
+        return read_papers(path)
+    from nerfify_ns.knowledge.kb import KnowledgeBase
+
+    return dict(KnowledgeBase.default().papers)
 
 
 def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
@@ -107,6 +127,10 @@ def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
     alias equal to the title ("Mip-NeRF 360"); a near-identical title (ratio >= 0.93).
     """
     papers = load_papers() if papers is None else papers
+    return _match_paper(title, arxiv, papers)
+
+
+def _match_paper(title: Optional[str], arxiv: Optional[str], papers: dict[str, KnownPaper]) -> Optional[KnownPaper]:
     wanted = normalize_arxiv_id(arxiv) if arxiv else None
     if wanted:
         for p in papers.values():
@@ -135,10 +159,11 @@ def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
     return None
 
 
-def find_papers_by_alias(text: str) -> list[KnownPaper]:
+def find_papers_by_alias(text: str, papers: Optional[dict[str, KnownPaper]] = None) -> list[KnownPaper]:
     """Known papers named in running text by an alias ("as in Mip-NeRF 360"), in order of first
     mention; overlapping aliases resolve to the longest ("Mip-NeRF 360" is not also "Mip-NeRF")."""
-    spans = [(m.start(), m.end(), p) for p in load_papers().values() for a in p.aliases
+    papers = load_papers() if papers is None else papers
+    spans = [(m.start(), m.end(), p) for p in papers.values() for a in p.aliases
              for m in alias_pattern(a).finditer(text)]
     seen: dict[str, KnownPaper] = {}
     for _, _, p in longest_non_overlapping(spans):

@@ -9,8 +9,7 @@ imports nothing from the paper package, it only reads those attributes.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
-from functools import lru_cache
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional
 
@@ -38,10 +37,24 @@ class Rules:
     contrast: tuple[re.Pattern, ...]
     comparison: tuple[re.Pattern, ...]
     hyperparameter_cards: dict
+    scene_cues: tuple = ()   # (flag, value, (pattern, ...)) per scene fact a paper can state
 
 
-@lru_cache(maxsize=2)
-def load_rules(path: str = str(DETECT_FILE)) -> Rules:
+def load_rules(path: Optional[str] = None) -> Rules:
+    """The detection rules: the default knowledge base's, or those of the file ``path`` (read now)."""
+    if path is not None:
+        return read_rules(path)
+    from nerfify_ns.knowledge.kb import KnowledgeBase
+
+    return KnowledgeBase.default().rules
+
+
+def _rules(rules: Optional[Rules]) -> Rules:
+    return rules if rules is not None else load_rules()
+
+
+def read_rules(path: Path | str = DETECT_FILE) -> Rules:
+    """The compiled contents of a ``detect.yaml`` (read now: no cache; a ``KnowledgeBase`` keeps them)."""
     try:
         data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
         cues = data["cues"]
@@ -54,7 +67,9 @@ def load_rules(path: str = str(DETECT_FILE)) -> Rules:
             section_roles=tuple((r["role"], re.compile(r["pattern"], re.IGNORECASE)) for r in data["section_roles"]),
             context_weights=dict(data["context_weights"]), signal_weights=dict(data["signal_weights"]),
             used_threshold=float(data["used_threshold"]), prior=comp(cues["prior"]), usage=comp(cues["usage"]), own=comp(cues["own"]),
-            contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards)
+            contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards,
+            scene_cues=tuple((str(flag), spec["value"], comp(spec["patterns"]))
+                             for flag, spec in (data.get("scene_cues") or {}).items()))
     except (OSError, KeyError, TypeError, re.error, yaml.YAMLError) as exc:
         raise KnowledgeError(f"{path}: cannot read the detection rules ({exc}); fix detect.yaml") from exc
 
@@ -76,9 +91,9 @@ def split_sentences(text: str) -> list[str]:
     return [s.strip() for s in out if s.strip()]
 
 
-def section_roles(doc: Any) -> dict[int, str]:
+def section_roles(doc: Any, rules: Optional[Rules] = None) -> dict[int, str]:
     """The role of every section of ``doc`` (by index): prior, method, experiments, conclusion, ignore."""
-    rules = load_rules()
+    rules = _rules(rules)
     roles: dict[int, str] = {}
     stack: list[tuple[int, str, str]] = []  # (level, number, role)
     for i, s in enumerate(doc.sections):
@@ -117,13 +132,14 @@ class SentenceContext:
     comparison: bool
     contrast_spans: tuple[tuple[int, int], ...]
     own: bool = False
+    context_weights: dict = field(default_factory=dict, compare=False, repr=False)
 
     def in_contrast(self, start: int, end: int) -> bool:
         return any(a <= start and end <= b + 1 for a, b in self.contrast_spans)
 
     def use_weight(self, start: int = 0, end: int = 0) -> float:
         """How much a mention at [start, end) counts as the paper using the technique (0 = mention only)."""
-        rules = load_rules()
+        weights = self.context_weights or load_rules().context_weights
         if self.role == "ignore" or (end > start and self.in_contrast(start, end)):
             return 0.0
         if self.role == "prior":
@@ -133,17 +149,18 @@ class SentenceContext:
         if self.role == "experiments":
             if self.usage:
                 return 0.8
-            return 0.0 if self.comparison else rules.context_weights["experiments"]
-        return float(rules.context_weights.get(self.role, 1.0))
+            return 0.0 if self.comparison else weights["experiments"]
+        return float(weights.get(self.role, 1.0))
 
 
-def read_sentence(sentence: str, role: str) -> SentenceContext:
-    rules = load_rules()
+def read_sentence(sentence: str, role: str, rules: Optional[Rules] = None) -> SentenceContext:
+    """How ``sentence`` (in a section of ``role``) speaks about techniques, by the cues of ``rules``."""
+    rules = _rules(rules)
     return SentenceContext(role=role, prior=any(p.search(sentence) for p in rules.prior),
                            usage=any(p.search(sentence) for p in rules.usage),
                            comparison=any(p.search(sentence) for p in rules.comparison),
                            contrast_spans=tuple(_clause_spans(sentence, rules.contrast)),
-                           own=any(p.search(sentence) for p in rules.own))
+                           own=any(p.search(sentence) for p in rules.own), context_weights=rules.context_weights)
 
 
 @dataclass(frozen=True)
@@ -165,31 +182,32 @@ def _loc(loc: Any) -> tuple[Optional[int], Optional[int], int]:
     return getattr(loc, "page", None), getattr(loc, "line", None), getattr(loc, "order", 0) or 0
 
 
-def sentences(doc: Any) -> Iterator[Unit]:
+def sentences(doc: Any, rules: Optional[Rules] = None) -> Iterator[Unit]:
     """Every sentence of the title, abstract, headings and paragraphs, in reading order, with its role."""
+    rules = _rules(rules)
     if doc.title:
         page = 1 if getattr(doc, "kind", "") == "pdf" else None
-        yield Unit(doc.title, "", "title", page, None if page else 1, 0, read_sentence(doc.title, "title"))
+        yield Unit(doc.title, "", "title", page, None if page else 1, 0, read_sentence(doc.title, "title", rules))
     for s in split_sentences(doc.abstract or ""):
         yield Unit(s, "Abstract", "abstract", 1 if getattr(doc, "kind", "") == "pdf" else None, None, 0,
-                   read_sentence(s, "abstract"))
-    roles = section_roles(doc)
+                   read_sentence(s, "abstract", rules))
+    roles = section_roles(doc, rules)
     for i, sec in enumerate(doc.sections):
         role = roles[i]
         if role == "ignore":
             continue
         page, line, order = _loc(sec.loc)
         if sec.heading:
-            yield Unit(sec.heading, sec.heading, role, page, line, order, read_sentence(sec.heading, role))
+            yield Unit(sec.heading, sec.heading, role, page, line, order, read_sentence(sec.heading, role, rules))
         for p in sec.paragraphs:
             page, line, order = _loc(p.loc)
             for s in split_sentences(p.text):
-                yield Unit(s, sec.heading, role, page, line, order, read_sentence(s, role))
+                yield Unit(s, sec.heading, role, page, line, order, read_sentence(s, role, rules))
 
 
-def role_of_section(doc: Any, heading: str) -> str:
+def role_of_section(doc: Any, heading: str, rules: Optional[Rules] = None) -> str:
     """The role of the section called ``heading`` ("method" when unknown)."""
-    roles = section_roles(doc)
+    roles = section_roles(doc, rules)
     for i, s in enumerate(doc.sections):
         if s.heading == heading:
             return roles[i]

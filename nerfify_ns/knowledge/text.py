@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import unicodedata
-from functools import lru_cache
 from typing import Optional
 
 __all__ = ["normalize_text", "normalize_title", "normalize_arxiv_id", "alias_pattern",
@@ -56,11 +55,11 @@ def normalize_arxiv_id(value: Optional[str]) -> Optional[str]:
     return None
 
 
-@lru_cache(maxsize=4096)
 def alias_pattern(alias: str) -> re.Pattern:
     """A case-insensitive pattern for ``alias`` in running text: whole words only, any run of
     spaces, hyphens, underscores, slashes or "~" between its words, an optional plural 's'/'es'.
-    A '+' in the alias is kept literally ("nerf++" does not match plain "NeRF")."""
+    A '+' in the alias is kept literally ("nerf++" does not match plain "NeRF"). Knowledge-base tables
+    compile their aliases once (``KnowledgeBase.card_aliases``); ``re`` caches the rest."""
     tokens = re.findall(r"[0-9a-z]+|\+", _strip_accents(alias).lower())
     if not any(t != "+" for t in tokens):
         raise ValueError(f"empty alias {alias!r}")

@@ -1,17 +1,20 @@
 """Plan derivation: a paper (ingested, techniques detected, citations recovered) -> a plan the grammar accepts.
 
-    doc = ingest(path)
-    detections = detect_techniques(doc)
-    graph = build_citation_graph(doc, detections)
-    derived = derive_plan(doc, detections, graph)      # derived.plan validates; derived.holes lists gaps
+    kb = KnowledgeBase.load()                                   # or KnowledgeBase.load(folder)
+    detections = detect_techniques(doc, kb)
+    graph = build_citation_graph(doc, detections, kb=kb)
+    derived = derive_plan(doc, detections, graph, kb=kb)        # derived.plan validates; derived.holes lists gaps
 
-1. The base is the reference plan (``method_configs/``) whose techniques best cover what the paper
-   uses (detections, weighted by confidence) and what citation recovery took from cited work.
-2. The detected terminals replace the base's where the grammar allows it (each substitution is
-   checked; one the grammar refuses is reported in ``notes``, never forced).
-3. The paper's hyperparameters replace the base's values: encoding frequencies, coarse/fine samples,
-   learning rate (Adam, exponential decay to the paper's final rate when stated), ray batch size,
-   iterations, hash table size, loss weights.
+1. The base is the reference plan (``method_configs/``) the paper says it builds on, else the one whose
+   techniques best cover what the paper uses (detections, weighted by confidence) and what citation
+   recovery took from cited work (``base_choice.py``; a close call is recorded with both candidates).
+2. The detected terminals replace the base's where the grammar allows it: where a card's terminal goes
+   is read from the grammar (its path, and whether its slot is a choice, a set or a sequence); each
+   substitution is checked, and one the grammar refuses is reported in ``notes``, never forced.
+3. The paper's hyperparameters replace the base's values: each card says which of the paper's
+   hyperparameters set which parameter of its terminal (``hyperparameters`` in the card), read by one
+   loop over the plan's terminals; the trainer's (learning rate and schedule, ray batch, iterations)
+   concern no technique and are read here.
 4. Every value carries evidence in ``plan["evidence"]`` (plan path -> quote with page/section);
    values kept from the base plan say so.
 5. Paper-specific parts no card covers (its own equations) become ``plan["holes"]``: the production
@@ -21,39 +24,27 @@
 
 from __future__ import annotations
 
-import copy
+import ast
 import math
+import operator
 import re
-from dataclasses import asdict, dataclass, field
-from functools import lru_cache
-from typing import Any, Optional, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional, Sequence
 
-import yaml
-
+from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, check, load_grammar, validate
-from nerfify_ns.knowledge.cards import Card, load_cards
-from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, card_aliases, match_target
-from nerfify_ns.knowledge.detect import Detection, detect_techniques, norm_latex
-from nerfify_ns.knowledge.sentences import role_of_section, section_roles
-from nerfify_ns.synthesis.resources import load_reference_plan
+from nerfify_ns.knowledge.bases import find_base_statements
+from nerfify_ns.knowledge.cards import Card, HyperparameterMap
+from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, match_target
+from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques, norm_latex
+from nerfify_ns.knowledge.kb import KnowledgeBase
+from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
+from nerfify_ns.plan import Hole, Plan
+from nerfify_ns.synthesis.base_choice import BaseDecision, choose_base, exclusive_cards
+from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 
-BASE_ORDER = ("vanilla-nerf", "mipnerf", "nerfacto", "instant-ngp", "tensorf", "kplanes-static")
-GENERIC_CARDS = {"rgb_l2", "background_model", "mlp_backbone", "density_activation"}
-FIELD = "model.field.MLPField"
-
-# slot a card's terminal goes to (MLP fields), by terminal
-TERMINAL_SLOTS = {
-    "positional": f"{FIELD}.pos_encoding", "integrated_positional": f"{FIELD}.pos_encoding",
-    "hash": f"{FIELD}.pos_encoding", "kplanes": f"{FIELD}.pos_encoding", "triplane": f"{FIELD}.pos_encoding",
-    "sh": f"{FIELD}.dir_encoding", "frequency": f"{FIELD}.dir_encoding",
-    "l2": "model.losses.rgb", "l1": "model.losses.rgb", "charbonnier": "model.losses.rgb",
-    "distortion": "model.losses.distortion", "interlevel": "model.losses.interlevel",
-    "plane_tv": "model.regularizers.plane_tv", "ray_entropy": "model.regularizers.ray_entropy",
-    "density_sparsity": "model.regularizers.density_sparsity",
-    "appearance_embedding": f"{FIELD}.appearance_embedding",
-    "hierarchical": "model.sampler", "proposal": "model.sampler", "occupancy_grid": "model.sampler",
-}
-CHOICE_SLOTS = {f"{FIELD}.pos_encoding", f"{FIELD}.dir_encoding", "model.losses.rgb", "model.sampler"}
+__all__ = ["DerivedPlan", "Hole", "TerminalSlot", "HyperparameterError", "derive_plan", "plan_from_paper",
+           "terminal_slots", "slot_table", "evaluate", "slug"]
 
 # what kind of part an uncovered equation is, from words in it and around it (first match wins)
 HOLE_KINDS = (
@@ -66,85 +57,178 @@ HOLE_KINDS = (
     ("dir_encoding", r"spherical harmonic|view(?:ing)? direction"),
     ("backbone", r"."),
 )
-HOLE_SLOTS = {
-    "spatial_distortion": (f"{FIELD}.spatial_distortion", "SpatialDistortion", "scene_contraction"),
-    "renderer": ("model.renderer", "Model.renderer", "renderer"),
-    "regularizer": ("model.regularizers", "Regularizers", None),
-    "loss": ("model.losses.rgb", "RGBLoss", None),
-    "sampler": ("model.sampler", "Sampler", None),
-    "pos_encoding": (f"{FIELD}.pos_encoding", "PosEncoding", None),
-    "dir_encoding": (f"{FIELD}.dir_encoding", "DirEncoding", None),
-    "backbone": (f"{FIELD}.backbone", "MLPField.backbone", "mlp"),
-    "rgb_head": (f"{FIELD}.rgb_head", "MLPField.rgb_head", "rgb_mlp"),
+# the production (grammar nonterminal) each kind of hole is a part of; its slot and stand-in come from the grammar
+HOLE_SYMBOLS = {
+    "spatial_distortion": "SpatialDistortion", "renderer": "Renderer", "regularizer": "Regularizers",
+    "loss": "RGBLoss", "sampler": "Sampler", "pos_encoding": "PosEncoding", "dir_encoding": "DirEncoding",
+    "backbone": "Backbone", "rgb_head": "RGBHead",
 }
 _MATHY = re.compile(r"\\(?:int|sum|frac|exp|label|sigma|mathbf|hat|left|right|prod)\b")
 
 
-@dataclass
-class Hole:
-    """A paper-specific part no card covers: it is NOT implemented; the base's part stands in."""
-
-    production: str
-    slot: str
-    contract: dict
-    text: str
-    equations: list[dict]
-    status: str = "not implemented"
-    stands_in: str = ""
-    section: str = ""
-    where: str = ""
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+class HyperparameterError(NerfifyError):
+    """A card's hyperparameter expression that cannot be evaluated (a bug in the card, named with it)."""
 
 
 @dataclass
 class DerivedPlan:
     """The derived plan (``validate`` accepts it), its holes, the base chosen and why, and the evidence
-    of every value (plan path -> {source: paper | citation | card | base, quote, section, page, line})."""
+    of every value (plan path -> {source: paper | citation | card | base, quote, section, page, line}).
 
-    plan: dict
+    ``base_choice`` holds every candidate base with its score and coverage, the paper's statement of
+    its base when it makes one, and ``close_call``: the sentence saying why one of two bases within the
+    close margin was chosen ("" when the choice was clear; also in ``plan["notes"]``)."""
+
+    plan: Plan
     holes: list[dict]
     base: str
     base_reason: str
     evidence: dict
     detections: list[Detection] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
+    base_choice: Optional[BaseDecision] = None
+
+    @property
+    def close_call(self) -> str:
+        return self.base_choice.close_call if self.base_choice else ""
 
     def paper_quotes(self) -> list[str]:
         return [e["quote"] for e in self.evidence.values() if e.get("quote")]
 
     def to_dict(self) -> dict:
-        return {"plan": self.plan, "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
+        return {"plan": self.plan.to_dict(), "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
+                "base_choice": self.base_choice.to_dict() if self.base_choice else None,
                 "evidence": self.evidence, "missing": self.missing,
                 "detections": [d.to_dict() for d in self.detections]}
 
 
-# ------------------------------------------------------------------------------------------ helpers
-def _get(plan: dict, path: str) -> Any:
-    node: Any = plan
-    for key in path.split("."):
-        if not isinstance(node, dict) or key not in node:
+# ------------------------------------------------------------------------------------------ grammar slots
+@dataclass(frozen=True)
+class TerminalSlot:
+    """Where a terminal goes in a plan, read from the grammar.
+
+    ``path`` holds the terminal's parameters (``model.sampler.proposal``); ``slot`` is the position it
+    fills (``model.sampler``); ``kind`` is how: ``choice`` (one alternative, ``{terminal: params}``),
+    ``set`` (a member among others), ``sequence`` (the slot is the terminal) or ``enum`` (the slot's
+    value is the terminal's name: the base, chosen by the base choice, never substituted)."""
+
+    terminal: str
+    path: str
+    slot: str
+    kind: str
+
+
+def slot_table(grammar: Grammar) -> dict[str, list[TerminalSlot]]:
+    """Every terminal's slots, from one walk over the grammar's derivable paths."""
+    symbols = dict(grammar.symbol_paths())
+    table: dict[str, list[TerminalSlot]] = {}
+    for path, symbol in symbols.items():
+        nt = grammar.nonterminals.get(symbol)
+        if nt is not None and nt.kind == "enum":
+            for t in nt.alternatives:
+                table.setdefault(t, []).append(TerminalSlot(t, path, path, "enum"))
+        if symbol not in grammar.terminals:
+            continue
+        parent = path.rsplit(".", 1)[0] if "." in path else ""
+        owner = grammar.nonterminals.get(symbols.get(parent, grammar.start)) if parent else None
+        kind = owner.kind if owner is not None and owner.kind in ("choice", "set") else "sequence"
+        table.setdefault(symbol, []).append(TerminalSlot(symbol, path, parent if kind != "sequence" else path, kind))
+    return table
+
+
+def terminal_slots(grammar: Grammar, terminal: str) -> list[TerminalSlot]:
+    """Where ``terminal`` goes in a plan ([] for a name the grammar cannot place)."""
+    return slot_table(grammar).get(terminal, [])
+
+
+def _reachable(plan: Plan, path: str, grammar: Grammar, symbols: dict[str, str]) -> bool:
+    """Whether every choice alternative on the way to ``path`` is the plan's (an MLP-field slot is not
+    reachable in a plan whose field is tensorial)."""
+    parts = path.split(".")
+    for i in range(1, len(parts)):
+        parent, here = ".".join(parts[:i]), ".".join(parts[:i + 1])
+        nt = grammar.nonterminals.get(symbols.get(parent, ""))
+        if nt is not None and nt.kind == "choice" and here != path and not plan.has(here):
+            return False
+    return True
+
+
+# ------------------------------------------------------------------------------------------ expressions
+_BINARY: dict[type, Callable[[Any, Any], Any]] = {
+    ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+    ast.FloorDiv: operator.floordiv, ast.Pow: operator.pow, ast.Mod: operator.mod}
+_COMPARE: dict[type, Callable[[Any, Any], bool]] = {
+    ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge, ast.Eq: operator.eq,
+    ast.NotEq: operator.ne}
+
+
+def exact_log2(value: Any) -> Optional[int]:
+    """log2 of a positive power of two, else None ("2^19 entries" -> 19; 500000 -> None)."""
+    if not isinstance(value, (int, float)) or value <= 0:
+        return None
+    exponent = math.log2(value)
+    return int(exponent) if exponent.is_integer() else None
+
+
+FUNCTIONS: dict[str, Callable[..., Any]] = {"exact_log2": exact_log2, "max": max, "min": min, "int": int,
+                                            "float": float, "round": round, "abs": abs}
+
+
+def evaluate(expression: str, names: dict[str, Any]) -> Any:
+    """The value of a card's hyperparameter expression (arithmetic, comparisons, ``x if c else y``, lists and
+    the functions of ``FUNCTIONS``) over ``names``; anything else raises ``HyperparameterError``."""
+    try:
+        return _eval(ast.parse(expression, mode="eval").body, names)
+    except HyperparameterError:
+        raise
+    except (SyntaxError, TypeError, ValueError, ZeroDivisionError, OverflowError) as exc:
+        raise HyperparameterError(f"cannot evaluate {expression!r}: {exc}") from None
+
+
+def _eval(node: ast.AST, names: dict[str, Any]) -> Any:
+    if isinstance(node, ast.Constant):
+        return node.value
+    if isinstance(node, ast.Name):
+        if node.id not in names:
+            raise HyperparameterError(f"unknown name {node.id!r} (known: {', '.join(sorted(names))})")
+        return names[node.id]
+    if isinstance(node, (ast.List, ast.Tuple)):
+        return [_eval(e, names) for e in node.elts]
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd, ast.Not)):
+        value = _eval(node.operand, names)
+        return -value if isinstance(node.op, ast.USub) else (not value if isinstance(node.op, ast.Not) else value)
+    if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
+        return _BINARY[type(node.op)](_eval(node.left, names), _eval(node.right, names))
+    if isinstance(node, ast.Compare) and len(node.ops) == 1 and type(node.ops[0]) in _COMPARE:
+        return _COMPARE[type(node.ops[0])](_eval(node.left, names), _eval(node.comparators[0], names))
+    if isinstance(node, ast.BoolOp):
+        values = [_eval(v, names) for v in node.values]
+        return all(values) if isinstance(node.op, ast.And) else any(values)
+    if isinstance(node, ast.IfExp):
+        return _eval(node.body, names) if _eval(node.test, names) else _eval(node.orelse, names)
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS and not node.keywords:
+        args = [_eval(a, names) for a in node.args]
+        return None if any(a is None for a in args) else FUNCTIONS[node.func.id](*args)
+    raise HyperparameterError(f"{ast.unparse(node)!r} is not allowed in a card's hyperparameter expression")
+
+
+def _coerce(value: Any, kind: str) -> Any:
+    """``value`` as the grammar's parameter type ``kind`` (None when it is not one: the statement is skipped)."""
+    if value is None or isinstance(value, bool) and kind not in ("bool",):
+        return None
+    if kind == "int":
+        return int(value) if isinstance(value, (int, float)) and float(value).is_integer() else None
+    if kind == "float":
+        return float(value) if isinstance(value, (int, float)) else None
+    if kind in ("int_list", "float_list"):
+        if not isinstance(value, list):
             return None
-        node = node[key]
-    return node
+        items = [_coerce(v, kind.split("_")[0]) for v in value]
+        return None if any(v is None for v in items) else items
+    return value
 
 
-def _set(plan: dict, path: str, value: Any) -> None:
-    keys = path.split(".")
-    node = plan
-    for key in keys[:-1]:
-        node = node.setdefault(key, {})
-    node[keys[-1]] = value
-
-
-def _delete(plan: dict, path: str) -> None:
-    keys = path.split(".")
-    node = _get(plan, ".".join(keys[:-1])) if len(keys) > 1 else plan
-    if isinstance(node, dict):
-        node.pop(keys[-1], None)
-
-
+# ------------------------------------------------------------------------------------------ helpers
 def _where(page: Optional[int], line: Optional[int], section: str) -> str:
     loc = f"p.{page}" if page is not None else (f"l.{line}" if line is not None else "")
     return ", ".join(x for x in (loc, f"Sec. {section}" if section else "") if x)
@@ -169,35 +253,43 @@ def slug(doc: Any) -> str:
     return name if len(name) >= 2 else f"{name}-method"
 
 
-@lru_cache(maxsize=16)
-def _plan_cards(name: str) -> frozenset:
-    g = load_grammar()
-    d = validate(load_reference_plan(name), g)
-    return frozenset(g.terminals[t].card for t in d.used.values() if g.terminals[t].card)
+def hosted_cards(grammar: Grammar, names: Sequence[str]) -> dict[str, frozenset]:
+    """Reference plan -> the cards of the terminals it uses."""
+    out = {}
+    for name in names:
+        d = validate(load_reference_plan(name), grammar)
+        out[name] = frozenset(grammar.terminals[t].card for t in d.used.values()
+                              if t in grammar.terminals and grammar.terminals[t].card)
+    return out
 
 
-@lru_cache(maxsize=64)
-def _card_extra(name: str) -> dict:
-    """Fields of a card file beyond the Card dataclass (implements_equation, equation_slot)."""
-    c = load_cards().get(name)
-    if c is None or c.path is None:
-        return {}
-    return yaml.safe_load(c.path.read_text(encoding="utf-8")) or {}
+def base_order(kb: KnowledgeBase) -> list[str]:
+    """The reference plans a plan can start from, in the knowledge base's order of preference (plainest
+    first), then any other reference plan."""
+    available = reference_plans()
+    listed = [m for m in kb.bases.order if m in available]
+    return listed + [m for m in available if m not in listed]
 
 
 # ------------------------------------------------------------------------------------------ derivation
 class _Deriver:
-    def __init__(self, doc: Any, detections: Sequence[Detection], graph: CitationGraph, grammar: Grammar):
+    def __init__(self, doc: Any, detections: Sequence[Detection], graph: CitationGraph, grammar: Grammar,
+                 kb: KnowledgeBase):
         self.doc = doc
         self.g = grammar
+        self.kb = kb
         self.detections = list(detections)
         self.graph = graph
         self.res = graph.resolution if graph.resolution.needed else graph.resolve()
-        self.cards = load_cards()
+        self.cards = kb.cards
         self.evidence: dict[str, dict] = {}
         self.notes: list[str] = []
-        self.used = {d.card: d for d in self.detections if d.used}
-        self.roles = section_roles(doc)
+        self.used = {d.card: d for d in self.detections if d.used and d.card in kb.cards}
+        self.roles = section_roles(doc, kb.rules)
+        self.units = list(sentences(doc, kb.rules))  # read once: base statements and scene cues scan them
+        self.paths = list(grammar.symbol_paths())
+        self.symbols = dict(self.paths)  # path -> the innermost symbol there (an open production's terminal)
+        self.slots = slot_table(grammar)
 
     # ----------------------------------------------------------------- evidence
     def paper_evidence(self, path: str, quote: str, section: str, page, line, card: str = "",
@@ -209,41 +301,39 @@ class _Deriver:
         self.evidence.setdefault(path, {"source": "base", "quote": "", "section": "", "page": None, "line": None,
                                         "card": "", "what": f"from the base plan {base!r}, not stated in the paper"})
 
-    # ----------------------------------------------------------------- candidates
+    # ----------------------------------------------------------------- base
     def candidates(self) -> dict[str, float]:
         """Cards the paper uses (confidence) or takes from cited work (less)."""
         weights: dict[str, float] = {}
         for name, d in self.used.items():
             weights[name] = max(weights.get(name, 0.0), d.confidence)
         for comp in self.res.taken:
-            w = 0.6 if comp.relation in ("adopts", "follows", "detected", "requires") else 0.3
-            weights[comp.card] = max(weights.get(comp.card, 0.0), w)
+            if comp.card in self.cards:
+                w = self.kb.bases.choice.citation_weight(comp.relation)
+                weights[comp.card] = max(weights.get(comp.card, 0.0), w)
         return weights
 
-    def choose_base(self) -> tuple[str, str]:
-        cand = self.candidates()
-        scores = []
-        for name in BASE_ORDER:
-            covered = self._plan_cards(name)
-            score = sum(w for c, w in cand.items() if c in covered)
-            extra = [c for c in covered if c not in cand and c not in GENERIC_CARDS]
-            scores.append((score - 0.05 * len(extra), -BASE_ORDER.index(name), name, covered))
-        scores.sort(reverse=True)
-        best = scores[0]
-        name, covered = best[2], best[3]
-        if not cand:
-            return name, (f"no technique of the paper was recovered; {name!r}, the plainest NeRF reference plan, "
-                          "stands in for every part")
-        hit = sorted(c for c in cand if c in covered)
-        miss = sorted(c for c in cand if c not in covered)
-        others = ", ".join(f"{s[2]} {s[0]:.2f}" for s in scores[1:4])
-        return name, (f"{name!r} covers {len(hit)} of the {len(cand)} techniques found "
-                      f"({', '.join(hit) or 'none'}){'; not covered: ' + ', '.join(miss) if miss else ''} "
-                      f"(score {best[0]:.2f}; next: {others})")
+    def choose_base(self) -> BaseDecision:
+        """The base (see ``base_choice.py``): the paper's statement, else the best-covering reference plan."""
+        order = base_order(self.kb)
+        hosted = hosted_cards(self.g, order)
+        decision = choose_base(self.candidates(), hosted, exclusive_cards(hosted, self.g), self.kb.bases.choice,
+                               order, find_base_statements(self.doc, self.kb, self.units))
+        st = decision.statement
+        if st is not None:
+            self.paper_evidence("base", st.quote, st.section, st.page, st.line, "", "paper",
+                                f"the paper names the model it builds on ({', '.join(st.bases)})")
+        if decision.close_call:
+            self.notes.append(decision.close_call)
+        return decision
 
-    @staticmethod
-    def _plan_cards(name: str) -> frozenset:
-        return _plan_cards(name)
+    # ----------------------------------------------------------------- scene
+    def scene(self, plan: Plan) -> None:
+        """Scene facts the paper states (a dynamic scene has timestamps), with their quotes."""
+        for flag, cue in detect_scene(self.doc, self.kb, self.units).items():
+            plan.set(f"scene.{flag}", cue.value)
+            self.paper_evidence(f"scene.{flag}", cue.quote, cue.section, cue.page, cue.line, "", "paper",
+                                f"{flag} = {cue.value} ({cue.cue})")
 
     # ----------------------------------------------------------------- substitutions
     def _card_quote(self, card: str) -> Optional[tuple[str, str, Any, Any, str]]:
@@ -257,47 +347,70 @@ class _Deriver:
                 return comp.quote, comp.section, comp.page, comp.line, "citation"
         return None
 
-    def substitute(self, plan: dict) -> None:
+    def substitute(self, plan: Plan) -> None:
+        """Each card of the paper (then each recovered from citations) put where the grammar places its
+        primary terminal; its other terminals only confirm what the plan already holds."""
         ordered = list(self.used) + [c.card for c in self.res.taken if c.card not in self.used]
         for card_name in dict.fromkeys(ordered):
             c = self.cards.get(card_name)
-            if c is None:
+            if c is None or c.terminal not in self.g.terminals:
                 continue
-            for terminal in c.terminals:
-                slot = TERMINAL_SLOTS.get(terminal)
-                if slot is None or terminal not in self.g.terminals:
-                    continue
-                if _get(plan, "model.field.MLPField") is None and slot.startswith(FIELD):
-                    continue
-                if terminal in ("frequency",) and _get(plan, f"{FIELD}.dir_encoding.sh") is not None:
-                    continue
-                self._try_terminal(plan, c, terminal, slot)
+            primary = [s for s in self.slots.get(c.terminal, ()) if s.kind != "enum"]
+            for ts in primary:
+                if _reachable(plan, ts.path, self.g, self.symbols):
+                    self._place(plan, c, ts)
+            for t in c.terminals[1:]:
+                for ts in self.slots.get(t, ()):
+                    if ts.kind != "enum" and plan.has(ts.path) and not any(ts.slot == p.slot for p in primary):
+                        self._record_card(ts.slot, c)
 
-    def _try_terminal(self, plan: dict, c: Card, terminal: str, slot: str) -> None:
-        current = _get(plan, slot)
-        if slot in CHOICE_SLOTS:
-            if isinstance(current, dict) and terminal in current:
-                self._record_card(slot, c)
-                return
-            new_value = {terminal: self._params(c, terminal)}
-        else:
-            if current is not None:
-                self._record_card(slot, c)
-                return
-            new_value = self._params(c, terminal)
-        if slot in CHOICE_SLOTS and isinstance(current, dict):
-            other = next(iter(current))
-            if other in self.g.terminals and self.g.terminals[other].card in self.used and c.name not in self.used:
-                return  # the paper's own choice beats a component recovered from citations
-        trial = copy.deepcopy(plan)
-        _set(trial, slot, new_value)
-        problems = check(trial, self.g)
-        if problems:
-            self.notes.append(f"{c.name} ({terminal}) was found in the paper but is not used at {slot}: "
-                              f"{problems[0].message} (the base's part stays)")
+    def _variants(self, c: Card, ts: TerminalSlot) -> tuple[list[str], list[str]]:
+        """The card's terminals for the slot of ``ts``: (those with scene duties: a space-time encoding for a
+        scene with timestamps, the others), each in the card's order."""
+        same = [t for t in c.terminals if any(s.slot == ts.slot and s.kind == ts.kind for s in self.slots.get(t, ()))]
+        specific = [t for t in same if any("requires_scene" in d for d in self.g.terminals[t].duties)]
+        return specific, [t for t in same if t not in specific]
+
+    def _place(self, plan: Plan, c: Card, ts: TerminalSlot) -> None:
+        """Put card ``c`` at the slot of ``ts``. What the plan holds of the card stays, unless a variant with
+        scene duties fits (kplanes -> kplanes_time for a scene with timestamps); otherwise the first variant
+        the grammar accepts. A choice the paper made itself is not replaced by one recovered from citations."""
+        if ts.kind != "choice" and plan.has(ts.path):
+            self._record_card(ts.path, c)
             return
-        _set(plan, slot, new_value)
-        self._record_card(slot, c)
+        current = plan.get(ts.slot)
+        held = next(iter(current), None) if ts.kind == "choice" and isinstance(current, dict) else None
+        if held is not None and held not in c.terminals:
+            other = self.g.terminals.get(held)
+            if other is not None and other.card in self.used and c.name not in self.used:
+                return  # the paper's own choice beats a component recovered from citations
+        specific, others = self._variants(c, ts)
+        problems: dict[str, str] = {}
+        if held in specific or self._try_variants(plan, c, ts, [t for t in specific if t != held], problems):
+            return
+        if held in c.terminals or self._try_variants(plan, c, ts, others, problems):
+            if held in c.terminals:
+                self._record_card(ts.slot, c)
+            return
+        problem = problems.get(c.terminal) or next(iter(problems.values()), "")
+        self.notes.append(f"{c.name} ({c.terminal}) was found in the paper but is not used at {ts.slot}: "
+                          f"{problem} (the base's part stays)")
+
+    def _try_variants(self, plan: Plan, c: Card, ts: TerminalSlot, variants: list[str], problems: dict) -> bool:
+        """Set the first of ``variants`` the grammar accepts at the slot of ``ts`` (True), noting the others'
+        problems in ``problems``."""
+        for terminal in variants:
+            value = {terminal: self._params(c, terminal)} if ts.kind == "choice" else self._params(c, terminal)
+            path = ts.slot if ts.kind == "choice" else next(s.path for s in self.slots[terminal] if s.slot == ts.slot)
+            trial = plan.copy()
+            trial.set(path, value)
+            found = check(trial, self.g)
+            if not found:
+                plan.set(path, value)
+                self._record_card(ts.slot if ts.kind == "choice" else path, c)
+                return True
+            problems[terminal] = found[0].message
+        return False
 
     def _params(self, c: Card, terminal: str) -> dict:
         term = self.g.terminals[terminal]
@@ -315,118 +428,121 @@ class _Deriver:
                                                            f"knowledge base ({c.paper.title})"}
 
     # ----------------------------------------------------------------- hyperparameters
-    def _hp(self, name: str, qualifier: Optional[str] = None) -> Optional[Any]:
-        """The paper's statement of hyperparameter ``name``: method sections first, then reading order."""
+    def _hp(self, name: str, qualifier: Optional[str] = None, sentence: str = "") -> Optional[Any]:
+        """The paper's statement of hyperparameter ``name`` (with ``qualifier``, in a sentence matching
+        ``sentence``): method sections first, then reading order."""
         rank = {"method": 0, "abstract": 1, "title": 1, "experiments": 2, "conclusion": 3}
         found = []
         for i, h in enumerate(getattr(self.doc, "hyperparameters", [])):
             if h.name != name or (qualifier is not None and h.qualifier != qualifier):
                 continue
-            role = role_of_section(self.doc, h.section)
+            if sentence and not re.search(sentence, h.sentence or "", re.IGNORECASE):
+                continue
+            role = role_of_section(self.doc, h.section, self.kb.rules)
             if role in ("prior", "ignore"):
                 continue
             found.append((rank.get(role, 2), i, h))
         found.sort(key=lambda x: (x[0], x[1]))
         return found[0][2] if found else None
 
-    def _apply(self, plan: dict, path: str, value: Any, h: Any, what: str) -> bool:
-        trial = copy.deepcopy(plan)
-        _set(trial, path, value)
+    def _apply(self, plan: Plan, path: str, value: Any, h: Any, what: str) -> bool:
+        trial = plan.copy()
+        trial.set(path, value)
         problems = check(trial, self.g)
         if problems:
             self.notes.append(f"the paper's {what} ({h.raw or h.value}) does not fit {path}: {problems[0].message}")
             return False
-        _set(plan, path, value)
+        plan.set(path, value)
         self.paper_evidence(path, h.sentence, h.section, getattr(h.loc, "page", None), getattr(h.loc, "line", None),
                             "", "paper", what)
         return True
 
-    def hyperparameters(self, plan: dict, holes_slots: set[str]) -> None:
-        pos = _get(plan, f"{FIELD}.pos_encoding") or {}
-        pos_t = next(iter(pos), None)
-        # positional encoding frequencies
-        for qual, slot, kinds in (("position", f"{FIELD}.pos_encoding", ("positional", "integrated_positional")),
-                                  ("direction", f"{FIELD}.dir_encoding", ("frequency",))):
-            enc = _get(plan, slot) or {}
-            t = next(iter(enc), None)
-            if t not in kinds:
+    def _statement(self, m: HyperparameterMap) -> Optional[Any]:
+        """The paper's statement ``m`` reads (its qualifiers tried in order)."""
+        for qualifier in (m.qualifiers or (None,)):
+            h = self._hp(m.name, qualifier, m.sentence)
+            if h is not None:
+                return h
+        return None
+
+    def terminal_hyperparameters(self, plan: Plan, hole_slots: set[str]) -> None:
+        """The paper's hyperparameters set on the plan's terminals, as their cards say (one generic loop)."""
+        for path, terminal in validate(plan, self.g).used.items():
+            term = self.g.terminals.get(terminal)
+            c = self.cards.get(term.card) if term is not None and term.card else None
+            if c is None or terminal not in c.terminals or self._in_hole(path, terminal, hole_slots):
                 continue
-            h = self._hp("num_frequencies", qual) or (self._hp("num_frequencies", "") if qual == "position" else None)
-            if h is None or not isinstance(h.value, int):
-                continue
-            params = dict(enc[t])
-            if params.get("num_frequencies") != h.value:
-                params["num_frequencies"] = h.value
-                params["max_freq_exp"] = float(max(h.value - 1, 1)) + float(params.get("min_freq_exp", 0.0))
-            self._apply(plan, f"{slot}.{t}", params, h, f"number of frequencies L = {h.value} ({qual})")
-        # hierarchical sampling
-        if _get(plan, "model.sampler.hierarchical") is not None:
-            for hp_name, param in (("num_coarse_samples", "num_coarse_samples"),
-                                   ("num_fine_samples", "num_importance_samples")):
-                h = self._hp(hp_name)
-                if h is not None and isinstance(h.value, int):
-                    self._apply(plan, f"model.sampler.hierarchical.{param}", h.value, h, f"{hp_name} = {h.value}")
-            h = self._hp("lambda")
-            if h is not None and re.search(r"coarse", h.sentence, re.IGNORECASE) and isinstance(h.value, (int, float)):
-                self._apply(plan, "model.sampler.hierarchical.coarse_loss_weight", float(h.value), h,
-                            f"coarse loss weight lambda = {h.value}")
-        # hash grid
-        if pos_t == "hash":
-            h = self._hp("log2_hashmap_size")
-            if h is None and (h2 := self._hp("hash_table_size")) is not None and isinstance(h2.value, (int, float)) \
-                    and h2.value > 0:
-                log2 = math.log2(h2.value)
-                if log2.is_integer():
-                    h2v = int(log2)
-                    self._apply(plan, f"{FIELD}.pos_encoding.hash.log2_hashmap_size", h2v, h2, f"hash table size 2^{h2v}")
-            elif h is not None:
-                self._apply(plan, f"{FIELD}.pos_encoding.hash.log2_hashmap_size", int(h.value), h,
-                            f"hash table size 2^{h.value}")
-            for hp_name, param in (("num_levels", "num_levels"), ("features_per_level", "features_per_level"),
-                                   ("min_resolution", "min_res"), ("max_resolution", "max_res")):
-                h = self._hp(hp_name)
-                if h is not None and isinstance(h.value, int):
-                    self._apply(plan, f"{FIELD}.pos_encoding.hash.{param}", h.value, h, f"{hp_name} = {h.value}")
-        # backbone width and depth (only when the paper's MLP is the plan's: not a hole)
-        backbone = f"{FIELD}.backbone"
-        if "mlp_backbone" in self.used and backbone not in holes_slots and _get(plan, backbone) is not None:
-            h_layers, h_width = self._hp("num_layers"), self._hp("hidden_dim")
-            if h_layers and h_width and h_layers.sentence == h_width.sentence:
-                params = dict(_get(plan, backbone))
-                params.update(num_layers=h_layers.value, layer_width=h_width.value)
-                if params.get("skip_connections") and max(params["skip_connections"]) >= h_layers.value:
-                    params["skip_connections"] = []
-                self._apply(plan, backbone, params, h_layers, f"{h_layers.value} layers of {h_width.value} units")
-        # loss weights
-        for hp_name, path in (("lambda_dist", "model.losses.distortion.weight"),
-                              ("lambda_distortion", "model.losses.distortion.weight"),
-                              ("lambda_prop", "model.losses.interlevel.weight"),
-                              ("lambda_interlevel", "model.losses.interlevel.weight"),
-                              ("lambda_tv", "model.regularizers.plane_tv.weight")):
-            h = self._hp(hp_name)
-            if h is not None and _get(plan, path.rsplit(".", 1)[0]) is not None and isinstance(h.value, (int, float)):
-                self._apply(plan, path, float(h.value), h, f"{hp_name} = {h.value}")
-        # ray batch
+            done: set[str] = set()
+            for m in c.hyperparameters_for(terminal):
+                if m.param in done or (m.card_used and c.name not in self.used):
+                    continue
+                if self._apply_map(plan, path, c, terminal, m):
+                    done.add(m.param)
+                    done.update(p.param for p in c.hyperparameters_for(terminal) if p.name in m.together)
+
+    def _in_hole(self, path: str, terminal: str, hole_slots: set[str]) -> bool:
+        """Whether the paper's own part (a hole) replaces the terminal at ``path``: its values are the hole's."""
+        return any(s.path == path and s.kind != "set" and s.slot in hole_slots for s in self.slots.get(terminal, ()))
+
+    def _apply_map(self, plan: Plan, path: str, c: Card, terminal: str, m: HyperparameterMap) -> bool:
+        """Apply one hyperparameter of a card (with its partners and derived parameters) at ``path``."""
+        h = self._statement(m)
+        if h is None:
+            return False
+        group = [m] + [p for p in c.hyperparameters_for(terminal) if p.name in m.together]
+        statements = [h] + [self._hp(p.name) for p in group[1:]]
+        if any(s is None or s.sentence != h.sentence for s in statements):
+            return False
+        term = self.g.terminals[terminal]
+        current = plan.get(path)
+        names = {**term.defaults(), **(current if isinstance(current, dict) else {})}  # the parameters before
+        values = {}
+        for p, s in zip(group, statements):
+            spec = term.params.get(p.param)
+            value = _coerce(evaluate(p.value, {**names, "value": s.value}), spec.type) if spec else None
+            if value is None:
+                return False
+            values[p.param] = value
+        for param, expression in m.also:
+            spec = term.params.get(param)
+            value = _coerce(evaluate(expression, {**names, "value": values[m.param]}), spec.type) if spec else None
+            if value is None:
+                return False
+            if value != names.get(param) or param in (current or {}):  # an unchanged default stays implicit
+                values[param] = value
+        what = ", ".join(f"{p.name} = {s.value}" + (f" (as {p.param} = {values[p.param]})"
+                                                    if p.param != p.name or values[p.param] != s.value else "")
+                         for p, s in zip(group, statements))
+        if m.grouped:
+            return self._apply(plan, path, {**(current or {}), **values}, h, what)
+        return self._apply(plan, f"{path}.{m.param}", values[m.param], h, what)
+
+    def trainer(self, plan: Plan) -> None:
+        """The trainer's hyperparameters (no technique's): ray batch, iterations, optimiser and schedule."""
         h = self._hp("batch_size")
         if h is not None and isinstance(h.value, int) and (h.unit or "rays") in ("rays", "pixels"):
             self._apply(plan, "datamanager.train_num_rays_per_batch", h.value, h, f"batch of {h.value} {h.unit or 'rays'}")
-        # iterations
-        h = self._hp("num_iterations")
-        iterations = None
-        if h is not None:
-            value = max(h.value) if isinstance(h.value, list) else h.value
-            if isinstance(value, (int, float)) and value >= 1:
-                iterations = int(value)
-                if self._apply(plan, "trainer.max_num_iterations", iterations, h, f"{iterations} iterations"):
-                    if isinstance(h.value, list):
-                        self.notes.append(f"the paper gives a range of iterations ({h.raw}); the plan trains for "
-                                          f"the upper end, {iterations}")
-        elif (e := self._hp("num_epochs")) is not None:
-            self.notes.append(f"the paper states {e.raw} (epochs, not iterations); the base's iteration count is kept")
-        # optimiser and schedule
+        iterations = self.iterations(plan)
         self.optimizer(plan, iterations)
 
-    def optimizer(self, plan: dict, iterations: Optional[int]) -> None:
+    def iterations(self, plan: Plan) -> Optional[int]:
+        """The paper's number of iterations (the upper end of a range), or None."""
+        h = self._hp("num_iterations")
+        if h is None:
+            if (e := self._hp("num_epochs")) is not None:
+                self.notes.append(f"the paper states {e.raw} (epochs, not iterations); the base's iteration count is kept")
+            return None
+        value = max(h.value) if isinstance(h.value, list) else h.value
+        if not isinstance(value, (int, float)) or value < 1:
+            return None
+        iterations = int(value)
+        if self._apply(plan, "trainer.max_num_iterations", iterations, h, f"{iterations} iterations") \
+                and isinstance(h.value, list):
+            self.notes.append(f"the paper gives a range of iterations ({h.raw}); the plan trains for "
+                              f"the upper end, {iterations}")
+        return iterations
+
+    def optimizer(self, plan: Plan, iterations: Optional[int]) -> None:
         h = self._hp("learning_rate")
         final = self._hp("learning_rate_final")
         eps = self._hp("adam_eps")
@@ -435,7 +551,7 @@ class _Deriver:
         groups = [g for g in (plan.get("optimizers") or {}) if g != "camera_opt"]
         sentence = h.sentence.lower()
         for group in groups:
-            current = plan["optimizers"][group]
+            current = plan.get(f"optimizers.{group}")
             kind = next(iter(current["optimizer"]))
             if re.search(r"\bradam\b", sentence):
                 kind = "radam"
@@ -450,7 +566,7 @@ class _Deriver:
             self._apply(plan, f"optimizers.{group}.optimizer", {kind: params}, h,
                         f"{kind} with learning rate {h.value}")
             if final is not None and isinstance(final.value, (int, float)) and final.value < h.value:
-                steps = iterations or int(_get(plan, "trainer.max_num_iterations") or 200000)
+                steps = iterations or int(plan.get("trainer.max_num_iterations") or 200000)
                 kind_s = "exponential_decay"
                 if not re.search(r"exponential", final.sentence, re.IGNORECASE):
                     self.notes.append("the paper decays the learning rate to its final value without saying how; "
@@ -460,7 +576,8 @@ class _Deriver:
                             f"exponential decay of the learning rate to {final.value} over {steps} steps")
 
     # ----------------------------------------------------------------- holes
-    def holes(self, plan: dict) -> list[Hole]:
+    def holes(self, plan: Plan) -> list[Hole]:
+        """The paper's parts no card covers: uncovered equations, grouped by section and kind."""
         holes: list[Hole] = []
         taken = set(self.used) | {c.card for c in self.res.taken}
         doc = self.doc
@@ -469,7 +586,7 @@ class _Deriver:
             for p in s.paragraphs:
                 paragraphs.append((getattr(p.loc, "order", 0) or 0, s.heading, p.text, p.loc, self.roles[i]))
         equations = [e for e in getattr(doc, "equations", [])
-                     if role_of_section(doc, e.section) == "method" and (e.latex.strip() or e.text.strip())]
+                     if role_of_section(doc, e.section, self.kb.rules) == "method" and (e.latex.strip() or e.text.strip())]
         groups: dict[tuple[str, str], dict] = {}
         previous: Optional[tuple[str, str]] = None  # (section, kind) of the last uncovered equation
         for e in equations:
@@ -516,15 +633,13 @@ class _Deriver:
             holes.append(self._hole(plan, kind, grp))
         # a card found in the paper whose equation the grammar's terminal does not implement
         for name in self.used:
-            extra = _card_extra(name)
-            if extra.get("implements_equation") is False and extra.get("equation_slot"):
+            c = self.cards[name]
+            if not c.implements_equation and c.equation_slot:
                 d = self.used[name]
                 eqs = [e for e in equations if any(ev.kind == "equation" and ev.quote in (e.latex.strip(), e.text.strip())
                                                    for ev in d.evidence)]
                 eqs += [e for e in equations if e not in eqs and self._eq_mentions(e, paragraphs, name)]
-                c = self.cards[name]
-                slot = extra["equation_slot"]
-                kind = next((k for k, v in HOLE_SLOTS.items() if v[0] == slot), "backbone")
+                kind = next((k for k in HOLE_SYMBOLS if self._hole_slot(plan, k)[0] == c.equation_slot), "backbone")
                 best = d.best()
                 grp = {"equations": [{"number": e.number, "latex": e.latex, "text": e.text,
                                       "where": _where(getattr(e.loc, "page", None), getattr(e.loc, "line", None),
@@ -544,7 +659,7 @@ class _Deriver:
         return [p[2] for p in before] + [p[2] for p in after]
 
     def _eq_mentions(self, e: Any, paragraphs: list, card: str) -> bool:
-        return any(any(v == card for _, _, (v, _a) in find_spans(t, card_aliases())) for t in self._eq_context(e, paragraphs)[:1])
+        return any(any(v == card for _, _, (v, _a) in find_spans(t, self.kb.card_aliases)) for t in self._eq_context(e, paragraphs)[:1])
 
     def _covered(self, e: Any, context: list[str], taken: set[str]) -> bool:
         """Whether a card the plan uses covers equation ``e`` (its fragments, or its name in the
@@ -557,10 +672,10 @@ class _Deriver:
                 nf = norm_latex(frag)
                 if len(nf) >= 4 and ((latex and nf in latex) or ("\\" not in frag and text and nf.lower() in text.lower())):
                     return True
-        if find_spans(e.text or "", card_aliases()):
+        if find_spans(e.text or "", self.kb.card_aliases):
             return True
         near = context[0] if context else ""
-        for _, _, (name, _alias) in find_spans(near, card_aliases()):
+        for _, _, (name, _alias) in find_spans(near, self.kb.card_aliases):
             if name in taken:
                 return True
         low = near.lower()
@@ -579,25 +694,40 @@ class _Deriver:
                 return kind
         return "backbone"
 
-    def _hole(self, plan: dict, kind: str, grp: dict) -> Hole:
-        slot, production, fallback = HOLE_SLOTS[kind]
-        current = _get(plan, slot)
+    def _hole_slot(self, plan: Plan, kind: str) -> tuple[str, str, Optional[str]]:
+        """(slot, production, the terminal standing in when the plan has none) of a hole of ``kind``, read
+        from the grammar: the production's path (inside the plan's field when there are several) and its
+        terminal (an open production's, or a choice's only alternative besides ``custom``)."""
+        production = HOLE_SYMBOLS[kind]
+        paths = [p for p, s in self.paths if s == production]
+        path = next((p for p in paths if _reachable(plan, p, self.g, self.symbols)), paths[0])
+        nt = self.g.nonterminals[production]
+        named = [a for a in nt.alternatives if a != "custom"]
+        fallback = getattr(nt, "terminal", None) or (named[0] if nt.kind == "choice" and len(named) == 1 else None)
+        return path, production, fallback
+
+    def _hole(self, plan: Plan, kind: str, grp: dict) -> Hole:
+        slot, production, fallback = self._hole_slot(plan, kind)
+        current = plan.get(slot)
+        symbol = self.symbols.get(slot, "")
+        nt = self.g.nonterminals.get(symbol)
         terminal = None
-        if isinstance(current, dict) and slot in CHOICE_SLOTS | {f"{FIELD}.spatial_distortion"}:
+        if isinstance(current, dict) and nt is not None and nt.kind == "choice":
             terminal = next(iter(current), None)
-        elif current is not None:
-            terminal = slot.rsplit(".", 1)[-1]
-            terminal = {"backbone": "mlp", "rgb_head": "rgb_mlp", "renderer": "renderer"}.get(terminal, terminal)
-        if terminal is None and slot == "model.losses.rgb":
-            terminal = next(iter(_get(plan, slot) or {"l2": {}}))
+        elif current is not None and symbol in self.g.terminals:
+            terminal = symbol
+        if terminal is None and nt is not None and nt.kind == "choice":
+            fallback = fallback or nt.alternatives[0]  # the contract of the production's first alternative
         term = self.g.terminals.get(terminal or fallback or "")
         contract = dict(term.contract) if term is not None else {}
         if term is not None and not contract:
             contract = {"doc": term.doc}
         if current is None:
             stands_in = f"nothing: the plan has no {slot} (the base's behaviour without it)"
+        elif term is None and isinstance(current, dict):  # the members of a set
+            stands_in = f"{', '.join(current)} from the base plan, with {_plainify(current)!r}"
         else:
-            stands_in = f"{terminal} ({term.doc if term else ''}) from the base plan, with {current!r}"
+            stands_in = f"{terminal} ({term.doc if term else ''}) from the base plan, with {_plainify(current)!r}"
         text = " ".join(_short(t, 600) for t in grp["text"][:4])
         if grp.get("why"):
             text = f"{grp['why']}. Paper: {text}"
@@ -620,35 +750,26 @@ def _plainify(obj: Any) -> Any:
 
 
 def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
-                graph: Optional[CitationGraph] = None, grammar: Optional[Grammar] = None) -> DerivedPlan:
-    """The plan of ``doc`` (see the module docstring); ``validate(result.plan)`` accepts it."""
+                graph: Optional[CitationGraph] = None, grammar: Optional[Grammar] = None,
+                kb: Optional[KnowledgeBase] = None) -> DerivedPlan:
+    """The plan of ``doc`` (see the module docstring) from the knowledge base ``kb`` (default: the
+    package's); ``validate(result.plan)`` accepts it."""
     g = grammar or load_grammar()
-    detections = list(detect_techniques(doc) if detections is None else detections)
-    graph = graph if graph is not None else build_citation_graph(doc, detections)
-    d = _Deriver(doc, detections, graph, g)
-    base, reason = d.choose_base()
-    plan = copy.deepcopy(load_reference_plan(base))
-    for key in ("evidence", "notes", "holes", "pruned"):
-        plan.pop(key, None)
-    known = match_target(doc)
-    title = (getattr(doc, "title", "") or "").strip()
-    plan["method"] = slug(doc)
-    plan["paper"] = {"title": title or None, "year": known.year if known else None,
-                     "arxiv": known.arxiv if known else None}
+    kb = KnowledgeBase.of(kb)
+    detections = list(detect_techniques(doc, kb) if detections is None else detections)
+    graph = graph if graph is not None else build_citation_graph(doc, detections, kb=kb)
+    d = _Deriver(doc, detections, graph, g, kb)
+    decision = d.choose_base()
+    base = decision.base
+    plan = _start(doc, base, kb)
+    d.scene(plan)
     d.substitute(plan)
     holes = d.holes(plan)
-    d.hyperparameters(plan, {h.slot for h in holes})
-    # every slot the paper did not set keeps the base's value, and says so
-    derivation = validate(plan, g)
-    for path in derivation.used:
-        slot = path.rsplit(".", 1)[0] if path.count(".") >= 2 and path.split(".")[-2] not in ("losses", "regularizers") \
-            else path
-        if slot in ("base",):
-            continue
-        if not any(k == slot or k.startswith(slot + ".") or slot.startswith(k + ".") for k in d.evidence):
-            d.base_evidence(slot, base)
-    d.base_evidence("base", base)
+    d.terminal_hyperparameters(plan, {h.slot for h in holes})
+    d.trainer(plan)
+    _base_evidence(d, plan, g, base)
     missing = list(d.res.missing)
+    title = (getattr(doc, "title", "") or "").strip()
     plan["description"] = (f"{title or plan['method']}: derived from the paper by nerfify (base {base}; "
                            f"{len(holes)} part(s) of the paper not implemented).")
     plan["holes"] = [h.to_dict() for h in holes]
@@ -656,12 +777,34 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     if missing:
         notes.append("not recovered from the paper or its citations (the base's parts stand in): "
                      + ", ".join(missing))
-    notes.append(f"base: {reason}")
+    notes.append(f"base: {decision.reason}")
     plan["notes"] = notes
     plan["evidence"] = {path: _evidence_line(e) for path, e in sorted(d.evidence.items())}
     validate(plan, g)
-    return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=reason, evidence=d.evidence,
-                       detections=detections, missing=missing)
+    return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=decision.reason, evidence=d.evidence,
+                       detections=detections, missing=missing, base_choice=decision)
+
+
+def _start(doc: Any, base: str, kb: KnowledgeBase) -> Plan:
+    """The base's reference plan without its annotations, named after the paper."""
+    plan = Plan.of(load_reference_plan(base))
+    for key in ("evidence", "notes", "holes", "pruned"):
+        plan.delete(key)
+    known = match_target(doc, kb)
+    plan["method"] = slug(doc)
+    plan["paper"] = {"title": (getattr(doc, "title", "") or "").strip() or None,
+                     "year": known.year if known else None, "arxiv": known.arxiv if known else None}
+    return plan
+
+
+def _base_evidence(d: _Deriver, plan: Plan, g: Grammar, base: str) -> None:
+    """Every slot the paper did not set keeps the base's value, and says so."""
+    for path in validate(plan, g).used:
+        parts = path.split(".")
+        slot = path.rsplit(".", 1)[0] if len(parts) >= 3 and parts[-2] not in ("losses", "regularizers") else path
+        if not any(k == slot or k.startswith(slot + ".") or slot.startswith(k + ".") for k in d.evidence):
+            d.base_evidence(slot, base)
+    d.base_evidence("base", base)
 
 
 def _evidence_line(e: dict) -> str:
@@ -674,7 +817,8 @@ def _evidence_line(e: dict) -> str:
     return f"{label}{where}: \"{_short(e['quote'])}\"" + (f" ({e['what']})" if e.get("what") else "")
 
 
-def plan_from_paper(doc: Any) -> DerivedPlan:
-    """Detect, recover citations and derive, in one call."""
-    detections = detect_techniques(doc)
-    return derive_plan(doc, detections, build_citation_graph(doc, detections))
+def plan_from_paper(doc: Any, kb: Optional[KnowledgeBase] = None) -> DerivedPlan:
+    """Detect, recover citations and derive, in one call, all from the knowledge base ``kb``."""
+    kb = KnowledgeBase.of(kb)
+    detections = detect_techniques(doc, kb)
+    return derive_plan(doc, detections, build_citation_graph(doc, detections, kb=kb), kb=kb)

@@ -29,7 +29,7 @@ from nerfify_ns.knowledge import (
     normalize_title,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GRAMMAR_FILE = ROOT / "grammar_spec.yaml"
 
 REQUIRED_CARDS = {
@@ -100,13 +100,16 @@ def resolve(dotted: str):
 
 
 def symbols_of(grammar: dict, nonterminal: str) -> set[str]:
-    """Terminals/nonterminals a nonterminal derives directly (alternatives, members, slots, map value)."""
-    nt = grammar["nonterminals"][nonterminal]
+    """Terminals/nonterminals a nonterminal derives directly (alternatives, members, slots, map value), and
+    the terminal of an open production it holds (``Model.renderer`` holds ``Renderer``, whose terminal is
+    ``renderer``)."""
+    nts = grammar["nonterminals"]
+    nt = nts[nonterminal]
     out = set(nt.get("alternatives", [])) | set(nt.get("members", []))
     out |= {str(v).rstrip("?") for v in (nt.get("slots") or {}).values()}
     if nt.get("value"):
         out.add(nt["value"])
-    return out
+    return out | {nts[s]["terminal"] for s in out if s in nts and nts[s].get("kind") == "open"}
 
 
 def check_value(spec: dict, value) -> str | None:

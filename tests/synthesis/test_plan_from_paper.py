@@ -2,25 +2,35 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
 
-from nerfify_ns.grammar import validate
+import nerfify_ns.synthesis.plan_from_paper as plan_from_paper_module
+from nerfify_ns.grammar import load_grammar, validate
+from nerfify_ns.knowledge import CARDS_DIR, KnowledgeBase
 from nerfify_ns.knowledge.citations import build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
 from nerfify_ns.paper import ingest
-from nerfify_ns.synthesis.plan_from_paper import derive_plan, plan_from_paper, slug
+from nerfify_ns.plan import Plan
+from nerfify_ns.synthesis.base_choice import BaseScore, choose_base, close_call, exclusive_cards, is_close
+from nerfify_ns.synthesis.plan_from_paper import (HyperparameterError, TerminalSlot, base_order, derive_plan, evaluate,
+                                                  hosted_cards, plan_from_paper, slot_table, slug, terminal_slots)
+from nerfify_ns.synthesis.resources import load_reference_plan
 from synthetic_papers import real_paper, write_paper
 
 FIELD = "model.field.MLPField"
 
 
-def derive(doc):
-    detections = detect_techniques(doc)
-    return derive_plan(doc, detections, build_citation_graph(doc, detections))
+def derive(doc, kb=None):
+    """The pipeline's three stages, all given the same knowledge base."""
+    kb = KnowledgeBase.of(kb)
+    detections = detect_techniques(doc, kb)
+    return derive_plan(doc, detections, build_citation_graph(doc, detections, kb=kb), kb=kb)
 
 
 def assert_evidence_found(doc, derived):
@@ -59,6 +69,7 @@ def test_hash_and_proposal_paper_derives_a_nerfacto_plan(foo_paper):
     derived = derive(foo_paper)
     plan = derived.plan
     validate(plan)
+    assert isinstance(plan, Plan)
     assert derived.base == "nerfacto" and "hash_grid" in derived.base_reason
     assert plan["method"] == "foonerf" and plan["paper"]["title"].startswith("FooNeRF")
     assert plan["model"]["sampler"]["proposal"]
@@ -95,7 +106,7 @@ def test_a_nerf_paper_without_a_recoverable_method_still_gets_a_plan(tmp_path):
     derived = plan_from_paper(doc)
     validate(derived.plan)
     assert derived.base == "vanilla-nerf" and "no technique" in derived.base_reason
-    assert hole(derived, "Model.renderer")["equations"][0]["number"] == "3"
+    assert hole(derived, "Renderer")["equations"][0]["number"] == "3"
     assert derived.missing and any("not recovered" in n for n in derived.plan["notes"])
 
 
@@ -174,7 +185,7 @@ def test_bionerf_plan_has_its_memory_modules_as_a_hole():
     assert derived.base == "vanilla-nerf"
     used = {d.card for d in derived.detections if d.used}
     assert "rgb_l2" in used and "proposal_networks" not in used
-    h = hole(derived, "MLPField.backbone")
+    h = hole(derived, "Backbone")
     assert [e["number"] for e in h["equations"]] == [str(i) for i in range(1, 10)]  # filters, memory, context
     assert h["status"] == "not implemented" and h["stands_in"].startswith("mlp")
     assert "inputs" in h["contract"] and "outputs" in h["contract"]
@@ -197,7 +208,7 @@ def test_gh_nerf_plan_ipe_and_sh_covered_sh_colour_head_is_a_hole():
     assert "integrated_positional" in field["pos_encoding"]
     assert "sh" in field["dir_encoding"]
     assert plan["model"]["sampler"]["hierarchical"]["coarse_loss_weight"] == pytest.approx(0.1)  # "λ = 0.1"
-    h = hole(derived, "MLPField.rgb_head")
+    h = hole(derived, "RGBHead")
     assert [e["number"] for e in h["equations"]] == ["7"]  # c(d; k) = sigmoid(sum k Y(d))
     assert "Spherical" in h["text"]
     assert not [x for x in derived.holes if x["production"] == "PosEncoding"]  # IPE (Eq. 8) is covered
@@ -209,10 +220,210 @@ def test_seathru_appendix_yields_a_partial_plan_with_its_gaps():
     doc = ingest(real_paper("seathru_nerf/seathru_nerf_appendix.pdf"))
     derived = plan_from_paper(doc)
     validate(derived.plan)
-    h = hole(derived, "Model.renderer")
+    h = hole(derived, "Renderer")
     assert h["status"] == "not implemented"
     assert [e["number"] for e in h["equations"][:2]] == ["10", "11"]
     assert "medium" in h["text"]
     assert set(derived.missing) >= {"PosEncoding", "Sampler", "RGBLoss"}
     assert all(e["source"] == "base" for e in derived.evidence.values())  # nothing invented from the paper
     assert any("not recovered" in n for n in derived.plan["notes"])
+
+
+# ------------------------------------------------------------------ knowledge base, grammar slots, card hyperparameters
+def _kb_folder(tmp_path, drop=(), edit=None):
+    """A knowledge-base folder: the package's cards without ``drop``, ``edit`` (card -> text -> text) applied."""
+    cards = tmp_path / "kb" / "cards"
+    cards.mkdir(parents=True)
+    for path in sorted(CARDS_DIR.glob("*.yaml")):
+        if path.stem not in drop:
+            text = path.read_text(encoding="utf-8")
+            cards.joinpath(path.name).write_text((edit or {}).get(path.stem, lambda t: t)(text), encoding="utf-8")
+    return KnowledgeBase.load(tmp_path / "kb")
+
+
+def test_a_different_knowledge_base_derives_a_different_plan(foo_paper, tmp_path):
+    full = plan_from_paper(foo_paper)
+    kb = _kb_folder(tmp_path, drop=("hash_grid", "proposal_networks", "interlevel_loss", "distortion_loss"))
+    reduced = plan_from_paper(foo_paper, kb)
+    validate(reduced.plan)
+    assert full.base == "nerfacto" and "hash" in full.plan.get(f"{FIELD}.pos_encoding")
+    assert reduced.base != "nerfacto" and reduced.plan.derivation() != full.plan.derivation()
+    assert not {d.card for d in reduced.detections} & {"hash_grid", "proposal_networks"}
+    assert "hash_grid" not in reduced.base_reason
+    assert not {e["card"] for e in reduced.evidence.values()} & {"hash_grid", "proposal_networks"}
+    # one object for the whole run: the same plan whether the stages get the object or its folder's copy
+    again = derive(foo_paper, kb=KnowledgeBase.load(tmp_path / "kb"))
+    assert again.plan.derivation() == reduced.plan.derivation()
+
+
+def test_every_card_terminal_has_a_grammar_slot():
+    g = load_grammar()
+    table = slot_table(g)
+    missing = [(c.name, t) for c in KnowledgeBase.default().cards.values() for t in c.terminals if not table.get(t)]
+    assert missing == []
+    assert terminal_slots(g, "kplanes_time") == [TerminalSlot("kplanes_time", f"{FIELD}.pos_encoding.kplanes_time",
+                                                              f"{FIELD}.pos_encoding", "choice")]
+    assert [(s.slot, s.kind) for s in terminal_slots(g, "plane_tv")] == [("model.regularizers", "set")]
+    assert [(s.slot, s.kind) for s in terminal_slots(g, "mlp")] == [(f"{FIELD}.backbone", "sequence")]
+    assert [(s.slot, s.kind) for s in terminal_slots(g, "nerfacto")] == [("base", "enum")]
+    assert terminal_slots(g, "no_such_terminal") == []
+
+
+@pytest.mark.parametrize("dynamic, expected", [(True, "kplanes_time"), (False, "kplanes")])
+def test_kplanes_variant_follows_the_papers_scene(tmp_path, dynamic, expected):
+    scene = "dynamic scenes captured as multi-view videos" if dynamic else "static object scenes"
+    doc = write_paper(tmp_path, {"3 Method": (
+        f"Our model targets {scene}. We build on K-Planes [7] and factorise the field into planes with a "
+        "K-Planes encoding, decoded by a small MLP.")},
+        references={"7": "Sara Fridovich-Keil, Giacomo Meanti, Frederik Warburg, Benjamin Recht, and Angjoo "
+                         "Kanazawa. K-Planes: Explicit radiance fields in space, time, and appearance. In CVPR, 2023."})
+    derived = derive(doc)
+    validate(derived.plan)
+    assert derived.base == "kplanes-static"
+    assert list(derived.plan.get(f"{FIELD}.pos_encoding")) == [expected]
+    assert derived.plan.get("scene.timestamps") is dynamic
+    if dynamic:
+        assert "multi-view videos" in derived.plan["evidence"]["scene.timestamps"]
+
+
+def test_the_hyperparameter_mapping_is_card_data(foo_paper, tmp_path):
+    """The paper's "8 levels" reaches the hash grid because the card says num_levels -> num_levels: a card
+    that maps it elsewhere moves it, a card without the mapping leaves the base's value."""
+    def without(text):
+        return text[:text.index("hyperparameters:\n  log2_hashmap_size")]
+
+    def renamed(text):
+        return text.replace("  num_levels: num_levels\n", "  num_levels: features_per_level\n")
+
+    base_levels = load_reference_plan("nerfacto")["model"]["field"]["MLPField"]["pos_encoding"]["hash"]["num_levels"]
+    hashed = plan_from_paper(foo_paper).plan.get(f"{FIELD}.pos_encoding.hash")
+    assert hashed["num_levels"] == 8 and hashed["log2_hashmap_size"] == 17
+    bare = plan_from_paper(foo_paper, _kb_folder(tmp_path / "a", edit={"hash_grid": without}))
+    assert bare.plan.get(f"{FIELD}.pos_encoding.hash.num_levels") == base_levels != 8
+    moved = plan_from_paper(foo_paper, _kb_folder(tmp_path / "b", edit={"hash_grid": renamed}))
+    assert moved.plan.get(f"{FIELD}.pos_encoding.hash.features_per_level") == 8
+    assert "num_levels = 8 (as features_per_level = 8)" in moved.plan["evidence"][
+        f"{FIELD}.pos_encoding.hash.features_per_level"]
+
+
+def _paper_hyperparameter_names() -> set:
+    from nerfify_ns.paper.hyperparams import PATTERNS_FILE
+
+    return {entry["name"] for entry in yaml.safe_load(PATTERNS_FILE.read_text(encoding="utf-8"))}
+
+
+def test_card_hyperparameters_read_paper_names_into_terminal_parameters():
+    g = load_grammar()
+    names = _paper_hyperparameter_names()
+    seen = 0
+    for c in KnowledgeBase.default().cards.values():
+        for terminal, maps in c.hyperparameters.items():
+            term = g.terminals[terminal]
+            for m in maps:
+                seen += 1
+                assert m.name in names or (m.name.startswith("lambda_") and "lambda" in names), (c.name, m.name)
+                for param, expression in ((m.param, m.value), *m.also):
+                    assert param in term.params, (c.name, terminal, param)
+                    value = term.params[m.param].default
+                    evaluate(expression, {**term.defaults(), "value": value})  # raises on a broken expression
+    assert seen >= 15
+
+
+def test_no_technique_hyperparameter_is_named_in_the_derivation_code():
+    source = (Path(plan_from_paper_module.__file__)).read_text(encoding="utf-8")
+    technique = {m.name for c in KnowledgeBase.default().cards.values() for ms in c.hyperparameters.values()
+                 for m in ms}
+    assert sorted(n for n in technique if f'"{n}"' in source) == []
+    assert "TERMINAL_SLOTS" not in source and "CHOICE_SLOTS" not in source
+
+
+@pytest.mark.parametrize("expression, names, expected", [
+    ("value", {"value": 3}, 3),
+    ("exact_log2(value)", {"value": 2 ** 17}, 17),
+    ("exact_log2(value)", {"value": 500000}, None),
+    ("skip if max(skip + [0]) < value else []", {"skip": [4], "value": 3}, []),
+    ("float(max(value - 1, 1)) + lo", {"value": 10, "lo": 0.0}, 9.0),
+])
+def test_evaluate(expression, names, expected):
+    assert evaluate(expression, names) == expected
+
+
+@pytest.mark.parametrize("expression", ["__import__('os').system('true')", "value.__class__", "open('x')",
+                                        "unknown + 1", "[x for x in value]"])
+def test_evaluate_rejects_anything_else(expression):
+    with pytest.raises(HyperparameterError):
+        evaluate(expression, {"value": [1]})
+
+
+# ------------------------------------------------------------------ base choice
+def test_a_stated_base_wins_with_its_quote():
+    path = Path(__file__).resolve().parents[2] / "examples" / "glintfield_paper.md"
+    doc = ingest(path)
+    derived = plan_from_paper(doc)
+    validate(derived.plan)
+    assert derived.base == "nerfacto" and derived.base_choice.criterion == "statement"
+    assert "builds on Nerfstudio's nerfacto" in derived.plan["evidence"]["base"]
+    assert derived.evidence["base"]["source"] == "paper" and doc.find(derived.evidence["base"]["quote"])
+    assert "the paper says it builds on nerfacto" in derived.base_reason
+    assert [h["production"] for h in derived.holes] == ["RGBHead"]  # the glint term (Eq. 1)
+
+def test_without_its_statement_the_example_gets_another_base(tmp_path):
+    """The statement decides: the same paper without that sentence is scored, and the score picks another base."""
+    text = (Path(__file__).resolve().parents[2] / "examples" / "glintfield_paper.md").read_text(encoding="utf-8")
+    statement = "Our implementation builds on Nerfstudio's nerfacto [4]: we keep"
+    assert statement in text
+    (tmp_path / "glintfield_paper.md").write_text(text.replace(statement, "We keep"), encoding="utf-8")
+    unstated = plan_from_paper(ingest(tmp_path / "glintfield_paper.md"))
+    assert unstated.base != "nerfacto" and unstated.base_choice.criterion != "statement"
+    assert unstated.evidence["base"]["source"] == "base"
+
+
+def test_a_technique_only_one_base_can_host_weighs_more():
+    g = load_grammar()
+    kb = KnowledgeBase.default()
+    order = base_order(kb)
+    hosted = hosted_cards(g, order)
+    exclusive = exclusive_cards(hosted, g)
+    assert {"integrated_positional_encoding", "proposal_networks", "occupancy_grid", "tensorf_vm"} <= exclusive
+    assert not {"hash_grid", "spherical_harmonics", "rgb_l2", "positional_encoding"} & exclusive
+    found = {"integrated_positional_encoding": 0.7, "spherical_harmonics": 0.6, "appearance_embedding": 0.3}
+    flat = dataclasses.replace(kb.bases.choice, exclusive_weight=1.0)
+    assert choose_base(found, hosted, exclusive, flat, order).base == "instant-ngp"
+    weighted = choose_base(found, hosted, exclusive, kb.bases.choice, order)
+    assert weighted.base == "mipnerf" and weighted.score_of("mipnerf").exclusive == ["integrated_positional_encoding"]
+
+
+def test_a_close_call_is_recorded_with_both_candidates(nerf):
+    _, derived = nerf
+    decision = derived.base_choice
+    assert derived.base == "vanilla-nerf" and decision.runner_up == "mipnerf" and decision.criterion == "extra"
+    note = next(n for n in derived.plan["notes"] if n.startswith("close call"))
+    assert note == derived.close_call and note in derived.base_reason  # the dry-run print shows base_reason
+    for name in ("vanilla-nerf", "mipnerf"):
+        s = decision.score_of(name)
+        assert f"{name} (score {s.score:.2f}, hosts {s.coverage}" in note
+    assert "integrated_positional_encoding" in note and "within 10%" in note
+
+
+def test_a_clear_choice_records_no_close_call(foo_paper):
+    derived = derive(foo_paper)
+    assert derived.close_call == "" and not any(n.startswith("close call") for n in derived.plan["notes"])
+    assert derived.base_choice.criterion == "score"
+
+
+@pytest.mark.parametrize("first, second, criterion", [
+    (dict(exclusive=["a"], covered=["a", "b"]), dict(exclusive=[], covered=["b", "c", "d"]), "exclusive"),
+    (dict(covered=["a", "b", "c"]), dict(covered=["a", "b"]), "covered"),
+    (dict(covered=["a"], extra=[]), dict(covered=["b"], extra=["x", "y"]), "extra"),
+    (dict(covered=["a"], score=2.0), dict(covered=["b"], score=1.9), "score"),
+])
+def test_close_call_tie_breaks(first, second, criterion):
+    def score(name, score=1.0, covered=(), exclusive=(), extra=()):
+        return BaseScore(name, score, list(covered), list(exclusive), [], list(extra))
+
+    a, b = score("a-base", **first), score("b-base", **second)
+    for x, y in ((a, b), (b, a)):  # the order they come in does not decide
+        win, other, why, sentence = close_call(x, y, 0.1)
+        assert (win.name, other.name, why) == ("a-base", "b-base", criterion)
+        assert sentence.startswith("close call between") and "a-base is chosen because" in sentence
+    assert is_close(2.0, 1.85, 0.1) and not is_close(2.0, 1.7, 0.1) and not is_close(0.0, 0.0, 0.1)
