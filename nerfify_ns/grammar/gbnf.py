@@ -25,7 +25,7 @@ from nerfify_ns.grammar.validate import ANNOTATIONS, duties_at
 
 ABSENT = None
 _IDENT = '[A-Za-z_] [A-Za-z0-9_]*'
-CUSTOM_NAMES = {"module": f'"\\"components" ( "." {_IDENT} )+ "\\""', "class": f'"\\"" {_IDENT} "\\""'}
+CUSTOM_NAMES = {"module": f'"\\"components." {_IDENT} "\\""', "class": f'"\\"" {_IDENT} "\\""'}
 """GBNF of a custom component's module (inside the plugin's components package) and class name."""
 ROOT_HEAD = ("method", "description", "paper")
 ROOT_TAIL = ("evidence", "pruned", "holes", "notes")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
 
@@ -21,8 +22,10 @@ ANNOTATIONS: Dict[str, type] = {
     "notes": list, "repairs": list,
 }
 IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-MODULE = re.compile(r"^components(\.[A-Za-z_][A-Za-z0-9_]*)+$")
+MODULE = re.compile(r"^components\.[A-Za-z_][A-Za-z0-9_]*$")
 """A custom component's module: inside the plugin's ``components`` package."""
+RESERVED_MODULES = frozenset(p.stem for p in (Path(__file__).resolve().parents[1] / "components").glob("*.py"))
+"""Module names of nerfify's own components (copied into plugins): a custom module may not take one."""
 
 
 @dataclass(frozen=True)
@@ -154,6 +157,9 @@ def _check_custom(d: Derivation, value: dict, path: str) -> None:
     if not isinstance(module, str) or not MODULE.match(module):
         d.fail(path, CUSTOM, "custom_component",
                f"module must be a module of the plugin's components package (e.g. components.my_head), got {module!r}")
+    elif module.split(".")[1] in RESERVED_MODULES:
+        d.fail(path, CUSTOM, "custom_component", f"module {module} would replace nerfify's own component "
+               f"module of that name (reserved: {', '.join(sorted(RESERVED_MODULES))}); choose another name")
     if not isinstance(cls, str) or not IDENTIFIER.match(cls):
         d.fail(path, CUSTOM, "custom_component", f"class must be a Python class name, got {cls!r}")
 

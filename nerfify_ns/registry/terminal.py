@@ -23,7 +23,7 @@ class Code:
 
     ``ctor`` is a Jinja2 expression over the parameters ``p`` building the component; ``expr`` is a
     Jinja2 expression evaluated in the plugin (``{{ x }}`` is its input where it has one; a
-    regulariser's may use ``self``, ``outputs`` and ``batch``); ``imports`` are added to the file that
+    regulariser's may use ``self``, ``outputs``, ``batch`` and ``{{ field }}``, the model's field); ``imports`` are added to the file that
     uses it; ``component`` names a module of ``nerfify_ns/components`` copied into the plugin;
     ``traits`` are facts the templates read (``domain``, ``normalized_input``, ``times``, ...)."""
 

@@ -14,7 +14,7 @@ import sys
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import List, Optional
+from typing import Dict, List, Mapping, Optional
 
 import jinja2
 import networkx as nx
@@ -23,6 +23,7 @@ import yaml
 from nerfify_ns.atomic import atomic_dir
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, load_grammar, validate
+from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.context import Context, Names, build_context, py
 from nerfify_ns.synthesis.registry import record_generated
 from nerfify_ns.synthesis.repairs import reapply_repairs
@@ -73,13 +74,15 @@ def load_plan(path: Path) -> dict:
 def plugin_files(ctx: dict) -> nx.DiGraph:
     """The plugin's files and their dependencies (an edge a -> b: b imports or describes a)."""
     pkg = ctx["package"]
-    files = [PluginFile(f"{pkg}/components/__init__.py", "components_init.py.j2")] if ctx["components"] else []
-    files += [PluginFile(f"{pkg}/components/{m}.py", f"component:{m}", (f"{pkg}/components/__init__.py",))
-              for m in ctx["components"]]
+    init = f"{pkg}/components/__init__.py"
+    files = [PluginFile(init, "components_init.py.j2")] if ctx["components"] or ctx["custom_modules"] else []
+    files += [PluginFile(f"{pkg}/components/{m}.py", f"component:{m}", (init,)) for m in ctx["components"]]
+    files += [PluginFile(f"{pkg}/{m.replace('.', '/')}.py", f"source:{m}", (init,)) for m in ctx["custom_modules"]]
     component_files = tuple(f.path for f in files)
+    field_files = (f"{pkg}/field.py",) if ctx["field_template"] else ()
+    files += [PluginFile(f"{pkg}/field.py", ctx["field_template"], component_files)] if field_files else []
     files += [
-        PluginFile(f"{pkg}/field.py", ctx["field_template"], component_files),
-        PluginFile(f"{pkg}/model.py", "model.py.j2", (f"{pkg}/field.py", *component_files)),
+        PluginFile(f"{pkg}/model.py", "model.py.j2", (*field_files, *component_files)),
         PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py",)),
         PluginFile(f"{pkg}/__init__.py", "__init__.py.j2", (f"{pkg}/config.py",)),
         PluginFile("pyproject.toml", "pyproject.toml.j2", (f"{pkg}/config.py",)),
@@ -127,12 +130,54 @@ def _format_python(code: str, path: str) -> str:
     return _ruff(["format", "--quiet", "--line-length", "110"], code, path)
 
 
-def _render(env: jinja2.Environment, f: PluginFile, ctx: dict, plan: dict) -> str:
+def _render(env: jinja2.Environment, f: PluginFile, ctx: dict, plan: dict, sources: Mapping[str, str]) -> str:
     if f.template == "plan":
-        return yaml.safe_dump(plan, sort_keys=False, width=110)
+        return yaml.safe_dump(Plan.of(plan).to_dict(), sort_keys=False, width=110)
     if f.template.startswith("component:"):
         return _component_source(f.template.split(":", 1)[1])
+    if f.template.startswith("source:"):
+        return _custom_source(f.template.split(":", 1)[1], sources, f.path)
     return env.get_template(f.template).render(**ctx)
+
+
+def _custom_source(module: str, sources: Mapping[str, str], path: str) -> str:
+    """The source of a custom component the plan names: given to the composer, written as it is (it is
+    checked by the ladder like any code of the plugin); it must parse."""
+    if module not in sources:
+        raise CompositionError(f"the plan names the custom component module {module!r} but no source was given "
+                               f"for it (pass its file, e.g. ns-nerfify compose PLAN --components DIR with "
+                               f"{module.split('.')[-1]}.py in DIR)")
+    text = sources[module]
+    try:
+        ast.parse(text)
+    except SyntaxError as exc:
+        raise CompositionError(f"the custom component {module} does not parse (line {exc.lineno}: {exc.msg})") from None
+    return text if text.endswith("\n") else text + "\n"
+
+
+def plugin_sources(plugin_dir: Path, plan: dict) -> Dict[str, str]:
+    """The sources of the custom components of an existing plugin (to recompose it from its plan)."""
+    package = Names.of(plan["method"]).package
+    modules = {v["module"] for _, v in _custom_entries(plan)}
+    found = {}
+    for module in modules:
+        path = Path(plugin_dir) / package / (module.replace(".", "/") + ".py")
+        if path.is_file():
+            found[module] = path.read_text()
+    return found
+
+
+def _custom_entries(plan: dict) -> List[tuple]:
+    derivation = validate(plan)
+    return [(path, Plan.of(plan).get(path)) for path, term in derivation.used.items() if term == "custom"]
+
+
+def sources_from_folder(folder: Path) -> Dict[str, str]:
+    """Custom component sources from a folder of ``<module>.py`` files (``components.<module>``)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise CompositionError(f"--components {folder} is not a folder of component files (<module>.py)")
+    return {f"components.{p.stem}": p.read_text() for p in sorted(folder.glob("*.py")) if p.stem.isidentifier()}
 
 
 def readme_rows(context: Context, ctx: dict) -> List[dict]:
@@ -145,8 +190,10 @@ def readme_rows(context: Context, ctx: dict) -> List[dict]:
     return rows
 
 
-def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None) -> ComposedPlugin:
-    """Validate ``plan`` and render its plugin into the existing, empty ``folder``."""
+def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
+                 sources: Optional[Mapping[str, str]] = None) -> ComposedPlugin:
+    """Validate ``plan`` and render its plugin into the existing, empty ``folder``; ``sources`` holds the
+    code of the plan's custom components (``components.<module>`` -> source)."""
     g = grammar or load_grammar()
     derivation = validate(plan, g)
     context = Context(names=Names.of(plan["method"]), plan=plan, derivation=derivation, grammar=g)
@@ -158,8 +205,8 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None)
     written: List[str] = []
     for name in nx.topological_sort(graph):
         f: PluginFile = graph.nodes[name]["file"]
-        text = _render(env, f, ctx, plan)
-        if name.endswith(".py"):
+        text = _render(env, f, ctx, plan, sources or {})
+        if name.endswith(".py") and not f.template.startswith("source:"):
             text = _format_python(text, name)
         target = Path(folder) / name
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -175,10 +222,10 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None)
 
 
 def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
-            record: bool = True) -> ComposedPlugin:
+            record: bool = True, sources: Optional[Mapping[str, str]] = None) -> ComposedPlugin:
     """Validate ``plan`` and write its plugin package to ``out`` (atomically); remember it as the last one."""
     with atomic_dir(out, overwrite) as staging:
-        result = write_plugin(plan, staging, grammar=grammar)
+        result = write_plugin(plan, staging, grammar=grammar, sources=sources)
     result.out = Path(out).absolute()
     if record:
         record_generated(result.out)

@@ -17,7 +17,9 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Derivation, Grammar
-from nerfify_ns.knowledge import card as load_card
+from nerfify_ns.knowledge import KnowledgeBase, card as load_card
+from nerfify_ns.grammar.spec import CUSTOM
+from nerfify_ns.plan import Plan
 from nerfify_ns.registry import default_registry
 from nerfify_ns.registry.render import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS
@@ -97,10 +99,13 @@ class Context:
     parts: List[Part] = field(default_factory=list)
     components: List[str] = field(default_factory=list)
 
+    def __post_init__(self) -> None:
+        self.plan = Plan.of(self.plan)
+
     def params(self, path: str) -> dict:
         """A terminal's parameters at ``path`` with the grammar's defaults filled in."""
         terminal = self.grammar.terminals[self.derivation.used[path]]
-        given = get_path(self.plan, path)
+        given = self.plan.get(path)
         return {**terminal.defaults(), **(given if isinstance(given, dict) else {})}
 
     def used(self, path: str) -> bool:
@@ -108,11 +113,26 @@ class Context:
 
     def part(self, file: str, role: str, path: str, what: str) -> None:
         terminal = self.grammar.terminals[self.derivation.used[path]]
-        evidence = (self.plan.get("evidence") or {}).get(_slot_of(path), "")
-        implementation = terminal.implementation.replace("nerfify_ns.components", f"{self.names.package}.components")
+        if terminal.name == CUSTOM:
+            entry = self.params(path)
+            implementation = f"{self.names.package}.{entry['module']}.{entry['class']}"
+            source = f"{entry['source']}-written component" + (
+                f" implementing {', '.join(entry['implements'])}" if entry["implements"] else "")
+            evidence = entry["evidence"] or self.plan.evidence_for(path)
+        else:
+            implementation = terminal.implementation.replace("nerfify_ns.components",
+                                                             f"{self.names.package}.components")
+            source, evidence = card_reference(terminal.card), self.plan.evidence_for(path)
         self.parts.append(Part(file=file, role=role, path=path, terminal=terminal.name, what=what,
-                               implementation=implementation, source=card_reference(terminal.card),
-                               evidence=str(evidence)))
+                               implementation=implementation, source=source, evidence=str(evidence)))
+
+    def custom(self, slot: str) -> Optional[dict]:
+        """The custom component at ``slot`` (a choice or open slot holding ``{custom: {...}}``): its class,
+        the import of its module inside the plugin, its constructor arguments as Python source."""
+        path = f"{slot}.{CUSTOM}"
+        if not self.used(path) or self.derivation.used[path] != CUSTOM:
+            return None
+        return custom_component(self.params(path), self.names.package)
 
     def need_component(self, snippet: dict) -> None:
         module = snippet.get("component")
@@ -120,12 +140,13 @@ class Context:
             self.components.append(module)
 
 
-def card_reference(card_name: Optional[str]) -> str:
-    """'<paper title> (<year>), <equation>' of a knowledge-base card, or '' when there is none."""
+def card_reference(card_name: Optional[str], kb: Optional[KnowledgeBase] = None) -> str:
+    """'<paper title> (<year>), <equation>' of a card of the knowledge base ``kb`` (default: the package's),
+    or '' when there is none."""
     if not card_name:
         return ""
     try:
-        card = load_card(card_name)
+        card = kb.card(card_name) if kb is not None else load_card(card_name)
     except NerfifyError:
         return ""
     where = f", {card.equation.ref}" if card.equation.ref else ""
@@ -134,16 +155,21 @@ def card_reference(card_name: Optional[str]) -> str:
     return f"{card.paper.title}{year}{arxiv}{where}"
 
 
-def _slot_of(path: str) -> str:
-    """The plan slot a terminal path belongs to (``model.sampler.proposal`` -> ``model.sampler``)."""
-    return path.rsplit(".", 1)[0] if path.count(".") >= 2 and path.split(".")[-2] != "losses" else path
+def custom_component(entry: dict, package: str) -> dict:
+    """What the templates need of a custom component: class, import line, keyword arguments (source)."""
+    kwargs = ", ".join(f"{k}={py(v)}" for k, v in (entry.get("params") or {}).items())
+    return {"cls": entry["class"], "module": entry["module"], "kwargs": kwargs,
+            "import": f"from .{entry['module']} import {entry['class']}",
+            "domain": entry.get("input_domain", "signed_unit"), "weight": entry.get("weight", 1.0)}
+
+
+def call(cls: str, *args: str) -> str:
+    """``Cls(a, b, ...)`` without empty arguments."""
+    return f"{cls}({', '.join(a for a in args if a)})"
 
 
 def get_path(plan: dict, path: str) -> Any:
-    node: Any = plan
-    for key in path.split("."):
-        node = node[key]
-    return node
+    return Plan.of(plan).get(path)
 
 
 # ------------------------------------------------------------------------------- the field
@@ -165,35 +191,72 @@ def mlp_field(ctx: Context) -> dict:
 
     pe_name, _ = one(fp["pos_encoding"])
     pe_path = f"{root}.pos_encoding.{pe_name}"
-    pe = snippet(pe_name)
-    imports += _imports(ctx, pe)
     ctx.part("field.py", "position encoding", pe_path, ctx.grammar.terminals[pe_name].doc)
+    custom_pe = ctx.custom(f"{root}.pos_encoding")
+    if custom_pe:
+        imports.append(custom_pe["import"])
+        pe = {"ctor": call(custom_pe["cls"], custom_pe["kwargs"]), "domain": custom_pe["domain"], "times": False}
+    else:
+        code = snippet(pe_name)
+        imports += _imports(ctx, code)
+        pe = {"ctor": render_snippet(code["ctor"], ctx.params(pe_path), pkg), "domain": code["domain"],
+              "times": bool(code.get("times"))}
 
     de_name, _ = one(fp["dir_encoding"])
     de_path = f"{root}.dir_encoding.{de_name}"
-    de = snippet(de_name)
-    imports += _imports(ctx, de)
     ctx.part("field.py", "direction encoding", de_path, ctx.grammar.terminals[de_name].doc)
+    custom_de = ctx.custom(f"{root}.dir_encoding")
+    if custom_de:
+        imports.append(custom_de["import"])
+        de = {"ctor": call(custom_de["cls"], custom_de["kwargs"]), "normalized_input": False}
+    else:
+        code = snippet(de_name)
+        imports += _imports(ctx, code)
+        de = {"ctor": render_snippet(code["ctor"], ctx.params(de_path), pkg),
+              "normalized_input": code["normalized_input"]}
 
     dh_name, _ = one(fp["density_head"])
     dh_path = f"{root}.density_head.{dh_name}"
-    dh = ctx.params(dh_path)
-    act = {"imports": list(ACTIVATIONS[dh["activation"]].imports)}
-    imports += _imports(ctx, act)
     ctx.part("field.py", "density head", dh_path, ctx.grammar.terminals[dh_name].doc)
+    custom_dh = ctx.custom(f"{root}.density_head")
+    split = dh_name == "density_split"
+    dh = ctx.params(dh_path) if not custom_dh else {}
+    if custom_dh:
+        imports.append(custom_dh["import"])
+    else:
+        imports += _imports(ctx, {"imports": list(ACTIVATIONS[dh["activation"]].imports)})
 
-    backbone = ctx.params(f"{root}.backbone")
-    ctx.part("field.py", "backbone", f"{root}.backbone", ctx.grammar.terminals["mlp"].doc)
-    rgb = ctx.params(f"{root}.rgb_head")
-    ctx.part("field.py", "colour head", f"{root}.rgb_head", ctx.grammar.terminals["rgb_mlp"].doc)
+    backbone_path = f"{root}.backbone"
+    custom_bb = ctx.custom(backbone_path)
+    backbone_path = f"{backbone_path}.custom" if custom_bb else backbone_path
+    ctx.part("field.py", "backbone", backbone_path, ctx.grammar.terminals[ctx.derivation.used[backbone_path]].doc)
+    backbone = ctx.params(backbone_path) if not custom_bb else {}
+    out_dim = str(1 + dh["geo_feat_dim"]) if split else "None"
+    if custom_bb:
+        imports.append(custom_bb["import"])
+        backbone_ctor = call(custom_bb["cls"], "in_dim=self.position_encoding.get_out_dim()", f"out_dim={out_dim}",
+                             custom_bb["kwargs"])
+    else:
+        backbone_ctor = None
+
+    rgb_path = f"{root}.rgb_head"
+    custom_rgb = ctx.custom(rgb_path)
+    rgb_path = f"{rgb_path}.custom" if custom_rgb else rgb_path
+    ctx.part("field.py", "colour head", rgb_path, ctx.grammar.terminals[ctx.derivation.used[rgb_path]].doc)
+    rgb = ctx.params(rgb_path) if not custom_rgb else {}
 
     distortion = None
     if "spatial_distortion" in fp:
         sd_name, _ = one(fp["spatial_distortion"])
         sd_path = f"{root}.spatial_distortion.{sd_name}"
-        sd = snippet(sd_name)
-        imports += _imports(ctx, sd)
-        distortion = render_snippet(sd["ctor"], ctx.params(sd_path), pkg)
+        custom_sd = ctx.custom(f"{root}.spatial_distortion")
+        if custom_sd:
+            imports.append(custom_sd["import"])
+            distortion = call(custom_sd["cls"], custom_sd["kwargs"])
+        else:
+            code = snippet(sd_name)
+            imports += _imports(ctx, code)
+            distortion = render_snippet(code["ctor"], ctx.params(sd_path), pkg)
         ctx.part("field.py", "spatial distortion", sd_path, ctx.grammar.terminals[sd_name].doc)
 
     appearance = None
@@ -203,30 +266,62 @@ def mlp_field(ctx: Context) -> dict:
         ctx.part("field.py", "appearance embedding", f"{root}.appearance_embedding",
                  ctx.grammar.terminals["appearance_embedding"].doc)
 
-    split = dh_name == "density_split"
-    geo = str(dh["geo_feat_dim"]) if split else "self.backbone.get_out_dim()"
+    if custom_dh:
+        geo = "self.density_head.get_out_dim()"
+    else:
+        geo = str(dh["geo_feat_dim"]) if split else "self.backbone.get_out_dim()"
     rgb_in = " + ".join(["self.direction_encoding.get_out_dim()", geo] + ([str(appearance["dim"])] if appearance else []))
-    skips = backbone["skip_connections"]
+    if custom_rgb:
+        imports.append(custom_rgb["import"])
+        rgb_ctor = call(custom_rgb["cls"], f"in_dim={rgb_in}", custom_rgb["kwargs"])
+    else:
+        rgb_ctor = None
+    skips = backbone.get("skip_connections")
+    architecture = (f"{backbone['num_layers']} x {backbone['layer_width']} MLP" if backbone
+                    else f"{custom_bb['cls']} backbone")
     return {
         "cls": f"{ctx.names.prefix}Field",
         "summary": f"Radiance field of the plan: {pe_name} positions, {de_name} directions, "
-                   f"{backbone['num_layers']} x {backbone['layer_width']} MLP, {dh_name} density.",
+                   f"{architecture}, {dh_name} density.",
         "imports": sorted(set(imports)),
-        "pos_encoding": render_snippet(pe["ctor"], ctx.params(pe_path), pkg),
-        "dir_encoding": render_snippet(de["ctor"], ctx.params(de_path), pkg),
+        "pos_encoding": pe["ctor"],
+        "dir_encoding": de["ctor"],
         "dir_normalized": de["normalized_input"],
         "domain": pe["domain"],
-        "times": bool(pe.get("times")),
+        "times": pe["times"],
         "distortion": distortion,
         "appearance": appearance,
-        "backbone": {**backbone, "skip_connections": py(skips) if skips else None},
+        "backbone": {**backbone, "skip_connections": py(skips) if skips else None, "custom": backbone_ctor},
         "density": {"split": split, "geo_feat_dim": dh.get("geo_feat_dim"), "init_density": dh.get("init_density"),
-                    "activation": _activation(dh["activation"])},
-        "rgb": rgb,
+                    "activation": _activation(dh["activation"]) if dh else None,
+                    "custom": call(custom_dh["cls"], "in_dim=self.backbone.get_out_dim()", custom_dh["kwargs"])
+                    if custom_dh else None},
+        "rgb": {**rgb, "custom": rgb_ctor},
         "rgb_in_dim": rgb_in,
-        "keeps_density": ctx.used("model.regularizers.density_sparsity"),
+        "keeps_density": ctx.used("model.regularizers.density_sparsity") or _custom_regularizers(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
+
+
+def custom_field(ctx: Context) -> dict:
+    """A field of the plugin in place of the generated one: the model installs it as it would its own."""
+    path = "model.field.custom"
+    component = custom_component(ctx.params(path), ctx.names.package)
+    ctx.part("model.py", "field", path, ctx.grammar.terminals[CUSTOM].doc)
+    kwargs = f", {component['kwargs']}" if component["kwargs"] else ""
+    return {"cls": component["cls"], "custom": component["import"], "kwargs": kwargs,
+            "parts": [p for p in ctx.parts if p.file == "field.py"]}
+
+
+def custom_modules(ctx: Context) -> List[str]:
+    """The modules of the plugin's components package that custom entries of the plan name."""
+    return sorted({ctx.params(path)["module"] for path, term in ctx.derivation.used.items() if term == CUSTOM})
+
+
+def _custom_regularizers(ctx: Context) -> List[str]:
+    """Paths of the plan's custom regularisers (they read the field's densities)."""
+    return [path for path, term in ctx.derivation.used.items()
+            if term == CUSTOM and path.startswith("model.regularizers.")]
 
 
 def tensorial_field(ctx: Context) -> dict:
@@ -271,27 +366,51 @@ def _proposal_networks(ctx: Context) -> Optional[dict]:
 
 def model_context(ctx: Context) -> dict:
     imports: List[str] = []
+    base = bases()[ctx.plan["base"]]
     rgb_name, _ = one(get_path(ctx.plan, "model.losses.rgb"))
-    rgb_snippet = snippet(rgb_name)
-    rgb_loss = None
-    ctx.part("model.py", "photometric loss", f"model.losses.rgb.{rgb_name}", ctx.grammar.terminals[rgb_name].doc)
-    if rgb_snippet:
-        imports += _imports(ctx, rgb_snippet)
-        params = ctx.params(f"model.losses.rgb.{rgb_name}")
-        rgb_loss = {"name": rgb_name, "ctor": render_snippet(rgb_snippet["ctor"], params, ctx.names.package)}
-    regularizers = []
+    rgb_path = f"model.losses.rgb.{rgb_name}"
+    ctx.part("model.py", "photometric loss", rgb_path, ctx.grammar.terminals[rgb_name].doc)
+    rgb_loss, custom_loss = None, ctx.custom("model.losses.rgb")
+    if custom_loss:
+        imports.append(custom_loss["import"])
+        rgb_loss = {"name": custom_loss["cls"], "ctor": call(custom_loss["cls"], custom_loss["kwargs"])}
+    elif snippet(rgb_name):
+        code = snippet(rgb_name)
+        imports += _imports(ctx, code)
+        rgb_loss = {"name": rgb_name, "ctor": render_snippet(code["ctor"], ctx.params(rgb_path), ctx.names.package)}
+    regularizers, modules = [], []
     for name in (get_path(ctx.plan, "model").get("regularizers") or {}):
+        path = f"model.regularizers.{name}"
+        if ctx.derivation.used.get(path) == CUSTOM:
+            component = custom_component(ctx.params(path), ctx.names.package)
+            imports.append(component["import"])
+            modules.append({"attr": name, "ctor": call(component["cls"], component["kwargs"])})
+            regularizers.append({"name": name, "weight": component["weight"],
+                                 "expr": f"self.{name}(densities={base['field_attr']}.last_density)"})
+            ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[CUSTOM].doc)
+            continue
         code = snippet(name)
         if code is None:  # realised through the base model's own config (e.g. TensoRF's L1/TV)
             continue
-        path = f"model.regularizers.{name}"
         params = ctx.params(path)
         imports += _imports(ctx, code)
         regularizers.append({"name": name, "weight": params["weight"],
-                             "expr": render_snippet(code["expr"], params, ctx.names.package)})
+                             "expr": render(code["expr"], params, ctx.names.package, field=base["field_attr"])})
         ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
     sampler_name, _ = one(get_path(ctx.plan, "model.sampler"))
     ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
+    custom_sampler = ctx.custom("model.sampler")
+    if custom_sampler:
+        imports.append(custom_sampler["import"])
+        sampler = base["importance_sampler"]
+        modules.append({"attr": sampler["attr"], "ctor": call(
+            custom_sampler["cls"], f"num_samples=self.config.{sampler['num_samples']}", custom_sampler["kwargs"])})
+    custom_renderer = ctx.custom("model.renderer")
+    if custom_renderer:
+        imports.append(custom_renderer["import"])
+        modules.append({"attr": "renderer_rgb", "ctor": call(
+            custom_renderer["cls"], "background_color=self.config.background_color", custom_renderer["kwargs"])})
+        ctx.part("model.py", "renderer", "model.renderer.custom", ctx.grammar.terminals[CUSTOM].doc)
     proposal = _proposal_networks(ctx)
     if proposal:
         imports += proposal["imports"]
@@ -301,6 +420,7 @@ def model_context(ctx: Context) -> dict:
         "imports": sorted(set(imports)),
         "rgb_loss": rgb_loss,
         "regularizers": regularizers,
+        "modules": modules,
         "proposal_networks": proposal,
     }
 
@@ -423,7 +543,9 @@ def build_context(ctx: Context) -> dict:
     """The full template context of a plugin."""
     base = {"name": ctx.plan["base"], "config_module": None, **bases()[ctx.plan["base"]]}
     field_kind, _ = one(ctx.plan["model"]["field"])
-    field_ctx = mlp_field(ctx) if field_kind == "MLPField" else tensorial_field(ctx)
+    field_ctx = {"MLPField": mlp_field, "TensorialField": tensorial_field, CUSTOM: custom_field}[field_kind](ctx)
+    field_ctx.setdefault("custom", None)
+    field_ctx.setdefault("kwargs", "")
     model = model_context(ctx)
     config = config_context(ctx, base)
     paper = ctx.plan.get("paper") or {}
@@ -436,9 +558,11 @@ def build_context(ctx: Context) -> dict:
         "paper": paper,
         "base": base,
         "field": field_ctx,
-        "field_template": "field_mlp.py.j2" if field_kind == "MLPField" else "field_tensorial.py.j2",
+        "field_template": {"MLPField": "field_mlp.py.j2", "TensorialField": "field_tensorial.py.j2"}.get(field_kind),
         "model": model,
         "config": config,
         "components": list(ctx.components),
-        "packages": [ctx.names.package] + ([f"{ctx.names.package}.components"] if ctx.components else []),
+        "custom_modules": custom_modules(ctx),
+        "packages": [ctx.names.package] + ([f"{ctx.names.package}.components"]
+                                           if ctx.components or custom_modules(ctx) else []),
     }

@@ -36,8 +36,6 @@ class Custom:
     """Position encodings only: the domain the component expects its positions in."""
     weight: float = param(1.0, range=(0.0, 100.0))
     """Regularisers only: weight of the term in the total loss."""
-    inputs: List[str] = param(["weights"])
-    """Regularisers only: what the term reads (``weights`` of the rays, ``densities`` of the samples)."""
 
 
 @dataclass(frozen=True)
@@ -99,7 +97,7 @@ def _loss(module, inputs, env):
 
 
 def _regularizer(module, inputs, env):
-    return {"loss": module(**{k: inputs[k] for k in env["inputs"] if k in inputs})}
+    return {"loss": module(densities=inputs["densities"])}
 
 
 def _sampler(module, inputs, env):
@@ -159,7 +157,8 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
               "RaySamples [R, K] (the base's importance sampler)", ("num_samples",),
               Contract(RAYS, {"ray_samples": T("[R, K, 2]")}, free=("K",)), _sampler, RAY_CASES,
               duties=({"requires_base": ["vanilla-nerf", "mipnerf", "tensorf"]},)),
-    Interface("Renderer", "__init__(background_color, ...); forward(rgb=[R, S, 3], weights=[R, S, 1]) -> rgb [R, 3]",
+    Interface("Renderer", "a subclass of nerfstudio's RGBRenderer (background blending): __init__(background_color, "
+              "...); forward(rgb=[R, S, 3], weights=[R, S, 1]) -> rgb [R, 3]",
               ("background_color",),
               Contract({"ray_samples": T("[R, S]", "samples", role="samples"),
                         "rgb": T("[R, S, 3]", range=(0.0, 1.0), grad=True)},
@@ -167,10 +166,9 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
     Interface("RGBLoss", "forward(pred [R, 3], target [R, 3]) -> scalar >= 0", (),
               Contract({"pred": T("[R, 3]", range=(0.0, 1.0), grad=True), "target": T("[R, 3]", range=(0.0, 1.0))},
                        LOSS), _loss, VALUE_CASES),
-    Interface("Regularizers", "forward(**inputs) -> scalar >= 0; inputs from `inputs`: weights [R, S, 1] (the "
-              "rays' weights), densities [R, S, 1] (sigma at the samples)", (),
-              Contract({"weights": T("[R, S, 1]", range=(0.0, 1.0), grad=True, role="weights"),
-                        "densities": T("[R, S, 1]", range=(0.0, 5.0), grad=True, role="densities")}, LOSS),
+    Interface("Regularizers", "forward(densities=[R, S, 1], sigma at the field's samples) -> scalar >= 0, added "
+              "to the loss times `weight`", (),
+              Contract({"densities": T("[R, S, 1]", range=(0.0, 5.0), grad=True, role="densities")}, LOSS),
               _regularizer, VALUE_CASES),
     Interface("Field", "a nerfstudio Field: __init__(aabb, num_images, ...); forward(ray_samples [R, S]) -> "
               "{DENSITY: [R, S, 1] >= 0, RGB: [R, S, 3] in [0, 1]}", ("aabb", "num_images"),
