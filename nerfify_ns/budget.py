@@ -27,5 +27,5 @@ class Budget:
 
 PAPER_BUDGET = Budget()
 """``ns-nerfify PAPER``: the evaluation run the report is about."""
-COMPOSE_BUDGET = Budget()
+COMPOSE_BUDGET = Budget(iterations=40, every=20, smoke_iterations=20, scene={"n_test": 2})
 """``ns-nerfify compose``: every reference plan within about 2 minutes on a 2-core CPU (measured in README)."""

@@ -29,6 +29,7 @@ from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.grammar import validate
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
+from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.outcome import Outcome, Progress, Stage
 from nerfify_ns.paper import Document, clean_markdown, ingest, key_terms_report, require_nerf_paper
 from nerfify_ns.plan import Plan
@@ -78,15 +79,18 @@ def run_paper(
     patch_rounds: int = 0,
     overwrite: bool = False,
     progress: Progress = Progress(),
+    kb: Optional[KnowledgeBase] = None,
 ) -> PaperResult:
-    """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``."""
+    """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``.
+    ``kb``: the knowledge base every stage reads (default: the package's), one object for the whole run."""
     outcome = Outcome("paper", until, progress)
+    kb = KnowledgeBase.of(kb)
     with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
         doc = ingest(paper)
         require_nerf_paper(doc)
-        detections = detect_techniques(doc)
-        graph = build_citation_graph(doc, detections)
-        derived = derive_plan(doc, detections, graph)
+        detections = detect_techniques(doc, kb)
+        graph = build_citation_graph(doc, detections, kb=kb)
+        derived = derive_plan(doc, detections, graph, kb=kb)
         stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
                          f"{len(derived.holes)} hole(s)")
     if dry_run:
@@ -140,10 +144,12 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
         with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
             stage.summary = f"{len(write_plugin(plan, folder).files)} files"
     if outcome.wants("verify"):
-        with outcome.stage("verify", "verification ladder (static, contract, stability, smoke; sandboxed)",
-                           failures=(NerfifyError,)) as stage:
-            ladder = run_ladder(folder, scene=data, out_dir=folder / "verify", timeout=budget.timeout,
-                                smoke_iterations=budget.smoke_iterations)
+        with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
+                           total=budget.smoke_iterations, failures=(NerfifyError,)) as stage:
+            ladder = run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
+                                smoke_iterations=budget.smoke_iterations, timeout=budget.timeout,
+                                on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
+                                                           "verification ladder: judging the smoke run"))
             (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
             _judge_ladder(ladder, stage)
     summary = None
@@ -151,7 +157,9 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
         with outcome.stage("train", f"training {plan['method']} for {budget.iterations} iterations, evaluating "
                            "its checkpoints", total=budget.iterations, failures=(NerfifyError,)) as stage:
             summary = evaluate_run(folder, data, folder / "eval", iterations=budget.iterations,
-                                   every=budget.every, label=plan["method"], on_progress=_training_progress(stage))
+                                   every=budget.every, label=plan["method"],
+                                   on_progress=_step_progress(stage, f"training {plan['method']}",
+                                                              "rendering and scoring the checkpoints"))
             _judge_evaluation(summary, stage)
     if not patch_rounds:
         outcome.skip("patches", "not requested (--patch-rounds 0)")
@@ -160,7 +168,8 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
 
         with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
             loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations)
-            stage.summary = f"stopped: {loop.stopped}"
+            stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
+                             f"{loop.history.get('stopped')}")
     _report(folder, outcome)
     return plan, summary
 
@@ -190,12 +199,12 @@ def _judge_ladder(ladder, stage: Stage) -> None:
                else "no rung passed")
 
 
-def _training_progress(stage: Stage) -> Callable[[int, int], None]:
-    """``on_progress(step, total)`` of a training: the stage's bar, then a note once the checkpoints are scored."""
+def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int], None]:
+    """``on_progress(step, total)`` of a training process: the stage's bar, and what it does (``during`` the
+    training, ``after`` it)."""
     def hook(step: int, total: int) -> None:
         stage.advance(step, total)
-        if step >= total:
-            stage.note("rendering and scoring the checkpoints on the test views")
+        stage.note(after if step >= total else during)
     return hook
 
 

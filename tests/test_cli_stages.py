@@ -87,3 +87,41 @@ def test_help_has_no_double_negatives(sub, capsys):
     assert not {f for f in flags if f.startswith("no-") and f[3:].startswith(("no", "not", "skip", "without"))}
     if sub == "compose":
         assert {"train", "no-train", "until", "iterations"} <= flags
+
+
+def test_no_train_stops_after_the_ladder():
+    from nerfify_ns.cli import Compose
+
+    assert Compose(method="nerfacto", train=False)._until() == "verify"
+    assert Compose(method="nerfacto", train=False, until="plugin")._until() == "plugin"
+    assert Compose(method="nerfacto", until="train")._until() == "train"
+    assert Compose(method="nerfacto")._until() is None
+
+
+@pytest.mark.slow
+def test_a_failed_verification_exits_1_and_still_writes_the_folder(tmp_path):
+    """The smoke rung cannot see a 1-iteration run learn: the ladder fails, training does not run, one red line
+    names the stage, the rung and the reason, exit code 1, and the folder and its report say the same."""
+    import os
+
+    out = tmp_path / "kp"
+    env = {**os.environ, "NERFIFY_CACHE": str(tmp_path / "cache")}
+    done = subprocess.run([str(CLI), "compose", "--method", "kplanes-static", "--smoke-iterations", "1", "--out",
+                           str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=600, env=env)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert done.stderr == "" and "Traceback" not in done.stdout
+    failed = [line for line in done.stdout.splitlines() if "failed" in line]
+    assert len(failed) == 1 and failed[0].startswith("failed verify: smoke rung"), done.stdout
+    assert not [line for line in done.stdout.splitlines() if line.startswith("done verify")]
+
+    assert stage_statuses(out) == {"plan": "ran", "plugin": "ran", "verify": "failed", "train": "not run",
+                                   "patches": "not run"}
+    run = json.loads((out / "run.json").read_text())
+    assert run["ok"] is False and run["failed"]["name"] == "verify" and "smoke rung" in run["failed"]["reason"]
+    assert [s["reason"] for s in run["stages"] if s["name"] == "train"] == ["verify failed"]
+    assert json.loads((out / "verify.json").read_text())["ok"] is False and not (out / "eval").exists()
+    html = (out / "report.html").read_text()
+    top = html[:html.index('<section id="paper">')]
+    assert "Failed: verify failed: smoke rung" in top
+    assert json.loads((out / "report.json").read_text())["outcome"]["failed"]["name"] == "verify"
+    assert not (tmp_path / "cache" / "generated" / "last.json").exists()  # a failed plugin is not made the default

@@ -26,6 +26,14 @@ def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env, timeout=1800)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     out = tmp_path / "out"
+    # a quiet console: one line per finished stage, no warnings from other packages (they are in the log)
+    assert done.stderr == "" and "Warning" not in done.stdout and "failed" not in done.stdout
+    assert [line.split()[1].rstrip(":") for line in done.stdout.splitlines() if line.startswith("done ")] == \
+        ["read", "plan", "plugin", "verify", "train", "report"]
+    assert "FutureWarning" in (out / "nerfify.log").read_text()
+    stages = {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
+    assert [stages[n]["status"] for n in ("read", "plan", "plugin", "verify", "train")] == ["ran"] * 5
+    assert stages["patches"]["status"] == "not run" and "psnr" in stages["train"]["summary"].lower()
 
     plan = yaml.safe_load((out / "plan.yaml").read_text())
     assert check(plan) == [] and plan["method"] == "gridlite" and plan["base"] == "nerfacto"
@@ -41,6 +49,7 @@ def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
     assert curve[0].startswith("label,step,train_seconds,psnr") and len(curve) == 3  # checkpoints at 10 and 20
 
     report = json.loads((out / "report.json").read_text())
+    assert report["outcome"]["ok"] is True and report["outcome"]["failed"] is None
     sections = report["sections"]
     for name in ("paper", "citations", "components", "verification", "stability", "metrics", "curve",
                  "error_maps", "consistency"):

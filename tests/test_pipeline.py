@@ -67,3 +67,26 @@ def test_cli_unknown_scene_is_one_line(tmp_path):
     lines = [line for line in proc.stdout.splitlines() if line.strip()]
     assert len(lines) == 1 and "unknown scene 'no-such-scene'" in lines[0] and "default" in lines[0]
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.slow
+def test_an_evaluation_failure_is_a_failed_stage_with_the_folder_written(tiny_scene, tmp_path):
+    """The ladder passes on a scene without a test split (training needs train and val only); the evaluation
+    cannot score it: the train stage fails with that reason, the report is written, nothing is raised."""
+    import json
+    import shutil
+
+    from nerfify_ns.budget import Budget
+    from nerfify_ns.pipeline import run_compose
+    from nerfify_ns.synthesis.resources import load_reference_plan
+
+    scene = shutil.copytree(tiny_scene, tmp_path / "scene")
+    (scene / "transforms_test.json").unlink()
+    result = run_compose(load_reference_plan("kplanes-static"), tmp_path / "out", data=scene,
+                         budget=Budget(iterations=10, every=10, smoke_iterations=20))
+    outcome = result.outcome
+    assert [r.status for r in outcome.records] == ["ran", "ran", "ran", "failed", "not run"]
+    assert "transforms_test.json" in outcome.failed.reason and result.summary is None
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["outcome"]["failed"]["name"] == "train" and report["sections"]["verification"]["status"] == "pass"
+    assert (tmp_path / "out" / "nerfify.log").is_file() and (tmp_path / "out" / "plan.yaml").is_file()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +17,8 @@ class Report:
     """Write a self-contained report (report.html, images inlined, opens offline; and report.json) of a
     nerfify run folder: paper and plan, citation graph, components and holes, verification ladder,
     stability cases, metrics, error against time, error maps, consistency maps and the patch-loop
-    history. Parts that are absent are reported as "not run"."""
+    history. Its top states the run's outcome (run.json: which stages ran, which failed and why); parts
+    that are absent are reported as "not run"."""
 
     run_dir: tyro.conf.Positional[Path]
     """The run folder (the output of 'ns-nerfify PAPER', e.g. nerfify-out/<method>)."""
@@ -28,4 +30,6 @@ class Report:
             raise ReportError(f"{self.run_dir} is not a folder; pass the output folder of 'ns-nerfify PAPER'")
         html_path, json_path = write_report(self.run_dir)
         if not self.quiet:
+            outcome = json.loads(json_path.read_text())["outcome"]
+            Console().print(f"outcome: {outcome['headline']}", highlight=False, markup=False)
             Console().print(f"report: {html_path}\n        {json_path}")
