@@ -15,7 +15,8 @@ from nerfify_ns.verify.static import ast_checks
 PROBE_RUNGS = ("static", "contract", "stability")
 
 
-def read_events(path: Path) -> List[dict]:
+def read_probe_events(path: Path) -> List[dict]:
+    """The probe's JSON-lines events (a line cut off by a crash is skipped)."""
     if not path.exists():
         return []
     events = []
@@ -44,7 +45,7 @@ def run_probe(
         timeout=timeout,
         log_name="probe.log",
     )
-    events = read_events(events_path)
+    events = read_probe_events(events_path)
     rungs_out: Dict[str, RungResult] = {}
     started: Dict[str, float] = {}
     for e in events:
@@ -98,6 +99,7 @@ def run_probe(
 
 
 def static_ast(info: PluginInfo) -> RungResult:
+    """The in-process part of the static rung (files parse, the entry point exists); no plugin code runs."""
     r = RungResult("static")
     for d in ast_checks(info):
         r.fail(d)

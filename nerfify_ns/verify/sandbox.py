@@ -42,12 +42,15 @@ def isolation_available() -> bool:
 
 
 def sandbox_prefix(workdir: Path, isolate: bool = True) -> List[str]:
+    """The command prefix giving a process no network and a read-only filesystem but ``workdir`` (none when
+    isolation is unavailable or not asked for)."""
     if not (isolate and isolation_available()):
         return []
     return [shutil.which("unshare"), "-n", "-m", "sh", "-c", _INNER, "sh", str(workdir)]
 
 
 def _limits(memory: int):
+    """A pre-exec hook capping the address space at ``memory`` bytes (0: no cap) and disabling core dumps."""
     def apply() -> None:
         if memory:
             resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
@@ -57,6 +60,7 @@ def _limits(memory: int):
 
 
 def sandbox_env(workdir: Path, extra: Optional[Dict[str, str]] = None) -> Dict[str, str]:
+    """Our environment with temporary files, caches and bytecode kept inside ``workdir``, plus ``extra``."""
     tmp = workdir / ".tmp"
     tmp.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
@@ -98,4 +102,5 @@ def run_sandboxed(
 
 
 def python_cmd(module: str, *args: str) -> List[str]:
+    """``python -m module args`` with our interpreter."""
     return [sys.executable, "-m", module, *args]

@@ -11,6 +11,7 @@ from nerfify_ns.verify.report import Diagnosis
 
 
 def ast_checks(info: PluginInfo) -> List[Diagnosis]:
+    """Every Python file parses; the entry point names a module of the plugin assigning its variable."""
     found: List[Diagnosis] = []
     trees = {}
     for rel in info.python_files:
@@ -48,5 +49,6 @@ def ast_checks(info: PluginInfo) -> List[Diagnosis]:
 
 
 def _targets(node) -> List[str]:
+    """The names an assignment binds."""
     targets = node.targets if isinstance(node, ast.Assign) else [node.target]
     return [t.id for t in targets if isinstance(t, ast.Name)]

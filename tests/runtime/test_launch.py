@@ -11,6 +11,7 @@ import time
 from importlib.metadata import entry_points
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import nerfify_ns
@@ -65,11 +66,14 @@ def test_events_reader_is_incremental(tmp_path):
     from torch.utils.tensorboard import SummaryWriter
 
     writer = SummaryWriter(str(tmp_path))
+    writer.add_text("config", "{'_target': ...}", 0)  # Nerfstudio logs its config as text: not a scalar
     for step in range(3):
         writer.add_scalar("Train Loss", 1.0 / (step + 1), step)
+    writer.add_histogram("weights", np.array([0.1, 0.2, 0.3]), 0)
     writer.flush()
     reader = ev.EventReader(tmp_path)
     assert ev.losses(reader.poll()) == {0: 1.0, 1: 0.5, 2: pytest.approx(1 / 3)}
+    assert set(reader.scalars) == {"Train Loss"}
     assert reader.last_step() == 2
     for step in range(3, 5):
         writer.add_scalar("Train Loss", 1.0 / (step + 1), step)

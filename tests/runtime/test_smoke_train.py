@@ -26,9 +26,13 @@ def test_offline_sandbox_is_used():
 
 
 def test_ci_smoke_train_nerfacto(tiny_scene, tmp_path):
-    result = smoke_train("nerfacto", tiny_scene, tmp_path / "nerfacto", iterations=60, evaluate=False)
+    progress = []
+    result = smoke_train("nerfacto", tiny_scene, tmp_path / "nerfacto", iterations=60, evaluate=False,
+                         on_progress=lambda step, total: progress.append((step, total)))
     run = result.run
     assert run.ok and run.last_step == 59
+    steps = [s for s, _ in progress]  # polled from the run's events while it trained
+    assert steps == sorted(set(steps)) and steps[-1] == 60 and len(steps) > 2 and {t for _, t in progress} == {60}
     losses = [run.losses[s] for s in sorted(run.losses)]
     assert all(math.isfinite(v) for v in losses)
     assert sum(losses[-10:]) / 10 < 0.5 * sum(losses[:5]) / 5, "photometric loss did not go down"
