@@ -280,7 +280,28 @@ def duties_at(g: Grammar, path: str, term: str) -> tuple:
     return tuple(duties or ())
 
 
+def _check_constraints(g: Grammar, d: Derivation, plan: dict) -> None:
+    """Rules across a terminal's parameters (and the plan around it) that types and ranges cannot say."""
+    for path, name in d.used.items():
+        definition = g.terminals[name].definition
+        if definition is None or not definition.constraints:
+            continue
+        given = _at_path(plan, path)
+        params = definition.with_defaults(given if isinstance(given, dict) else {})
+        for constraint in definition.constraints:
+            if not constraint.holds(params, plan):
+                d.fail(path, name, "param_constraint", f"{name}: {constraint.doc}")
+
+
+def _at_path(plan: dict, path: str) -> Any:
+    node: Any = plan
+    for key in path.split("."):
+        node = node.get(key) if isinstance(node, dict) else None
+    return node
+
+
 def _check_duties(g: Grammar, d: Derivation, plan: dict) -> None:
+    _check_constraints(g, d, plan)
     for path, term in d.used.items():
         for duty in duties_at(g, path, term):
             problem = _duty_holds(g, d, plan, duty)

@@ -41,6 +41,16 @@ class Code:
 
 
 @dataclass(frozen=True)
+class Constraint:
+    """A rule across a terminal's parameters that types and ranges cannot say (``validate`` checks it;
+    the JSON Schema and GBNF exports cannot express it, so constrained decoding relies on ``validate``)."""
+
+    doc: str
+    holds: Callable[[Dict[str, Any], Mapping[str, Any]], bool]
+    """(the terminal's parameters with defaults, the whole plan) -> whether the rule holds."""
+
+
+@dataclass(frozen=True)
 class Harness:
     """How the contract and stability rungs run the terminal at small sizes.
 
@@ -80,6 +90,8 @@ class TerminalDef:
     """Per base model: parameter -> field of the base's Nerfstudio model config."""
     config_class: Optional[str] = None
     input_domain: Optional[str] = None
+    constraints: Tuple[Constraint, ...] = ()
+    """Rules across parameters (checked by ``validate`` on the parameters with defaults filled in)."""
 
     @property
     def param_specs(self) -> Dict[str, ParamSpec]:
@@ -120,6 +132,8 @@ class TerminalDef:
             data["contract"] = self.contract.to_data()
         if self.duties:
             data["duties"] = [dict(d) for d in self.duties]
+        if self.constraints:
+            data["constraints"] = [c.doc for c in self.constraints]
         code = self.code.to_data()
         if code:
             data["code"] = code

@@ -345,6 +345,7 @@ def tensorial_field(ctx: Context) -> dict:
         "color_components": dec["color_components"],
         **{k: head[k] for k in ("appearance_dim", "num_layers", "layer_width", "feature_frequencies",
                                 "direction_frequencies")},
+        "keeps_density": ctx.used("model.regularizers.density_sparsity") or _custom_regularizers(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
 

@@ -18,6 +18,10 @@ DENSITY_MODULES = ("backbone", "density_head", "mlp_base", "mlp_base_mlp", "line
 """Field submodules whose output is (or starts with) the pre-activation density."""
 
 
+PROBE_CAPS = {"grid_resolution": 32, "grid_levels": 2}
+"""Model config values capped in the probe's model (an occupancy grid update runs the field on every cell)."""
+
+
 def build_model(spec, scale: float = 1.0):
     """The plugin's model from its own config, on a [-1.5, 1.5]^3 scene box (times ``scale``)."""
     from nerfstudio.data.scene_box import SceneBox
@@ -28,6 +32,9 @@ def build_model(spec, scale: float = 1.0):
             setattr(cfg, name, getattr(cfg, name) * scale)
     if isinstance(getattr(cfg, "collider_params", None), dict):
         cfg.collider_params = {k: v * scale for k, v in cfg.collider_params.items()}
+    for name, cap in PROBE_CAPS.items():  # wiring is checked at small sizes: the grid update visits every cell
+        if isinstance(getattr(cfg, name, None), int):
+            setattr(cfg, name, min(getattr(cfg, name), cap))
     model = cfg.setup(scene_box=SceneBox(aabb=torch.tensor(AABB) * scale), num_train_data=4, metadata={})
     return model.to("cpu")
 

@@ -83,7 +83,7 @@ VALID: Dict[str, dict] = {
                         pos_encoding={"custom": {**CUSTOM, "input_domain": "unit"}}),
         p["model"]["losses"].update(rgb={"custom": CUSTOM}))),
     "custom regularisers, renderer, density head, backbone": mutate("nerfacto", lambda p: (
-        p["model"].update(regularizers={"ray_entropy": {}, "custom": {**CUSTOM, "inputs": ["weights"]},
+        p["model"].update(regularizers={"ray_entropy": {}, "custom": {**CUSTOM, "weight": 0.5},
                                         "custom_memory": {**CUSTOM, "weight": 0.1}},
                           renderer={"custom": CUSTOM}),
         field(p).update(density_head={"custom": CUSTOM}, backbone={"custom": CUSTOM}))),
@@ -232,3 +232,23 @@ def test_reference_plans_are_derivations():
     for name in reference_plans():
         derivation = validate(load_reference_plan(name))
         assert derivation.choices["base"] == load_reference_plan(name)["base"]
+
+
+def test_a_skip_connection_into_the_last_layer_is_refused():
+    """Found by the grammar fuzzer: Nerfstudio's MLP takes no skip connection into its last layer, so a plan
+    with one composed a backbone that could not run (a matrix shape error in the contract rung)."""
+    plan = mutate("vanilla-nerf", lambda p: field(p).update(
+        backbone={"num_layers": 4, "layer_width": 64, "skip_connections": [3]}))
+    assert [v.rule for v in check(plan)] == ["param_constraint"]
+    plan = mutate("vanilla-nerf", lambda p: field(p).update(
+        backbone={"num_layers": 4, "layer_width": 64, "skip_connections": [2]}))
+    assert check(plan) == []
+
+
+def test_a_last_sample_background_with_packed_samples_is_refused():
+    """Found by the grammar fuzzer: Nerfstudio's renderer cannot composite on the 'last_sample' background
+    with instant-ngp's packed samples (NotImplementedError in a training step)."""
+    plan = mutate("instant-ngp", lambda p: p["model"]["renderer"].update(background="last_sample"))
+    assert [v.rule for v in check(plan)] == ["param_constraint"]
+    plan = mutate("nerfacto", lambda p: p["model"]["renderer"].update(background="last_sample"))
+    assert check(plan) == []

@@ -8,7 +8,7 @@ from typing import Dict, List, Literal
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import DENSITY_CASES, DENSITY_OFFSETS
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 
 SMALL = {"layer_width": 32, "num_layers": 3}
 
@@ -35,7 +35,7 @@ class Backbone:
     """Hidden layers of the MLP (NeRF: 8)."""
     layer_width: int = param(256, range=(8, 1024))
     """Units per hidden layer (NeRF: 256)."""
-    skip_connections: List[int] = param([4], range=(1, 15), length=(0, 8))
+    skip_connections: List[int] = param([4], range=(1, 14), length=(0, 8))
     """Layers that receive the encoded input again (NeRF: a skip at layer 4)."""
 
 
@@ -81,7 +81,7 @@ def _build_backbone(p, env):
     from nerfstudio.field_components.mlp import MLP
     from torch import nn
 
-    skips = tuple(s for s in p["skip_connections"] or [] if s < p["num_layers"]) or None
+    skips = tuple(s for s in p["skip_connections"] or [] if s < p["num_layers"] - 1) or None  # at small sizes
     return MLP(in_dim=int(env["in_dim"]), num_layers=p["num_layers"], layer_width=p["layer_width"],
                skip_connections=skips, activation=nn.ReLU(), implementation="torch")
 
@@ -128,6 +128,11 @@ def _call(key: str):
     return call
 
 
+SKIPS_BEFORE_LAST_LAYER = Constraint(
+    "skip connections feed hidden layers: every entry of skip_connections is below num_layers - 1",
+    lambda p, plan: all(s < p["num_layers"] - 1 for s in p["skip_connections"] or []))
+"""Nerfstudio's MLP concatenates the input before layer i; its last layer (num_layers - 1) takes no skip."""
+
 FEATURES_IN = {"features": T("[N, in_dim]", grad=True, doc="encoded positions (a width the harness chooses)")}
 DENSITY_OUT = {"density": T("[N, 1]", range=(0.0, None), doc="sigma >= 0")}
 HIDDEN_IN = T("[N, in_dim]", grad=True, role="pre_density", doc="backbone output")
@@ -138,7 +143,8 @@ TERMINALS = [
         "nerfstudio.field_components.mlp.MLP", card="mlp_backbone",
         contract=Contract(FEATURES_IN, {"hidden": T("[N, layer_width]", doc="hidden features")}),
         harness=Harness(build=_build_backbone, call=_call("hidden"), cases=("values_1e8", "empty_batch", "half"),
-                        small=SMALL)),
+                        small=SMALL),
+        constraints=(SKIPS_BEFORE_LAST_LAYER,)),
     TerminalDef(
         "density_linear", "DensityHead", DensityLinear,
         "A linear density head on the backbone features, then an activation (NeRF).",

@@ -8,7 +8,7 @@ from typing import List, Literal
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import AABB, COMPOSITE_CASES, RAY_CASES, SCALES, NotApplicable
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 
 SMALL = {"num_coarse_samples": 8, "num_importance_samples": 8, "nerf_samples": 8, "grid_resolution": 16,
          "grid_levels": 1, "network_max_res": 32, "network_num_levels": 2, "network_log2_hashmap_size": 10,
@@ -205,6 +205,10 @@ def _call_camera(module, inputs, env):
 
 
 SAMPLE_EDGES = "starts and ends of each sample along its ray"
+PACKED_BACKGROUND = Constraint(
+    "a 'last_sample' background needs samples padded per ray; instant-ngp's packed samples have no last one",
+    lambda p, plan: not (p["background"] == "last_sample" and plan.get("base") == "instant-ngp"))
+"""Nerfstudio's RGBRenderer raises NotImplementedError for 'last_sample' with packed samples."""
 
 TERMINALS = [
     TerminalDef(
@@ -258,7 +262,8 @@ TERMINALS = [
             {"rgb": T("[R, 3]", range=(0.0, 1.0), doc="pixel colour C(r)"),
              "accumulation": T("[R, 1]", range=(0.0, 1.0 + 1e-3), doc="opacity of the ray"),
              "depth": T("[R, 1]", doc="median depth"), "expected_depth": T("[R, 1]", doc="expected depth")}),
-        harness=Harness(build=lambda p, env: None, call=_call_renderer, cases=COMPOSITE_CASES)),
+        harness=Harness(build=lambda p, env: None, call=_call_renderer, cases=COMPOSITE_CASES),
+        constraints=(PACKED_BACKGROUND,)),
     TerminalDef(
         "near_far", "Model", NearFar, "Near and far planes of every ray (NearFarCollider).",
         "nerfstudio.model_components.scene_colliders.NearFarCollider", card="background_model",
