@@ -54,9 +54,10 @@ class EventReader:
                         self.scalars.setdefault(value.tag, {})[event.step] = number
         return self.scalars
 
-    def last_step(self) -> int:
-        """The highest step any scalar was logged at (-1 before the first)."""
-        return max((max(steps) for steps in self.scalars.values() if steps), default=-1)
+    def last_step(self, tag: str = LOSS_TAG) -> int:
+        """The highest step ``tag`` was logged at (-1 before the first). Training steps are those of the loss;
+        Nerfstudio logs its total time one step later."""
+        return max(self.scalars.get(tag) or {}, default=-1)
 
 
 def read_scalars(run_dir: Path) -> Scalars:

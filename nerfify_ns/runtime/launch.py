@@ -185,7 +185,7 @@ def progress_poll(run_dir: Path, total: int, on_progress: Optional[ProgressHook]
         if not reader.run_dir.is_dir():
             return
         reader.poll()
-        done = reader.last_step() + 1
+        done = min(reader.last_step() + 1, total)
         if done > reported[0]:
             reported[0] = done
             on_progress(done, total)
