@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from nerfify_ns.runtime.events import LOSS_TAG, Scalars, read_scalars
-from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout, progress_poll,
-                                      train_command)
+from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
+                                      progress_poll, train_command)
 from nerfify_ns.verify.plugin import PluginInfo
 from nerfify_ns.verify.report import Diagnosis, RungResult
 from nerfify_ns.verify.sandbox import run_sandboxed
