@@ -284,6 +284,7 @@ class _Deriver:
         self.cards = kb.cards
         self.evidence: dict[str, dict] = {}
         self.notes: list[str] = []
+        self.placed: set[str] = set()  # cards substitution put (or confirmed) in the plan
         self.used = {d.card: d for d in self.detections if d.used and d.card in kb.cards}
         self.roles = section_roles(doc, kb.rules)
         self.units = list(sentences(doc, kb.rules))  # read once: base statements and scene cues scan them
@@ -384,6 +385,12 @@ class _Deriver:
             other = self.g.terminals.get(held)
             if other is not None and other.card in self.used and c.name not in self.used:
                 return  # the paper's own choice beats a component recovered from citations
+            if other is not None and other.card in self.used and c.name in self.used and \
+                    other.card in self.placed and self.used[other.card].confidence >= self.used[c.name].confidence:
+                self.notes.append(f"{c.name} ({c.title}) was also found in the paper, less surely "
+                                  f"({self.used[c.name].confidence:.2f} against {self.used[other.card].confidence:.2f}) "
+                                  f"than {other.card}; {held} stays at {ts.slot}")
+                return  # two of the paper's own techniques for one slot: the surer detection wins
         specific, others = self._variants(c, ts)
         problems: dict[str, str] = {}
         if held in specific or self._try_variants(plan, c, ts, [t for t in specific if t != held], problems):
@@ -417,6 +424,7 @@ class _Deriver:
         return {k: v for k, v in c.params_for(terminal).items() if k in term.params}
 
     def _record_card(self, slot: str, c: Card) -> None:
+        self.placed.add(c.name)
         q = self._card_quote(c.name)
         if q:
             quote, section, page, line, source = q
