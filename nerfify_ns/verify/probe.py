@@ -20,111 +20,10 @@ import warnings
 from pathlib import Path
 from typing import Dict, List, Optional
 
-ROOT: Path = Path(".")
-PACKAGE = ""
-PLAN = None  # the plugin's plan (a nerfify_ns.plan.Plan) while the probe runs
-_events = None
 
-
-def emit(**event) -> None:
-    _events.write(json.dumps(event, default=str) + "\n")
-    _events.flush()
-
-
-def plugin_frame(tb) -> tuple:
-    """(file, line) of the innermost traceback frame inside the plugin folder, else (None, None)."""
-    found = (None, None)
-    for frame in traceback.extract_tb(tb):
-        try:
-            rel = Path(frame.filename).resolve().relative_to(ROOT)
-        except ValueError:
-            continue
-        found = (str(rel), frame.lineno)
-    return found
-
-
-FAILED = set()
-
-
-def diagnose(
-    rung: str, rule: str, message: str, file=None, line=None, exc: Optional[BaseException] = None, **extra
-) -> None:
-    FAILED.add(rung)
-    text = ""
-    if exc is not None:
-        text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)[-6:])[-2000:]
-        if file is None:
-            file, line = plugin_frame(exc.__traceback__)
-    emit(
-        event="diagnosis",
-        rung=rung,
-        rule=rule,
-        message=message,
-        file=file,
-        line=line,
-        traceback=text,
-        **extra,
-    )
-
-
-def class_line(cls) -> tuple:
-    try:
-        file = Path(inspect.getsourcefile(cls)).resolve().relative_to(ROOT)
-        return str(file), inspect.getsourcelines(cls)[1]
-    except (TypeError, OSError, ValueError):
-        return None, None
-
-
-# ----------------------------------------------------------------------------- static
 def module_name(rel: str) -> str:
     parts = rel[:-3].split("/")
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-def check_imports(files: List[str]) -> Dict[str, object]:
-    """Resolve every import statement of every file; import the plugin's own modules."""
-    modules = {}
-    for rel in files:
-        try:
-            tree = ast.parse((ROOT / rel).read_text())
-        except SyntaxError:
-            continue
-        name = module_name(rel)
-        package = name if rel.endswith("__init__.py") else name.rpartition(".")[0]
-        for node in ast.walk(tree):
-            if isinstance(node, ast.Import):
-                targets = [(a.name, None) for a in node.names]
-            elif isinstance(node, ast.ImportFrom):
-                base = (
-                    importlib.util.resolve_name("." * node.level + (node.module or ""), package)
-                    if node.level
-                    else node.module
-                )
-                targets = [(base, a.name) for a in node.names]
-            else:
-                continue
-            for mod, attr in targets:
-                try:
-                    imported = importlib.import_module(mod)
-                    if attr and attr != "*" and not hasattr(imported, attr):
-                        importlib.import_module(f"{mod}.{attr}")
-                except Exception as exc:  # any failure of untrusted code is a finding
-                    what = f"{mod}.{attr}" if attr else mod
-                    diagnose(
-                        "static",
-                        "import",
-                        f"import of {what} fails: {type(exc).__name__}: {exc}",
-                        rel,
-                        node.lineno,
-                        exc if not isinstance(exc, ImportError) else None,
-                    )
-        try:
-            modules[rel] = importlib.import_module(name)
-        except Exception as exc:
-            diagnose(
-                "static", "import", f"module {name} cannot be imported: {type(exc).__name__}: {exc}", exc=exc
-            )
-    return modules
 
 
 def plugin_classes(modules: Dict[str, object]):
@@ -132,77 +31,6 @@ def plugin_classes(modules: Dict[str, object]):
         for _, cls in inspect.getmembers(module, inspect.isclass):
             if cls.__module__ == module.__name__:
                 yield rel, cls
-
-
-def check_classes(modules, base: Optional[dict]) -> None:
-    from nerfstudio.fields.base_field import Field
-    from nerfstudio.models.base_model import Model, ModelConfig
-
-    for rel, cls in plugin_classes(modules):
-        file, line = class_line(cls)
-        name = cls.__name__
-        if name.endswith("ModelConfig") and not issubclass(cls, ModelConfig):
-            diagnose("static", "base-class", f"{name} must subclass nerfstudio ModelConfig", file, line)
-        elif (
-            not name.endswith("Config")
-            and (name.endswith("Model") or "populate_modules" in vars(cls))
-            and not issubclass(cls, Model)
-        ):
-            diagnose("static", "base-class", f"{name} must subclass nerfstudio's Model", file, line)
-        elif (name.endswith("Field") or "get_density" in vars(cls)) and not issubclass(cls, Field):
-            diagnose(
-                "static",
-                "base-class",
-                f"{name} must subclass nerfstudio's Field " "(nerfstudio.fields.base_field.Field)",
-                file,
-                line,
-            )
-        if isinstance(cls, type) and issubclass(cls, ModelConfig) and cls is not ModelConfig:
-            check_target(cls, file, line, base)
-
-
-def check_target(cfg_cls, file, line, base: Optional[dict]) -> None:
-    from nerfstudio.models.base_model import Model
-
-    try:
-        target = cfg_cls()._target
-    except Exception as exc:
-        diagnose("static", "config-target", f"{cfg_cls.__name__}() cannot be built: {exc}", file, line, exc)
-        return
-    tline = _target_line(cfg_cls) or line
-    if not (isinstance(target, type) and issubclass(target, Model)):
-        diagnose(
-            "static",
-            "config-target",
-            f"{cfg_cls.__name__}._target is {target!r}, not a Model class",
-            file,
-            tline,
-        )
-        return
-    annotated = target.__dict__.get("__annotations__", {}).get("config")
-    annotated = getattr(annotated, "__name__", annotated)
-    expected = cfg_cls.__name__[: -len("Config")]
-    if (
-        annotated is not None
-        and annotated != cfg_cls.__name__
-        or annotated is None
-        and target.__name__ != expected
-    ):
-        diagnose(
-            "static",
-            "config-target",
-            f"{cfg_cls.__name__}._target builds {target.__module__}."
-            f"{target.__name__}, not the model this config belongs to ({expected})",
-            file,
-            tline,
-        )
-    elif base and not issubclass(target, _import(f"{base['module']}.{base['model_class']}")):
-        diagnose(
-            "static",
-            "base-class",
-            f"{target.__name__} must derive from the plan's base " f"{base['model_class']}",
-            *class_line(target),
-        )
 
 
 def _target_line(cls) -> Optional[int]:
@@ -218,272 +46,16 @@ def _import(path: str):
     return getattr(importlib.import_module(module), attr)
 
 
-def load_spec(config: str, entry_line):
-    from nerfstudio.plugins.types import MethodSpecification
-
-    module_name_, _, var = config.partition(":")
-    try:
-        spec = getattr(importlib.import_module(module_name_), var)
-    except Exception as exc:
-        diagnose(
-            "static",
-            "entry-point",
-            f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
-            "pyproject.toml",
-            entry_line,
-            exc if not isinstance(exc, (ImportError, AttributeError)) else None,
-        )
-        return None
-    if not isinstance(spec, MethodSpecification):
-        diagnose(
-            "static",
-            "entry-point",
-            f"entry point {config} is a {type(spec).__name__}, not a " "MethodSpecification",
-            "pyproject.toml",
-            entry_line,
-        )
-        return None
-    return spec
-
-
-def optimizers_line(config_module: str) -> tuple:
-    rel = config_module.replace(".", "/") + ".py"
-    try:
-        tree = ast.parse((ROOT / rel).read_text())
-    except (OSError, SyntaxError):
-        return rel, None
-    line = next(
-        (n.lineno for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "optimizers"), None
-    )
-    return rel, line
-
-
-_MODELS: Dict[float, object] = {}
-
-
-def shared_model(spec, scale: float = 1.0):
-    """One model per scene scale for the whole probe (building a Nerfstudio model costs seconds)."""
-    from nerfify_ns.verify.assembled import build_model
-
-    if scale not in _MODELS:
-        _MODELS[scale] = build_model(spec, scale)
-    model = _MODELS[scale]
-    model.zero_grad(set_to_none=True)
-    return model
-
-
-def check_param_groups(spec, config_module: str):
-    try:
-        model = shared_model(spec)
-    except Exception as exc:
-        diagnose(
-            "static",
-            "model-build",
-            f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
-            exc=exc,
-        )
-        return None
-    groups = {k: v for k, v in model.get_param_groups().items()}
-    keys = set(spec.config.optimizers)
-    file, line = optimizers_line(config_module)
-    missing, extra = sorted(set(groups) - keys), sorted(keys - set(groups))
-    empty = sorted(k for k, v in groups.items() if not list(v))
-    if missing or extra:
-        diagnose(
-            "static",
-            "param-groups",
-            f"model parameter groups {sorted(groups)} != optimizer keys "
-            f"{sorted(keys)} (missing optimizers: {missing}; optimizers without a group: {extra})",
-            file,
-            line,
-            missing=missing,
-            extra=extra,
-        )
-    if empty:
-        diagnose("static", "param-groups", f"parameter groups without parameters: {empty}", file, line)
-    return model
-
-
-# ----------------------------------------------------------------------------- contract / stability
 def used_terminals(plan: dict) -> Dict[str, str]:
     from nerfify_ns.grammar import load_grammar, validate
 
     return dict(validate(plan, load_grammar()).used)
 
 
-def component_of(path: str, terminal: str):
-    """(name, contract-checking function of a case) of the component at ``path``; None when the terminal
-    lives inside a Nerfstudio model (checked through the assembled model) or has no contract."""
-    from nerfify_ns.grammar import load_grammar
-    from nerfify_ns.registry import default_registry
-    from nerfify_ns.verify.components import run_custom, run_terminal
-
-    registry = default_registry()
-    if terminal == "custom":
-        production = load_grammar().production_at(path)
-        interface = registry.interfaces.get(production or "")
-        if interface is None:
-            return None
-        entry = PLAN.get(path) or {}
-        return (f"custom {entry.get('class')} ({production})", interface.cases,
-                lambda case: run_custom(interface, entry, PACKAGE, case))
-    defn = registry[terminal]
-    if defn.harness.in_model or defn.contract.empty:
-        return None
-    params = PLAN.get(path) if isinstance(PLAN.get(path), dict) else {}
-    return terminal, defn.harness.cases, lambda case: run_terminal(defn, params, case)
-
-
-def _plan_components() -> List[tuple]:
-    """(path, terminal, name, cases, run) of every component of the plan with a contract."""
-    found = []
-    for path, terminal in used_terminals(PLAN).items():
-        component = component_of(path, terminal)
-        if component is not None:
-            found.append((path, terminal, *component))
-    return found
-
-
-def contract_rung(spec, plan: Optional[dict]) -> None:
-    if plan is not None:
-        for path, terminal, name, _cases, run in _plan_components():
-            result = run("nominal").to_dict()
-            emit(event="component", rung="contract", component=name, path=path, **result)
-            if result["status"] == "fail":
-                diagnose("contract", "component-contract", f"{name} ({path}): " + "; ".join(result["problems"]),
-                         "plan.yaml", None, component=name)
-    assembled_contract(spec)
-
-
-def assembled_contract(spec) -> None:
-    import torch
-
-    from nerfify_ns.registry.contract import finite_problem
-    from nerfify_ns.verify.assembled import field_forward, grad_problems, output_problems, plugin_fields
-
-    model = shared_model(spec)
-    for name, field in plugin_fields(model, PACKAGE):
-        file, line = class_line(type(field))
-        try:
-            out = field_forward(field)
-        except Exception as exc:
-            diagnose(
-                "contract",
-                "field-contract",
-                f"field {name} ({type(field).__name__}) fails on a small batch: "
-                f"{type(exc).__name__}: {exc}",
-                exc=exc,
-            )
-            continue
-        problems = []
-        shape = (16, 8)
-        radiance = not name.startswith("proposal_networks")
-        for key, dim, low, high in (("density", 1, 0.0, None), ("rgb", 3, 0.0, 1.0)):
-            value = out.get(key)
-            if value is None and key == "rgb" and not radiance:
-                continue
-            if value is None:
-                problems.append(f"no {key} output")
-                continue
-            if tuple(value.shape) != (*shape, dim):
-                problems.append(f"{key} shape {tuple(value.shape)}, expected {(*shape, dim)}")
-            if value.dtype != torch.float32:
-                problems.append(f"{key} dtype {value.dtype}, expected float32")
-            problems += [p for p in [finite_problem(key, value)] if p]
-            if (
-                value.numel()
-                and float(value.min()) < low - 1e-5
-                or high is not None
-                and float(value.max()) > high + 1e-5
-            ):
-                problems.append(f"{key} outside [{low}, {high}]")
-        if problems:
-            diagnose(
-                "contract",
-                "field-contract",
-                f"field {name} ({type(field).__name__}): " + "; ".join(problems),
-                file,
-                line,
-            )
-    try:
-        outputs, losses, total = model_step(model)
-    except Exception as exc:
-        diagnose(
-            "contract",
-            "model-contract",
-            f"a training step of the model fails: {type(exc).__name__}: {exc}",
-            exc=exc,
-        )
-        return
-    problems = output_problems(outputs, losses)
-    if not losses:
-        problems.append("get_loss_dict returned no losses")
-    if problems:
-        diagnose("contract", "non-finite", "model outputs/losses: " + "; ".join(problems))
-    bad, missing = grad_problems(model, require=True)
-    if bad:
-        diagnose("contract", "non-finite", "; ".join(bad))
-    groups: Dict[str, List[str]] = {}
-    for pname in missing:
-        groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
-    for prefix, names in groups.items():
-        file, line = owner_line(model, names[0])
-        diagnose(
-            "contract",
-            "detached-parameter",
-            f"trainable parameter(s) {', '.join(names[:4])}"
-            f"{' ...' if len(names) > 4 else ''} receive no gradient from the losses (a wiring bug: detached, "
-            "unused, or outside the graph)",
-            file,
-            line,
-            parameter=names[0],
-        )
-
-
-def owner_line(model, pname: str) -> tuple:
-    """File and line of the plugin code that creates the module holding ``pname`` (``self.<attr> = ...``)."""
-    parts = pname.split(".")[:-1]
-    for i in range(len(parts), -1, -1):
-        owner = model.get_submodule(".".join(parts[:i])) if i else model
-        if type(owner).__module__.split(".")[0] != PACKAGE:
-            continue
-        file, line = class_line(type(owner))
-        if i < len(parts) and file:
-            try:
-                lines, start = inspect.getsourcelines(type(owner))
-                hit = next((start + k for k, t in enumerate(lines) if f"self.{parts[i]} =" in t), None)
-                return file, hit or line
-            except (OSError, TypeError):
-                pass
-        return file, line
-    return None, None
-
-
 def model_step(model, case: str = "nominal"):
     from nerfify_ns.verify.assembled import train_step
 
     return train_step(model, case)
-
-
-def stability_rung(spec, plan: Optional[dict], suite: str) -> None:
-    """Every component on every stiff case that applies; a failure of a component of ours (or of the
-    plugin) gates, one of Nerfstudio's is recorded."""
-    if suite == "all":
-        from nerfify_ns.verify.components import suite_components
-
-        components = suite_components()
-    else:
-        components = [(name, cases, run, _owner(terminal)) for _p, terminal, name, cases, run in _plan_components()]
-    for name, cases, run, (implementation, owner) in components:
-        for case in ("nominal", *cases):
-            result = run(case).to_dict()
-            emit(event="case", rung="stability", component=name, implementation=implementation, owner=owner,
-                 **result)
-            if result["status"] == "fail" and owner in ("ours", "plugin"):
-                diagnose("stability", "stiff-case", f"{name}, case {case}: " + "; ".join(result["problems"]),
-                         component=name, case=case)
-    if spec is not None:
-        assembled_stability(spec)
 
 
 def _owner(terminal: str) -> tuple:
@@ -500,59 +72,552 @@ ADVISORY_CASES = ("empty_batch", "half")
 """Model cases recorded but not gating: Nerfstudio's own samplers and losses fail on them (see the report)."""
 
 
-def _emit_model_case(case: str, status: str, problems: List[str]) -> None:
-    """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
-    emit(event="case", rung="stability", component="<model>", owner="plugin", case=case, status=status,
-         problems=problems)
+class Probe:
+    """One probe run: the plugin (root folder, package, plan), the events file, the rungs that failed and the
+    models built so far (building a Nerfstudio model costs seconds, so one per scene scale is shared)."""
 
+    def __init__(self, events, root: Path = Path("."), package: str = "", plan=None) -> None:
+        self.events = events
+        self.root = root
+        self.package = package
+        self.plan = plan  # the plugin's plan (a nerfify_ns.plan.Plan), None for a hand-written plugin
+        self.failed: set = set()
+        self.models: Dict[float, object] = {}
 
-def assembled_stability(spec) -> None:
-    import torch
+    def emit(self, **event) -> None:
+        self.events.write(json.dumps(event, default=str) + "\n")
+        self.events.flush()
 
-    from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
-
-    for case in MODEL_CASES:
-        torch.manual_seed(0)
-        problems: List[str] = []
-        if case == "half" and not spec.config.mixed_precision:
-            _emit_model_case(case, "n/a", ["the method trains in float32 (trainer.mixed_precision off)"])
-            continue
-        scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
-        try:
-            model = shared_model(spec, scale)
-            why, restore = patch_density(model, PACKAGE, case) if case.startswith("density") else (None, None)
-            if why:
-                _emit_model_case(case, "n/a", [why])
+    def plugin_frame(self, tb) -> tuple:
+        """(file, line) of the innermost traceback frame inside the plugin folder, else (None, None)."""
+        found = (None, None)
+        for frame in traceback.extract_tb(tb):
+            try:
+                rel = Path(frame.filename).resolve().relative_to(self.root)
+            except ValueError:
                 continue
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "half"):
-                outputs, losses, _ = model_step(
-                    model, "nominal" if case.startswith("density") or case == "half" else case
+            found = (str(rel), frame.lineno)
+        return found
+
+    def diagnose(
+        self,
+        rung: str,
+        rule: str,
+        message: str,
+        file=None,
+        line=None,
+        exc: Optional[BaseException] = None,
+        **extra,
+    ) -> None:
+        self.failed.add(rung)
+        text = ""
+        if exc is not None:
+            text = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)[-6:])[-2000:]
+            if file is None:
+                file, line = self.plugin_frame(exc.__traceback__)
+        self.emit(
+            event="diagnosis",
+            rung=rung,
+            rule=rule,
+            message=message,
+            file=file,
+            line=line,
+            traceback=text,
+            **extra,
+        )
+
+    def class_line(self, cls) -> tuple:
+        try:
+            file = Path(inspect.getsourcefile(cls)).resolve().relative_to(self.root)
+            return str(file), inspect.getsourcelines(cls)[1]
+        except (TypeError, OSError, ValueError):
+            return None, None
+
+    # ----------------------------------------------------------------------------- static
+    def check_imports(self, files: List[str]) -> Dict[str, object]:
+        """Resolve every import statement of every file; import the plugin's own modules."""
+        modules = {}
+        for rel in files:
+            try:
+                tree = ast.parse((self.root / rel).read_text())
+            except SyntaxError:
+                continue
+            name = module_name(rel)
+            package = name if rel.endswith("__init__.py") else name.rpartition(".")[0]
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Import):
+                    targets = [(a.name, None) for a in node.names]
+                elif isinstance(node, ast.ImportFrom):
+                    base = (
+                        importlib.util.resolve_name("." * node.level + (node.module or ""), package)
+                        if node.level
+                        else node.module
+                    )
+                    targets = [(base, a.name) for a in node.names]
+                else:
+                    continue
+                for mod, attr in targets:
+                    try:
+                        imported = importlib.import_module(mod)
+                        if attr and attr != "*" and not hasattr(imported, attr):
+                            importlib.import_module(f"{mod}.{attr}")
+                    except Exception as exc:  # any failure of untrusted code is a finding
+                        what = f"{mod}.{attr}" if attr else mod
+                        self.diagnose(
+                            "static",
+                            "import",
+                            f"import of {what} fails: {type(exc).__name__}: {exc}",
+                            rel,
+                            node.lineno,
+                            exc if not isinstance(exc, ImportError) else None,
+                        )
+            try:
+                modules[rel] = importlib.import_module(name)
+            except Exception as exc:
+                self.diagnose(
+                    "static",
+                    "import",
+                    f"module {name} cannot be imported: {type(exc).__name__}: {exc}",
+                    exc=exc,
                 )
-            problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
-            if restore:
-                restore()
+        return modules
+
+    def check_classes(self, modules, base: Optional[dict]) -> None:
+        from nerfstudio.fields.base_field import Field
+        from nerfstudio.models.base_model import Model, ModelConfig
+
+        for rel, cls in plugin_classes(modules):
+            file, line = self.class_line(cls)
+            name = cls.__name__
+            if name.endswith("ModelConfig") and not issubclass(cls, ModelConfig):
+                self.diagnose(
+                    "static", "base-class", f"{name} must subclass nerfstudio ModelConfig", file, line
+                )
+            elif (
+                not name.endswith("Config")
+                and (name.endswith("Model") or "populate_modules" in vars(cls))
+                and not issubclass(cls, Model)
+            ):
+                self.diagnose("static", "base-class", f"{name} must subclass nerfstudio's Model", file, line)
+            elif (name.endswith("Field") or "get_density" in vars(cls)) and not issubclass(cls, Field):
+                self.diagnose(
+                    "static",
+                    "base-class",
+                    f"{name} must subclass nerfstudio's Field " "(nerfstudio.fields.base_field.Field)",
+                    file,
+                    line,
+                )
+            if isinstance(cls, type) and issubclass(cls, ModelConfig) and cls is not ModelConfig:
+                self.check_target(cls, file, line, base)
+
+    def check_target(self, cfg_cls, file, line, base: Optional[dict]) -> None:
+        from nerfstudio.models.base_model import Model
+
+        try:
+            target = cfg_cls()._target
         except Exception as exc:
-            problems = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"]
-            file, line = plugin_frame(exc.__traceback__)
-            if file:
-                problems[0] += f" at {file}:{line}"
-            _MODELS.pop(scale, None)  # possibly left patched or half-updated
-        gating = case not in ADVISORY_CASES
-        status = ("fail" if gating else "warn") if problems else "pass"
-        _emit_model_case(case, status, problems[:6])
-        if problems and gating:
-            diagnose(
-                "stability",
-                "stiff-case",
-                f"assembled model, case {case}: " + "; ".join(problems[:4]),
-                component="<model>",
-                case=case,
+            self.diagnose(
+                "static", "config-target", f"{cfg_cls.__name__}() cannot be built: {exc}", file, line, exc
             )
+            return
+        tline = _target_line(cfg_cls) or line
+        if not (isinstance(target, type) and issubclass(target, Model)):
+            self.diagnose(
+                "static",
+                "config-target",
+                f"{cfg_cls.__name__}._target is {target!r}, not a Model class",
+                file,
+                tline,
+            )
+            return
+        annotated = target.__dict__.get("__annotations__", {}).get("config")
+        annotated = getattr(annotated, "__name__", annotated)
+        expected = cfg_cls.__name__[: -len("Config")]
+        if (
+            annotated is not None
+            and annotated != cfg_cls.__name__
+            or annotated is None
+            and target.__name__ != expected
+        ):
+            self.diagnose(
+                "static",
+                "config-target",
+                f"{cfg_cls.__name__}._target builds {target.__module__}."
+                f"{target.__name__}, not the model this config belongs to ({expected})",
+                file,
+                tline,
+            )
+        elif base and not issubclass(target, _import(f"{base['module']}.{base['model_class']}")):
+            self.diagnose(
+                "static",
+                "base-class",
+                f"{target.__name__} must derive from the plan's base " f"{base['model_class']}",
+                *self.class_line(target),
+            )
+
+    def load_spec(self, config: str, entry_line):
+        from nerfstudio.plugins.types import MethodSpecification
+
+        module_name_, _, var = config.partition(":")
+        try:
+            spec = getattr(importlib.import_module(module_name_), var)
+        except Exception as exc:
+            self.diagnose(
+                "static",
+                "entry-point",
+                f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
+                "pyproject.toml",
+                entry_line,
+                exc if not isinstance(exc, (ImportError, AttributeError)) else None,
+            )
+            return None
+        if not isinstance(spec, MethodSpecification):
+            self.diagnose(
+                "static",
+                "entry-point",
+                f"entry point {config} is a {type(spec).__name__}, not a " "MethodSpecification",
+                "pyproject.toml",
+                entry_line,
+            )
+            return None
+        return spec
+
+    def optimizers_line(self, config_module: str) -> tuple:
+        rel = config_module.replace(".", "/") + ".py"
+        try:
+            tree = ast.parse((self.root / rel).read_text())
+        except (OSError, SyntaxError):
+            return rel, None
+        line = next(
+            (n.lineno for n in ast.walk(tree) if isinstance(n, ast.keyword) and n.arg == "optimizers"), None
+        )
+        return rel, line
+
+    def shared_model(self, spec, scale: float = 1.0):
+        """One model per scene scale for the whole probe (building a Nerfstudio model costs seconds)."""
+        from nerfify_ns.verify.assembled import build_model
+
+        if scale not in self.models:
+            self.models[scale] = build_model(spec, scale)
+        model = self.models[scale]
+        model.zero_grad(set_to_none=True)
+        return model
+
+    def check_param_groups(self, spec, config_module: str):
+        try:
+            model = self.shared_model(spec)
+        except Exception as exc:
+            self.diagnose(
+                "static",
+                "model-build",
+                f"the model cannot be built from its config: {type(exc).__name__}: {exc}",
+                exc=exc,
+            )
+            return None
+        groups = {k: v for k, v in model.get_param_groups().items()}
+        keys = set(spec.config.optimizers)
+        file, line = self.optimizers_line(config_module)
+        missing, extra = sorted(set(groups) - keys), sorted(keys - set(groups))
+        empty = sorted(k for k, v in groups.items() if not list(v))
+        if missing or extra:
+            self.diagnose(
+                "static",
+                "param-groups",
+                f"model parameter groups {sorted(groups)} != optimizer keys "
+                f"{sorted(keys)} (missing optimizers: {missing}; optimizers without a group: {extra})",
+                file,
+                line,
+                missing=missing,
+                extra=extra,
+            )
+        if empty:
+            self.diagnose(
+                "static", "param-groups", f"parameter groups without parameters: {empty}", file, line
+            )
+        return model
+
+    # ----------------------------------------------------------------------------- contract / stability
+    def component_of(self, path: str, terminal: str):
+        """(name, contract-checking function of a case) of the component at ``path``; None when the terminal
+        lives inside a Nerfstudio model (checked through the assembled model) or has no contract."""
+        from nerfify_ns.grammar import load_grammar
+        from nerfify_ns.registry import default_registry
+        from nerfify_ns.verify.components import run_custom, run_terminal
+
+        registry = default_registry()
+        if terminal == "custom":
+            production = load_grammar().production_at(path)
+            interface = registry.interfaces.get(production or "")
+            if interface is None:
+                return None
+            entry = self.plan.get(path) or {}
+            return (
+                f"custom {entry.get('class')} ({production})",
+                interface.cases,
+                lambda case: run_custom(interface, entry, self.package, case),
+            )
+        defn = registry[terminal]
+        if defn.harness.in_model or defn.contract.empty:
+            return None
+        params = self.plan.get(path) if isinstance(self.plan.get(path), dict) else {}
+        return terminal, defn.harness.cases, lambda case: run_terminal(defn, params, case)
+
+    def _plan_components(self) -> List[tuple]:
+        """(path, terminal, name, cases, run) of every component of the plan with a contract."""
+        found = []
+        for path, terminal in used_terminals(self.plan).items():
+            component = self.component_of(path, terminal)
+            if component is not None:
+                found.append((path, terminal, *component))
+        return found
+
+    def contract_rung(self, spec, plan: Optional[dict]) -> None:
+        if plan is not None:
+            for path, terminal, name, _cases, run in self._plan_components():
+                result = run("nominal").to_dict()
+                self.emit(event="component", rung="contract", component=name, path=path, **result)
+                if result["status"] == "fail":
+                    self.diagnose(
+                        "contract",
+                        "component-contract",
+                        f"{name} ({path}): " + "; ".join(result["problems"]),
+                        "plan.yaml",
+                        None,
+                        component=name,
+                    )
+        self.assembled_contract(spec)
+
+    def assembled_contract(self, spec) -> None:
+        import torch
+
+        from nerfify_ns.registry.contract import finite_problem
+        from nerfify_ns.verify.assembled import field_forward, grad_problems, output_problems, plugin_fields
+
+        model = self.shared_model(spec)
+        for name, field in plugin_fields(model, self.package):
+            file, line = self.class_line(type(field))
+            try:
+                out = field_forward(field)
+            except Exception as exc:
+                self.diagnose(
+                    "contract",
+                    "field-contract",
+                    f"field {name} ({type(field).__name__}) fails on a small batch: "
+                    f"{type(exc).__name__}: {exc}",
+                    exc=exc,
+                )
+                continue
+            problems = []
+            shape = (16, 8)
+            radiance = not name.startswith("proposal_networks")
+            for key, dim, low, high in (("density", 1, 0.0, None), ("rgb", 3, 0.0, 1.0)):
+                value = out.get(key)
+                if value is None and key == "rgb" and not radiance:
+                    continue
+                if value is None:
+                    problems.append(f"no {key} output")
+                    continue
+                if tuple(value.shape) != (*shape, dim):
+                    problems.append(f"{key} shape {tuple(value.shape)}, expected {(*shape, dim)}")
+                if value.dtype != torch.float32:
+                    problems.append(f"{key} dtype {value.dtype}, expected float32")
+                problems += [p for p in [finite_problem(key, value)] if p]
+                if (
+                    value.numel()
+                    and float(value.min()) < low - 1e-5
+                    or high is not None
+                    and float(value.max()) > high + 1e-5
+                ):
+                    problems.append(f"{key} outside [{low}, {high}]")
+            if problems:
+                self.diagnose(
+                    "contract",
+                    "field-contract",
+                    f"field {name} ({type(field).__name__}): " + "; ".join(problems),
+                    file,
+                    line,
+                )
+        try:
+            outputs, losses, total = model_step(model)
+        except Exception as exc:
+            self.diagnose(
+                "contract",
+                "model-contract",
+                f"a training step of the model fails: {type(exc).__name__}: {exc}",
+                exc=exc,
+            )
+            return
+        problems = output_problems(outputs, losses)
+        if not losses:
+            problems.append("get_loss_dict returned no losses")
+        if problems:
+            self.diagnose("contract", "non-finite", "model outputs/losses: " + "; ".join(problems))
+        bad, missing = grad_problems(model, require=True)
+        if bad:
+            self.diagnose("contract", "non-finite", "; ".join(bad))
+        groups: Dict[str, List[str]] = {}
+        for pname in missing:
+            groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
+        for prefix, names in groups.items():
+            file, line = self.owner_line(model, names[0])
+            self.diagnose(
+                "contract",
+                "detached-parameter",
+                f"trainable parameter(s) {', '.join(names[:4])}"
+                f"{' ...' if len(names) > 4 else ''} receive no gradient from the losses (a wiring bug: detached, "
+                "unused, or outside the graph)",
+                file,
+                line,
+                parameter=names[0],
+            )
+
+    def owner_line(self, model, pname: str) -> tuple:
+        """File and line of the plugin code that creates the module holding ``pname`` (``self.<attr> = ...``)."""
+        parts = pname.split(".")[:-1]
+        for i in range(len(parts), -1, -1):
+            owner = model.get_submodule(".".join(parts[:i])) if i else model
+            if type(owner).__module__.split(".")[0] != self.package:
+                continue
+            file, line = self.class_line(type(owner))
+            if i < len(parts) and file:
+                try:
+                    lines, start = inspect.getsourcelines(type(owner))
+                    hit = next((start + k for k, t in enumerate(lines) if f"self.{parts[i]} =" in t), None)
+                    return file, hit or line
+                except (OSError, TypeError):
+                    pass
+            return file, line
+        return None, None
+
+    def stability_rung(self, spec, plan: Optional[dict], suite: str) -> None:
+        """Every component on every stiff case that applies; a failure of a component of ours (or of the
+        plugin) gates, one of Nerfstudio's is recorded."""
+        if suite == "all":
+            from nerfify_ns.verify.components import suite_components
+
+            components = suite_components()
+        else:
+            components = [
+                (name, cases, run, _owner(terminal))
+                for _p, terminal, name, cases, run in self._plan_components()
+            ]
+        for name, cases, run, (implementation, owner) in components:
+            for case in ("nominal", *cases):
+                result = run(case).to_dict()
+                self.emit(
+                    event="case",
+                    rung="stability",
+                    component=name,
+                    implementation=implementation,
+                    owner=owner,
+                    **result,
+                )
+                if result["status"] == "fail" and owner in ("ours", "plugin"):
+                    self.diagnose(
+                        "stability",
+                        "stiff-case",
+                        f"{name}, case {case}: " + "; ".join(result["problems"]),
+                        component=name,
+                        case=case,
+                    )
+        if spec is not None:
+            self.assembled_stability(spec)
+
+    def _emit_model_case(self, case: str, status: str, problems: List[str]) -> None:
+        """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
+        self.emit(
+            event="case",
+            rung="stability",
+            component="<model>",
+            owner="plugin",
+            case=case,
+            status=status,
+            problems=problems,
+        )
+
+    def assembled_stability(self, spec) -> None:
+        import torch
+
+        from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
+
+        for case in MODEL_CASES:
+            torch.manual_seed(0)
+            problems: List[str] = []
+            if case == "half" and not spec.config.mixed_precision:
+                self._emit_model_case(
+                    case, "n/a", ["the method trains in float32 (trainer.mixed_precision off)"]
+                )
+                continue
+            scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
+            try:
+                model = self.shared_model(spec, scale)
+                why, restore = (
+                    patch_density(model, self.package, case) if case.startswith("density") else (None, None)
+                )
+                if why:
+                    self._emit_model_case(case, "n/a", [why])
+                    continue
+                with torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "half"):
+                    outputs, losses, _ = model_step(
+                        model, "nominal" if case.startswith("density") or case == "half" else case
+                    )
+                problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
+                if restore:
+                    restore()
+            except Exception as exc:
+                problems = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"]
+                file, line = self.plugin_frame(exc.__traceback__)
+                if file:
+                    problems[0] += f" at {file}:{line}"
+                self.models.pop(scale, None)  # possibly left patched or half-updated
+            gating = case not in ADVISORY_CASES
+            status = ("fail" if gating else "warn") if problems else "pass"
+            self._emit_model_case(case, status, problems[:6])
+            if problems and gating:
+                self.diagnose(
+                    "stability",
+                    "stiff-case",
+                    f"assembled model, case {case}: " + "; ".join(problems[:4]),
+                    component="<model>",
+                    case=case,
+                )
 
 
 # ----------------------------------------------------------------------------- main
+def _base_of(plan) -> Optional[dict]:
+    if plan and plan.get("base"):
+        from nerfify_ns.synthesis.resources import bases
+
+        return bases().get(plan["base"])
+    return None
+
+
+def run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
+    """The rungs in order, each between start and end events; the first that fails ends the run."""
+    spec = None
+    for rung in rungs:
+        probe.emit(event="start", rung=rung)
+        try:
+            if rung == "static":
+                modules = probe.check_imports(info.python_files)
+                spec = probe.load_spec(info.config, info.entry_line)
+                probe.check_classes(modules, _base_of(info.plan))
+                if spec is not None:
+                    probe.check_param_groups(spec, info.config_module)
+            else:
+                spec = spec or probe.load_spec(info.config, info.entry_line)
+                if rung == "contract":
+                    probe.contract_rung(spec, info.plan)
+                elif rung == "stability":
+                    probe.stability_rung(spec, info.plan, suite)
+        except Exception as exc:  # a crash of the probe on plugin code is itself a finding
+            probe.diagnose(rung, "crash", f"{type(exc).__name__}: {exc}", exc=exc)
+        probe.emit(event="end", rung=rung)
+        if rung in probe.failed:
+            break  # the ladder stops at the first failing rung
+
+
 def main(argv=None) -> int:
-    global ROOT, PACKAGE, PLAN, _events
     parser = argparse.ArgumentParser()
     parser.add_argument("plugin")
     parser.add_argument("events")
@@ -560,51 +625,23 @@ def main(argv=None) -> int:
     parser.add_argument("--suite", default="plan", choices=["plan", "all"])
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")
-    _events = open(args.events, "a")
     from nerfify_ns.runtime import activate
 
     activate()
-    if args.plugin == "-":  # the component suite alone, no plugin
-        emit(event="start", rung="stability")
-        stability_rung(None, None, "all")
-        emit(event="end", rung="stability")
-        _events.close()
-        return 0
-    from nerfify_ns.verify.plugin import load_plugin
+    with open(args.events, "a") as events:
+        if args.plugin == "-":  # the component suite alone, no plugin
+            probe = Probe(events)
+            probe.emit(event="start", rung="stability")
+            probe.stability_rung(None, None, "all")
+            probe.emit(event="end", rung="stability")
+            return 0
+        from nerfify_ns.plan import Plan
+        from nerfify_ns.verify.plugin import load_plugin
 
-    info = load_plugin(Path(args.plugin))
-    from nerfify_ns.plan import Plan
-
-    ROOT, PACKAGE = info.root, info.package
-    PLAN = Plan.of(info.plan) if info.plan else None
-    sys.path.insert(0, str(info.root))
-    base = None
-    if info.plan and info.plan.get("base"):
-        from nerfify_ns.synthesis.resources import bases
-
-        base = bases().get(info.plan["base"])
-    spec = None
-    for rung in args.rungs.split(","):
-        emit(event="start", rung=rung)
-        try:
-            if rung == "static":
-                modules = check_imports(info.python_files)
-                spec = load_spec(info.config, info.entry_line)
-                check_classes(modules, base)
-                if spec is not None:
-                    check_param_groups(spec, info.config_module)
-            else:
-                spec = spec or load_spec(info.config, info.entry_line)
-                if rung == "contract":
-                    contract_rung(spec, info.plan)
-                elif rung == "stability":
-                    stability_rung(spec, info.plan, args.suite)
-        except Exception as exc:  # a crash of the probe on plugin code is itself a finding
-            diagnose(rung, "crash", f"{type(exc).__name__}: {exc}", exc=exc)
-        emit(event="end", rung=rung)
-        if rung in FAILED:
-            break  # the ladder stops at the first failing rung
-    _events.close()
+        info = load_plugin(Path(args.plugin))
+        sys.path.insert(0, str(info.root))
+        probe = Probe(events, info.root, info.package, Plan.of(info.plan) if info.plan else None)
+        run_rungs(probe, info, args.rungs.split(","), args.suite)
     return 0
 
 
