@@ -168,10 +168,6 @@ def call(cls: str, *args: str) -> str:
     return f"{cls}({', '.join(a for a in args if a)})"
 
 
-def get_path(plan: dict, path: str) -> Any:
-    return Plan.of(plan).get(path)
-
-
 # ------------------------------------------------------------------------------- the field
 def _imports(ctx: Context, snippet: dict) -> List[str]:
     ctx.need_component(snippet)
@@ -185,7 +181,7 @@ def _activation(kind: str) -> Callable[[str], str]:
 
 def mlp_field(ctx: Context) -> dict:
     root = "model.field.MLPField"
-    fp = get_path(ctx.plan, root)
+    fp = ctx.plan.get(root)
     pkg = ctx.names.package
     imports: List[str] = []
 
@@ -326,7 +322,7 @@ def _custom_regularizers(ctx: Context) -> List[str]:
 
 def tensorial_field(ctx: Context) -> dict:
     root = "model.field.TensorialField"
-    fp = get_path(ctx.plan, root)
+    fp = ctx.plan.get(root)
     dec_name, _ = one(fp["decomposition"])
     dec_path = f"{root}.decomposition.{dec_name}"
     dec = ctx.params(dec_path)
@@ -368,7 +364,7 @@ def _proposal_networks(ctx: Context) -> Optional[dict]:
 def model_context(ctx: Context) -> dict:
     imports: List[str] = []
     base = bases()[ctx.plan["base"]]
-    rgb_name, _ = one(get_path(ctx.plan, "model.losses.rgb"))
+    rgb_name, _ = one(ctx.plan.get("model.losses.rgb"))
     rgb_path = f"model.losses.rgb.{rgb_name}"
     ctx.part("model.py", "photometric loss", rgb_path, ctx.grammar.terminals[rgb_name].doc)
     rgb_loss, custom_loss = None, ctx.custom("model.losses.rgb")
@@ -380,7 +376,7 @@ def model_context(ctx: Context) -> dict:
         imports += _imports(ctx, code)
         rgb_loss = {"name": rgb_name, "ctor": render_snippet(code["ctor"], ctx.params(rgb_path), ctx.names.package)}
     regularizers, modules = [], []
-    for name in (get_path(ctx.plan, "model").get("regularizers") or {}):
+    for name in (ctx.plan.get("model").get("regularizers") or {}):
         path = f"model.regularizers.{name}"
         if ctx.derivation.used.get(path) == CUSTOM:
             component = custom_component(ctx.params(path), ctx.names.package)
@@ -398,7 +394,7 @@ def model_context(ctx: Context) -> dict:
         regularizers.append({"name": name, "weight": params["weight"],
                              "expr": render(code["expr"], params, ctx.names.package, field=base["field_attr"])})
         ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
-    sampler_name, _ = one(get_path(ctx.plan, "model.sampler"))
+    sampler_name, _ = one(ctx.plan.get("model.sampler"))
     ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
     custom_sampler = ctx.custom("model.sampler")
     if custom_sampler:
@@ -447,7 +443,7 @@ def _mapped_values(ctx: Context, base_name: str) -> List[KW]:
 def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> List[KW]:
     """Base-config switches implied by what the plan contains (or leaves out)."""
     out: List[KW] = []
-    model = get_path(ctx.plan, "model")
+    model = ctx.plan.get("model")
     mlp = (model["field"].get("MLPField") or {})
     if "background_color" in fields:
         out.append(KW("background_color", py(ctx.params("model.renderer")["background"]), "model.renderer.background"))
@@ -484,7 +480,7 @@ def _loss_coefficients(ctx: Context, base_name: str) -> List[KW]:
                    "model.sampler.hierarchical.coarse_loss_weight")]
     if base_name != "tensorf":
         return []
-    dec, _ = one(get_path(ctx.plan, "model.field.TensorialField.decomposition"))
+    dec, _ = one(ctx.plan.get("model.field.TensorialField.decomposition"))
     out = [KW("tensorf_encoding", py({"tensor_vm": "vm", "tensor_cp": "cp"}[dec]), "model.field.TensorialField.decomposition")]
     coeffs = {"rgb_loss": 1.0}
     regularization = "none"

@@ -6,7 +6,6 @@ part, the action, the old and new values and the reason; the result is validated
 
 from __future__ import annotations
 
-import copy
 import math
 from functools import lru_cache
 from importlib import resources
@@ -16,6 +15,7 @@ import yaml
 
 from nerfify_ns.grammar import Grammar, derive, load_grammar, validate
 from nerfify_ns.grammar.validate import expected_param_groups
+from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.scene_probe import SceneFacts
 
 _FUNCTIONS = {"ceil": math.ceil, "log2": math.log2, "max": max, "min": min}
@@ -26,16 +26,6 @@ def pruning_rules() -> List[dict]:
     return yaml.safe_load(resources.files("nerfify_ns.synthesis").joinpath("pruning.yaml").read_text())["rules"]
 
 
-def _parent(plan: dict, path: str):
-    node = plan
-    *head, last = path.split(".")
-    for key in head:
-        if not isinstance(node, dict) or key not in node:
-            return None, last
-        node = node[key]
-    return (node if isinstance(node, dict) else None), last
-
-
 def _cap(value: Any, limit: int, dedupe: bool) -> Any:
     if not isinstance(value, list):
         return min(value, limit)
@@ -44,7 +34,7 @@ def _cap(value: Any, limit: int, dedupe: bool) -> Any:
 
 
 class _Pruner:
-    def __init__(self, plan: dict, facts: SceneFacts, grammar: Grammar) -> None:
+    def __init__(self, plan: Plan, facts: SceneFacts, grammar: Grammar) -> None:
         self.plan, self.facts, self.grammar = plan, facts, grammar
         self.records: List[dict] = []
         self.env = {**facts.sizes(), **facts.flags()}
@@ -57,14 +47,14 @@ class _Pruner:
                              "reason": self.reason(rule)})
 
     def remove(self, rule: dict, path: str) -> None:
-        parent, key = _parent(self.plan, path)
+        parent, key = self.plan.parent(path)
         if parent is not None and key in parent:
             self.record(rule, path, "removed", parent.pop(key), None)
             if parent == {} and path.startswith("model.regularizers."):
                 self.plan["model"].pop("regularizers")
 
     def replace(self, rule: dict, spec: dict) -> None:
-        parent, key = _parent(self.plan, spec["path"])
+        parent, key = self.plan.parent(spec["path"])
         slot = parent.get(key) if parent else None
         if isinstance(slot, dict) and spec["from"] in slot:
             params = {k: v for k, v in slot[spec["from"]].items() if k not in spec.get("drop_params", [])}
@@ -72,7 +62,7 @@ class _Pruner:
             self.record(rule, spec["path"], "replaced", spec["from"], spec["to"])
 
     def set(self, rule: dict, spec: dict) -> None:
-        parent, key = _parent(self.plan, spec["path"])
+        parent, key = self.plan.parent(spec["path"])
         node = parent.get(key) if parent else None
         if isinstance(node, dict) and node.get(spec["param"]) != spec["value"]:
             before = node.get(spec["param"], self.grammar.terminals[key].params[spec["param"]].default)
@@ -85,8 +75,7 @@ class _Pruner:
         for path, terminal in derivation.used.items():
             if terminal != spec["terminal"]:
                 continue
-            parent, key = _parent(self.plan, path)
-            params = parent[key]
+            params = self.plan.get(path)
             value = params.get(spec["param"], self.grammar.terminals[terminal].params[spec["param"]].default)
             capped = _cap(value, limit, spec.get("dedupe", False))
             if capped != value:
@@ -115,7 +104,7 @@ def prune_plan(plan: dict, facts: SceneFacts, grammar: Grammar | None = None) ->
     """A copy of ``plan`` for the scene ``facts`` describe, with ``pruned`` records; validated."""
     g = grammar or load_grammar()
     validate(plan, g)
-    pruned = copy.deepcopy(plan)
+    pruned = Plan.of(plan).copy()
     pruned["scene"] = facts.flags()
     pruner = _Pruner(pruned, facts, g)
     pruner.run()
@@ -127,7 +116,7 @@ def prune_plan(plan: dict, facts: SceneFacts, grammar: Grammar | None = None) ->
 
 def adopt_scene(plan: dict, facts: SceneFacts) -> Dict[str, Any]:
     """With pruning off (--keep-all): the plan unchanged except for a note of the scene's facts."""
-    kept = copy.deepcopy(plan)
+    kept = Plan.of(plan).copy()
     kept.setdefault("notes", []).append(
         "pruning off (--keep-all); the scene would allow: " + ", ".join(f"{k}={v}" for k, v in facts.flags().items()))
     return kept
