@@ -65,10 +65,12 @@ def test_no_dead_template_branches(plugins):
 
 
 def test_files_are_generated_in_dependency_order(plugins):
-    ctx = {"package": "pkg", "components": ["kplanes"], "field_template": "field_mlp.py.j2"}
+    ctx = {"package": "pkg", "components": ["kplanes"], "custom_modules": ["components.novel"],
+           "field_template": "field_mlp.py.j2"}
     graph = plugin_files(ctx)
     order = list(__import__("networkx").topological_sort(graph))
-    for before, after in [("pkg/components/kplanes.py", "pkg/field.py"), ("pkg/field.py", "pkg/model.py"),
+    for before, after in [("pkg/components/kplanes.py", "pkg/field.py"), ("pkg/components/novel.py", "pkg/field.py"),
+                          ("pkg/components/__init__.py", "pkg/components/novel.py"), ("pkg/field.py", "pkg/model.py"),
                           ("pkg/model.py", "pkg/config.py"), ("pkg/config.py", "pyproject.toml"),
                           ("plan.yaml", "README.md")]:
         assert order.index(before) < order.index(after)

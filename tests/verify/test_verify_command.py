@@ -80,8 +80,8 @@ def test_generated_plugin_repair_survives_recomposition(tmp_path, monkeypatch):
 
     render = composer._render
 
-    def buggy(env, f, ctx, plan):
-        text = render(env, f, ctx, plan)
+    def buggy(env, f, ctx, plan, sources):
+        text = render(env, f, ctx, plan, sources)
         return text.replace(GOOD_KEY, BAD_KEY) if f.path.endswith("config.py") else text
 
     monkeypatch.setattr(composer, "_render", buggy)
