@@ -34,10 +34,6 @@ class CompositionError(NerfifyError):
     """A template produced code that does not parse (a bug in a template or snippet)."""
 
 
-class PlanFileError(NerfifyError):
-    """A plan file that cannot be read as YAML."""
-
-
 @dataclass
 class PluginFile:
     """One file of the generated plugin: where it goes, its template and what it depends on."""
@@ -57,18 +53,6 @@ class ComposedPlugin:
     repairs: List[dict] = field(default_factory=list)
     """What became of each code repair recorded in the plan (``repairs``): applied, already present or
     does not apply."""
-
-
-def load_plan(path: Path) -> dict:
-    """Read a plan from YAML (or JSON); a file that is not one raises PlanFileError."""
-    try:
-        plan = yaml.safe_load(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise PlanFileError(f"cannot read plan {path}: {str(exc).splitlines()[0]}; "
-                            "a plan is a YAML mapping (see method_configs/)") from None
-    if not isinstance(plan, dict):
-        raise PlanFileError(f"{path} is not a plan (a YAML mapping; see method_configs/ for examples)")
-    return plan
 
 
 def plugin_files(ctx: dict) -> nx.DiGraph:

@@ -16,7 +16,8 @@ import yaml
 
 from nerfify_ns.atomic import OutputExistsError
 from nerfify_ns.grammar import PlanError
-from nerfify_ns.synthesis.compose import PlanFileError, compose, load_plan, plugin_files
+from nerfify_ns.plan import Plan, PlanFileError
+from nerfify_ns.synthesis.compose import compose, plugin_files
 from nerfify_ns.synthesis.registry import ENV_GENERATED, generated_plugin_dir
 from nerfify_ns.synthesis.resources import UnknownReferencePlanError, load_reference_plan, reference_plans
 
@@ -105,10 +106,10 @@ def test_existing_output_is_not_overwritten_without_asking(tmp_path):
 def test_bad_plan_files_and_names_get_clear_errors(tmp_path):
     (tmp_path / "bad.yaml").write_text("model: [unclosed")
     with pytest.raises(PlanFileError, match="cannot read plan"):
-        load_plan(tmp_path / "bad.yaml")
+        Plan.load(tmp_path / "bad.yaml")
     (tmp_path / "list.yaml").write_text("- a\n- b\n")
     with pytest.raises(PlanFileError, match="not a plan"):
-        load_plan(tmp_path / "list.yaml")
+        Plan.load(tmp_path / "list.yaml")
     with pytest.raises(UnknownReferencePlanError, match="known: instant-ngp"):
         load_reference_plan("nerf-w")
 
