@@ -10,7 +10,7 @@ import pytest
 from nerfify_ns.paper import clean_markdown, ingest, key_terms_report, require_nerf_paper
 from nerfify_ns.paper.document import normalize_text
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SHARED = Path(__file__).resolve().parents[2].parent / "shared"
 PAPERS = SHARED / "papers"
 
 

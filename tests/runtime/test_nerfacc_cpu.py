@@ -27,7 +27,7 @@ from nerfacc.data_specs import RayIntervals  # noqa: E402
 from nerfacc.grid import _ray_aabb_intersect  # noqa: E402
 
 C = nc.backend
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # ---------------------------------------------------------------------------------------------
