@@ -1,7 +1,8 @@
 """Grammar fuzzing: every plan the grammar accepts composes and passes the static and contract rungs.
 
     .venv/bin/python -m nerfify_ns.bench.grammar_fuzz --plans 300 --seed 0      # ~1 h, the benchmark lane
-    .venv/bin/python -m nerfify_ns.bench.grammar_fuzz --plans 1 --seed 0 --only 17   # replay plan 17
+    .venv/bin/python -m nerfify_ns.bench.grammar_fuzz --plans 300 --seed 0 --start 150  # plans 150..299 only
+    .venv/bin/python -m nerfify_ns.bench.grammar_fuzz --seed 0 --only 17                  # replay plan 17
 
 Plans are random derivations with parameters at their edges (``nerfify_ns.grammar.fuzz``), pruned for a
 tiny scene with the plan's own scene flags (the sizes every run on a 32 px scene gets), composed, and
@@ -14,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -50,13 +50,14 @@ def check_plan(plan: Plan, work: Path, timeout: float = 300) -> List[str]:
     return [str(d) for d in report.failures]
 
 
-def run(plans: int, seed: int, only: Optional[int] = None, keep: Path = RESULTS) -> dict:
+def run(plans: int, seed: int, only: Optional[int] = None, keep: Path = RESULTS, start: int = 0) -> dict:
+    """Sample ``plans`` plans of ``seed`` and check those from ``start`` on (or the one ``only``)."""
     sampler = PlanSampler(load_grammar(), seed=seed)
     failures, seconds = [], []
     keep.mkdir(parents=True, exist_ok=True)
     for index in range(plans if only is None else only + 1):
         plan = sampler.sample(method=f"fuzz-{seed}-{index}")
-        if only is not None and index != only:
+        if (only is not None and index != only) or index < start:
             continue
         start = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix="nerfify-fuzz-") as tmp:
@@ -72,9 +73,9 @@ def run(plans: int, seed: int, only: Optional[int] = None, keep: Path = RESULTS)
             (keep / f"seed{seed}-plan{index}.yaml").write_text(plan.dump())
             failures.append({"seed": seed, "index": index, "failures": found})
     coverage = sampler.coverage.report(load_grammar())
-    summary = {"seed": seed, "plans": len(seconds), "failed": len(failures), "failures": failures,
+    summary = {"seed": seed, "first": start if only is None else only, "plans": len(seconds), "failed": len(failures), "failures": failures,
                "median_seconds": sorted(seconds)[len(seconds) // 2] if seconds else None, "coverage": coverage}
-    (keep / "summary.json").write_text(json.dumps(summary, indent=2))
+    (keep / f"summary-seed{seed}-from{summary['first']}.json").write_text(json.dumps(summary, indent=2))
     print(f"{len(seconds) - len(failures)} of {len(seconds)} plans compose and pass static + contract; coverage: "
           f"{coverage['terminals_sampled']}/{coverage['terminals_total']} terminals, "
           f"{coverage['parameters_at_both_edges']}/{coverage['parameters']} parameters at both edges")
@@ -86,9 +87,11 @@ def main(argv=None) -> int:
     parser.add_argument("--plans", type=int, default=300)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--only", type=int, default=None, help="replay one plan index of the seed")
+    parser.add_argument("--start", type=int, default=0, help="check the plans from this index on (the sample "
+                        "sequence is the same: two processes can split a seed's plans)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
-    summary = run(args.plans, args.seed, args.only, args.out)
+    summary = run(args.plans, args.seed, args.only, args.out, args.start)
     return 1 if summary["failed"] else 0
 
 
