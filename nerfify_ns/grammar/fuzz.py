@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Set, Tuple
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.grammar.spec import CUSTOM, Grammar, Param, Terminal
+from nerfify_ns.grammar.spec import CUSTOM, Grammar, Param
 from nerfify_ns.grammar.validate import Violation, check, expected_param_groups, derive
 from nerfify_ns.plan import Plan
 

@@ -4,7 +4,7 @@ accept and reject the same plans (each rule of the grammar, both ways)."""
 from __future__ import annotations
 
 import copy
-from typing import Callable, Dict, List, Tuple
+from typing import Callable, Dict, Tuple
 
 import jsonschema
 import pytest
