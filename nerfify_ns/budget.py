@@ -7,6 +7,7 @@ pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smok
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Tuple
 
 
 @dataclass
@@ -23,9 +24,16 @@ class Budget:
     """Time limit of each sandboxed verification process, seconds."""
     scene: dict = field(default_factory=dict)
     """Settings of a rendered scene (``write_scene`` keywords: resolution, n_train, n_val, n_test)."""
+    cpu_presets: bool = False
+    """Train with the base method's CPU preset (ray batch, sample caps; ``runtime/smoke_presets.yaml``) on top
+    of the evaluation's CPU settings."""
+    train_args: Tuple[str, ...] = ()
+    """ns-train arguments of the evaluation run after those (they win)."""
 
 
 PAPER_BUDGET = Budget()
 """``ns-nerfify PAPER``: the evaluation run the report is about."""
-COMPOSE_BUDGET = Budget(iterations=40, every=20, smoke_iterations=20, scene={"n_test": 2})
+COMPOSE_BUDGET = Budget(iterations=30, every=15, smoke_iterations=20, cpu_presets=True,
+                        train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
+                        scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
 """``ns-nerfify compose``: every reference plan within about 2 minutes on a 2-core CPU (measured in README)."""

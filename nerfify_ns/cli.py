@@ -18,7 +18,7 @@ from typing_extensions import Annotated, Literal
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.report_command import Report
-from nerfify_ns.outcome import NOT_RUN, Outcome, Progress
+from nerfify_ns.outcome import NOT_RUN, STOPPABLE, Outcome, Progress
 from nerfify_ns.runlog import quiet_console
 from nerfify_ns.verify.command import Verify
 
@@ -126,7 +126,8 @@ class Demo:
         CONSOLE.print(f"outputs: {result.out}  (scene: {result.scene}, Nerfstudio config: {summary['config']})")
 
 
-Stage = Literal["plan", "plugin", "verify", "train"]
+Until = Literal[STOPPABLE]  # type: ignore[valid-type]
+"""The stages a run can stop after (``--until``)."""
 
 
 @dataclass
@@ -151,7 +152,7 @@ class Paper:
     """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
     smoke_iterations: int = PAPER_BUDGET.smoke_iterations
     """Iterations of the verification ladder's smoke-training rung."""
-    until: Optional[Stage] = None
+    until: Optional[Until] = None
     """Stop after this stage (plan, plugin, verify or train); the output folder and its report are still written
     and say which stages ran."""
     dry_run: bool = False
@@ -232,6 +233,8 @@ class Compose:
     """Train on this Blender-format scene instead of rendering one."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
+    resolution: int = COMPOSE_BUDGET.scene["resolution"]
+    """Image size (pixels) of the rendered scene; the plan is pruned for it (grids, samples)."""
     iterations: int = COMPOSE_BUDGET.iterations
     """Training iterations of the evaluation run."""
     every: int = COMPOSE_BUDGET.every
@@ -240,7 +243,7 @@ class Compose:
     """Iterations of the verification ladder's smoke-training rung."""
     train: bool = True
     """Train and evaluate the plugin once the ladder passed (--no-train stops after the ladder)."""
-    until: Optional[Stage] = None
+    until: Optional[Until] = None
     """Stop after this stage (plan, plugin, verify or train); the folder and its report are still written."""
     keep_all: bool = False
     """Do not prune the plan for the scene (keep contraction, appearance codes, sizes...)."""
@@ -251,15 +254,16 @@ class Compose:
 
     def main(self) -> None:
         from nerfify_ns.pipeline import run_compose
-        from nerfify_ns.synthesis.compose import load_plan
+        from nerfify_ns.plan import Plan
         from nerfify_ns.synthesis.resources import load_reference_plan
 
         if (self.plan is None) == (self.method is None):
             raise UsageError("give a plan file or --method NAME (one of them)")
-        plan = load_plan(self.plan) if self.plan is not None else load_reference_plan(self.method)
+        plan = Plan.load(self.plan) if self.plan is not None else load_reference_plan(self.method)
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
         budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
-                         smoke_iterations=self.smoke_iterations)
+                         smoke_iterations=self.smoke_iterations,
+                         scene={**COMPOSE_BUDGET.scene, "resolution": self.resolution})
         with ConsoleProgress() as progress:
             result = run_compose(plan, out, data=self.data, scene=self.scene, budget=budget, until=self._until(),
                                  keep_all=self.keep_all, patch_rounds=self.patch_rounds, overwrite=self.overwrite,

@@ -25,7 +25,7 @@ from typing import Callable, Optional, Tuple
 from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
+from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, generated_smoke_args, smoke_train
 from nerfify_ns.grammar import validate
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
@@ -157,7 +157,7 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
         with outcome.stage("train", f"training {plan['method']} for {budget.iterations} iterations, evaluating "
                            "its checkpoints", total=budget.iterations, failures=(NerfifyError,)) as stage:
             summary = evaluate_run(folder, data, folder / "eval", iterations=budget.iterations,
-                                   every=budget.every, label=plan["method"],
+                                   every=budget.every, label=plan["method"], method_args=_train_args(plan, budget),
                                    on_progress=_step_progress(stage, f"training {plan['method']}",
                                                               "rendering and scoring the checkpoints"))
             _judge_evaluation(summary, stage)
@@ -197,6 +197,14 @@ def _judge_ladder(ladder, stage: Stage) -> None:
     first = ladder.failures[0] if ladder.failures else None
     stage.fail(f"{first.rung} rung, {first.rule} ({first.where()}): {first.message}" if first
                else "no rung passed")
+
+
+def _train_args(plan: dict, budget: Budget) -> list:
+    """ns-train arguments of the evaluation run: CPU settings, the base's CPU preset when budgeted, the budget's
+    own arguments (a later argument wins)."""
+    from nerfify_ns.evaluate.run_eval import CPU_ARGS
+
+    return [*CPU_ARGS, *(generated_smoke_args(plan["base"]) if budget.cpu_presets else []), *budget.train_args]
 
 
 def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int], None]:
@@ -283,7 +291,8 @@ def run_demo(
                                      on_progress=stage.advance)
             except SmokeTrainError as exc:
                 raise exc.with_log(_keep_log(exc.log_path, method)) from None
-            stage.summary = f"PSNR {result.summary()['psnr']}"
+            metrics = result.summary()
+            stage.summary = f"{metrics['iterations']} iterations, PSNR {metrics['psnr']}, SSIM {metrics['ssim']}"
         scene_path = final / "scene" if data.is_relative_to(staging) else data
         (staging / "summary.json").write_text(json.dumps(result.summary(), indent=2))
         _rewrite_saved_paths(staging, final)
