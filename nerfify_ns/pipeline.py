@@ -195,8 +195,8 @@ def _judge_ladder(ladder, stage: Stage) -> None:
             f"; {len(ladder.patches)} repair(s)" if ladder.patches else "")
         return
     first = ladder.failures[0] if ladder.failures else None
-    stage.fail(f"{first.rung} rung, {first.rule} ({first.where()}): {first.message}" if first
-               else "no rung passed")
+    where = f" ({first.where()})" if first and first.where() != "-" else ""
+    stage.fail(f"{first.rung} rung, {first.rule}{where}: {first.message}" if first else "no rung passed")
 
 
 def _train_args(plan: dict, budget: Budget) -> list:

@@ -122,6 +122,6 @@ def test_a_failed_verification_exits_1_and_still_writes_the_folder(tmp_path):
     assert json.loads((out / "verify.json").read_text())["ok"] is False and not (out / "eval").exists()
     html = (out / "report.html").read_text()
     top = html[:html.index('<section id="paper">')]
-    assert "Failed: verify failed: smoke rung" in top
+    assert "verify failed: smoke rung" in top and 'class="headline fail"' in top
     assert json.loads((out / "report.json").read_text())["outcome"]["failed"]["name"] == "verify"
     assert not (tmp_path / "cache" / "generated" / "last.json").exists()  # a failed plugin is not made the default
