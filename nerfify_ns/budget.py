@@ -31,8 +31,9 @@ class Budget:
     """ns-train arguments of the evaluation run after those (they win)."""
 
 
-PAPER_BUDGET = Budget()
-"""``ns-nerfify PAPER``: the evaluation run the report is about."""
+PAPER_BUDGET = Budget(smoke_iterations=20)
+"""``ns-nerfify PAPER``: the evaluation run the report is about; the smoke rung as short as the ladder's own tests
+(``--until verify`` on the example paper within a minute)."""
 COMPOSE_BUDGET = Budget(iterations=30, every=15, smoke_iterations=20, cpu_presets=True,
                         train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                         scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})

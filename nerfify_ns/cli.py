@@ -289,7 +289,7 @@ def _print_compose(result) -> None:
         if value is not None:
             table.add_row(key, f"{value:.4g}" if isinstance(value, float) else str(value))
     CONSOLE.print(table)
-    if result.files:
+    if result.files and result.outcome.ok:
         CONSOLE.print(f"train it: ns-train nerfify-generated --data DATA   or   pip install -e {result.out} && "
                       f"ns-train {result.plan['method']} --data DATA")
 

@@ -110,8 +110,9 @@ def test_a_failed_verification_exits_1_and_still_writes_the_folder(tmp_path):
                            str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=600, env=env)
     assert done.returncode == 1, done.stdout + done.stderr
     assert done.stderr == "" and "Traceback" not in done.stdout
-    failed = [line for line in done.stdout.splitlines() if "failed" in line]
+    failed = [line for line in done.stdout.splitlines() if line.startswith("failed")]
     assert len(failed) == 1 and failed[0].startswith("failed verify: smoke rung"), done.stdout
+    assert "ns-train nerfify-generated" not in done.stdout  # no invitation to train what failed
     assert not [line for line in done.stdout.splitlines() if line.startswith("done verify")]
 
     assert stage_statuses(out) == {"plan": "ran", "plugin": "ran", "verify": "failed", "train": "not run",
