@@ -7,7 +7,7 @@ pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smok
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Tuple
+from typing import Optional, Tuple
 
 
 @dataclass
@@ -18,8 +18,9 @@ class Budget:
     """Training iterations of the evaluation run."""
     every: int = 50
     """Checkpoint cadence of the error-against-time curve (each checkpoint is rendered and scored)."""
-    smoke_iterations: int = 30
-    """Iterations of the verification ladder's smoke-training rung."""
+    smoke_iterations: Optional[int] = None
+    """Iterations of the verification ladder's smoke-training rung (None: the base's own, ``smoke_iterations`` in
+    ``runtime/smoke_presets.yaml``)."""
     timeout: float = 300.0
     """Time limit of each sandboxed verification process, seconds."""
     scene: dict = field(default_factory=dict)
@@ -31,10 +32,10 @@ class Budget:
     """ns-train arguments of the evaluation run after those (they win)."""
 
 
-PAPER_BUDGET = Budget(smoke_iterations=20)
+PAPER_BUDGET = Budget()
 """``ns-nerfify PAPER``: the evaluation run the report is about; the smoke rung as short as the ladder's own tests
 (``--until verify`` on the example paper within a minute)."""
-COMPOSE_BUDGET = Budget(iterations=30, every=15, smoke_iterations=20, cpu_presets=True,
+COMPOSE_BUDGET = Budget(iterations=30, every=15, cpu_presets=True,
                         train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                         scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
 """``ns-nerfify compose``: every reference plan within about 2 minutes on a 2-core CPU (measured in README)."""

@@ -150,8 +150,9 @@ class Paper:
     """Training iterations for the evaluation run."""
     every: int = PAPER_BUDGET.every
     """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
-    smoke_iterations: int = PAPER_BUDGET.smoke_iterations
-    """Iterations of the verification ladder's smoke-training rung."""
+    smoke_iterations: Optional[int] = PAPER_BUDGET.smoke_iterations
+    """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
+    whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
     until: Optional[Until] = None
     """Stop after this stage (plan, plugin, verify or train); the output folder and its report are still written
     and say which stages ran."""
@@ -239,8 +240,9 @@ class Compose:
     """Training iterations of the evaluation run."""
     every: int = COMPOSE_BUDGET.every
     """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
-    smoke_iterations: int = COMPOSE_BUDGET.smoke_iterations
-    """Iterations of the verification ladder's smoke-training rung."""
+    smoke_iterations: Optional[int] = COMPOSE_BUDGET.smoke_iterations
+    """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
+    whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
     train: bool = True
     """Train and evaluate the plugin once the ladder passed (--no-train stops after the ladder)."""
     until: Optional[Until] = None

@@ -25,7 +25,8 @@ from typing import Callable, Optional, Tuple
 from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, generated_smoke_args, smoke_train
+from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
+from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
 from nerfify_ns.grammar import validate
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
@@ -145,7 +146,8 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
             stage.summary = f"{len(write_plugin(plan, folder).files)} files"
     if outcome.wants("verify"):
         with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
-                           total=budget.smoke_iterations, failures=(NerfifyError,)) as stage:
+                           total=smoke_iterations(plan["base"], budget.smoke_iterations),
+                           failures=(NerfifyError,)) as stage:
             ladder = run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
                                 smoke_iterations=budget.smoke_iterations, timeout=budget.timeout,
                                 on_progress=_step_progress(stage, "verification ladder: smoke-training rung",

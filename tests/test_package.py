@@ -169,7 +169,7 @@ def test_installed_wheel_composes_and_verifies_a_plugin(installed, tmp_path):
     assert (plugin / "pyproject.toml").is_file() and (plugin / "plan.yaml").is_file()
     assert list(plugin.glob("*/model.py")) and list(plugin.glob("*/field.py"))
     verify_out = tmp_path / "verify"
-    _run([cli, "verify", plugin, "--rungs", "static", "contract", "--no-repair", "--out", verify_out],
+    _run([cli, "verify", plugin, "--rungs", "static", "contract", "--no-propose", "--out", verify_out],
          cwd=tmp_path, env=env)
     report = json.loads((verify_out / "verify.json").read_text())
     statuses = {r["name"]: r["status"] for r in report["rungs"]}

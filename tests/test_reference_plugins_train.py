@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from nerfify_ns.evaluate.smoke import generated_smoke_args
+from nerfify_ns.runtime.presets import generated_smoke_args
 from nerfify_ns.runtime.launch import ns_train
 from nerfify_ns.synthesis.compose import compose
 from nerfify_ns.synthesis.prune import prune_plan

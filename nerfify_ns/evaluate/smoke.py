@@ -1,22 +1,18 @@
 """Smoke training: a short real ``ns-train`` run plus ``ns-eval`` on a small scene, on the CPU.
 
-Reference methods are shrunk with the presets in ``runtime/smoke_presets.yaml`` (ns-train
-arguments, applied exactly as a user would type them).
+Reference methods are shrunk with their CPU presets (:mod:`nerfify_ns.runtime.presets`).
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from functools import lru_cache
-from importlib import resources
 from pathlib import Path
-from typing import Dict, List, Optional
-
-import yaml
+from typing import List, Optional
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook, TrainRun, ns_eval, ns_train
+from nerfify_ns.runtime.presets import preset_args
 
 
 class SmokeTrainError(NerfifyError):
@@ -31,35 +27,8 @@ class SmokeTrainError(NerfifyError):
         return SmokeTrainError(self.method, self.reason, log_path)
 
 
-@lru_cache(maxsize=1)
-def smoke_presets() -> Dict[str, dict]:
-    text = resources.files("nerfify_ns.runtime").joinpath("smoke_presets.yaml").read_text()
-    return yaml.safe_load(text)
-
-
-def preset_args(method: str) -> List[str]:
-    """The ns-train arguments that shrink ``method`` for a small CPU scene (none if unknown)."""
-    return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
-
-
 GENERATED = GENERATED_METHOD
 """The generated method (re-exported from :mod:`nerfify_ns.runtime.launch`, its one home)."""
-
-
-def generated_smoke_args(base: str) -> List[str]:
-    """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
-    and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
-    the plugin's sizes come from its plan, already pruned for the scene."""
-    args, out, i = preset_args(base), [], 0
-    while i < len(args):
-        flag, values = args[i], []
-        i += 1
-        while i < len(args) and not args[i].startswith("--"):
-            values.append(args[i])
-            i += 1
-        if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model."):
-            out += [flag, *values]
-    return [*out, "--mixed-precision", "False"]
 
 
 def generated_env(plugin_dir: Path) -> dict:

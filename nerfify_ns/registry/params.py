@@ -14,7 +14,9 @@ the docstring under the field (read from the class source, as tyro does).
 from __future__ import annotations
 
 import ast
+import copy
 import dataclasses
+import functools
 import inspect
 import textwrap
 import typing
@@ -67,8 +69,10 @@ def _copy(value: Any) -> Any:
     return [*value] if isinstance(value, list) else dict(value)
 
 
+@functools.lru_cache(maxsize=None)
 def field_docs(cls: type) -> Dict[str, str]:
-    """The docstring written under each field of ``cls`` or of a base class it inherits the field from."""
+    """The docstring written under each field of ``cls`` or of a base class it inherits the field from
+    (cached: reading a class's source is slow and the source does not change in a process)."""
     docs: Dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         if klass is not object:
@@ -107,7 +111,13 @@ def _kind(annotation: Any) -> Tuple[str, Tuple[Any, ...]]:
 
 
 def param_specs(cls: type) -> Dict[str, ParamSpec]:
-    """The ParamSpecs of a parameter dataclass, in field order."""
+    """The ParamSpecs of a parameter dataclass, in field order (a fresh copy: callers may edit it)."""
+    return {name: dataclasses.replace(spec, default=copy.deepcopy(spec.default))
+            for name, spec in _param_specs(cls).items()}
+
+
+@functools.lru_cache(maxsize=None)
+def _param_specs(cls: type) -> Dict[str, ParamSpec]:
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
     specs: Dict[str, ParamSpec] = {}

@@ -23,6 +23,7 @@ from nerfify_ns.plan import Plan
 from nerfify_ns.registry import default_registry
 from nerfify_ns.registry.render import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS
+from nerfify_ns.registry.terminals.sampling import proposal_resolutions
 from nerfify_ns.synthesis.resources import bases
 
 
@@ -358,7 +359,7 @@ def _proposal_networks(ctx: Context) -> Optional[dict]:
     if distortion:
         imports.append("from nerfstudio.field_components.spatial_distortions import SceneContraction")
     ctx.need_component({"component": "kplanes"})
-    return {"ctor": ctor, "resolutions": list(ctx.params(path)["network_max_res"]), "imports": imports}
+    return {"ctor": ctor, "resolutions": proposal_resolutions(ctx.params(path)), "imports": imports}
 
 
 def model_context(ctx: Context) -> dict:
@@ -467,7 +468,7 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
     if ctx.used("model.sampler.proposal") and ctx.params("model.sampler.proposal")["network"] == "hash":
         p = ctx.params("model.sampler.proposal")
         nets = [{"hidden_dim": p["network_hidden_dim"], "log2_hashmap_size": p["network_log2_hashmap_size"],
-                 "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False} for r in p["network_max_res"]]
+                 "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False} for r in proposal_resolutions(p)]
         out.append(KW("proposal_net_args_list", "[" + ", ".join(py(n) for n in nets) + "]", "model.sampler.proposal.network_*"))
     out += _loss_coefficients(ctx, base_name)
     return out

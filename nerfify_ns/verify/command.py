@@ -86,8 +86,8 @@ class Verify:
     """Without --fix: try the repair on a scratch copy and print it (--no-propose: the ladder only)."""
     max_rounds: int = 3
     """Repair rounds at most."""
-    iterations: int = 30
-    """Smoke-training iterations."""
+    iterations: Optional[int] = None
+    """Smoke-training iterations (default: the plugin's base's, see ``runtime/smoke_presets.yaml``)."""
     timeout: float = 300.0
     """Time limit of each sandboxed process, seconds."""
 

@@ -30,6 +30,7 @@ from typing import Callable, Dict, List, Literal, Optional, Sequence, Union
 
 from nerfify_ns.plan import Plan, PlanFileError
 from nerfify_ns.runtime.launch import ProgressHook
+from nerfify_ns.runtime.presets import smoke_iterations as smoke_iterations_for
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import CodePatch, Fixer, default_fixers, record_in_plan
@@ -149,7 +150,7 @@ def run_ladder(
     repair: Union[RepairMode, bool] = "apply",
     max_rounds: int = 3,
     rungs: Optional[Sequence[str]] = None,
-    smoke_iterations: int = 30,
+    smoke_iterations: Optional[int] = None,
     timeout: float = 300,
     fixers: Optional[Sequence[Fixer]] = None,
     on_progress: Optional[ProgressHook] = None,
@@ -166,8 +167,9 @@ def run_ladder(
         raise VerifyError(f"unknown rung(s) {unknown}; the rungs are {', '.join(RUNGS)}")
     out = Path(out_dir).resolve() if out_dir else plugin_dir / ".verify"
     out.mkdir(parents=True, exist_ok=True)
-    load_plugin(plugin_dir)  # NotAPluginError early
-    st = _Settings([r for r in RUNGS if r in rungs], Path(scene) if scene else None, smoke_iterations,
+    info = load_plugin(plugin_dir)  # NotAPluginError early
+    iterations = smoke_iterations_for((info.plan or {}).get("base"), smoke_iterations)
+    st = _Settings([r for r in RUNGS if r in rungs], Path(scene) if scene else None, iterations,
                    timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress)
     report = LadderReport(plugin=str(plugin_dir), repair=mode)
     climb = _climb(plugin_dir, out, st, repair=mode == "apply")

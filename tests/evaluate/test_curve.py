@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 from nerfify_ns.evaluate import curve as cv
-from nerfify_ns.evaluate.smoke import preset_args
+from nerfify_ns.runtime.presets import preset_args
 
 NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "none"}
 

@@ -47,3 +47,23 @@ def test_density_regulariser_on_a_tensorial_field(tmp_path):
     plan = load_reference_plan("tensorf")
     plan["model"]["regularizers"] = {"density_sparsity": {"weight": 0.001}}
     assert check_plan(plan, tmp_path) == []
+
+
+def test_proposal_resolutions_for_no_network_are_rejected():
+    """Found by the fuzzer (seed 0, plan 0): four proposal resolutions for two rounds built four networks of
+    which two never received a gradient. The grammar now rejects resolutions no network uses."""
+    plan = load_reference_plan("nerfacto")
+    proposal = plan["model"]["sampler"]["proposal"]
+    proposal["network_max_res"] = [64, 64, 64, 64]
+    errors = check(plan, load_grammar())
+    assert any(e.rule == "param_constraint" and "network_max_res" in e.message for e in errors), errors
+    proposal["network_max_res"] = [64, 128]
+    assert check(plan, load_grammar()) == []
+
+
+@pytest.mark.slow
+def test_one_proposal_network_for_every_round(tmp_path):
+    """`use_same_network` builds one network that every round queries, as Nerfacto does."""
+    plan = load_reference_plan("nerfacto")
+    plan["model"]["sampler"]["proposal"].update(use_same_network=True, network_max_res=[64])
+    assert check_plan(plan, tmp_path) == []

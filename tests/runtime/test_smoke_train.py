@@ -8,7 +8,8 @@ import math
 
 import pytest
 
-from nerfify_ns.evaluate.smoke import preset_args, smoke_train
+from nerfify_ns.evaluate.smoke import smoke_train
+from nerfify_ns.runtime.presets import preset_args
 from nerfify_ns.runtime.launch import ns_eval, ns_train, offline_prefix
 
 from conftest import installed_lpips_weights

@@ -101,6 +101,20 @@ def _call_hierarchical(module, inputs, env):
     return {"ray_samples": edges, "positions": positions}
 
 
+def proposal_resolutions(p) -> List[int]:
+    """The finest resolution of each proposal network, as Nerfacto builds them: one network per round (one
+    in all with ``use_same_network``), network i taking ``network_max_res[min(i, len - 1)]``."""
+    res = list(p["network_max_res"])
+    networks = 1 if p["use_same_network"] else len(p["samples_per_ray"])
+    return [res[min(i, len(res) - 1)] for i in range(networks)]
+
+
+PROPOSAL_ROUNDS = Constraint(
+    "network_max_res gives at most one resolution per proposal network (one network per round of "
+    "samples_per_ray, one in all with use_same_network); a resolution for no network is never used",
+    lambda p, plan: len(p["network_max_res"]) <= len(proposal_resolutions(p)))
+
+
 def _proposal_networks(p):
     import torch
     from torch import nn
@@ -109,12 +123,13 @@ def _proposal_networks(p):
     if p["network"] == "kplanes":
         from nerfify_ns.components.kplanes import KPlanesDensityField
 
-        return nn.ModuleList([KPlanesDensityField(aabb, resolution=r, num_components=4) for r in p["network_max_res"]])
+        return nn.ModuleList([KPlanesDensityField(aabb, resolution=r, num_components=4)
+                              for r in proposal_resolutions(p)])
     from nerfstudio.fields.density_fields import HashMLPDensityField
 
     return nn.ModuleList([HashMLPDensityField(aabb, num_levels=p["network_num_levels"], max_res=r,
                                               log2_hashmap_size=p["network_log2_hashmap_size"],
-                                              implementation="torch") for r in p["network_max_res"]])
+                                              implementation="torch") for r in proposal_resolutions(p)])
 
 
 def _call_proposal(nets, inputs, env):
@@ -128,7 +143,9 @@ def _call_proposal(nets, inputs, env):
                                         num_nerf_samples_per_ray=env["nerf_samples"],
                                         num_proposal_network_iterations=len(env["samples_per_ray"]),
                                         single_jitter=env["single_jitter"], initial_sampler=initial)
-    samples, weights_list, _ = sampler(bundle, density_fns=[n.density_fn for n in nets])
+    rounds = len(env["samples_per_ray"])
+    density_fns = [nets[min(i, len(nets) - 1)].density_fn for i in range(rounds)]
+    samples, weights_list, _ = sampler(bundle, density_fns=density_fns)
     edges, positions = _samples_out(samples, rays, 0)
     return {"ray_samples": edges, "positions": positions,
             "weights_list": torch.cat([w.reshape(rays, -1) for w in weights_list], dim=-1)}
@@ -241,7 +258,8 @@ TERMINALS = [
                              "warmup": "proposal_warmup", "use_same_network": "use_same_proposal_network",
                              "single_jitter": "use_single_jitter", "initial_sampler": "proposal_initial_sampler",
                              "weight_anneal": "use_proposal_weight_anneal"}},
-        duties=({"requires_base": ["nerfacto"]}, {"requires_loss": "interlevel"})),
+        duties=({"requires_base": ["nerfacto"]}, {"requires_loss": "interlevel"}),
+        constraints=(PROPOSAL_ROUNDS,)),
     TerminalDef(
         "occupancy_grid", "Sampler", OccupancyGrid,
         "Occupancy grid skipping empty space, marched with nerfacc (Instant-NGP Sec. 5.1).",

@@ -1,0 +1,49 @@
+"""CPU presets of Nerfstudio's built-in methods (``runtime/smoke_presets.yaml``): the ns-train arguments that
+shrink a method for a small CPU scene, exactly as a user would type them, and how long a smoke run of each
+must be for its loss to move."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from importlib import resources
+from typing import Dict, List, Optional
+
+import yaml
+
+DEFAULT_SMOKE_ITERATIONS = 20
+"""Smoke-training iterations of a base whose preset names none."""
+
+
+@lru_cache(maxsize=1)
+def smoke_presets() -> Dict[str, dict]:
+    text = resources.files("nerfify_ns.runtime").joinpath("smoke_presets.yaml").read_text()
+    return yaml.safe_load(text)
+
+
+def preset_args(method: str) -> List[str]:
+    """The ns-train arguments that shrink ``method`` for a small CPU scene (none if unknown)."""
+    return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
+
+
+def smoke_iterations(base: Optional[str], given: Optional[int] = None) -> int:
+    """Iterations of the smoke rung for a plugin derived from ``base``: ``given`` when set, else the base's
+    preset (``smoke_iterations``: bases whose loss leaves its first plateau late need more)."""
+    if given is not None:
+        return given
+    return int(smoke_presets().get(base or "", {}).get("smoke_iterations", DEFAULT_SMOKE_ITERATIONS))
+
+
+def generated_smoke_args(base: str) -> List[str]:
+    """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
+    and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
+    the plugin's sizes come from its plan, already pruned for the scene."""
+    args, out, i = preset_args(base), [], 0
+    while i < len(args):
+        flag, values = args[i], []
+        i += 1
+        while i < len(args) and not args[i].startswith("--"):
+            values.append(args[i])
+            i += 1
+        if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model."):
+            out += [flag, *values]
+    return [*out, "--mixed-precision", "False"]
