@@ -228,6 +228,9 @@ class Compose:
     method: Optional[str] = None
     """A reference plan from method_configs/ instead of a file: vanilla-nerf, mipnerf, nerfacto, instant-ngp,
     tensorf, kplanes-static."""
+    components: Optional[Path] = None
+    """A folder of the plan's custom components, one ``<name>.py`` per ``components.<name>`` module the plan
+    names in a ``custom`` entry."""
     out: Optional[Path] = None
     """Output folder (default nerfify-out/<method>); written atomically."""
     data: Optional[Path] = None
@@ -257,11 +260,13 @@ class Compose:
     def main(self) -> None:
         from nerfify_ns.pipeline import run_compose
         from nerfify_ns.plan import Plan
+        from nerfify_ns.synthesis.compose import sources_from_folder
         from nerfify_ns.synthesis.resources import load_reference_plan
 
         if (self.plan is None) == (self.method is None):
             raise UsageError("give a plan file or --method NAME (one of them)")
         plan = Plan.load(self.plan) if self.plan is not None else load_reference_plan(self.method)
+        sources = sources_from_folder(self.components) if self.components is not None else None
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
         budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
                          smoke_iterations=self.smoke_iterations,
@@ -269,7 +274,7 @@ class Compose:
         with ConsoleProgress() as progress:
             result = run_compose(plan, out, data=self.data, scene=self.scene, budget=budget, until=self._until(),
                                  keep_all=self.keep_all, patch_rounds=self.patch_rounds, overwrite=self.overwrite,
-                                 progress=progress)
+                                 progress=progress, sources=sources)
         _print_compose(result)
         _conclude(result.outcome, result.out)
 

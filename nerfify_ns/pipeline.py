@@ -20,7 +20,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional, Tuple
+from typing import Callable, Dict, Optional, Tuple
 
 from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget
@@ -36,7 +36,7 @@ from nerfify_ns.paper import Document, clean_markdown, ingest, key_terms_report,
 from nerfify_ns.plan import Plan
 from nerfify_ns.runlog import run_log
 from nerfify_ns.scenes import write_scene
-from nerfify_ns.synthesis.compose import write_plugin
+from nerfify_ns.synthesis.compose import plugin_sources, write_plugin
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.registry import record_generated
@@ -118,14 +118,16 @@ def run_compose(
     patch_rounds: int = 0,
     overwrite: bool = False,
     progress: Progress = Progress(),
+    sources: Optional[Dict[str, str]] = None,
 ) -> ComposeResult:
-    """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``."""
+    """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
+    the code of the plan's custom components (``components.<name>`` -> source)."""
     outcome = Outcome("compose", until, progress)
     validate(plan)  # a plan the grammar rejects is bad input: nothing is written
     final = Path(out).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         plan, summary = _build(plan, staging, data, scene, keep_all, budget or COMPOSE_BUDGET, patch_rounds,
-                               outcome)
+                               outcome, sources)
         files = _plugin_files(staging)
         _rewrite_saved_paths(staging, final)
     _remember(final, outcome)
@@ -133,7 +135,8 @@ def run_compose(
 
 
 def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool, budget: Budget,
-           patch_rounds: int, outcome: Outcome) -> Tuple[dict, Optional[dict]]:
+           patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None
+           ) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
@@ -143,7 +146,7 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
         plan, data = _plan_for_scene(plan, folder, data, scene, keep_all, budget, stage)
     if outcome.wants("plugin"):
         with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
-            stage.summary = f"{len(write_plugin(plan, folder).files)} files"
+            stage.summary = f"{len(write_plugin(plan, folder, sources=sources).files)} files"
     if outcome.wants("verify"):
         with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
                            total=smoke_iterations(plan["base"], budget.smoke_iterations),
@@ -169,7 +172,8 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
         from nerfify_ns.evaluate.patch_loop import run_patch_loop
 
         with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
-            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations)
+            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations,
+                                  sources=plugin_sources(folder, plan))
             stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
                              f"{loop.history.get('stopped')}")
     _report(folder, outcome)

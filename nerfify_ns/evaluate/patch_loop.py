@@ -500,6 +500,7 @@ class PatchLoop:
         env: Optional[dict] = None,
         timeout: float = 900,
         progress: Progress = lambda message: None,
+        sources: Optional[Dict[str, str]] = None,
     ) -> None:
         if repeats < 2:
             raise PatchLoopError("repeats must be >= 2: noise is the spread of repeated runs of one config")
@@ -519,11 +520,13 @@ class PatchLoop:
         self.rules = [r for r in table["rules"] if only_rules is None or r["name"] in only_rules]
         self.critic: Critic = critic or DeterministicCritic(table.get("critic"))
         self.method_args, self.env, self.timeout, self.progress = list(method_args), env, timeout, progress
+        self.sources = dict(sources or {})
+        """Custom component sources (``components.<name>`` -> code) every candidate plugin is composed with."""
 
     # -------------------------------------------------------------------------------- helpers
 
     def _evaluate(self, plan: dict, folder: Path, seed: int, label: str) -> dict:
-        plugin = compose(plan, folder / "plugin", overwrite=True, record=False)
+        plugin = compose(plan, folder / "plugin", overwrite=True, record=False, sources=self.sources)
         started = time.perf_counter()
         summary = evaluate_run(
             plugin.out, self.scene, folder / f"seed_{seed}", iterations=self.iterations, every=self.every,

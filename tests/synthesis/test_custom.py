@@ -4,6 +4,9 @@ contract rung with a message naming the tensor, the expected and the actual shap
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from nerfify_ns.grammar import validate
@@ -63,6 +66,22 @@ def test_a_custom_module_without_source_is_refused(tmp_path):
     with pytest.raises(CompositionError, match="components.tiny_head"):
         compose(custom_plan(), tmp_path / "plugin", record=False)
     assert not (tmp_path / "plugin").exists()
+
+
+def test_compose_command_takes_the_components_folder(tmp_path):
+    """`ns-nerfify compose PLAN --components DIR`: the folder's `<name>.py` is the plan's `components.<name>`."""
+    (tmp_path / "parts").mkdir()
+    (tmp_path / "parts" / "tiny_head.py").write_text(HEAD)
+    (tmp_path / "plan.yaml").write_text(custom_plan().dump())
+    cmd = [sys.executable, "-m", "nerfify_ns.cli", "compose", str(tmp_path / "plan.yaml"), "--until", "plugin",
+           "--out", str(tmp_path / "out")]
+    missing = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert missing.returncode == 2 and "components.tiny_head" in missing.stdout + missing.stderr
+    assert not (tmp_path / "out").exists()
+    given = subprocess.run([*cmd, "--components", str(tmp_path / "parts")], capture_output=True, text=True,
+                           timeout=300)
+    assert given.returncode == 0, given.stdout + given.stderr
+    assert (tmp_path / "out" / "custom_head" / "components" / "tiny_head.py").read_text() == HEAD
 
 
 @pytest.mark.slow
