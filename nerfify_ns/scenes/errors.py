@@ -29,3 +29,7 @@ class SceneExistsError(SceneError, FileExistsError):
 
 class SceneSpecError(SceneError, ValueError):
     """A scene specification (catalog entry or hand-written dict) is malformed."""
+
+
+class SceneSettingsError(SceneError, ValueError):
+    """A rendering setting out of its range (resolution, supersampling, view counts, seed)."""

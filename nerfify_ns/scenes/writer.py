@@ -35,7 +35,7 @@ from nerfify_ns.atomic import atomic_dir, check_target
 
 from .cameras import SPLITS, Rig, focal_length, pixel_rays
 from .catalog import resolve_spec, scene_spec
-from .errors import SceneExistsError
+from .errors import SceneExistsError, SceneSettingsError
 from .floaters import Blob, FloaterSpec
 from .render import Layer, build_scene, render_view, trace
 from .textures import Light
@@ -46,6 +46,38 @@ FORMAT_VERSION = 1
 DEPTH_SUFFIX = "_depth.npy"
 CLEAN_DEPTH_SUFFIX = "_depth_clean.npy"
 FLOATER_MASK_SUFFIX = "_floaters.png"
+
+MAX_RESOLUTION = 1024
+"""Largest image side rendered (pixels): 512 px takes about 3 s and 400 MB per view on a CPU, memory growing
+with the square of the side; procedural test scenes for CPU training need far less."""
+MAX_SUPERSAMPLED = 2048
+"""Largest ``resolution * supersample`` (the side actually ray-cast)."""
+MAX_SUPERSAMPLE = 4
+MAX_VIEWS = 1000
+"""Most views per split."""
+
+
+def check_settings(resolution: int, n_train: int, n_val: int, n_test: int, seed: int = 0,
+                   supersample: int = 2) -> None:
+    """Raise :class:`SceneSettingsError` naming the first setting out of its range: the resolution in
+    [1, MAX_RESOLUTION], supersampling in [1, MAX_SUPERSAMPLE] (and their product at most MAX_SUPERSAMPLED),
+    at least one training view, validation and test views >= 0, at most MAX_VIEWS per split, a seed in
+    [0, 2**32)."""
+    def whole(name: str, value: Any, lo: int, hi: int, unit: str = "") -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise SceneSettingsError(f"{name} must be a whole number, got {value!r}")
+        if not lo <= value <= hi:
+            raise SceneSettingsError(f"{name} must be between {lo} and {hi}{unit}, got {value}")
+
+    whole("resolution", resolution, 1, MAX_RESOLUTION, " pixels")
+    whole("supersample", supersample, 1, MAX_SUPERSAMPLE)
+    if resolution * supersample > MAX_SUPERSAMPLED:
+        raise SceneSettingsError(f"resolution x supersample must be at most {MAX_SUPERSAMPLED}, got "
+                                 f"{resolution} x {supersample}")
+    whole("n_train (training views)", n_train, 1, MAX_VIEWS)
+    whole("n_val (validation views)", n_val, 0, MAX_VIEWS)
+    whole("n_test (test views)", n_test, 0, MAX_VIEWS)
+    whole("seed", seed, 0, 2**32 - 1)
 
 
 def view_times(counts: Mapping[str, int]) -> dict[str, Array]:
@@ -139,10 +171,10 @@ def write_spec(
 
     Everything is rendered into a temporary sibling folder that is renamed to ``out`` at the
     end; on any failure it is removed and ``out`` is left as it was. Raises
-    :class:`SceneExistsError` if ``out`` exists and is not empty unless ``overwrite``.
+    :class:`SceneExistsError` if ``out`` exists and is not empty unless ``overwrite``, and
+    :class:`SceneSettingsError` for a setting out of its range (:func:`check_settings`).
     """
-    if resolution < 1 or supersample < 1 or min(n_train, n_val, n_test) < 0:
-        raise ValueError("resolution and supersample must be >= 1 and view counts >= 0")
+    check_settings(resolution, n_train, n_val, n_test, seed, supersample)
     out = Path(out).absolute()
     check_target(out, overwrite, SceneExistsError)
     resolved = resolve_spec(spec, name=spec.get("name"))

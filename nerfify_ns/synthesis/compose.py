@@ -25,7 +25,6 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, load_grammar, validate
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.context import Context, Names, build_context, py
-from nerfify_ns.synthesis.registry import record_generated
 from nerfify_ns.synthesis.repairs import reapply_repairs
 from nerfify_ns.synthesis.resources import templates_dir
 
@@ -207,10 +206,10 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
 
 def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
             record: bool = True, sources: Optional[Mapping[str, str]] = None) -> ComposedPlugin:
-    """Validate ``plan`` and write its plugin package to ``out`` (atomically); remember it as the last one."""
+    """Validate ``plan`` and write its plugin package to ``out`` (atomically). ``record`` is kept for callers
+    and does nothing: there is no global "last generated" plugin (``ns-train nerfify-generated`` resolves
+    $NERFIFY_GENERATED or the newest plugin under ./nerfify-out, :mod:`nerfify_ns.synthesis.registry`)."""
     with atomic_dir(out, overwrite) as staging:
         result = write_plugin(plan, staging, grammar=grammar, sources=sources)
     result.out = Path(out).absolute()
-    if record:
-        record_generated(result.out)
     return result

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
-import re
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
@@ -19,7 +18,7 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Derivation, Grammar
 from nerfify_ns.knowledge import KnowledgeBase, card as load_card
 from nerfify_ns.grammar.spec import CUSTOM
-from nerfify_ns.plan import Plan
+from nerfify_ns.plan import Plan, package_name
 from nerfify_ns.registry import default_registry
 from nerfify_ns.registry.render import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS
@@ -83,8 +82,7 @@ class Names:
 
     @classmethod
     def of(cls, method: str) -> "Names":
-        package = re.sub(r"[^a-z0-9]+", "_", method.lower()).strip("_")
-        package = package if package[0].isalpha() else f"m_{package}"
+        package = package_name(method)  # the name validate() checked (plan.method_name_problems)
         prefix = "".join(part.capitalize() for part in package.split("_"))
         return cls(method=method, package=package, prefix=prefix)
 

@@ -1,15 +1,19 @@
 """The generated method (``GENERATED_METHOD``): what ``ns-train nerfify-generated`` trains.
 
-It is the plugin generated last (or the folder named by $NERFIFY_GENERATED), imported from its
-folder, so a user can train it without installing it. Before any plugin exists, or when the
-recorded one cannot be imported, it is a CPU-sized Nerfacto (proposal sampling and a hash grid
-cut down to a small bounded scene), the configuration our smoke training uses, and a warning says why.
+It is the plugin folder named by $NERFIFY_GENERATED, else the newest plugin under the current directory's
+``nerfify-out/`` (:func:`nerfify_ns.synthesis.registry.resolve_generated`; no global "last generated"
+pointer, so parallel runs never train each other's plugin), imported from its folder, so a user can train it
+without installing it. ``ns-train nerfify-generated`` says on its first line which plugin it trains and how
+it was chosen. When there is none, or it cannot be imported, it is a CPU-sized Nerfacto (proposal sampling
+and a hash grid cut down to a small bounded scene), the configuration our smoke training uses, and that
+first line says why.
 """
 
 from __future__ import annotations
 
 import copy
 import sys
+from typing import List, Optional
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
@@ -23,8 +27,8 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from nerfify_ns.runtime import default_device_type
-from nerfify_ns.runtime.launch import GENERATED_METHOD
-from nerfify_ns.synthesis.registry import GeneratedPluginError, generated_plugin_dir, load_plugin_method
+from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD
+from nerfify_ns.synthesis.registry import GeneratedPluginError, load_plugin_method, resolve_generated
 
 
 def cpu_nerfacto_config(method_name: str = GENERATED_METHOD) -> TrainerConfig:
@@ -78,17 +82,33 @@ def _fallback(reason: str) -> MethodSpecification:
                                description=f"nerfify: {reason}; until then a CPU-sized nerfacto")
 
 
+def _training_us(argv: Optional[List[str]] = None) -> bool:
+    """Whether this process is ``ns-train GENERATED_METHOD ...`` (other ns-* commands load us too)."""
+    argv = sys.argv if argv is None else argv
+    return len(argv) > 1 and argv[1] == GENERATED_METHOD
+
+
+def _say(line: str) -> None:
+    """The first line of ``ns-train nerfify-generated``: which plugin it trains (only when it trains us)."""
+    if _training_us():
+        print(f"{GENERATED_METHOD}: {line}", flush=True)
+
+
 def generated_method() -> MethodSpecification:
     """The method ``ns-train GENERATED_METHOD`` resolves to."""
-    plugin = generated_plugin_dir()
+    plugin, how = resolve_generated()
     if plugin is None:
-        return _fallback("no plugin generated yet (ns-nerfify compose / ns-nerfify PAPER)")
+        _say(f"no plugin to train ({how}; set ${ENV_GENERATED}=PLUGIN_DIR or run from the folder holding "
+             f"nerfify-out/): training a CPU-sized nerfacto")
+        return _fallback(f"no plugin ({how})")
     try:
         spec = load_plugin_method(plugin)
     except GeneratedPluginError as exc:
+        _say(f"cannot load the plugin {plugin} ({how}): training a CPU-sized nerfacto instead")
         print(f"{GENERATED_METHOD}: {exc}", file=sys.stderr)
         return _fallback(f"the plugin in {plugin} cannot be loaded")
+    _say(f"training the plugin {plugin} ({how})")
     config = copy.deepcopy(spec.config)
     config.method_name = GENERATED_METHOD
     config.machine.device_type = default_device_type()
-    return MethodSpecification(config=config, description=f"nerfify: the plugin generated last ({plugin})")
+    return MethodSpecification(config=config, description=f"nerfify: the plugin {plugin} ({how})")

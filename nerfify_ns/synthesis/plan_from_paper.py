@@ -39,7 +39,7 @@ from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, 
 from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques, norm_latex
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
-from nerfify_ns.plan import Hole, Plan
+from nerfify_ns.plan import Hole, Plan, free_method_name
 from nerfify_ns.synthesis.base_choice import BaseDecision, choose_base, exclusive_cards
 from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 
@@ -240,7 +240,8 @@ def _short(text: str, limit: int = 240) -> str:
 
 
 def slug(doc: Any) -> str:
-    """A method name from the paper's title ("GH-NeRF: ..." -> "gh-nerf")."""
+    """A method name from the paper's title ("GH-NeRF: ..." -> "gh-nerf"), with '-paper' added when the name
+    would shadow a Nerfstudio method, an installed plugin or module, or is a Python keyword."""
     title = (getattr(doc, "title", "") or "").strip()
     head = re.split(r"[:\u2013\u2014]| - ", title, maxsplit=1)[0].strip() if title else ""
     if not head or len(head) > 40:
@@ -250,7 +251,8 @@ def slug(doc: Any) -> str:
     if not name or not name[0].isalpha():
         name = f"paper-{name}" if name else "paper-method"
     name = name[:62].strip("-")
-    return name if len(name) >= 2 else f"{name}-method"
+    name = name if len(name) >= 2 else f"{name}-method"
+    return free_method_name(name)  # 'TensoRF: ...' -> 'tensorf-paper' (Nerfstudio's tensorf is taken)
 
 
 def hosted_cards(grammar: Grammar, names: Sequence[str]) -> dict[str, frozenset]:

@@ -1,7 +1,10 @@
-"""Which plugin ``ns-train nerfify-generated`` trains: the one generated last, or $NERFIFY_GENERATED.
+"""Which plugin ``ns-train nerfify-generated`` trains, resolved explicitly: never a global "last generated".
 
-The composer records every plugin it writes; the entry point imports the recorded plugin's
-config from its folder (no installation needed) and renames the method ``GENERATED_METHOD``
+$NERFIFY_GENERATED names the plugin folder; without it, the newest plugin under the current directory's
+``nerfify-out/`` (a folder with ``nerfify.json`` whose verification did not fail; newest by when it was
+written). Two runs in parallel (two terminals, a benchmark's workers) therefore never train each other's
+plugin: our own runs always pass the plugin in the variable. The entry point imports the plugin's config from
+its folder (no installation needed) and renames the method ``GENERATED_METHOD``
 (:mod:`nerfify_ns.runtime.launch`).
 """
 
@@ -12,42 +15,66 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Tuple
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.launch import ENV_GENERATED
-from nerfify_ns.runtime.paths import nerfify_cache_dir
 
-__all__ = ["ENV_GENERATED", "GeneratedPluginError", "generated_plugin_dir", "load_plugin_method",
-           "record_generated"]
+__all__ = ["ENV_GENERATED", "OUT_DIR", "GeneratedPluginError", "generated_plugin_dir", "load_plugin_method",
+           "newest_plugin", "resolve_generated"]
+
+OUT_DIR = "nerfify-out"
+"""The folder, under the current directory, whose newest plugin ``nerfify-generated`` trains by default."""
 
 
 class GeneratedPluginError(NerfifyError):
     """The recorded or named plugin folder cannot be loaded."""
 
 
-def _record_file() -> Path:
-    return nerfify_cache_dir() / "generated" / "last.json"
+def _verification_failed(folder: Path) -> bool:
+    """Whether the run that wrote ``folder`` records a failed verification (``run.json``)."""
+    try:
+        stages = json.loads((folder / "run.json").read_text())["stages"]
+        return any(s.get("name") == "verify" and s.get("status") == "failed" for s in stages)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
 
 
-def record_generated(plugin_dir: Path) -> None:
-    """Remember ``plugin_dir`` as the plugin generated last."""
-    path = _record_file()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps({"plugin": str(Path(plugin_dir).absolute())}))
-    tmp.replace(path)
+def newest_plugin(root: Path) -> Optional[Path]:
+    """The newest plugin folder directly under ``root`` (``nerfify.json`` there, verification not failed;
+    staging and hidden folders skipped), or None."""
+    found = []
+    try:
+        entries = list(Path(root).iterdir())
+    except OSError:
+        return None
+    for folder in entries:
+        meta = folder / "nerfify.json"
+        if folder.name.startswith(".") or not meta.is_file() or _verification_failed(folder):
+            continue
+        try:
+            found.append((meta.stat().st_mtime, folder.name, folder))
+        except OSError:
+            continue
+    return max(found)[2].absolute() if found else None
 
 
-def generated_plugin_dir() -> Optional[Path]:
-    """$NERFIFY_GENERATED, else the plugin generated last, else None."""
+def resolve_generated(cwd: Optional[Path] = None) -> Tuple[Optional[Path], str]:
+    """The plugin ``nerfify-generated`` trains and how it was chosen: $NERFIFY_GENERATED, else the newest
+    plugin under ``cwd/nerfify-out`` (cwd: the current directory), else (None, why not)."""
     named = os.environ.get(ENV_GENERATED)
     if named:
-        return Path(named)
-    try:
-        return Path(json.loads(_record_file().read_text())["plugin"])
-    except (OSError, ValueError, KeyError):
-        return None
+        return Path(named).absolute(), f"${ENV_GENERATED}"
+    root = Path(cwd or Path.cwd()) / OUT_DIR
+    plugin = newest_plugin(root)
+    if plugin is not None:
+        return plugin, f"the newest plugin under {root}"
+    return None, f"${ENV_GENERATED} is not set and {root} holds no plugin"
+
+
+def generated_plugin_dir(cwd: Optional[Path] = None) -> Optional[Path]:
+    """$NERFIFY_GENERATED, else the newest plugin under ``cwd/nerfify-out``, else None."""
+    return resolve_generated(cwd)[0]
 
 
 def load_plugin_method(plugin_dir: Path):

@@ -92,9 +92,17 @@ class Verify:
     """Time limit of each sandboxed process, seconds."""
 
     def main(self) -> None:
+        from nerfify_ns.atomic import check_writable_dir
+        from nerfify_ns.budget import check_count, check_seconds
+
         if not self.plugin.is_dir():
             raise VerifyError(f"{self.plugin} is not a folder")
+        check_count("--max-rounds", self.max_rounds)
+        if self.iterations is not None:
+            check_count("--iterations", self.iterations)
+        check_seconds("--timeout", self.timeout)
         out = self.out or self.plugin / ".verify"
+        check_writable_dir(out)
         report = run_ladder(
             self.plugin,
             scene=self.data,

@@ -114,11 +114,16 @@ def test_bad_plan_files_and_names_get_clear_errors(tmp_path):
         load_reference_plan("nerf-w")
 
 
-def test_compose_records_the_last_plugin_and_the_env_overrides(tmp_path, monkeypatch):
+def test_compose_keeps_no_global_pointer_and_the_env_overrides(tmp_path, monkeypatch):
+    """No "last generated" file (issue 16: parallel runs raced through it): a plugin composed elsewhere is not
+    what nerfify-generated trains; the newest under ./nerfify-out is, or the folder in the variable."""
     monkeypatch.setenv("NERFIFY_CACHE", str(tmp_path / "cache"))
     monkeypatch.delenv(ENV_GENERATED, raising=False)
+    monkeypatch.chdir(tmp_path)
     assert generated_plugin_dir() is None
-    plugin = compose(load_reference_plan("vanilla-nerf"), tmp_path / "v")
+    compose(load_reference_plan("vanilla-nerf"), tmp_path / "v")
+    assert generated_plugin_dir() is None and not (tmp_path / "cache").exists()
+    plugin = compose(load_reference_plan("vanilla-nerf"), tmp_path / "nerfify-out" / "v")
     assert generated_plugin_dir() == plugin.out
     monkeypatch.setenv(ENV_GENERATED, str(tmp_path / "elsewhere"))
     assert generated_plugin_dir() == tmp_path / "elsewhere"
