@@ -24,6 +24,7 @@ from typing import Callable, Dict, Optional, Tuple
 
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, check_count
+from nerfify_ns.dataset import Dataset, read_dataset
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
@@ -84,6 +85,7 @@ def run_paper(
     """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``.
     ``kb``: the knowledge base every stage reads (default: the package's), one object for the whole run."""
     outcome = Outcome("paper", until, progress)
+    dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
     check_count("--patch-rounds", patch_rounds, 0)
     if out is not None and not dry_run:
         check_target(Path(out), overwrite)  # before the paper is read: a bad --out costs nothing
@@ -101,7 +103,7 @@ def run_paper(
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
-        plan, summary = _build(derived.plan, staging, data, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
+        plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
                                outcome)
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary)
@@ -124,22 +126,24 @@ def run_compose(
     """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
     the code of the plan's custom components (``components.<name>`` -> source)."""
     outcome = Outcome("compose", until, progress)
+    dataset = _read_data(data)  # a bad dataset is bad input: nothing is written
     check_count("--patch-rounds", patch_rounds, 0)
     validate(plan)  # a plan the grammar rejects is bad input: nothing is written
     final = Path(out).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
-        plan, summary = _build(plan, staging, data, scene, keep_all, budget or COMPOSE_BUDGET, patch_rounds,
+        plan, summary = _build(plan, staging, dataset, scene, keep_all, budget or COMPOSE_BUDGET, patch_rounds,
                                outcome, sources)
         files = _plugin_files(staging)
         _rewrite_saved_paths(staging, final)
     return ComposeResult(final, plan, outcome, files, summary)
 
 
-def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool, budget: Budget,
+def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
            patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None
            ) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
-    passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary."""
+    passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
+    the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered)."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
@@ -181,18 +185,23 @@ def _build(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all:
     return plan, summary
 
 
-def _plan_for_scene(plan: dict, folder: Path, data: Optional[Path], scene: str, keep_all: bool, budget: Budget,
-                    stage: Stage) -> Tuple[dict, Path]:
+def _plan_for_scene(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool,
+                    budget: Budget, stage: Stage) -> Tuple[dict, Dataset]:
     """Render (or take) the scene, prune the plan for it unless ``keep_all``, write ``plan.yaml``."""
     if data is None:
         stage.note(f"rendering scene '{scene}'")
-        data = write_scene(scene, folder / "scene", **budget.scene)
+        data = read_dataset(write_scene(scene, folder / "scene", **budget.scene))
     facts = probe_scene(data)
     plan = Plan.of(adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts))
     (folder / "plan.yaml").write_text(plan.dump())
-    stage.summary = (f"{plan['method']} (base {plan['base']}), {len(plan.get('pruned') or [])} pruning(s), "
-                     f"{len(plan.get('holes') or [])} hole(s)")
-    return plan, Path(data)
+    stage.summary = (f"{plan['method']} (base {plan['base']}), {data.format} dataset, "
+                     f"{len(plan.get('pruned') or [])} pruning(s), {len(plan.get('holes') or [])} hole(s)")
+    return plan, data
+
+
+def _read_data(data: Optional[Path]) -> Optional[Dataset]:
+    """The dataset at ``data`` read and checked once (None when no --data was given: a scene is rendered)."""
+    return None if data is None else read_dataset(data)
 
 
 def _judge_ladder(ladder, stage: Stage) -> None:
@@ -280,22 +289,24 @@ def run_demo(
 ) -> DemoResult:
     """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
     outcome = Outcome("demo", progress=progress)
+    dataset = _read_data(data)
     check_count("--iterations", iterations)
     final = Path(out).absolute()
     with atomic_dir(out, overwrite) as staging, run_log(staging / LOG_FILE):
-        if data is None:
+        if dataset is None:
             with outcome.stage("scene", f"rendering scene '{scene}'"):
                 data = write_scene(scene, staging / "scene")
+                dataset = read_dataset(data)
         with outcome.stage("train", f"training {method} for {iterations} iterations with Nerfstudio's trainer, "
                            "then ns-eval", total=iterations) as stage:
             try:
-                result = smoke_train(method, data, staging / "train", iterations=iterations,
+                result = smoke_train(method, dataset, staging / "train", iterations=iterations,
                                      on_progress=stage.advance)
             except SmokeTrainError as exc:
                 raise exc.with_log(_keep_log(exc.log_path, method)) from None
             metrics = result.summary()
             stage.summary = f"{metrics['iterations']} iterations, PSNR {metrics['psnr']}, SSIM {metrics['ssim']}"
-        scene_path = final / "scene" if data.is_relative_to(staging) else data
+        scene_path = final / "scene" if dataset.root.is_relative_to(staging) else dataset.root
         (staging / "summary.json").write_text(json.dumps(result.summary(), indent=2))
         _rewrite_saved_paths(staging, final)
         _rebase(result, staging, final)

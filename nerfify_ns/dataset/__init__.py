@@ -34,7 +34,7 @@ def read_dataset(path: Union[str, Path]) -> Dataset:
         raise DatasetError(f"{root} does not exist; pass a dataset folder")
     if not root.is_dir():
         raise DatasetError(f"{root} is not a folder; pass a dataset folder (looked for {looked_for()})")
-    root = root.resolve()
+    root = root.absolute()
     try:
         for fmt in FORMATS:
             evidence = fmt.detect(root)

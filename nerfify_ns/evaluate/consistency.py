@@ -42,12 +42,17 @@ BoolArray = NDArray[np.bool_]
 
 @dataclass
 class DepthView:
-    """One view's depth map and pinhole camera (Blender convention)."""
+    """One view's depth map and pinhole camera (OpenGL axes): ``focal`` alone is the Blender camera (square
+    pixels, principal point at the image centre); ``fx``, ``fy``, ``cx``, ``cy`` (pixels) override it."""
 
     depth: Array  # (H, W) distance along the unit ray; inf where there is no surface
     c2w: Array  # (4, 4) camera-to-world, OpenGL axes
     focal: float  # pixels
     name: str = ""
+    fx: Optional[float] = None
+    fy: Optional[float] = None
+    cx: Optional[float] = None
+    cy: Optional[float] = None
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth, dtype=np.float64)
@@ -57,6 +62,23 @@ class DepthView:
             raise ValueError(f"depth of view {self.name!r} must be (H, W), got {depth.shape}")
         self.depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.inf)
         self.c2w = np.asarray(self.c2w, dtype=np.float64).reshape(4, 4)
+        h, w = self.depth.shape
+        self.fx = float(self.focal if self.fx is None else self.fx)
+        self.fy = float(self.focal if self.fy is None else self.fy)
+        self.cx = float(0.5 * w if self.cx is None else self.cx)
+        self.cy = float(0.5 * h if self.cy is None else self.cy)
+
+    @classmethod
+    def of_frame(cls, depth: ArrayLike, frame, *, valid: Optional[ArrayLike] = None) -> "DepthView":
+        """The view of a dataset frame (:class:`nerfify_ns.dataset.Frame`: its camera-to-world and
+        intrinsics, rescaled when the depth map is not the image's size); distortion is ignored."""
+        d = np.array(depth, dtype=np.float64).reshape(np.shape(depth)[:2])
+        if valid is not None:
+            d[~np.asarray(valid, dtype=bool).reshape(d.shape)] = np.inf
+        intr = frame.intrinsics
+        sx, sy = d.shape[1] / intr.width, d.shape[0] / intr.height
+        return cls(d, frame.c2w, intr.fx * sx, frame.stem, fx=intr.fx * sx, fy=intr.fy * sy, cx=intr.cx * sx,
+                   cy=intr.cy * sy)
 
     @classmethod
     def blender(
@@ -77,9 +99,7 @@ class DepthView:
         """World points ``(H, W, 3)`` (non-finite where there is no surface)."""
         h, w = self.depth.shape
         rows, cols = np.meshgrid(np.arange(h) + 0.5, np.arange(w) + 0.5, indexing="ij")
-        d_cam = np.stack(
-            [(cols - 0.5 * w) / self.focal, -(rows - 0.5 * h) / self.focal, -np.ones_like(cols)], -1
-        )
+        d_cam = np.stack([(cols - self.cx) / self.fx, -(rows - self.cy) / self.fy, -np.ones_like(cols)], -1)
         d_world = d_cam @ self.c2w[:3, :3].T
         d_world /= np.linalg.norm(d_world, axis=-1, keepdims=True)
         with np.errstate(invalid="ignore"):
@@ -93,12 +113,23 @@ class DepthView:
         z = -cam[..., 2]
         h, w = self.depth.shape
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = self.focal * cam[..., 0] / z + 0.5 * w
-            v = -self.focal * cam[..., 1] / z + 0.5 * h
+            u = self.fx * cam[..., 0] / z + self.cx
+            v = -self.fy * cam[..., 1] / z + self.cy
             inside = (z > 1e-9) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         col = np.where(inside, np.floor(np.nan_to_num(u)), 0).astype(np.int64)
         row = np.where(inside, np.floor(np.nan_to_num(v)), 0).astype(np.int64)
         return row, col, np.linalg.norm(rel, axis=-1), inside
+
+
+def views_from_frames(
+    frames: Sequence, depths: Sequence[ArrayLike], valid: Optional[Sequence[ArrayLike]] = None
+) -> List[DepthView]:
+    """DepthViews for dataset frames (:class:`nerfify_ns.dataset.Frame`, any format) and their rendered depth
+    maps, in order."""
+    if len(depths) != len(frames):
+        raise ValueError(f"{len(frames)} frames but {len(depths)} depth maps were given")
+    return [DepthView.of_frame(d, f, valid=None if valid is None else valid[i])
+            for i, (d, f) in enumerate(zip(depths, frames))]
 
 
 def views_from_transforms(
@@ -188,7 +219,8 @@ class ConsistencyReport:
 
 
 def _same_camera(a: DepthView, b: DepthView) -> bool:
-    return a.depth.shape == b.depth.shape and np.allclose(a.c2w, b.c2w, atol=1e-9) and a.focal == b.focal
+    return (a.depth.shape == b.depth.shape and np.allclose(a.c2w, b.c2w, atol=1e-9)
+            and (a.fx, a.fy, a.cx, a.cy) == (b.fx, b.fy, b.cx, b.cy))
 
 
 def check_view(

@@ -48,6 +48,7 @@ from typing import Any, Callable, Dict, List, Optional, Protocol, Sequence, Tupl
 import numpy as np
 import yaml
 
+from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.curve import CurvePoint, read_curve_csv
 from nerfify_ns.evaluate.run_eval import CPU_ARGS, evaluate_run, write_json
@@ -332,10 +333,14 @@ def apply_patch(plan: dict, patch: PlanPatch) -> Plan:
     return patched
 
 
-def scene_bounds(scene: Path) -> Dict[str, Optional[float]]:
-    """``scene_near`` / ``scene_far`` from a generated scene's ``scene.json`` (``None`` if unknown)."""
-    meta_path = Path(scene) / "scene.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+def scene_bounds(scene: DataLike) -> Dict[str, Optional[float]]:
+    """``scene_near`` / ``scene_far`` of the dataset: a generated scene's ``scene.json``, LLFF's per-image
+    bounds (their extremes); ``None`` when unknown."""
+    dataset = as_dataset(scene)
+    meta = dataset.meta.get("scene") or {}
+    if dataset.meta.get("bounds"):
+        bounds = dataset.meta["bounds"]
+        meta = {"near": min(b[0] for b in bounds), "far": max(b[1] for b in bounds)}
     return {"scene_near": meta.get("near"), "scene_far": meta.get("far")}
 
 
@@ -356,7 +361,7 @@ def _format_reason(template: str, evidence: str, env: dict) -> str:
 
 
 def propose_patches(plan: dict, findings: Sequence[Finding], rules: Sequence[dict],
-                    scene: Path) -> List[PlanPatch]:
+                    scene: DataLike) -> List[PlanPatch]:
     """Candidate patches for ``findings``: applicable, changing the plan, each set of edits once.
     Ordered round-robin over the findings (most severe first): the first rule of every finding,
     then the second ones, ..., so a short candidate budget covers every finding."""
@@ -482,7 +487,7 @@ class PatchLoop:
     def __init__(
         self,
         plan: dict,
-        scene: Path,
+        scene: DataLike,
         out_dir: Path,
         *,
         iterations: int,
@@ -511,7 +516,8 @@ class PatchLoop:
         except PlanError as exc:
             raise PatchLoopError(f"the starting plan is invalid: {exc}") from None
         self.plan = Plan.of(plan).copy()
-        self.scene = Path(scene).resolve()
+        self.dataset = as_dataset(scene)  # read once, shared by every candidate's runs
+        self.scene = self.dataset.root
         self.out = Path(out_dir).resolve()
         self.iterations, self.every = iterations, every or iterations
         self.rounds, self.repeats, self.seeds = rounds, repeats, list(seeds)
@@ -529,7 +535,7 @@ class PatchLoop:
         plugin = compose(plan, folder / "plugin", overwrite=True, record=False, sources=self.sources)
         started = time.perf_counter()
         summary = evaluate_run(
-            plugin.out, self.scene, folder / f"seed_{seed}", iterations=self.iterations, every=self.every,
+            plugin.out, self.dataset, folder / f"seed_{seed}", iterations=self.iterations, every=self.every,
             label=label, method_args=self.method_args, seed=seed, env=self.env, timeout=self.timeout,
         )
         summary["wall_seconds"] = time.perf_counter() - started
@@ -609,7 +615,7 @@ class PatchLoop:
             if not diagnoses:
                 stopped = "no diagnosis remains"
                 break
-            patches = [p for p in propose_patches(best, diagnoses, self.rules, self.scene)]
+            patches = [p for p in propose_patches(best, diagnoses, self.rules, self.dataset)]
             candidates: List[Tuple[PlanPatch, dict]] = []
             for patch in patches:
                 try:
@@ -706,7 +712,7 @@ class PatchLoop:
         }
 
 
-def run_patch_loop(plan: dict, scene: Path, out_dir: Path, **kwargs) -> PatchLoopResult:
+def run_patch_loop(plan: dict, scene: DataLike, out_dir: Path, **kwargs) -> PatchLoopResult:
     """``PatchLoop(plan, scene, out_dir, **kwargs).run()``."""
     return PatchLoop(plan, scene, out_dir, **kwargs).run()
 

@@ -34,7 +34,8 @@ from PIL import Image
 from scipy import ndimage
 
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.evaluate.consistency import check_consistency, views_from_transforms
+from nerfify_ns.dataset import DataLike, as_dataset
+from nerfify_ns.evaluate.consistency import check_consistency, views_from_frames
 from nerfify_ns.evaluate.curve import CurveError, CurveSource, plot_curves, record_curve, train_for_curve
 from nerfify_ns.evaluate.error_maps import analyze_views
 from nerfify_ns.evaluate.metrics import as_rgb, lpips, psnr, ssim, to_float
@@ -70,18 +71,10 @@ def write_json(path: Path, payload) -> Path:
     return path
 
 
-def scene_test_frames(scene: Path) -> List[dict]:
-    """The frames of ``transforms_test.json`` (name = image stem, gt = RGBA PNG path)."""
-    path = Path(scene) / "transforms_test.json"
-    if not path.is_file():
-        raise RunEvalError(f"{scene} has no transforms_test.json; pass a Blender-format scene folder")
-    frames = json.loads(path.read_text())["frames"]
-    out = []
-    for frame in frames:
-        rel = frame["file_path"][2:] if frame["file_path"].startswith("./") else frame["file_path"]
-        gt = Path(scene) / (rel if Path(rel).suffix else rel + ".png")
-        out.append({"name": Path(rel).stem, "gt": gt})
-    return out
+def scene_test_frames(scene: DataLike) -> List[dict]:
+    """The views Nerfstudio renders for the dataset's test split, in its order (name = image stem, under which
+    the renders are saved; gt = the image)."""
+    return [{"name": f.stem, "gt": f.image} for f in as_dataset(scene).eval_frames]
 
 
 def loss_stats(losses: dict) -> dict:
@@ -154,7 +147,7 @@ def _final_ssim(out_dir: Path) -> Optional[float]:
 
 def evaluate_run(
     plugin_dir: Path,
-    scene: Path,
+    scene: DataLike,
     out_dir: Path,
     *,
     iterations: int,
@@ -168,28 +161,32 @@ def evaluate_run(
     timeout: float = 900,
     on_progress: Optional[ProgressHook] = None,
 ) -> dict:
-    """Train the plugin in ``plugin_dir`` on ``scene`` and evaluate it into ``out_dir``.
+    """Train the plugin in ``plugin_dir`` on ``scene`` (a dataset or its folder, any format the dataset reader
+    reads, through its Nerfstudio dataparser) and evaluate it into ``out_dir``.
 
     ``method_args`` are ns-train arguments (default: CPU settings, 512 rays per batch); ``seed``
     adds ``--machine.seed``. ``compare`` adds curves (CSV paths, curves or point lists, e.g. the
     reference method's) to ``curve.png``; ``on_progress(step, total)`` is called while it trains. Returns
     the summary also written to ``summary.json``.
     """
-    plugin_dir, scene, out_dir = Path(plugin_dir).resolve(), Path(scene).resolve(), Path(out_dir).resolve()
+    plugin_dir, out_dir = Path(plugin_dir).resolve(), Path(out_dir).resolve()
     if not (plugin_dir / "nerfify.json").is_file():
         raise RunEvalError(f"{plugin_dir} is not a composed plugin (no nerfify.json)")
-    frames = scene_test_frames(scene)
+    dataset = as_dataset(scene)
+    test_frames = dataset.eval_frames
+    frames = [{"name": f.stem, "gt": f.image} for f in test_frames]
     out_dir.mkdir(parents=True, exist_ok=True)
     run_env = {**os.environ, **(env or {}), ENV_GENERATED: str(plugin_dir)}
     args = [*method_args, *(["--machine.seed", str(seed)] if seed is not None else [])]
     run = train_for_curve(
-        GENERATED_METHOD, scene, out_dir / "train", iterations=iterations, every=every, method_args=args,
+        GENERATED_METHOD, dataset, out_dir / "train", iterations=iterations, every=every, method_args=args,
         timeout=timeout, env=run_env, on_progress=on_progress,
     )
     summary: dict = {
         "label": label,
         "plugin": str(plugin_dir),
-        "scene": str(scene),
+        "scene": str(dataset.root),
+        "dataset": dataset.to_dict(),
         "iterations": iterations,
         "every": every,
         "seed": seed,
@@ -232,7 +229,7 @@ def evaluate_run(
         depths.append(np.load(renders / f"{f['name']}_depth.npy"))
         acc_path = renders / f"{f['name']}_accumulation.npy"
         valid.append(np.load(acc_path) >= ACCUMULATION_SURFACE if acc_path.exists() else np.ones_like(depths[-1], bool))
-    report = check_consistency(views_from_transforms(scene / "transforms_test.json", depths, valid))
+    report = check_consistency(views_from_frames(test_frames, depths, valid))
     report.save(out_dir)
     consistency = report.summary()
     per_view = [image_diagnostics(to_float(p), g) for p, g in zip(preds, gts)]

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
+from nerfify_ns.dataset import DataLike, Dataset, as_dataset
 from nerfify_ns.runtime.errors import RuntimeLayerError
 from nerfify_ns.runtime.events import EventReader, Scalars, losses, rays_per_sec
 from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
@@ -144,18 +145,25 @@ def launch_env(env: Optional[Mapping[str, str]] = None) -> Dict[str, str]:
 
 def train_command(
     method: str,
-    data: Path,
+    data: DataLike,
     layout: RunLayout,
     *,
     iterations: int,
     method_args: Sequence[str] = (),
-    dataparser: str = "blender-data",
+    dataparser: Optional[str] = None,
     dataparser_args: Sequence[str] = (),
     prefix: Sequence[str] = (),
 ) -> List[str]:
     """The ``ns-train`` command line: ``prefix`` (``unshare -n``, a sandbox, or nothing), the method, the
     data, the run layout, the iterations, tensorboard logging every step, then ``method_args`` (presets and
-    extra arguments) and the dataparser subcommand with its arguments."""
+    extra arguments) and the dataparser subcommand with its arguments. ``data`` is a dataset or its folder;
+    the dataparser is the dataset's (:meth:`nerfify_ns.dataset.Dataset.dataparser`, formats Nerfstudio cannot
+    read converted under ``layout.output_dir``) unless ``dataparser`` names one, and ``dataparser_args`` follow
+    its own arguments."""
+    if dataparser is None:
+        chosen = as_dataset(data).dataparser(Path(layout.output_dir))
+        data, dataparser, dataparser_args = chosen.data, chosen.name, [*chosen.args, *dataparser_args]
+    data = data.root if isinstance(data, Dataset) else data  # a dataset under an explicit dataparser: its folder
     return [
         *prefix,
         console_script("ns-train"), method,
@@ -206,19 +214,20 @@ def read_run(run: TrainRun, layout: RunLayout) -> TrainRun:
 
 def ns_train(
     method: str,
-    data: Path,
+    data: DataLike,
     out_dir: Path,
     *,
     iterations: int,
     method_args: Sequence[str] = (),
-    dataparser: str = "blender-data",
+    dataparser: Optional[str] = None,
     dataparser_args: Sequence[str] = (),
     timeout: float = 900,
     env: Optional[dict] = None,
     offline: bool = True,
     on_progress: Optional[ProgressHook] = None,
 ) -> TrainRun:
-    """Train ``method`` on ``data`` with Nerfstudio's trainer in a subprocess."""
+    """Train ``method`` on ``data`` (a dataset or its folder) with Nerfstudio's trainer in a subprocess; the
+    dataparser as for :func:`train_command`."""
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     layout = RunLayout(out_dir, method)

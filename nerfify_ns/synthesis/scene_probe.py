@@ -1,24 +1,26 @@
-"""What a dataset needs: bounded or not, alpha, timestamps, appearance variation, pose quality, size.
+"""What a dataset needs: bounded or not, alpha, timestamps, appearance variation, pose quality, size, format.
 
-Reads a Blender-format (``transforms_train.json``) or Nerfstudio-format (``transforms.json``)
-scene. Facts come from our scenes' ``scene.json`` when there is one, otherwise from the cameras
-and images; each fact records how it was found, so a pruning can say why.
+Reads the typed dataset (:mod:`nerfify_ns.dataset`: Blender, D-NeRF, Nerfstudio, COLMAP or LLFF, read once
+and shared by every stage). Facts come from our scenes' ``scene.json`` when there is one, otherwise from the
+cameras and images; each fact records how it was found, so a pruning can say why. The format (with what
+identified it) is a fact too: the plan records it and it picks the Nerfstudio dataparser.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, Tuple
 
 import numpy as np
 from PIL import Image
 
+from nerfify_ns.dataset import DataLike, Dataset, as_dataset
 from nerfify_ns.errors import NerfifyError
 
 OBJECT_CENTRIC_SPREAD_DEG = 120.0
+EXACT_POSE_FORMATS = ("blender", "dnerf")
+"""Formats of synthetic renders (exact poses, fixed lighting); the others come from reconstructions."""
 
 
 class SceneProbeError(NerfifyError):
@@ -37,43 +39,30 @@ class SceneFacts:
     image_size: Tuple[int, int]
     num_images: int
     evidence: Dict[str, str] = field(default_factory=dict)
+    format: str = "blender"
+    """The dataset format (:data:`nerfify_ns.dataset.formats.FORMATS`)."""
 
     def flags(self) -> dict:
-        return {k: getattr(self, k) for k in ("bounded", "timestamps", "alpha", "appearance_variation", "exact_poses")}
+        return {k: getattr(self, k) for k in ("bounded", "timestamps", "alpha", "appearance_variation", "exact_poses",
+                                              "format")}
 
     def sizes(self) -> dict:
         h, w = self.image_size
         return {"pixels": h * w * self.num_images, "max_side": max(h, w), "num_images": self.num_images}
 
 
-def _transforms(data: Path) -> Tuple[Path, dict, str]:
-    for name, kind in (("transforms_train.json", "blender"), ("transforms.json", "nerfstudio")):
-        path = data / name
-        if path.is_file():
-            try:
-                return path, json.loads(path.read_text()), kind
-            except ValueError as exc:
-                raise SceneProbeError(f"{path} is not valid JSON ({exc}); fix or regenerate the dataset") from None
-    raise SceneProbeError(f"{data} holds no transforms_train.json (Blender) or transforms.json (Nerfstudio); "
-                          "pass a dataset folder")
-
-
-def _image_path(data: Path, transforms_path: Path, frame: dict) -> Path:
-    rel = Path(frame["file_path"])
-    path = (transforms_path.parent / rel)
-    return path if path.suffix else path.with_suffix(".png")
-
-
-def _first_image(data: Path, transforms_path: Path, frames: List[dict]) -> np.ndarray:
+def _first_image(dataset: Dataset) -> np.ndarray:
+    frame = (dataset.train_frames or dataset.frames)[0]
     try:
-        return np.asarray(Image.open(_image_path(data, transforms_path, frames[0])))
-    except (OSError, KeyError, IndexError) as exc:
-        raise SceneProbeError(f"cannot read the first training image of {data}: {exc}") from None
+        with Image.open(frame.image) as im:
+            return np.asarray(im)
+    except OSError as exc:
+        raise SceneProbeError(f"cannot read the first training image {frame.image}: {exc}") from None
 
 
-def _object_centric(frames: List[dict]) -> Tuple[bool, str]:
+def _object_centric(poses: np.ndarray) -> Tuple[bool, str]:
     """Cameras surrounding a common target (an object-centric capture) or not."""
-    poses = np.array([f["transform_matrix"] for f in frames], dtype=np.float64)[:, :3, :]
+    poses = np.asarray(poses, dtype=np.float64)[:, :3, :]
     centres, forward = poses[:, :, 3], -poses[:, :, 2]
     forward /= np.linalg.norm(forward, axis=1, keepdims=True)
     # the point closest to every optical axis (least squares)
@@ -86,24 +75,21 @@ def _object_centric(frames: List[dict]) -> Tuple[bool, str]:
     return spread >= OBJECT_CENTRIC_SPREAD_DEG, f"cameras span {spread:.0f} deg around a common target"
 
 
-def probe_scene(data: Path) -> SceneFacts:
-    """The facts of the dataset in ``data``."""
-    data = Path(data)
-    if not data.is_dir():
-        raise SceneProbeError(f"{data} is not a folder; pass a Blender or Nerfstudio dataset folder")
-    transforms_path, transforms, kind = _transforms(data)
-    frames = transforms.get("frames") or []
-    if not frames:
-        raise SceneProbeError(f"{transforms_path} lists no frames")
-    image = _first_image(data, transforms_path, frames)
-    meta_path = data / "scene.json"
-    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else None
-    evidence: Dict[str, str] = {}
+def probe_scene(data: DataLike) -> SceneFacts:
+    """The facts of the dataset ``data`` (a :class:`~nerfify_ns.dataset.Dataset` or its folder)."""
+    dataset = as_dataset(data)
+    frames = dataset.train_frames or dataset.frames
+    image = _first_image(dataset)
+    meta = dataset.meta.get("scene")
+    evidence: Dict[str, str] = {"format": f"{dataset.format}: {dataset.evidence}"}
 
     alpha = image.ndim == 3 and image.shape[2] == 4 and bool((image[..., 3] < 255).any())
     evidence["alpha"] = f"first image has {'an' if alpha else 'no'} alpha channel with transparency"
-    timestamps = all("time" in f for f in frames)
+    if dataset.has_masks:
+        evidence["alpha"] += "; every frame has a mask"
+    timestamps = dataset.has_times
     evidence["timestamps"] = "every frame has a time" if timestamps else "frames have no times"
+    exact_poses = dataset.format in EXACT_POSE_FORMATS
     if meta is not None:
         bounded = bool(meta.get("bounded", True))
         evidence["bounded"] = f"scene.json: bounded={bounded}"
@@ -111,15 +97,17 @@ def probe_scene(data: Path) -> SceneFacts:
         appearance_variation = False
         evidence["appearance_variation"] = "synthetic scene (scene.json): fixed lighting"
     else:
-        centric, how = _object_centric(frames)
-        bounded = centric and alpha
-        evidence["bounded"] = f"{how}{' and transparent background' if alpha else ', background present'}"
-        exact_poses = kind == "blender" and "camera_angle_x" in transforms
-        evidence["exact_poses"] = ("Blender synthetic format (camera_angle_x)" if exact_poses
-                                   else "poses from a reconstruction (Nerfstudio transforms.json)")
+        if dataset.format == "llff":
+            bounded, evidence["bounded"] = False, "LLFF forward-facing capture (poses_bounds.npy): unbounded"
+        else:
+            centric, how = _object_centric(dataset.poses(frames))
+            bounded = centric and alpha
+            evidence["bounded"] = f"{how}{' and transparent background' if alpha else ', background present'}"
+        evidence["exact_poses"] = (f"{dataset.format} format (synthetic renders): poses are exact" if exact_poses
+                                   else f"poses from a reconstruction ({dataset.format} format)")
         appearance_variation = not exact_poses
         evidence["appearance_variation"] = ("synthetic renders: fixed lighting" if exact_poses
                                             else "real capture: exposure and lighting may vary")
     return SceneFacts(bounded=bounded, timestamps=timestamps, alpha=alpha, appearance_variation=appearance_variation,
                       exact_poses=exact_poses, image_size=(int(image.shape[0]), int(image.shape[1])),
-                      num_images=len(frames), evidence=evidence)
+                      num_images=len(frames), evidence=evidence, format=dataset.format)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Dict, List, Literal, Optional, Sequence, Union
 
+from nerfify_ns.dataset import Dataset, as_dataset
 from nerfify_ns.plan import Plan, PlanFileError
 from nerfify_ns.runtime.launch import ProgressHook
 from nerfify_ns.runtime.presets import smoke_iterations as smoke_iterations_for
@@ -49,7 +50,7 @@ class _Settings:
     """What every round of one ladder run shares."""
 
     rungs: List[str]
-    scene: Optional[Path]
+    scene: Optional[Dataset]
     smoke_iterations: int
     timeout: float
     fixers: List[Fixer]
@@ -155,11 +156,15 @@ def run_ladder(
     fixers: Optional[Sequence[Fixer]] = None,
     on_progress: Optional[ProgressHook] = None,
 ) -> LadderReport:
-    """Verify the plugin in ``plugin_dir``; write ``verify.json`` (and patches, ``repair.diff``) to
-    ``out_dir`` (default ``PLUGIN/.verify``). ``repair``: ``"off"``, ``"propose"`` (repair a scratch copy,
+    """Verify the plugin in ``plugin_dir``; the smoke rung trains on ``scene`` (a dataset, or its folder in any
+    format :func:`nerfify_ns.dataset.read_dataset` reads; default a generated 32 px scene). Write
+    ``verify.json`` (and patches, ``repair.diff``) to ``out_dir`` (default ``PLUGIN/.verify``).
+    ``repair``: ``"off"``, ``"propose"`` (repair a scratch copy,
     leave the folder alone) or ``"apply"`` (repair the folder); see the module docstring.
     ``on_progress(step, total)`` is called while the smoke rung trains."""
     plugin_dir = Path(plugin_dir).resolve()
+    if scene is not None:
+        scene = as_dataset(scene)  # a bad dataset is refused before anything is written
     mode = _repair_mode(repair)
     rungs = list(rungs or RUNGS)
     unknown = [r for r in rungs if r not in RUNGS]
@@ -169,7 +174,7 @@ def run_ladder(
     out.mkdir(parents=True, exist_ok=True)
     info = load_plugin(plugin_dir)  # NotAPluginError early
     iterations = smoke_iterations_for((info.plan or {}).get("base"), smoke_iterations)
-    st = _Settings([r for r in RUNGS if r in rungs], Path(scene) if scene else None, iterations,
+    st = _Settings([r for r in RUNGS if r in rungs], scene, iterations,
                    timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress)
     report = LadderReport(plugin=str(plugin_dir), repair=mode)
     climb = _climb(plugin_dir, out, st, repair=mode == "apply")

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from nerfify_ns.dataset import DataLike
 from nerfify_ns.runtime.events import LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
                                       progress_poll, train_command)
@@ -65,7 +66,7 @@ def photometric(scalars: Scalars) -> Dict[int, float]:
 
 def smoke_rung(
     info: PluginInfo,
-    scene: Path,
+    scene: DataLike,
     workdir: Path,
     *,
     iterations: int = 20,
@@ -73,7 +74,8 @@ def smoke_rung(
     extra_args: Optional[List[str]] = None,
     on_progress: Optional[ProgressHook] = None,
 ) -> RungResult:
-    """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` in the sandbox and judge the run."""
+    """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` on ``scene`` (a dataset or its folder; the
+    dataset's Nerfstudio dataparser) in the sandbox and judge the run."""
     r = RungResult("smoke")
     workdir = Path(workdir).resolve()
     start = time.perf_counter()

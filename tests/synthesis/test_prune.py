@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from nerfify_ns.dataset import DatasetError
 from nerfify_ns.grammar import check, validate
 from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.resources import load_reference_plan
-from nerfify_ns.synthesis.scene_probe import SceneProbeError, probe_scene
+from nerfify_ns.synthesis.scene_probe import probe_scene
 
 
 def _small(name, tmp_path, **kw):
@@ -26,7 +27,7 @@ def _records(plan):
 def test_bounded_synthetic_scene_prunes_what_it_does_not_need(tmp_path):
     facts = probe_scene(_small("default", tmp_path))
     assert facts.flags() == {"bounded": True, "timestamps": False, "alpha": True, "appearance_variation": False,
-                             "exact_poses": True}
+                             "exact_poses": True, "format": "blender"}
     plan = prune_plan(load_reference_plan("nerfacto"), facts)
     records = _records(plan)
     field = plan["model"]["field"]["MLPField"]
@@ -80,27 +81,29 @@ def test_real_capture_without_metadata_is_treated_as_unbounded_with_varying_appe
     root = tmp_path / "capture"
     (root / "images").mkdir(parents=True)
     frames = []
-    for i in range(5):
-        Image.fromarray(np.full((8, 8, 3), 40 * i, np.uint8)).save(root / "images" / f"{i}.png")
+    for i in range(12):  # 11 train, 1 held out (Nerfstudio's 90% split)
+        Image.fromarray(np.full((8, 8, 3), 20 * i, np.uint8)).save(root / "images" / f"{i:02d}.png")
         pose = np.eye(4)
         pose[:3, 3] = [0.2 * i, 0.0, 0.0]  # a sideways sweep, all looking down -z
-        frames.append({"file_path": f"images/{i}.png", "transform_matrix": pose.tolist()})
+        frames.append({"file_path": f"images/{i:02d}.png", "transform_matrix": pose.tolist()})
     (root / "transforms.json").write_text(json.dumps({"fl_x": 10, "fl_y": 10, "cx": 4, "cy": 4, "w": 8, "h": 8,
                                                       "frames": frames}))
     facts = probe_scene(root)
     assert facts.flags() == {"bounded": False, "timestamps": False, "alpha": False, "appearance_variation": True,
-                             "exact_poses": False}
+                             "exact_poses": False, "format": "nerfstudio"}
+    assert facts.evidence["format"].startswith("nerfstudio: transforms.json")
     plan = prune_plan(load_reference_plan("nerfacto"), facts)
     assert "camera_optimizer" in plan["model"] and "spatial_distortion" in plan["model"]["field"]["MLPField"]
+    assert plan["scene"]["format"] == "nerfstudio" and plan["datamanager"]["dataparser"] == "nerfstudio"
 
 
 def test_probe_errors_name_the_problem(tmp_path):
-    with pytest.raises(SceneProbeError, match="not a folder"):
+    with pytest.raises(DatasetError, match="does not exist"):
         probe_scene(tmp_path / "missing")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(SceneProbeError, match="transforms_train.json"):
+    with pytest.raises(DatasetError, match="transforms_train.json"):
         probe_scene(tmp_path / "empty")
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "transforms.json").write_text("{not json")
-    with pytest.raises(SceneProbeError, match="not valid JSON"):
+    with pytest.raises(DatasetError, match="not valid JSON"):
         probe_scene(tmp_path / "bad")

@@ -21,6 +21,8 @@ class Scene:
     """Lighting or exposure varies across images."""
     exact_poses: bool = param(True)
     """Camera poses are exact (synthetic)."""
+    format: Literal["blender", "dnerf", "nerfstudio", "colmap", "llff"] = param("blender")
+    """Dataset format the plan is fitted to (detected by nerfify_ns.dataset); it picks the Nerfstudio dataparser."""
 
 
 @dataclass
@@ -45,7 +47,7 @@ class DataManager:
     """Rays per training batch."""
     eval_num_rays_per_batch: int = param(4096, range=(1, 1048576))
     """Rays per evaluation batch."""
-    dataparser: Literal["blender", "nerfstudio", "dnerf"] = param("blender")
+    dataparser: Literal["blender", "nerfstudio", "dnerf", "colmap"] = param("blender")
     """Nerfstudio dataparser of the dataset format."""
 
 
@@ -119,7 +121,8 @@ TERMINALS = [
                 code=Code(traits={"dataparsers": {
                     "blender": ["nerfstudio.data.dataparsers.blender_dataparser", "BlenderDataParserConfig"],
                     "nerfstudio": ["nerfstudio.data.dataparsers.nerfstudio_dataparser", "NerfstudioDataParserConfig"],
-                    "dnerf": ["nerfstudio.data.dataparsers.dnerf_dataparser", "DNeRFDataParserConfig"]}})),
+                    "dnerf": ["nerfstudio.data.dataparsers.dnerf_dataparser", "DNeRFDataParserConfig"],
+                    "colmap": ["nerfstudio.data.dataparsers.colmap_dataparser", "ColmapDataParserConfig"]}})),
     base("nerfacto", "Nerfacto's loop (proposal sampling, near/far collider, appearance, camera optimiser).",
          "nerfstudio.models.nerfacto.NerfactoModel", "nerfstudio.models.nerfacto.NerfactoModelConfig", "nerfacto",
          "proposal", "MLPField"),
