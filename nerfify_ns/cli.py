@@ -102,7 +102,8 @@ class Demo:
     scene: str = "default"
     """Procedural scene to render (see ``ns-nerfify scene --help``); ignored with --data."""
     data: Optional[Path] = None
-    """Train on this Blender-format scene instead of rendering one."""
+    """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
+    COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     iterations: int = 100
     """Training iterations."""
     overwrite: bool = False
@@ -147,7 +148,8 @@ class Paper:
     out: Optional[Path] = None
     """Output folder (default nerfify-out/<method>); written atomically."""
     data: Optional[Path] = None
-    """Train on this Blender-format scene instead of rendering the bundled one."""
+    """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
+    COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
     iterations: int = PAPER_BUDGET.iterations
@@ -239,7 +241,8 @@ class Compose:
     out: Optional[Path] = None
     """Output folder (default nerfify-out/<method>); written atomically."""
     data: Optional[Path] = None
-    """Train on this Blender-format scene instead of rendering one."""
+    """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
+    COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
     resolution: int = COMPOSE_BUDGET.scene["resolution"]

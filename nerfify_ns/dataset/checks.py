@@ -62,8 +62,8 @@ def _check_frame(ds: Dataset, frame: Frame, channels: Dict[int, Frame]) -> None:
         raise DatasetError(f"{where}: image {show(frame.image, ds.root)} {exc}") from None
     if (info.width, info.height) != (intr.width, intr.height):
         declared = ds.meta.get("declares_size", "its intrinsics")
-        raise DatasetError(f"{where}: image {show(frame.image, ds.root)} is {info.width}x{info.height} pixels "
-                           f"but {declared} says {intr.width}x{intr.height}")
+        raise DatasetError(f"{where}: image {show(frame.image, ds.root)} is {info.width}x{info.height} pixels, "
+                           f"but {declared} declares {intr.width}x{intr.height}")
     if not (0.0 <= intr.cx <= intr.width and 0.0 <= intr.cy <= intr.height):
         raise DatasetError(f"{where}: principal point ({intr.cx:g}, {intr.cy:g}) lies outside the "
                            f"{intr.width}x{intr.height} image (intrinsics for another image size?)")

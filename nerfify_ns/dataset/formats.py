@@ -215,7 +215,7 @@ def read_blender(root: Path, evidence: str, *, timed: bool = False) -> Dataset:
             frames.append(Frame(file_path, image, c2w, intr, split, time=time))
     scene = root / "scene.json"
     meta_out: Dict[str, object] = {"camera_angle_x": angle,
-                                   "declares_size": "the first image (one size for a Blender dataset)"}
+                                   "declares_size": "the first image (a Blender dataset has one image size)"}
     if scene.is_file():
         try:
             meta_out["scene"] = load_json(scene, root)
@@ -297,7 +297,7 @@ def read_nerfstudio(root: Path, evidence: str) -> Dataset:
         splits = nerfstudio_split([str(r[0]) for r in rows])
     frames = [Frame(r[1], r[0], r[2], r[3], s, mask=r[4]) for r, s in zip(rows, splits)]
     per_frame = any(k in f for f in raw for k in INTRINSIC_KEYS)
-    declares = "its frame's w and h" if per_frame else "transforms.json's w and h"
+    declares = "its frame (w, h)" if per_frame else "transforms.json (w, h)"
     details = [f"camera_model {model}" if "camera_model" in meta else "no camera_model (perspective)",
                "per-frame intrinsics" if per_frame else "intrinsics at the top"]
     if with_masks:
@@ -485,7 +485,7 @@ def read_llff(root: Path, evidence: str) -> Dataset:
         intr = Intrinsics(focal, focal, w / 2.0, h / 2.0, w, h)
         frames.append(Frame(image.name, image, c2w, intr, splits[i]))
     return Dataset("llff", root, frames, evidence,
-                   {"bounds": array[:, 15:17].tolist(), "declares_size": "its pose's height and width"})
+                   {"bounds": array[:, 15:17].tolist(), "declares_size": "its pose in poses_bounds.npy"})
 
 
 # ------------------------------------------------------------------------------------------ the table

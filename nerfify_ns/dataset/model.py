@@ -36,9 +36,9 @@ class DatasetError(NerfifyError):
 
 
 def one_line(text: Any) -> str:
-    """``text`` on one line: newlines become spaces, other control characters are escaped."""
+    """``text`` on one line: newlines and other control characters are escaped (``\\n``, ``\\x1b``)."""
     out = []
-    for ch in " ".join(str(text).splitlines()):
+    for ch in str(text):
         out.append(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii"))
     return "".join(out)
 
@@ -139,6 +139,16 @@ class Dataset:
         """Camera-to-world matrices ``(N, 4, 4)`` of ``frames`` (default: all)."""
         chosen = self.frames if frames is None else frames
         return np.stack([f.c2w for f in chosen]) if chosen else np.zeros((0, 4, 4))
+
+    def folders(self) -> List[Path]:
+        """The folders a run reads: the dataset's own and any outside it that holds one of its images or masks
+        (a sandbox makes these readable)."""
+        out = [self.root]
+        for f in self.frames:
+            for path in (f.image, f.mask):
+                if path is not None and not any(path.is_relative_to(d) for d in out):
+                    out.append(path.parent)
+        return out
 
     def describe(self) -> str:
         """One line: format, evidence, frame counts."""

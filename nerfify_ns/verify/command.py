@@ -76,7 +76,8 @@ class Verify:
     out: Optional[Path] = None
     """Where verify.json, repair.diff, patches and logs go (default PLUGIN/.verify)."""
     data: Optional[Path] = None
-    """Blender-format scene for the smoke-train rung (default: a generated 32x32 scene)."""
+    """Dataset for the smoke-train rung, in any format --data of 'ns-nerfify PAPER' takes (default: a generated
+    32x32 scene)."""
     rungs: Optional[List[str]] = None
     """Rungs to run (default all): static contract stability smoke."""
     fix: bool = False
