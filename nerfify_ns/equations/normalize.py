@@ -1,0 +1,371 @@
+"""Normalise the noise of converted papers before parsing; keep each character's column in the original.
+
+What converters leave in NeRF papers' LaTeX and what it becomes here:
+
+    $$, \\[ \\], \\displaystyle, \\limits, \\label{..}, \\nonumber      removed
+    \\tag{3}                                                       the equation number '3'
+    \\pmb, \\boldsymbol, \\bm, \\mathbf, \\vec, {\\bf x}                 dropped (bold is not meaning)
+    {\\cal L}, {\\rm x}                                              \\mathcal{L}, \\mathrm{x}
+    \\begin{array}{rl} / aligned / align / equation / split        removed; rows split on \\\\ ; & removed
+    \\\\[6pt], a lone [2pt] (a lost \\\\), a backslash at a line end  a row break
+    \\, \\; \\: \\! \\> ~ \\hspace{..} \\left \\right \\big \\Bigl ...       removed
+    \\quad, \\qquad                                                  separate equations (a "where" clause)
+    P*{\\mathrm{new}} (a lost _)                                    P_{\\mathrm{new}}
+    \\exp!\\big( (a lost \\!)                                         \\exp\\big(
+    |x|, \\|x\\|, \\vert, \\Vert                                        \\lvert x \\rvert, \\lVert x \\rVert
+    unicode (sigma, odot, minus sign, math italic letters)         LaTeX commands (NFKC)
+    trailing . , ; and the comma before \\quad                      removed
+
+Limits (hostile input): at most ``MAX_CHARS`` characters and ``MAX_DEPTH`` nested groups; every pattern
+here is linear in the length of the text.
+"""
+
+from __future__ import annotations
+
+import re
+import unicodedata
+from dataclasses import dataclass
+
+MAX_CHARS = 4000
+MAX_DEPTH = 32
+
+
+class NormalizeError(Exception):
+    def __init__(self, reason: str, column: int | None = None, fragment: str = ""):
+        super().__init__(reason)
+        self.reason, self.column, self.fragment = reason, column, fragment
+
+
+class Mapped:
+    """Text whose every character remembers its 0-based column in the original."""
+
+    def __init__(self, text: str, origin: list[int] | None = None):
+        self.text = text
+        self.origin = list(range(len(text))) if origin is None else origin
+
+    def sub(self, pattern: str | re.Pattern, repl, flags: int = 0) -> Mapped:
+        """re.sub keeping origins: a replacement takes the column of the start of its match."""
+        rx = re.compile(pattern, flags) if isinstance(pattern, str) else pattern
+        out, origin, last = [], [], 0
+        for m in rx.finditer(self.text):
+            out.append(self.text[last:m.start()])
+            origin.extend(self.origin[last:m.start()])
+            new = repl(m) if callable(repl) else m.expand(repl)
+            out.append(new)
+            at = self.origin[m.start()] if m.start() < len(self.origin) else (self.origin[-1] + 1 if self.origin
+                                                                                 else 0)
+            origin.extend([at] * len(new))
+            last = m.end()
+        out.append(self.text[last:])
+        origin.extend(self.origin[last:])
+        return Mapped("".join(out), origin)
+
+    def slice(self, start: int, end: int) -> Mapped:
+        return Mapped(self.text[start:end], self.origin[start:end])
+
+    def strip(self) -> Mapped:
+        start = len(self.text) - len(self.text.lstrip())
+        end = len(self.text.rstrip())
+        return self.slice(start, max(start, end))
+
+    def column(self, i: int) -> int:
+        """1-based column in the original of position ``i`` of this text."""
+        if not self.origin:
+            return 1
+        return self.origin[min(max(i, 0), len(self.origin) - 1)] + 1
+
+
+@dataclass
+class Normalized:
+    pieces: list[Mapped]
+    number: str | None
+
+
+_GREEK = {
+    "alpha", "beta", "gamma", "delta", "epsilon", "varepsilon", "zeta", "eta", "theta", "vartheta", "iota",
+    "kappa", "lambda", "mu", "nu", "xi", "pi", "rho", "varrho", "sigma", "varsigma", "tau", "upsilon", "phi",
+    "varphi", "chi", "psi", "omega", "Gamma", "Delta", "Theta", "Lambda", "Xi", "Pi", "Sigma", "Upsilon",
+    "Phi", "Psi", "Omega",
+}
+
+_UNICODE = {
+    "\u2212": "-", "\u00b7": r"\cdot ", "\u22c5": r"\cdot ", "\u00d7": r"\times ", "\u2299": r"\odot ",
+    "\u2297": r"\otimes ", "\u2218": r"\circ ", "\u2211": r"\sum ", "\u220f": r"\prod ", "\u222b": r"\int ",
+    "\u2264": r"\le ", "\u2265": r"\ge ", "\u2260": r"\ne ", "\u2208": r"\in ", "\u223c": r"\sim ",
+    "\u2248": r"\approx ", "\u2225": r"\| ", "\u2016": r"\| ", "\u2032": "'", "\u221e": r"\infty ",
+    "\u2202": r"\partial ", "\u2207": r"\nabla ", "\u2192": r"\to ", "\u22a4": r"\top ", "\u2026": r"\ldots ",
+    "\u22ef": r"\cdots ", "\u225c": r"\triangleq ", "\u2250": r"\doteq ", "\u2217": "*", "\u2206": r"\Delta ",
+    "\u2254": ":=", "\u2308": r"\lceil ", "\u2309": r"\rceil ", "\u230a": r"\lfloor ", "\u230b": r"\rfloor ",
+    "\u221a": r"\sqrt ", "\U0001d53c": r"\mathbb{E}", "\u2013": "-", "\u2014": "-", "\u00a0": " ",
+    "\u2009": " ", "\u200a": " ", "\u2002": " ", "\u2003": " ", "\u27e8": "(", "\u27e9": ")",
+    "\u00b5": r"\mu ", "\u2061": " ", "\u2062": " ", "\u2063": ",",
+}
+
+_KEEP_ENVS = ("cases", "pmatrix", "bmatrix", "matrix")
+_DROP_ENVS = ("equation", "equation*", "align", "align*", "aligned", "split", "gather", "gather*", "gathered",
+              "eqnarray", "eqnarray*", "multline", "multline*", "array", "alignat", "alignat*", "alignedat",
+              "displaymath", "math")
+
+
+def _unicode(text: str) -> Mapped:
+    out, origin = [], []
+    for i, ch in enumerate(text):
+        if ch in _UNICODE:
+            new = _UNICODE[ch]
+        elif ch in "\n\r\t\f\v":
+            new = "\n" if ch in "\n\r" else " "
+        elif ord(ch) < 128:
+            new = ch if ch.isprintable() else " "
+        else:
+            new = unicodedata.normalize("NFKC", ch)
+            mapped = []
+            for c in new:
+                if c in _UNICODE:
+                    mapped.append(_UNICODE[c])
+                    continue
+                name = unicodedata.name(c, "")
+                if name.startswith("GREEK ") and " LETTER " in name:
+                    word = name.split(" LETTER ")[-1].split()[0].lower()
+                    word = {"lamda": "lambda", "final": "varsigma"}.get(word, word)
+                    if "CAPITAL" in name:
+                        word = word.capitalize()
+                    if word in _GREEK:
+                        mapped.append("\\" + word + " ")
+                        continue
+                if unicodedata.category(c).startswith(("Z", "C")):
+                    mapped.append(" ")
+                    continue
+                mapped.append(c)
+            new = "".join(mapped)
+        out.append(new)
+        origin.extend([i] * len(new))
+    return Mapped("".join(out), origin)
+
+
+def _drop_group_command(m: Mapped, names: str) -> Mapped:
+    """Remove ``\\name{...}`` with its (brace-balanced, one level of nesting) argument."""
+    return m.sub(r"\\(?:" + names + r")\*?\s*\{(?:[^{}]|\{[^{}]*\})*\}", " ")
+
+
+def _bars(m: Mapped) -> Mapped:
+    """Decide which bars open and which close: |x| -> \\lvert x \\rvert, \\|x\\| -> \\lVert x \\rVert."""
+    rx = re.compile(r"\\lVert|\\rVert|\\lvert|\\rvert|\\Vert|\\vert|\\\||\|")
+    out, origin, last, stack = [], [], 0, []
+    text = m.text
+    for match in rx.finditer(text):
+        if match.start() > 0 and text[match.start() - 1] == "\\" and match.group() == "|":
+            continue  # the second character of \|, handled with it
+        out.append(text[last:match.start()])
+        origin.extend(m.origin[last:match.start()])
+        tok = match.group()
+        kind = "norm" if tok in (r"\lVert", r"\rVert", r"\Vert", r"\|") else "abs"
+        if tok in (r"\lVert", r"\lvert"):
+            side = "l"
+        elif tok in (r"\rVert", r"\rvert"):
+            side = "r"
+        else:
+            before = "".join(out).rstrip()
+            operand_end = bool(before) and (before[-1].isalnum() or before[-1] in ")]}'")
+            side = "r" if (stack and stack[-1] == kind and operand_end) else "l"
+        if side == "l":
+            stack.append(kind)
+        elif stack and stack[-1] == kind:
+            stack.pop()
+        new = {("norm", "l"): r"\lVert ", ("norm", "r"): r"\rVert ", ("abs", "l"): r"\lvert ",
+               ("abs", "r"): r"\rvert "}[kind, side]
+        out.append(new)
+        origin.extend([m.origin[match.start()]] * len(new))
+        last = match.end()
+    out.append(text[last:])
+    origin.extend(m.origin[last:])
+    return Mapped("".join(out), origin)
+
+
+_OPEN = re.compile(r"[{(\[]|\\l[Vv]ert|\\lceil|\\lfloor|\\begin(?![A-Za-z])")
+_CLOSE = re.compile(r"[})\]]|\\r[Vv]ert|\\rceil|\\rfloor|\\end(?![A-Za-z])")
+_BIG = re.compile(r"\\(?:sum|prod|o?int)(?![A-Za-z])|\\mathbb\{E\}")
+MAX_BIG_OPERATORS = 16
+
+
+def check_depth(m: Mapped, limit: int = MAX_DEPTH) -> None:
+    """At most ``limit`` nested groups (braces, parentheses, brackets, bars, environments) and at most
+    ``MAX_BIG_OPERATORS`` sums, products, integrals and expectations (each nests what follows it)."""
+    for count, match in enumerate(_BIG.finditer(m.text), start=1):
+        if count > MAX_BIG_OPERATORS:
+            raise NormalizeError(f"more than {MAX_BIG_OPERATORS} sums, products or integrals",
+                                 m.column(match.start()), match.group())
+    depth, i, text = 0, 0, m.text
+    while i < len(text):
+        opened = _OPEN.match(text, i)
+        if opened:
+            depth += 1
+            if depth > limit:
+                raise NormalizeError(f"nested deeper than {limit} groups", m.column(i), opened.group())
+            i = opened.end()
+            continue
+        closed = _CLOSE.match(text, i)
+        if closed:
+            depth = max(0, depth - 1)
+            i = closed.end()
+            continue
+        i += 1
+
+
+def _environments(m: Mapped) -> Mapped:
+    def env(match: re.Match) -> str:
+        name = match.group(2)
+        if name in _KEEP_ENVS:
+            return match.group(0)
+        if name in _DROP_ENVS:
+            return " "
+        raise NormalizeError(f"environment '{name}' is not read", None, match.group(0))
+
+    m = m.sub(r"\\begin\s*\{(?:array|alignat\*?|alignedat|tabular)\}\s*\{[^{}]*\}", " ")
+    try:
+        return m.sub(r"\\(begin|end)\s*\{([A-Za-z*]+)\}", env)
+    except NormalizeError as err:
+        at = m.text.find(err.fragment)
+        raise NormalizeError(err.reason, m.column(at), err.fragment) from None
+
+
+def _split_top(m: Mapped) -> list[Mapped]:
+    """Rows (\\\\) and \\quad-separated pieces at the top level (outside braces, cases and matrices)."""
+    pieces, depth, env, start, i, text = [], 0, 0, 0, 0, m.text
+    while i < len(text):
+        if text.startswith(r"\begin", i):
+            env += 1
+        elif text.startswith(r"\end", i):
+            env = max(0, env - 1)
+        ch = text[i]
+        if ch == "{":
+            depth += 1
+        elif ch == "}":
+            depth = max(0, depth - 1)
+        elif depth == 0 and env == 0:
+            for sep, kind in ((r"\\", "row"), (r"\qquad", "quad"), (r"\quad", "quad")):
+                if text.startswith(sep, i) and not (kind == "quad" and text[i + len(sep):i + len(sep) + 1]
+                                                    .isalpha()):
+                    pieces.append((m.slice(start, i), kind))
+                    start = i + len(sep)
+                    i = start - 1
+                    break
+        i += 1
+    pieces.append((m.slice(start, len(text)), "end"))
+    # a row that begins with a relation continues the equation of the row before it (aligned =)
+    joined: list[Mapped] = []
+    previous_kind = "quad"
+    for piece, kind in pieces:
+        piece = piece.sub(r"&", " ").strip()
+        piece = _strip_punctuation(piece)
+        if not piece.text:
+            previous_kind = kind
+            continue
+        if joined and previous_kind == "row" and re.match(r"(=|\\approx|:=|\\le|\\ge|<|>)", piece.text):
+            last = joined.pop()
+            joined.append(Mapped(last.text + " " + piece.text, last.origin + [piece.origin[0]] + piece.origin))
+        else:
+            joined.append(piece)
+        previous_kind = kind
+    return [chunk for piece in joined for chunk in _top_level_commas(piece)]
+
+
+_RELATION = re.compile(r"(?<![<>\\])=|:=|\\(?:approx|coloneqq|triangleq|doteq|equiv)(?![A-Za-z])")
+
+
+def _top_level_commas(m: Mapped) -> list[Mapped]:
+    """Commas outside every bracket: separators between equations when the chunks are equations
+    (``a = b, c = d``), otherwise lost thin spaces (``T(t),\\sigma(t),\\mathbf{c}(t),dt``)."""
+    cuts, depth, env, text = [], 0, 0, m.text
+    for i, ch in enumerate(text):
+        if text.startswith(r"\begin", i):
+            env += 1
+        elif text.startswith(r"\end", i):
+            env = max(0, env - 1)
+        if ch in "{([" or text.startswith((r"\lVert", r"\lvert", r"\lceil", r"\lfloor"), i):
+            depth += 1
+        elif ch in "})]" or text.startswith((r"\rVert", r"\rvert", r"\rceil", r"\rfloor"), i):
+            depth = max(0, depth - 1)
+        elif ch == "," and depth == 0 and env == 0:
+            cuts.append(i)
+    if not cuts:
+        return [m]
+    bounds = [-1, *cuts, len(text)]
+    chunks = [m.slice(a + 1, b).strip() for a, b in zip(bounds, bounds[1:])]
+    if sum(1 for c in chunks if _RELATION.search(c.text)) >= 2:
+        return [c for c in chunks if c.text]
+    out, origin, last = [], [], 0
+    for cut in cuts:
+        out.append(text[last:cut] + " ")
+        origin.extend(m.origin[last:cut + 1])
+        last = cut + 1
+    out.append(text[last:])
+    origin.extend(m.origin[last:])
+    return [Mapped("".join(out), origin)]
+
+
+def _strip_punctuation(m: Mapped) -> Mapped:
+    m = m.strip()
+    while m.text and m.text[-1] in ".,;:":
+        if m.text.endswith(":="):
+            break
+        m = m.slice(0, len(m.text) - 1).strip()
+    return m
+
+
+def _protect_cases_ampersands(m: Mapped) -> Mapped:
+    """& inside cases/matrices is kept (as \\amp); elsewhere the row splitter drops it."""
+    out, origin, depth, i, text = [], [], 0, 0, m.text
+    while i < len(text):
+        if text.startswith(r"\begin", i):
+            depth += 1
+        elif text.startswith(r"\end", i):
+            depth = max(0, depth - 1)
+        if text[i] == "&" and depth > 0:
+            out.append(r"\amp ")
+            origin.extend([m.origin[i]] * 5)
+        else:
+            out.append(text[i])
+            origin.append(m.origin[i])
+        i += 1
+    return Mapped("".join(out), origin)
+
+
+def normalize(latex: str) -> Normalized:
+    """The pieces (one equation each) of a displayed equation, cleaned; raises NormalizeError."""
+    if len(latex) > MAX_CHARS:
+        raise NormalizeError(f"longer than {MAX_CHARS} characters ({len(latex)})", MAX_CHARS + 1)
+    m = _unicode(latex)
+    m = m.sub(r"(?<!\\)%[^\n]*", " ")
+    m = m.sub(r"\\\\\s*\[[^\]\n]{0,12}\]", r"\\\\ ")  # \\[6pt]
+    m = m.sub(r"(?<![\\A-Za-z0-9])\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]", r"\\\\ ")  # a lost \\ of \\[2pt]
+    m = m.sub(r"(?<!\\)\\[ \t]*\n", r"\\\\ ")  # a backslash ending a line: a lost \\
+    m = m.sub(r"\s+", " ")
+    number = None
+    tag = re.search(r"\\tag\*?\s*\{([^{}]{0,40})\}", m.text)
+    if tag:
+        number = tag.group(1).strip()
+    m = _drop_group_command(m, "tag|label|hspace|vspace|phantom|hphantom|vphantom|mspace")
+    m = m.sub(r"\\(?:nonumber|notag|displaystyle|textstyle|scriptstyle|scriptscriptstyle|limits|nolimits|"
+              r"mathop|mathopen\s*\{\s*\}|mathclose\s*\{\s*\}|mathord|mathbin|mathrel)(?![A-Za-z])", " ")
+    m = m.sub(r"\$+|\\\[|\\\]|\\\(|\\\)", " ")
+    m = _environments(m)
+    m = m.sub(r"\\(?:left|right|middle)\s*\.", " ")
+    m = m.sub(r"\\(?:left|right|middle|[bB]igg?[lrm]?)(?![A-Za-z])", " ")
+    m = m.sub(r"\\(?:qquad|quad)(?![A-Za-z])", r" \\quad ")
+    m = m.sub(r"(?<!\\)\\[,;:!> ]|~|\\(?:kern|mkern|mskip|hskip)\s*-?[0-9.]+\s*(?:pt|em|mu|ex)?", " ")
+    m = m.sub(r"\{\s*\\(cal|rm|bf|it|mathcal|mathrm)\s+([^{}]*)\}",
+              lambda x: {"cal": r"\mathcal{", "mathcal": r"\mathcal{", "rm": r"\mathrm{",
+                         "mathrm": r"\mathrm{"}.get(x.group(1), "{") + x.group(2) + "}")
+    m = m.sub(r"\\(?:mathbf|boldsymbol|pmb|bm|mathbold|bf|vec|mathit|mathnormal|boldmath|textbf|bold)"
+              r"(?![A-Za-z])", " ")
+    m = m.sub(r"\\(?:dfrac|tfrac|cfrac)(?![A-Za-z])", r"\\frac")
+    m = m.sub(r"\\frac\s*([0-9])\s*([0-9])", r"\\frac{\1}{\2}")  # \frac12
+    m = m.sub(r"\\operatorname\*", r"\\operatorname")
+    m = m.sub(r"\\mathbb\s*E(?![A-Za-z])|\\mathbb\s*\{\s*E\s*\}", r"\\mathbb{E}")
+    m = m.sub(r"(?<=[A-Za-z0-9}])\*\s*\{", "_{")  # P*{\mathrm{new}}: a lost _
+    m = m.sub(r"(?<=[A-Za-z})\]])(\s*)!(?=\s*[\\({\[])", r"\1 ")  # \exp!\big(: a lost \!
+    m = _bars(m)
+    check_depth(m)
+    m = _protect_cases_ampersands(m)
+    pieces = _split_top(m)
+    return Normalized([p.sub(r"\\quad", " ") for p in pieces], number)
