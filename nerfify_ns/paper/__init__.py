@@ -10,7 +10,8 @@ from nerfify_ns.paper.document import (
 )
 from nerfify_ns.paper.errors import (
     CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, MissingLatexFileError,
-    NotANerfPaperError, PaperError, ScannedPdfError, UnsafeArchiveError, UnsupportedInputError,
+    NotANerfPaperError, NotEnglishError, OutsidePaperError, PaperError, PaperLimitError, ScannedPdfError,
+    UnsafeArchiveError, UnsupportedInputError,
 )
 from nerfify_ns.paper.hyperparams import extract_from_sentence, extract_hyperparameters, parse_number
 from nerfify_ns.paper.ingest import DEFAULT_LIMITS, Limits, ingest
@@ -19,7 +20,8 @@ from nerfify_ns.paper.topic import nerf_score, require_nerf_paper
 __all__ = [
     "Algorithm", "Caption", "Citation", "CorruptPdfError", "DEFAULT_LIMITS", "Document", "EmptyDocumentError",
     "EncryptedPdfError", "Equation", "Hyperparameter", "InputTooLargeError", "Limits", "Location",
-    "MissingLatexFileError", "NotANerfPaperError", "PaperError", "Paragraph", "Reference", "ResultTable",
+    "MissingLatexFileError", "NotANerfPaperError", "NotEnglishError", "OutsidePaperError", "PaperError",
+    "PaperLimitError", "Paragraph", "Reference", "ResultTable",
     "ScannedPdfError", "Section", "UnsafeArchiveError", "UnsupportedInputError", "clean_markdown",
     "extract_from_sentence", "extract_hyperparameters", "ingest", "key_terms_report", "nerf_score",
     "parse_number", "require_nerf_paper",

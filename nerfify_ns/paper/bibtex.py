@@ -1,15 +1,28 @@
-"""BibTeX (.bib) and .bbl parsing into References."""
+"""BibTeX (.bib) and .bbl parsing into References, linear in the size of the files.
+
+Every scan continues from where the previous one stopped (patterns matched at a position, never on a copy of
+the rest of the text), a value that is never closed ends the parse, and the entries and bytes read are bounded
+by :mod:`nerfify_ns.paper.limits` (``max_bib_entries``, ``max_bib_bytes``).
+"""
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
+from typing import Iterator, Optional
 
 from nerfify_ns.paper.document import Reference
-from nerfify_ns.paper.latex_source import read_group
+from nerfify_ns.paper.errors import PaperLimitError
+from nerfify_ns.paper.latex_source import SourceTree, read_group
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, size_text
 from nerfify_ns.paper.references import ARXIV, DOI, parse_reference
 
 _ENTRY = re.compile(r"@\s*([A-Za-z]+)\s*\{\s*([^,\s]+)\s*,")
+_FIELD = re.compile(r"\s*([A-Za-z_\-]+)\s*=\s*")
+_COMMA = re.compile(r"\s*,")
+_BARE = re.compile(r"[\w.\-]+")
+_QUOTED = re.compile(r'[{}"]')
 
 
 def _value(text: str, i: int) -> tuple[str, int]:
@@ -18,14 +31,15 @@ def _value(text: str, i: int) -> tuple[str, int]:
     if i < len(text) and text[i] == "{":
         return read_group(text, i)
     if i < len(text) and text[i] == '"':
-        j = i + 1
         depth = 0
-        while j < len(text) and not (text[j] == '"' and depth == 0):
-            depth += {"{": 1, "}": -1}.get(text[j], 0)
-            j += 1
-        return text[i + 1:j], j + 1
-    m = re.match(r"[\w.\-]+", text[i:])
-    return (m.group(0), i + m.end()) if m else ("", i)
+        for m in _QUOTED.finditer(text, i + 1):
+            c = m.group()
+            if c == '"' and depth == 0:
+                return text[i + 1:m.start()], m.end()
+            depth += {"{": 1, "}": -1}.get(c, 0)
+        return text[i + 1:], len(text) + 1
+    m = _BARE.match(text, i)
+    return (m.group(0), m.end()) if m else ("", i)
 
 
 def strip_tex(s: str) -> str:
@@ -36,25 +50,37 @@ def strip_tex(s: str) -> str:
     return re.sub(r"\s+", " ", s).strip()
 
 
-def parse_bib(text: str) -> dict[str, Reference]:
-    """Every @entry of a .bib text, by key (@string/@comment/@preamble skipped)."""
-    refs: dict[str, Reference] = {}
+def bib_entries(text: str, max_entries: Optional[int] = None, source: str = "") -> Iterator[tuple[str, dict]]:
+    """(key, fields) of every @entry of a .bib text (@string/@comment/@preamble skipped), in one linear scan;
+    more than ``max_entries`` entries raise PaperLimitError naming ``source``."""
+    pos, n = 0, 0
     for m in _ENTRY.finditer(text):
+        if m.start() < pos:
+            continue  # inside the previous entry's values
         if m.group(1).lower() in ("string", "comment", "preamble"):
             continue
+        n += 1
+        if max_entries is not None and n > max_entries:
+            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} bibliography entries (the "
+                                  "limit); pass the paper's own .bib or .bbl")
         fields, i = {}, m.end()
         while True:
-            f = re.match(r"\s*([A-Za-z_\-]+)\s*=\s*", text[i:])
+            f = _FIELD.match(text, i)
             if not f:
                 break
-            val, i = _value(text, i + f.end())
+            val, i = _value(text, f.end())
             fields[f.group(1).lower()] = val
-            c = re.match(r"\s*,", text[i:])
+            c = _COMMA.match(text, i)
             if not c:
                 break
-            i += c.end()
-        refs[m.group(2)] = _reference(m.group(2), fields)
-    return refs
+            i = c.end()
+        pos = i
+        yield m.group(2), fields
+
+
+def parse_bib(text: str, max_entries: Optional[int] = None, source: str = "") -> dict[str, Reference]:
+    """Every @entry of a .bib text, by key (@string/@comment/@preamble skipped)."""
+    return {key: _reference(key, fields) for key, fields in bib_entries(text, max_entries, source)}
 
 
 def _reference(key: str, fields: dict) -> Reference:
@@ -79,40 +105,83 @@ def _reference(key: str, fields: dict) -> Reference:
                      year=int(year.group(0)) if year else None, venue=venue, arxiv=arxiv, doi=doi)
 
 
-def parse_bbl(text: str) -> list[Reference]:
+def parse_bbl(text: str, max_entries: Optional[int] = None, source: str = "") -> list[Reference]:
     """The \\bibitem entries of a .bbl (or a thebibliography environment)."""
     refs = []
-    items = list(re.finditer(r"\\bibitem\s*(?:\[[^\]]*\])?\s*\{([^}]+)\}", text))
+    items = []
+    for m in re.finditer(r"\\bibitem\s*(?:\[[^\]]{0,2000}\])?\s*\{([^}]{1,2000})\}", text):
+        items.append(m)
+        if max_entries is not None and len(items) > max_entries:
+            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} bibliography entries "
+                                  "(the limit); pass the paper's own .bib or .bbl")
     for n, (m, nxt) in enumerate(zip(items, [*items[1:], None]), start=1):
         body = text[m.end(): nxt.start() if nxt else len(text)]
-        body = body.split("\\end{thebibliography}")[0]
+        body = body.split("\\end{thebibliography}", 1)[0]
         body = re.sub(r"\\newblock\s*", " ", body)
-        body = re.sub(r"\\(?:url|href)\s*\{([^}]*)\}", r" \1 ", body)
+        body = re.sub(r"\\(?:url|href)\s*\{([^}]{0,2000})\}", r" \1 ", body)
         ref = parse_reference(strip_tex(body), key=m.group(1).strip(), index=n)
         refs.append(ref)
     return refs
 
 
-def load_references(folder: Path, main: Path, bib_names: list[str], cited: list[str]) -> list[Reference]:
-    """References of a LaTeX project: the .bbl entries (enriched from .bib), else the cited .bib entries."""
-    bib: dict[str, Reference] = {}
-    files = [folder / (n if n.endswith(".bib") else n + ".bib") for n in bib_names] or sorted(folder.rglob("*.bib"))
-    for f in files:
-        if f.is_file():
-            bib.update(parse_bib(f.read_text(encoding="utf-8", errors="replace")))
+def load_references(tree: SourceTree, main: Path, bib_names: list[str], cited: list[str]) -> list[Reference]:
+    """References of a LaTeX project: the .bbl entries (enriched from .bib), else the cited .bib entries.
+
+    ``\\bibliography{names}`` resolve inside the paper's folder only (``tree``; outside is OutsidePaperError);
+    without names, the folder's .bib files are read. At most ``max_bib_bytes`` and ``max_bib_entries`` in all."""
+    limits = tree.limits
+    budget = _BibBudget(limits)
+    bib: dict[str, dict] = {}
+    if bib_names:
+        files = []
+        for n in bib_names:
+            shown = f"\\bibliography{{{n}}}"
+            found = tree.locate(n if n.endswith(".bib") else n + ".bib", [tree.root, main.parent], shown,
+                                suffixes=("",))
+            if found is not None:
+                files.append((found, shown))
+    else:
+        files = [(f, tree.rel(f)) for f in tree.with_suffix(".bib")]
+    for f, shown in files:
+        text = budget.read(tree, f, shown)
+        for key, fields in bib_entries(text, budget.entries_left(), shown):
+            budget.entries += 1
+            bib[key] = fields
     bbl = main.with_suffix(".bbl")
-    bbls = [bbl] if bbl.is_file() else sorted(folder.rglob("*.bbl"))
+    bbls = [bbl] if os.path.lexists(bbl) else tree.with_suffix(".bbl")
     if bbls:
-        refs = parse_bbl(bbls[0].read_text(encoding="utf-8", errors="replace"))
+        shown = tree.rel(bbls[0])
+        refs = parse_bbl(budget.read(tree, bbls[0], shown), budget.entries_left(), shown)
         for r in refs:
             if r.key in bib:  # the .bib has cleaner fields
-                b = bib[r.key]
+                b = _reference(r.key, bib[r.key])
                 r.title, r.authors = b.title or r.title, b.authors or r.authors
                 r.year, r.venue = b.year or r.year, b.venue or r.venue
                 r.arxiv, r.doi = b.arxiv or r.arxiv, b.doi or r.doi
         return refs
     keys = [k for k in dict.fromkeys(cited) if k in bib] or list(bib)
-    refs = [bib[k] for k in keys]
+    refs = [_reference(k, bib[k]) for k in keys]
     for n, r in enumerate(refs, start=1):
         r.index = n
     return refs
+
+
+class _BibBudget:
+    """Bytes and entries of a paper's bibliography files, all files together."""
+
+    def __init__(self, limits: Limits):
+        self.limits, self.bytes, self.entries = limits, 0, 0
+
+    def read(self, tree: SourceTree, path: Path, shown: str) -> str:
+        left = self.limits.max_bib_bytes - self.bytes
+        try:
+            text = tree.read(path, shown, max(0, left), what="bibliography")
+        except PaperLimitError as e:
+            raise PaperLimitError(f"{shown}: the bibliography files are larger than "
+                                  f"{size_text(self.limits.max_bib_bytes)} (the limit); pass the paper's own .bib "
+                                  "or .bbl") from e
+        self.bytes += len(text)
+        return text
+
+    def entries_left(self) -> int:
+        return self.limits.max_bib_entries - self.entries

@@ -43,3 +43,18 @@ class UnsafeArchiveError(PaperError):
 
 class NotANerfPaperError(PaperError):
     """The document does not look like a NeRF / radiance-field paper."""
+
+
+class PaperLimitError(InputTooLargeError):
+    """Reading the paper went past one of the limits of ``paper/limits.py`` (archive size or files, include depth or
+    count, macro expansion, bibliography, text size); the message names the limit and the file."""
+
+
+class OutsidePaperError(UnsafeArchiveError):
+    """An ``\\input``/``\\include``/``\\subfile``/``\\import``/``\\bibliography`` (or a source file found in the paper's
+    folder) names a file outside the paper's folder or archive: an absolute path, a ``..`` escape, a link that
+    leads out of it, ``/proc``, ``/sys``, ``/dev`` or anything that is not a regular file. Never read."""
+
+
+class NotEnglishError(PaperError):
+    """The paper's text is not in English (another script, or too few common English words)."""

@@ -2,23 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
 
 from nerfify_ns.paper.document import Document
 from nerfify_ns.paper.errors import EmptyDocumentError, InputTooLargeError, UnsupportedInputError
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits
 
-
-@dataclass(frozen=True)
-class Limits:
-    """Refuse inputs beyond these (checked from the file size and page count, never by reading it all)."""
-
-    max_bytes: int = 200 * 1024 * 1024
-    max_pages: int = 300
-
-
-DEFAULT_LIMITS = Limits()
+__all__ = ["DEFAULT_LIMITS", "Limits", "ingest", "input_kind"]
 KINDS = {".pdf": "pdf", ".tex": "latex", ".tgz": "latex", ".tar": "latex", ".gz": "latex",
          ".md": "markdown", ".markdown": "markdown", ".txt": "text", ".text": "text"}
 
@@ -48,7 +39,8 @@ def _check_size(path: Path, limits: Limits) -> None:
 
 
 def ingest(path: Union[str, Path], limits: Optional[Limits] = None) -> Document:
-    """Read a paper into a Document; raises a typed PaperError on anything it cannot use."""
+    """Read a paper into a Document; raises a typed PaperError on anything it cannot use: unreadable, too large
+    (``limits``, see :mod:`nerfify_ns.paper.limits`), reaching outside the paper, not in English, or empty."""
     path = Path(path)
     limits = limits or DEFAULT_LIMITS
     if not path.exists():
@@ -60,16 +52,16 @@ def ingest(path: Union[str, Path], limits: Optional[Limits] = None) -> Document:
         _check_size(path, limits)
     if kind == "pdf":
         from nerfify_ns.paper.pdf import read_pdf
-        doc = read_pdf(path, max_pages=limits.max_pages)
+        doc = read_pdf(path, max_pages=limits.max_pages, limits=limits)
     elif kind == "latex":
         from nerfify_ns.paper.latex import read_latex
-        doc = read_latex(path)
+        doc = read_latex(path, limits)
     elif kind == "markdown":
         from nerfify_ns.paper.markdown import read_markdown
-        doc = read_markdown(path)
+        doc = read_markdown(path, limits)
     else:
         from nerfify_ns.paper.plaintext import read_text
-        doc = read_text(path)
+        doc = read_text(path, limits)
     if not doc.title and not doc.abstract and not any(s.paragraphs for s in doc.sections):
         raise EmptyDocumentError(f"{path.name}: no text found; check that it is the paper")
     return doc

@@ -12,40 +12,49 @@ from nerfify_ns.paper.bibtex import load_references, parse_bbl
 from nerfify_ns.paper.builder import Block, build
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.errors import EmptyDocumentError
+from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.latex_source import (
-    Flat, collect_macros, expand_macros, find_main_file, flatten, read_group, safe_extract,
+    Flat, MacroBudget, SourceTree, collect_macros, expand_macros, find_main_file, flatten, read_group, safe_extract,
 )
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits
 
 MATH_ENVS = ("equation", "align", "eqnarray", "gather", "multline", "displaymath", "flalign", "alignat")
 _ENV = ("abstract", *MATH_ENVS, "figure", "table", "algorithm", "algorithm2e", "thebibliography")
 _TOKEN = re.compile(
-    r"\\(?P<sec>section|subsection|subsubsection|paragraph)(?P<star>\*?)\s*(?:\[[^\]]*\])?\s*(?=\{)"
+    r"\\(?P<sec>section|subsection|subsubsection|paragraph)(?P<star>\*?)\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)"
     r"|\\begin\{(?P<env>(?:" + "|".join(_ENV) + r")\*?)\}"
     r"|(?P<dmath>\\\[|\$\$)|(?P<appendix>\\appendix\b)")
+_LABEL_AFTER = re.compile(r"\s*\\label\s*\{([^}]{0,2000})\}")
+_PARAGRAPH = re.compile(r"(?:[^\n]|\n(?![^\S\n]*\n))+")
+"""A paragraph: text up to a blank line (the lookahead stops at the next line break, so the scan is linear)."""
 _LEVEL = {"section": 1, "subsection": 2, "subsubsection": 3, "paragraph": 4}
 ARCHIVES = (".tar.gz", ".tgz", ".tar")
 
 
-def read_latex(path: Path) -> Document:
-    """Ingest a .tex file, a folder of sources, or a .tar/.tar.gz/.tgz of sources."""
+def read_latex(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
+    """Ingest a .tex file, a folder of sources, or a .tar/.tar.gz/.tgz of sources. Only files inside the
+    paper's folder or archive are read (see :class:`SourceTree`), within ``limits``."""
     if path.is_dir():
-        return _read_tree(find_main_file(path), path, str(path))
+        tree = SourceTree(path, limits)
+        return _read_tree(find_main_file(path, tree), tree, str(path))
     if path.name.lower().endswith(ARCHIVES):
         with tempfile.TemporaryDirectory(prefix="nerfify-tex-") as tmp:
-            root = safe_extract(path, Path(tmp))
-            return _read_tree(find_main_file(root), root, str(path))
-    return _read_tree(path, path.parent, str(path))
+            tree = SourceTree(safe_extract(path, Path(tmp), limits), limits)
+            return _read_tree(find_main_file(tree.root, tree), tree, str(path))
+    tree = SourceTree(path.resolve().parent, limits)
+    return _read_tree(path.resolve(), tree, str(path))
 
 
-def _read_tree(main: Path, root: Path, source: str) -> Document:
-    flat = flatten(main, root)
+def _read_tree(main: Path, tree: SourceTree, source: str) -> Document:
+    flat = flatten(main, tree=tree)
     macros, text = collect_macros(flat.text)
-    parser = _Parser(text, flat, macros)
+    parser = _Parser(text, flat, macros, MacroBudget(tree.limits, Path(source).name))
     blocks = list(parser.blocks())
     if not blocks and not parser.title:
         raise EmptyDocumentError(f"{source}: no text found in the LaTeX sources; check the main file")
+    require_english(prose([Block("title", parser.title), *blocks]), Path(source).name)
     refs = parser.bib_refs if parser.bib_refs is not None else load_references(
-        root, main, parser.bib_names, parser.cited)
+        tree, main, parser.bib_names, parser.cited)
     doc = build(blocks, source=source, kind="latex", references=refs, title=parser.title,
                 authors=parser.authors, cite_keys={r.key for r in refs} | set(parser.cited))
     return doc
@@ -54,8 +63,9 @@ def _read_tree(main: Path, root: Path, source: str) -> Document:
 class _Parser:
     """Walks the flattened source between \\begin{document} and \\end{document}."""
 
-    def __init__(self, text: str, flat: Flat, macros: dict):
+    def __init__(self, text: str, flat: Flat, macros: dict, budget: Optional[MacroBudget] = None):
         self.text, self.flat, self.macros = text, flat, macros
+        self.budget = budget or MacroBudget()
         self.eq_no = self.fig_no = self.tab_no = self.alg_no = 0
         self.sec = [0, 0, 0, 0]
         self.appendix = False
@@ -74,7 +84,7 @@ class _Parser:
         return Location(file=fname, line=line)
 
     def _command_arg(self, name: str) -> str:
-        m = re.search(r"\\" + name + r"\s*(?:\[[^\]]*\])?\s*(?=\{)", self.text)
+        m = re.search(r"\\" + name + r"\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)", self.text)
         return read_group(self.text, m.end())[0] if m else ""
 
     def _authors(self) -> list[str]:
@@ -89,21 +99,21 @@ class _Parser:
         return names
 
     def _expand(self, s: str) -> str:
-        return expand_macros(s, self.macros)
+        return expand_macros(s, self.macros, budget=self.budget)
 
     def _clean(self, s: str) -> str:
         """LaTeX prose to text: macros expanded, citations as [keys], math kept in $...$."""
         s = self._expand(s)
         for cmd in ("cite", "citep", "citet", "citealp", "autocite", "parencite", "textcite", "citeauthor"):
-            s = re.sub(r"\\" + cmd + r"\*?\s*(?:\[[^\]]*\]\s*)*\{([^}]*)\}", self._cite, s)
-        s = re.sub(r"\\(?:eqref)\s*\{([^}]*)\}", lambda m: f"({self.labels.get(m.group(1).strip(), '?')})", s)
-        s = re.sub(r"\\(?:ref|autoref|cref|Cref)\s*\{([^}]*)\}", lambda m: self.labels.get(m.group(1).strip(), "?"), s)
-        s = re.sub(r"\\label\s*\{[^}]*\}", "", s)
-        s = re.sub(r"\\(?:url)\s*\{([^}]*)\}", r"\1", s)
-        s = re.sub(r"\\href\s*\{[^}]*\}\s*\{([^}]*)\}", r"\1", s)
+            s = re.sub(r"\\" + cmd + r"\*?\s*(?:\[[^\]]{0,2000}\]\s*)*\{([^}]{0,2000})\}", self._cite, s)
+        s = re.sub(r"\\(?:eqref)\s*\{([^}]{0,2000})\}", lambda m: f"({self.labels.get(m.group(1).strip(), '?')})", s)
+        s = re.sub(r"\\(?:ref|autoref|cref|Cref)\s*\{([^}]{0,2000})\}", lambda m: self.labels.get(m.group(1).strip(), "?"), s)
+        s = re.sub(r"\\label\s*\{[^}]{0,2000}\}", "", s)
+        s = re.sub(r"\\(?:url)\s*\{([^}]{0,2000})\}", r"\1", s)
+        s = re.sub(r"\\href\s*\{[^}]{0,2000}\}\s*\{([^}]{0,2000})\}", r"\1", s)
         s = re.sub(r"\\footnote\s*\{((?:[^{}]|\{[^{}]*\})*)\}", r" (\1)", s)
         s = re.sub(r"\\(?:begin|end)\s*\{(?:itemize|enumerate|description|center|small|footnotesize)\}", "\n", s)
-        s = re.sub(r"\\item\s*(?:\[([^\]]*)\])?", lambda m: "\n- " + (m.group(1) or ""), s)
+        s = re.sub(r"\\item\s*(?:\[([^\]]{0,2000})\])?", lambda m: "\n- " + (m.group(1) or ""), s)
         segs = re.split(r"(\$[^$]+\$)", s)
         segs = [seg if seg.startswith("$") else self._prose(seg) for seg in segs]
         return re.sub(r"[ \t]+", " ", "".join(segs)).strip()
@@ -120,10 +130,10 @@ class _Parser:
         for _ in range(3):
             s = re.sub(r"\\(?:emph|textbf|textit|texttt|textsc|underline|text|mbox|textrm|textsf|noindent)\s*"
                        r"\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", s)
-        s = re.sub(r"\\(?:noindent|centering|vspace\*?\{[^}]*\}|hspace\*?\{[^}]*\}|medskip|smallskip|bigskip|"
+        s = re.sub(r"\\(?:noindent|centering|vspace\*?\{[^}]{0,2000}\}|hspace\*?\{[^}]{0,2000}\}|medskip|smallskip|bigskip|"
                    r"maketitle|newpage|clearpage|par)\b", " ", s)
-        s = re.sub(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^}]*\}", "", s)
-        s = re.sub(r"\\(?:includegraphics|input)\s*(?:\[[^\]]*\])?\{[^}]*\}", "", s)
+        s = re.sub(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^}]{0,2000}\}", "", s)
+        s = re.sub(r"\\(?:includegraphics|input)\s*(?:\[[^\]]{0,2000}\])?\{[^}]{0,2000}\}", "", s)
         s = re.sub(r"\\[A-Za-z]+\*?", "", s)
         return s.replace("{", "").replace("}", "")
 
@@ -133,7 +143,7 @@ class _Parser:
         start = begin + len("\\begin{document}") if begin >= 0 else 0
         end = self.text.find("\\end{document}")
         end = end if end >= 0 else len(self.text)
-        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^}]*)\}", self.text)
+        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^}]{0,2000})\}", self.text)
                           for n in m.group(1).split(",")]
         out: list[Block] = []
         pos = start
@@ -150,7 +160,7 @@ class _Parser:
         yield from (b for b in out if b.text or b.kind in ("equation", "table", "algorithm"))
 
     def _prose_blocks(self, chunk: str, offset: int) -> Iterator[Block]:
-        for m in re.finditer(r"(?:[^\n]|\n(?!\s*\n))+", chunk):
+        for m in _PARAGRAPH.finditer(chunk):
             para = m.group(0).strip()
             if para and re.search(r"[A-Za-z]{2}", re.sub(r"\\[A-Za-z]+", "", para)):
                 yield Block("para", para, self._loc(offset + m.start()))
@@ -177,19 +187,14 @@ class _Parser:
         return after
 
     def _env_body(self, env: str, start: int) -> tuple[str, int]:
-        close = f"\\end{{{env}}}"
-        depth, i = 1, start
-        opener = f"\\begin{{{env}}}"
-        while depth:
-            nxt_close = self.text.find(close, i)
-            if nxt_close < 0:
-                return self.text[start:], len(self.text)
-            nxt_open = self.text.find(opener, i, nxt_close)
-            if nxt_open >= 0:
-                depth, i = depth + 1, nxt_open + len(opener)
-            else:
-                depth, i = depth - 1, nxt_close + len(close)
-        return self.text[start:i - len(close)], i
+        """The body of the environment opened just before ``start`` (nested ones of the same name kept), and the
+        index after its ``\\end``; an unclosed environment runs to the end. One scan from ``start``."""
+        depth = 1
+        for m in re.compile(r"\\(begin|end)\{" + re.escape(env) + r"\}").finditer(self.text, start):
+            depth += 1 if m.group(1) == "begin" else -1
+            if depth == 0:
+                return self.text[start:m.start()], m.end()
+        return self.text[start:], len(self.text)
 
     def _section(self, m: re.Match, out: list) -> int:
         title, after = read_group(self.text, m.end())
@@ -200,7 +205,7 @@ class _Parser:
             self.sec[level:] = [0] * (4 - level)
             first = chr(ord("A") + self.sec[0] - 1) if self.appendix else str(self.sec[0])
             number = ".".join([first, *map(str, self.sec[1:level])])
-        label = re.match(r"\s*\\label\s*\{([^}]*)\}", self.text[after:])
+        label = _LABEL_AFTER.match(self.text, after)
         if label:
             self.labels[label.group(1).strip()] = number
         out.append(Block("heading", self._clean(title), self._loc(m.start()), level=level, number=number))
@@ -211,14 +216,17 @@ class _Parser:
 
     def _float(self, env: str, body: str, loc: Location) -> Iterator[Block]:
         is_table = env.startswith("table")
-        for cm in re.finditer(r"\\caption\s*(?:\[[^\]]*\])?\s*(?=\{)", body):
+        read = 0
+        for cm in re.finditer(r"\\caption\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)", body):
+            if cm.start() < read:
+                continue  # inside the previous caption (an unclosed one runs to the end of the float)
             if is_table:
                 self.tab_no += 1
             else:
                 self.fig_no += 1
             number = str(self.tab_no if is_table else self.fig_no)
-            caption, _ = read_group(body, cm.end())
-            label = re.search(r"\\label\s*\{([^}]*)\}", body)
+            caption, read = read_group(body, cm.end())
+            label = re.search(r"\\label\s*\{([^}]{0,2000})\}", body)
             if label:
                 self.labels[label.group(1).strip()] = number
             kind = "Table" if is_table else "Figure"
@@ -228,14 +236,14 @@ class _Parser:
             yield Block("table", "", loc, rows=rows, number=str(self.tab_no))
 
     def _tabular_rows(self, body: str) -> list[list[str]]:
-        m = re.search(r"\\begin\{tabular\*?\}\s*(?:\{[^}]*\}\s*)?(?:\{(?:[^{}]|\{[^{}]*\})*\})", body)
+        m = re.search(r"\\begin\{tabular\*?\}\s*(?:\{[^}]{0,2000}\}\s*)?(?:\{(?:[^{}]|\{[^{}]*\})*\})", body)
         if not m:
             return []
         end = body.find("\\end{tabular", m.end())
         content = body[m.end(): end if end >= 0 else len(body)]
-        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^}]*\}|cmidrule(?:\([^)]*\))?\{[^}]*\})", "", content)
-        content = re.sub(r"\\multicolumn\{\d+\}\{[^}]*\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
-        content = re.sub(r"\\multirow\{[^}]*\}\{[^}]*\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^}]{0,2000}\}|cmidrule(?:\([^)]{0,2000}\))?\{[^}]{0,2000}\})", "", content)
+        content = re.sub(r"\\multicolumn\{\d+\}\{[^}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        content = re.sub(r"\\multirow\{[^}]{0,2000}\}\{[^}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
         rows = []
         for row in re.split(r"\\\\", content):
             cells = [self._clean(c).strip() for c in row.split("&")]
@@ -248,13 +256,13 @@ class _Parser:
         self.alg_no += 1
         caption = re.search(r"\\caption\s*(?=\{)", body)
         title = self._clean(read_group(body, caption.end())[0]) if caption else ""
-        label = re.search(r"\\label\s*\{([^}]*)\}", body)
+        label = re.search(r"\\label\s*\{([^}]{0,2000})\}", body)
         if label:
             self.labels[label.group(1).strip()] = str(self.alg_no)
         lines = []
         for raw in re.split(r"\n|\\\\|(?=\\(?:State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|"
                             r"Ensure|Return|Function|EndFunction|Procedure|EndProcedure|KwIn|KwOut)\b)", body):
-            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\]]*\])?", "", raw)
+            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\]]{0,2000}\])?", "", raw)
             kw = re.match(r"\s*\\(State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|Ensure|Return|"
                           r"Function|EndFunction|Procedure|EndProcedure)\b", raw)
             prefix = "" if not kw or kw.group(1) == "State" else kw.group(1).lower() + " "
@@ -276,9 +284,9 @@ class _Parser:
         rows = [body] if base in ("equation", "multline") else _split_rows(body)
         pending: list[str] = []
         for row in rows:
-            label = re.search(r"\\label\s*\{([^}]*)\}", row)
-            tag = re.search(r"\\tag\*?\s*\{([^}]*)\}", row)
-            clean = re.sub(r"\\(?:label|tag\*?)\s*\{[^}]*\}|\\(?:nonumber|notag)\b", "", row).strip()
+            label = re.search(r"\\label\s*\{([^}]{0,2000})\}", row)
+            tag = re.search(r"\\tag\*?\s*\{([^}]{0,2000})\}", row)
+            clean = re.sub(r"\\(?:label|tag\*?)\s*\{[^}]{0,2000}\}|\\(?:nonumber|notag)\b", "", row).strip()
             numbered = not starred and not re.search(r"\\(?:nonumber|notag)\b", row) or tag
             pending.append(clean)
             if not numbered or not clean and not tag:

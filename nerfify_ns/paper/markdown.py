@@ -8,6 +8,8 @@ from typing import Iterator
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
+from nerfify_ns.paper.language import prose, require_english
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, read_text_file
 from nerfify_ns.paper.mathdup import fix_inline, has_duplicated_math, split_display
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
@@ -17,10 +19,11 @@ _NUMERIC_CELL = re.compile(r"^[-−+]?\d+(?:\.\d+)?%?$")
 _LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
 
 
-def read_markdown(path: Path) -> Document:
-    """Ingest a ``.md`` file."""
-    text = path.read_text(encoding="utf-8", errors="replace")
-    return build(markdown_blocks(text), source=str(path), kind="markdown")
+def read_markdown(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
+    """Ingest a ``.md`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
+    blocks = markdown_blocks(read_text_file(path, limits))
+    require_english(prose(blocks), path.name)
+    return build(blocks, source=str(path), kind="markdown")
 
 
 def markdown_blocks(text: str) -> list[Block]:

@@ -10,7 +10,11 @@ from typing import Optional
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
-from nerfify_ns.paper.errors import CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, ScannedPdfError
+from nerfify_ns.paper.errors import (
+    CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, PaperLimitError, ScannedPdfError,
+)
+from nerfify_ns.paper.language import SAMPLE_CHARS, require_english
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits
 from nerfify_ns.paper.plaintext import MATHY, NAMED_HEADING
 from nerfify_ns.paper.references import is_references_heading
 
@@ -60,18 +64,24 @@ def open_pdf(path: Path, max_pages: Optional[int] = None):
     return pdf
 
 
-def read_pdf(path: Path, max_pages: Optional[int] = None) -> Document:
-    """Ingest a PDF."""
+def read_pdf(path: Path, max_pages: Optional[int] = None, limits: Limits = DEFAULT_LIMITS) -> Document:
+    """Ingest a PDF (at most ``limits.max_text_chars`` characters of text; English prose only)."""
     pdf = open_pdf(path, max_pages)
     try:
-        units, images, words = [], 0, {}
+        units, images, words, total = [], 0, {}, 0
         for pno, page in enumerate(pdf, start=1):
             try:
                 page_units = _page_units(page, pno)
                 units.extend(page_units)
+                total += sum(len(u.text) for u in page_units)
+                if total > limits.max_text_chars:
+                    raise PaperLimitError(f"{path.name}: more than {limits.max_text_chars:,} characters of text by "
+                                          f"page {pno} (the limit on a paper's text); pass the paper alone")
                 if any(_table_like(u.text) for u in page_units):
                     words[pno] = page.get_text("words")
                 images += len(page.get_images(full=False))
+            except PaperLimitError:
+                raise
             except Exception as e:
                 raise CorruptPdfError(f"{path.name}: page {pno} cannot be parsed ({e}); re-export the PDF") from e
         chars = sum(len(u.text) for u in units)
@@ -80,6 +90,7 @@ def read_pdf(path: Path, max_pages: Optional[int] = None) -> Document:
                 raise ScannedPdfError(f"{path.name}: pages are images with no text layer (scanned?); "
                                       "run OCR (e.g. ocrmypdf) first or pass the LaTeX/markdown source")
             raise EmptyDocumentError(f"{path.name}: the PDF holds no text; pass a PDF with text or the source")
+        require_english(_sample(units), path.name)  # every unit: a paper in another script may yield no block
         blocks = _to_blocks(units, words)
         meta_title = (pdf.metadata or {}).get("title", "") or ""
         doc = build(blocks, source=str(path), kind="pdf", page_count=pdf.page_count)
@@ -88,6 +99,17 @@ def read_pdf(path: Path, max_pages: Optional[int] = None) -> Document:
         return doc
     finally:
         pdf.close()
+
+
+def _sample(units: list[Unit]) -> str:
+    """The text of the first units, up to the language check's sample size."""
+    parts, n = [], 0
+    for u in units:
+        parts.append(u.text)
+        n += len(parts[-1]) + 1
+        if n >= SAMPLE_CHARS:
+            break
+    return "\n".join(parts)
 
 
 # ----- page layout ------------------------------------------------------------------------------------
