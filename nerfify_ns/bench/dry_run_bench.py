@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from nerfify_ns.bench.ingest_bench import make_two_column_pdf, time_ingest
+from nerfify_ns.interrupts import run_interruptible
 
 TARGET_SECONDS = 10.0
 
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_interruptible(main)

@@ -26,6 +26,7 @@ from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.compose import write_plugin
 from nerfify_ns.synthesis.prune import prune_plan
 from nerfify_ns.synthesis.scene_probe import SceneFacts
+from nerfify_ns.interrupts import run_interruptible
 
 RESULTS = Path("bench-results/grammar-fuzz")
 TINY = {"image_size": (32, 32), "num_images": 12}
@@ -96,4 +97,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_interruptible(main))

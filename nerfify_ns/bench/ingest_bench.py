@@ -12,6 +12,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from nerfify_ns.interrupts import run_interruptible
+
 SENTENCE = ("We render each camera ray with volume rendering of a neural radiance field and optimize the MLP with a "
             "photometric loss, using a batch size of 4096 rays and a learning rate of 5e-4 [{n}]. ")
 
@@ -83,4 +85,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_interruptible(main)

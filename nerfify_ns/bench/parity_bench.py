@@ -34,6 +34,7 @@ from nerfify_ns.synthesis.compose import compose
 from nerfify_ns.synthesis.prune import prune_plan
 from nerfify_ns.synthesis.resources import load_reference_plan
 from nerfify_ns.synthesis.scene_probe import probe_scene
+from nerfify_ns.interrupts import run_interruptible
 
 # Per method: iterations and ray batch that fit a CPU budget (the MLP-only NeRF is ~10 ms per ray), and
 # arguments both sides get (instant-ngp's dynamic batch would otherwise grow to 262,144 samples).
@@ -189,4 +190,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_interruptible(main)

@@ -27,6 +27,8 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from nerfify_ns.interrupts import run_interruptible
+
 CONSOLE = Console(width=120)
 
 # What "stock" leaves on: without these two Nerfstudio cannot start training offline on the CPU.
@@ -148,4 +150,4 @@ def main(args: Args) -> dict:
 
 
 if __name__ == "__main__":
-    main(tyro.cli(Args))
+    run_interruptible(lambda: main(tyro.cli(Args)))

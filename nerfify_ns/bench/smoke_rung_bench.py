@@ -12,6 +12,8 @@ import statistics
 import tempfile
 from pathlib import Path
 
+from nerfify_ns.interrupts import run_interruptible
+
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -57,4 +59,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_interruptible(main)

@@ -20,6 +20,8 @@ import statistics
 import time
 from typing import Callable, Dict, List
 
+from nerfify_ns.interrupts import run_interruptible
+
 
 def build_model(config, seed: int = 0):
     """The model of a method config, built on the CPU from ``seed`` with a [-1.5, 1.5]^3 scene box."""
@@ -111,4 +113,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_interruptible(main)
