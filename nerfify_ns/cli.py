@@ -59,7 +59,7 @@ class ConsoleProgress(Progress):
 
     def start(self, stage: str, label: str, total: Optional[int] = None) -> None:
         self._drop()
-        self.task = self.bars.add_task(label, total=total)
+        self.task = self.bars.add_task(_plain(label), total=total)  # the bar's column renders markup
 
     def advance(self, done: int, total: Optional[int] = None) -> None:
         if self.task is not None:
@@ -67,16 +67,16 @@ class ConsoleProgress(Progress):
 
     def note(self, text: str) -> None:
         if self.task is not None:
-            self.bars.update(self.task, description=text)
+            self.bars.update(self.task, description=_plain(text))
 
     def finish(self, stage: str, summary: str, seconds: float) -> None:
         self._drop()
-        text = rich.markup.escape(f"{stage}: {summary}" if summary else stage)
+        text = _plain(f"{stage}: {summary}" if summary else stage)
         self.console.print(f"[green]done[/green] {text} ({seconds:.1f} s)", soft_wrap=True, highlight=False)
 
     def fail(self, stage: str, reason: str, seconds: float) -> None:
         self._drop()
-        self.console.print(f"[bold red]failed[/bold red] [red]{stage}: {rich.markup.escape(reason)}[/red]",
+        self.console.print(f"[bold red]failed[/bold red] [red]{_plain(f'{stage}: {reason}')}[/red]",
                            soft_wrap=True, highlight=False)
 
     def abandon(self, stage: str) -> None:
@@ -199,23 +199,24 @@ def _conclude(outcome: Outcome, out: Path) -> None:
 
 
 def _print_plan(result) -> None:
-    """The paper's plan: its base and holes; for a dry run also the evidence of every entry and the plan."""
+    """The paper's plan: its base and holes; for a dry run also the evidence of every entry and the plan. Paper
+    text (title, quotes, reasons) is printed as text: markup escaped, control characters shown as escapes."""
     import yaml
 
     derived = result.derived
-    title = rich.markup.escape(str(result.document.title or result.document.source))
-    CONSOLE.print(f"[bold]{title}[/bold]: {rich.markup.escape(f'base {derived.base} ({derived.base_reason})')}",
+    title = _plain(str(result.document.title or result.document.source))
+    CONSOLE.print(f"[bold]{title}[/bold]: {_plain(f'base {derived.base} ({derived.base_reason})')}",
                   highlight=False)
     if result.out is None:
         table = Table(title="evidence", show_lines=False)
         table.add_column("plan entry")
         table.add_column("from")
         for path, line in sorted((result.plan.get("evidence") or {}).items()):
-            table.add_row(path, str(line))
+            table.add_row(_plain(path), _plain(str(line)))
         CONSOLE.print(table)
     for hole in derived.holes:
         text = f"{hole['production']} ({hole['slot']}): not implemented; {hole.get('stands_in', '')}"
-        CONSOLE.print(f"[bold red]hole[/bold red] {rich.markup.escape(text)}", highlight=False)
+        CONSOLE.print(f"[bold red]hole[/bold red] {_plain(text)}", highlight=False)
     if result.out is None:
         CONSOLE.print(yaml.safe_dump(dict(result.plan), sort_keys=False, width=110), highlight=False, markup=False)
 
