@@ -37,6 +37,7 @@ from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import CodePatch, Fixer, default_fixers, record_in_plan
 from nerfify_ns.verify.report import RUNGS, Diagnosis, LadderReport, RungResult
 from nerfify_ns.verify.rungs import PROBE_RUNGS, run_probe, static_ast
+from nerfify_ns.verify.sandbox import Limits
 from nerfify_ns.verify.smoke import smoke_rung
 
 RepairMode = Literal["off", "propose", "apply"]
@@ -56,6 +57,8 @@ class _Settings:
     fixers: List[Fixer]
     max_rounds: int
     on_progress: Optional[ProgressHook] = None
+    limits: Optional[Limits] = None
+    """The sandbox's limits for the probe and the smoke rung (None: the sandbox's defaults)."""
 
 
 @dataclass
@@ -78,12 +81,12 @@ def _round(plugin_dir: Path, work: Path, st: _Settings) -> List[RungResult]:
     rungs = st.rungs
     results: List[RungResult] = []
     if "static" in rungs:
-        ast_result = static_ast(info)
+        ast_result = static_ast(info, work / "static", timeout=st.timeout)
         if not ast_result.ok:
             return [ast_result] + [RungResult(r, "skip", notes=["an earlier rung failed"]) for r in rungs[1:]]
     probe_rungs = [r for r in rungs if r in PROBE_RUNGS]
     if probe_rungs:
-        found = run_probe(info, probe_rungs, work / "probe", timeout=st.timeout)
+        found = run_probe(info, probe_rungs, work / "probe", timeout=st.timeout, limits=st.limits)
         for name in probe_rungs:
             results.append(found.get(name) or RungResult(name, "skip", notes=["an earlier rung failed"]))
         if info.plan is None and "contract" in rungs:
@@ -95,7 +98,7 @@ def _round(plugin_dir: Path, work: Path, st: _Settings) -> List[RungResult]:
         if all(r.status == "pass" for r in results):
             scene = st.scene or _scene(work)
             results.append(smoke_rung(info, scene, work / "smoke", iterations=st.smoke_iterations,
-                                      timeout=st.timeout, on_progress=st.on_progress))
+                                      timeout=st.timeout, on_progress=st.on_progress, limits=st.limits))
         else:
             results.append(RungResult("smoke", "skip", notes=["an earlier rung failed"]))
     return results
@@ -155,13 +158,15 @@ def run_ladder(
     timeout: float = 300,
     fixers: Optional[Sequence[Fixer]] = None,
     on_progress: Optional[ProgressHook] = None,
+    limits: Optional[Limits] = None,
 ) -> LadderReport:
     """Verify the plugin in ``plugin_dir``; the smoke rung trains on ``scene`` (a dataset, or its folder in any
     format :func:`nerfify_ns.dataset.read_dataset` reads; default a generated 32 px scene). Write
     ``verify.json`` (and patches, ``repair.diff``) to ``out_dir`` (default ``PLUGIN/.verify``).
     ``repair``: ``"off"``, ``"propose"`` (repair a scratch copy,
     leave the folder alone) or ``"apply"`` (repair the folder); see the module docstring.
-    ``on_progress(step, total)`` is called while the smoke rung trains."""
+    ``on_progress(step, total)`` is called while the smoke rung trains. ``limits``: the sandbox's limits on each
+    process tree that runs plugin code (memory, processes, open files; default :class:`Limits`)."""
     plugin_dir = Path(plugin_dir).resolve()
     if scene is not None:
         scene = as_dataset(scene)  # a bad dataset is refused before anything is written
@@ -175,11 +180,12 @@ def run_ladder(
     info = load_plugin(plugin_dir)  # NotAPluginError early
     iterations = smoke_iterations_for((info.plan or {}).get("base"), smoke_iterations)
     st = _Settings([r for r in RUNGS if r in rungs], scene, iterations,
-                   timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress)
+                   timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress, limits)
     report = LadderReport(plugin=str(plugin_dir), repair=mode)
     climb = _climb(plugin_dir, out, st, repair=mode == "apply")
     report.rounds, report.rungs, report.patches = climb.rounds, climb.rounds[-1], climb.patches
     report.notes += climb.notes
+    report.notes += _sandbox_notes(report.rungs)
     if mode == "apply" and climb.patches:
         report.diff = combined_diff(climb.originals, plugin_dir)
     if mode == "propose" and not report.ok:
@@ -189,6 +195,16 @@ def run_ladder(
         (out / DIFF_NAME).write_text(report.diff)
     (out / "verify.json").write_text(json.dumps(report.to_dict(), indent=2, default=str))
     return report
+
+
+def _sandbox_notes(results: Sequence[RungResult]) -> List[str]:
+    """A note when plugin code ran with less isolation than bubblewrap gives (the fallback, or none)."""
+    modes = {r.details.get("sandbox", {}).get("mode") for r in results} - {None}
+    weaker = sorted(m for m in modes if m != "bwrap")
+    if not weaker:
+        return []
+    return [f"sandbox: plugin code ran with isolation {', '.join(weaker)}, weaker than bubblewrap (see the README's "
+            "Sandbox section): install bubblewrap and run as root for the full sandbox"]
 
 
 def _copy_ignore(plugin_dir: Path, out: Path) -> Callable[[str, List[str]], set]:

@@ -14,6 +14,7 @@ import ast
 import importlib
 import inspect
 import json
+import os
 import sys
 import traceback
 import warnings
@@ -83,6 +84,7 @@ class Probe:
         self.plan = plan  # the plugin's plan (a nerfify_ns.plan.Plan), None for a hand-written plugin
         self.failed: set = set()
         self.models: Dict[float, object] = {}
+        self.last_rung: Optional[str] = None
 
     def emit(self, **event) -> None:
         self.events.write(json.dumps(event, default=str) + "\n")
@@ -592,10 +594,50 @@ def _base_of(plan) -> Optional[dict]:
     return None
 
 
+def leftover_processes() -> List[str]:
+    """The processes other than ours (and the sandbox's init, pid 1) in the probe's PID namespace: what plugin
+    code started and left running. Only in the ``bwrap`` sandbox, whose PID namespace is the probe's own
+    (elsewhere ``/proc`` shows the whole host); zombies are not counted."""
+    if os.environ.get("NERFIFY_SANDBOX") != "bwrap":
+        return []
+    found = []
+    for entry in sorted(os.listdir("/proc"), key=lambda e: (len(e), e)):
+        if not entry.isdigit() or int(entry) in (1, os.getpid()):
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] in ("Z", "X"):
+                    continue
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                cmd = f.read(300).replace(b"\0", b" ").decode(errors="replace").strip()
+        except (OSError, IndexError):
+            continue
+        found.append(f"pid {entry}: {cmd or '?'}")
+    return found
+
+
+def check_leftovers(probe: Probe, rung: Optional[str]) -> None:
+    """Fail ``rung`` when plugin code left processes running (they die with the sandbox, but it tried)."""
+    found = leftover_processes()
+    if found and rung:
+        probe.diagnose(rung, "processes", f"plugin code left {len(found)} process(es) running when the probe "
+                       f"finished (killed with the sandbox): " + "; ".join(found[:5]) +
+                       (" ..." if len(found) > 5 else ""), processes=len(found))
+
+
 def run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
-    """The rungs in order, each between start and end events; the first that fails ends the run."""
+    """The rungs in order, each between start and end events; the first that fails ends the run; then any
+    process plugin code left running fails the last rung that ran."""
+    try:
+        _run_rungs(probe, info, rungs, suite)
+    finally:
+        check_leftovers(probe, probe.last_rung)
+
+
+def _run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
     spec = None
     for rung in rungs:
+        probe.last_rung = rung
         probe.emit(event="start", rung=rung)
         try:
             if rung == "static":

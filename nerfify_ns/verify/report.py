@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Dict, List, Optional
 
+from nerfify_ns.safetext import clean
+
 RUNGS = ("static", "contract", "stability", "smoke")
 
 
@@ -23,6 +25,23 @@ class Diagnosis:
     data: Dict[str, Any] = field(default_factory=dict)
     """Structured facts the probe reported with it (e.g. ``missing`` / ``extra`` optimiser groups)."""
 
+    MESSAGE_LIMIT = 2000
+    TRACEBACK_LIMIT = 4000
+
+    def __post_init__(self) -> None:
+        """Messages, tracebacks and names often carry text of the plugin's (an exception's message, a log
+        line): control characters escaped and lengths bounded here, once, so no console or report shows
+        them raw."""
+        self.message = clean(self.message, self.MESSAGE_LIMIT)
+        self.traceback = clean(self.traceback or "", self.TRACEBACK_LIMIT, keep="tail")
+        for name in ("file", "component", "case"):
+            value = getattr(self, name)
+            if value is not None:
+                setattr(self, name, clean(value, 300, newlines=False))
+        if not isinstance(self.line, int) or isinstance(self.line, bool):
+            self.line = None
+        self.data = clean_data(self.data)
+
     def where(self) -> str:
         if not self.file:
             return self.component or "-"
@@ -38,6 +57,21 @@ class Diagnosis:
         known = {k: data.get(k) for k in cls.__dataclass_fields__ if k in data and k != "data"}
         extra = {k: v for k, v in data.items() if k not in cls.__dataclass_fields__ and k != "event"}
         return cls(**known, data={**(data.get("data") or {}), **extra})
+
+
+def clean_data(value: Any, depth: int = 0) -> Any:
+    """JSON-like ``value`` from untrusted code with every string cleaned, containers bounded (64 items, 4 deep)."""
+    if isinstance(value, str):
+        return clean(value, 500)
+    if depth >= 4:
+        return clean(repr(value), 200)
+    if isinstance(value, dict):
+        return {clean(k, 100, newlines=False): clean_data(v, depth + 1) for k, v in list(value.items())[:64]}
+    if isinstance(value, (list, tuple)):
+        return [clean_data(v, depth + 1) for v in list(value)[:64]]
+    if value is None or isinstance(value, (bool, int, float)):
+        return value
+    return clean(repr(value), 200)
 
 
 @dataclass

@@ -1,35 +1,65 @@
-"""Run the probe (static, contract, stability rungs) in the sandbox and read its events back."""
+"""Run the probe (static, contract, stability rungs) and the static rung's parsing in the sandbox and read
+their events back. What the sandbox observed (the memory or process limit reached, processes left running)
+fails the rung that was running, naming it."""
 
 from __future__ import annotations
 
 import json
+import signal
 import time
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
 from nerfify_ns.verify.plugin import PluginInfo
-from nerfify_ns.verify.report import Diagnosis, RungResult
-from nerfify_ns.verify.sandbox import python_cmd, run_sandboxed
-from nerfify_ns.verify.static import ast_checks
+from nerfify_ns.verify.report import Diagnosis, RungResult, clean_data
+from nerfify_ns.verify.sandbox import Limits, SandboxResult, python_cmd, run_sandboxed
 
 PROBE_RUNGS = ("static", "contract", "stability")
+PARSE_LIMITS = Limits(memory=2 << 30, pids=32)
+"""The static rung's parser: plain Python on a few files."""
+PARSE_TIMEOUT = 120.0
 
 
-def read_probe_events(path: Path) -> List[dict]:
-    """The probe's JSON-lines events (a line cut off by a crash is skipped)."""
+def read_probe_events(path: Path, max_bytes: int = 64 << 20) -> List[dict]:
+    """The probe's JSON-lines events (a line cut off by a crash is skipped; at most ``max_bytes`` are read)."""
     if not path.exists():
         return []
     events = []
-    for line in path.read_text(errors="replace").splitlines():
+    with open(path, "rb") as f:
+        data = f.read(max_bytes)
+    for line in data.decode("utf-8", errors="replace").splitlines():
         try:
-            events.append(json.loads(line))
-        except ValueError:
-            pass
+            event = json.loads(line)
+        except (ValueError, RecursionError):
+            continue
+        if isinstance(event, dict):
+            events.append(event)
     return events
 
 
+def sandbox_details(result: SandboxResult) -> dict:
+    """What ``verify.json`` records of a sandboxed run: its isolation, limits and what the tree used."""
+    return {"mode": result.mode, "limits": result.limits, "usage": result.usage}
+
+
+def limit_diagnoses(rung: str, result: SandboxResult, left_running: bool = True) -> List[Diagnosis]:
+    """The limits the sandboxed process tree ran into, as failures of ``rung`` (rule ``sandbox-limit``)."""
+    return [Diagnosis(rung, "sandbox-limit", hit) for hit in result.limit_hits(left_running)]
+
+
+def _exit_text(result: SandboxResult) -> str:
+    code = result.returncode
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit {code}"
+
+
 def run_probe(
-    info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan"
+    info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan",
+    limits: Optional[Limits] = None,
 ) -> Dict[str, RungResult]:
     """Probe ``rungs`` in one sandboxed process; a rung it never finished is failed (timeout or crash)."""
     workdir.mkdir(parents=True, exist_ok=True)
@@ -44,6 +74,8 @@ def run_probe(
         workdir,
         timeout=timeout,
         log_name="probe.log",
+        readonly=[info.root] if info else [],
+        limits=limits,
     )
     events = read_probe_events(events_path)
     rungs_out: Dict[str, RungResult] = {}
@@ -62,12 +94,15 @@ def run_probe(
             r.fail(Diagnosis.from_dict(e))
         elif kind in ("case", "component"):
             r.checks += 1
-            r.details.setdefault("cases", []).append(
+            r.details.setdefault("cases", []).append(clean_data(
                 {
                     k: e.get(k)
                     for k in ("component", "implementation", "owner", "case", "status", "problems", "path")
                 }
-            )
+            ))
+    # processes left running: named by the probe itself where it has a PID namespace of its own, else counted
+    left_named = any(d.rule == "processes" for r in rungs_out.values() for d in r.failures)
+    hits = limit_diagnoses("", result, left_running=not left_named)
     for rung in rungs:
         r = rungs_out.get(rung)
         if r is None:
@@ -78,30 +113,61 @@ def run_probe(
                 Diagnosis(
                     rung,
                     "probe",
-                    f"the probe stopped before this rung (exit {result.returncode}):\n" f"{result.tail(12)}",
+                    f"the probe stopped before this rung ({_exit_text(result)}):\n" f"{result.tail(12)}",
                 )
             )
         elif not r.details.get("finished"):
             why = (
                 f"timed out after {timeout:.0f} s (an infinite loop, or far too slow)"
                 if result.timed_out
-                else f"the process died (exit {result.returncode}; memory limit or crash)"
+                else f"the process died ({_exit_text(result)}; memory limit or crash)"
             )
             r.fail(
                 Diagnosis(rung, "timeout" if result.timed_out else "crash", why, traceback=result.tail(15))
             )
         r.details.pop("finished", None)
         r.details["isolation"] = result.isolation
+        r.details["sandbox"] = sandbox_details(result)
+    if hits and rungs_out:  # the limits the tree hit fail the last rung that ran (the one running then)
+        last = list(rungs_out.values())[-1]
+        for d in hits:
+            d.rung = last.name
+            last.fail(d)
     elapsed = time.perf_counter() - start
     for r in rungs_out.values():
         r.seconds = elapsed / max(len(rungs_out), 1)
     return rungs_out
 
 
-def static_ast(info: PluginInfo) -> RungResult:
-    """The in-process part of the static rung (files parse, the entry point exists); no plugin code runs."""
+def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOUT,
+               limits: Optional[Limits] = None) -> RungResult:
+    """The parsing part of the static rung (files parse, the entry point exists), in a sandboxed subprocess
+    with its own limits: a file that exhausts the parser fails the rung naming the file, not our process."""
     r = RungResult("static")
-    for d in ast_checks(info):
-        r.fail(d)
+    workdir.mkdir(parents=True, exist_ok=True)
+    events_path = workdir / "parse.jsonl"
+    events_path.unlink(missing_ok=True)
+    result = run_sandboxed(python_cmd("nerfify_ns.verify.static", str(info.root), str(events_path)), workdir,
+                           timeout=min(timeout, PARSE_TIMEOUT), log_name="parse.log", readonly=[info.root],
+                           limits=limits or PARSE_LIMITS)
+    events = read_probe_events(events_path)
+    parsing = [e.get("file") for e in events if e.get("event") == "parsing"]
+    for e in events:
+        if e.get("event") == "diagnosis":
+            r.fail(Diagnosis.from_dict({**e, "rung": "static"}))
+    if not any(e.get("event") == "end" for e in events):
+        where = parsing[-1] if parsing else None
+        what = f"parsing {where}" if where else "the static check"
+        if result.timed_out:
+            message = f"{what} did not finish within {min(timeout, PARSE_TIMEOUT):.0f} s"
+        else:
+            message = (f"{what} crashed the parser ({_exit_text(result)}): too deeply nested, too large, or "
+                       "beyond the parser's memory limit")
+        r.fail(Diagnosis("static", "syntax", message, where, traceback=result.tail(10)))
+        for d in limit_diagnoses("static", result):
+            r.fail(d)
+    r.details["isolation"] = result.isolation
+    r.details["sandbox"] = sandbox_details(result)
     r.checks = len(info.python_files) + 1
+    r.seconds = result.seconds
     return r

@@ -10,13 +10,14 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
-from nerfify_ns.dataset import DataLike
+from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.runtime.events import LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
                                       progress_poll, train_command)
 from nerfify_ns.verify.plugin import PluginInfo
 from nerfify_ns.verify.report import Diagnosis, RungResult
-from nerfify_ns.verify.sandbox import run_sandboxed
+from nerfify_ns.verify.rungs import limit_diagnoses, sandbox_details
+from nerfify_ns.verify.sandbox import Limits, run_sandboxed
 
 SMOKE_ARGS = [
     "--pipeline.datamanager.train-num-rays-per-batch",
@@ -73,22 +74,26 @@ def smoke_rung(
     timeout: float = 120,
     extra_args: Optional[List[str]] = None,
     on_progress: Optional[ProgressHook] = None,
+    limits: Optional[Limits] = None,
 ) -> RungResult:
     """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` on ``scene`` (a dataset or its folder; the
     dataset's Nerfstudio dataparser) in the sandbox and judge the run."""
     r = RungResult("smoke")
     workdir = Path(workdir).resolve()
     start = time.perf_counter()
+    scene = as_dataset(scene)
     layout = RunLayout(workdir, GENERATED_METHOD, log_name="train.log")
     cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
                         method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
     env = {ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
     result = run_sandboxed(cmd, workdir, timeout=timeout, log_name=layout.log_name, env=env,
-                           poll=progress_poll(layout.run_dir, iterations, on_progress))
+                           poll=progress_poll(layout.run_dir, iterations, on_progress),
+                           readonly=[info.root, scene.root], limits=limits)
     r.seconds = time.perf_counter() - start
     r.details.update(
         {
             "isolation": result.isolation,
+            "sandbox": sandbox_details(result),
             "returncode": result.returncode,
             "wall_s": round(result.seconds, 1),
             "log": str(result.log_path),
@@ -101,6 +106,12 @@ def smoke_rung(
     reached = max(total) + 1 if total else 0
     r.details.update({"iterations": reached, "final_loss": total.get(reached - 1)})
     r.checks = 4
+    hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
+    if hits:
+        for d in hits:
+            d.traceback = result.tail(15)
+            r.fail(d)
+        return r
     if result.timed_out:
         r.fail(
             Diagnosis(

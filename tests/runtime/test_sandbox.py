@@ -1,0 +1,287 @@
+"""The sandbox (nerfify_ns/runtime/sandbox.py) against root-level tricks, with plain Python commands (no torch,
+a fraction of a second each): an unprivileged user with no capability, a read-only root with nothing secret in
+it, no network and no way back to ours, private /tmp and /dev/shm, a minimal /dev that cannot be written, limits
+on the whole process tree (cgroup, else rlimits), no process surviving the run, bounded and escaped output.
+
+Each test states the escape it tries and asserts the state of a canary the test owns (a file outside the run
+folder, a listener, a socket, the host's process table), not only what the sandboxed command printed."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from nerfify_ns.runtime.sandbox import (SANDBOX_UID, Limits, SandboxError, TreeCgroup, _own_cgroups,
+                                        available_modes, run_sandboxed, seccomp_filter)
+
+BWRAP = "bwrap" in available_modes()
+needs_bwrap = pytest.mark.skipif(not BWRAP, reason="needs root and bubblewrap (scripts/setup.sh installs it)")
+needs_unshare = pytest.mark.skipif("unshare" not in available_modes(), reason="needs root and unshare")
+CGROUP = TreeCgroup.create(Limits()) if BWRAP else None
+if CGROUP is not None:
+    CGROUP.remove()
+needs_cgroup = pytest.mark.skipif(CGROUP is None, reason="needs a writable memory and pids cgroup (root)")
+
+
+def run_py(code: str, work: Path, **kw):
+    """Run Python ``code`` sandboxed; its stdout parsed as JSON (the last line), and the result."""
+    r = run_sandboxed([sys.executable, "-c", code], work, timeout=kw.pop("timeout", 60), **kw)
+    lines = r.log_path.read_text(errors="replace").strip().splitlines()
+    try:
+        out = json.loads(lines[-1]) if lines else None
+    except ValueError:
+        out = None
+    return out, r
+
+
+def marker_processes(marker: str) -> list:
+    """Host processes whose command line contains ``marker``."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                cmd = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+            except OSError:
+                continue
+            if marker in cmd:
+                found.append((entry, cmd))
+    return found
+
+
+@needs_bwrap
+def test_unprivileged_user_without_capabilities(tmp_path):
+    code = ("import os, json; st = dict(l.split(':\\t') for l in open('/proc/self/status').read().splitlines() "
+            "if ':\\t' in l); print(json.dumps({'ids': [os.getuid(), os.geteuid(), os.getgid(), os.getgroups()], "
+            "'caps': [st['CapEff'], st['CapPrm'], st['CapBnd'], st['CapInh'], st['CapAmb']], "
+            "'nnp': st['NoNewPrivs'], 'pid': os.getpid(), 'ppid': os.getppid()}))")
+    out, r = run_py(code, tmp_path / "w")
+    assert r.mode == "bwrap" and r.returncode == 0, r.tail()
+    assert out["ids"] == [SANDBOX_UID, SANDBOX_UID, SANDBOX_UID, []]
+    assert set(out["caps"]) == {"0000000000000000"} and out["nnp"] == "1"
+    assert out["pid"] < 10 and out["ppid"] == 1  # a PID namespace of its own
+    for tag in ("bwrap", f"uid-{SANDBOX_UID}", "no-capabilities", "no-new-privs", "no-network", "read-only-fs",
+                "pid-namespace"):
+        assert tag in r.isolation
+
+
+@needs_bwrap
+def test_filesystem_read_only_private_and_without_secrets(tmp_path):
+    outside = tmp_path / "outside.txt"
+    secret = tmp_path / "secret.txt"
+    secret.write_text("canary-secret")
+    home_canary = Path.home() / f".nerfify-canary-{uuid.uuid4().hex[:8]}"
+    host_tmp = f"/tmp/nerfify-canary-{uuid.uuid4().hex[:8]}"
+    dev_canary = f"/dev/nerfify-canary-{uuid.uuid4().hex[:8]}"
+    home_canary.write_text("home")
+    try:
+        code = f"""
+import os, json, subprocess
+res = {{}}
+for p in ["/usr/x", "/etc/x", "/x", "/root/x", {str(outside)!r}, {dev_canary!r}, "/proc/sys/kernel/hostname"]:
+    try:
+        open(p, "w").write("escaped"); res[p] = "wrote"
+    except OSError as e:
+        res[p] = e.errno
+for p in ["/etc/shadow", "/etc/gshadow", "/etc/sudoers", {str(secret)!r}, {str(home_canary)!r}]:
+    res["read " + p] = os.path.exists(p)
+res["remount"] = subprocess.run(["mount", "-o", "remount,rw", "/"], capture_output=True).returncode
+res["root"] = sorted(os.listdir("/root"))
+open("inside.txt", "w").write("ok")
+open({host_tmp!r}, "w").write("tmp")
+open("/dev/shm/x", "w").write("shm")
+print(json.dumps(res))
+"""
+        out, r = run_py(code, tmp_path / "w")
+        assert r.returncode == 0, r.tail()
+        assert not outside.exists() and not Path(dev_canary).exists() and not Path(host_tmp).exists()
+        assert all(v != "wrote" for k, v in out.items() if k.startswith("/")), out
+        assert not any(v for k, v in out.items() if k.startswith("read ")), out
+        assert out["remount"] != 0
+        assert set(out["root"]) <= {".pyenv", ".cache"}, out["root"]  # only what the interpreter needs
+        inside = tmp_path / "w" / "inside.txt"
+        assert inside.read_text() == "ok" and inside.stat().st_uid == os.getuid()  # handed back to us
+    finally:
+        home_canary.unlink(missing_ok=True)
+        Path(dev_canary).unlink(missing_ok=True)
+        Path(host_tmp).unlink(missing_ok=True)
+
+
+@needs_bwrap
+def test_no_network_no_way_back_to_ours(tmp_path):
+    received = []
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(5)
+    server.settimeout(0.2)
+    port = server.getsockname()[1]
+    unix_path = f"/tmp/nerfify-test-{uuid.uuid4().hex[:8]}.sock"
+    unix = socket.socket(socket.AF_UNIX)
+    unix.bind(unix_path)
+    unix.listen(5)
+    unix.settimeout(0.2)
+    stop = threading.Event()
+
+    def accept():
+        while not stop.is_set():
+            for s in (server, unix):
+                try:
+                    conn, _ = s.accept()
+                    received.append(conn.recv(100))
+                    conn.close()
+                except OSError:
+                    pass
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    try:
+        code = f"""
+import ctypes, json, os, socket
+res = {{}}
+libc = ctypes.CDLL(None, use_errno=True)
+for pid in ["1", str(os.getppid()), "self"]:
+    try:
+        fd = os.open(f"/proc/{{pid}}/ns/net", os.O_RDONLY)
+        res["setns " + pid] = libc.setns(fd, 0x40000000) or "joined"
+        res["setns errno " + pid] = ctypes.get_errno()
+    except OSError as e:
+        res["open " + pid] = e.errno
+for addr in [("127.0.0.1", {port}), ("1.1.1.1", 80)]:
+    try:
+        socket.create_connection(addr, timeout=3).sendall(b"escaped"); res[str(addr)] = "connected"
+    except OSError as e:
+        res[str(addr)] = e.errno
+try:
+    u = socket.socket(socket.AF_UNIX); u.connect({unix_path!r}); u.sendall(b"escaped"); res["unix"] = "connected"
+except OSError as e:
+    res["unix"] = e.errno
+print(json.dumps(res))
+"""
+        out, r = run_py(code, tmp_path / "w")
+        time.sleep(0.5)
+    finally:
+        stop.set()
+        thread.join()
+        server.close()
+        unix.close()
+        os.unlink(unix_path)
+    assert r.returncode == 0, r.tail()
+    assert received == [], "a connection reached the test's listener"
+    assert "connected" not in out.values() and "joined" not in out.values(), out
+    assert out["open 1"] == 13  # the sandbox's init is root's: not even its namespace file opens
+
+
+@needs_bwrap
+def test_no_user_namespace_inside(tmp_path):
+    assert seccomp_filter() is not None
+    out, r = run_py("import subprocess, json; print(json.dumps(subprocess.run(['unshare', '-U', '-r', 'true'])"
+                    ".returncode))", tmp_path / "w")
+    assert out != 0 and "seccomp-no-userns" in r.isolation
+
+
+@needs_bwrap
+def test_no_process_outlives_the_run(tmp_path):
+    """setsid children that double-fork, and a command that never ends: none is left on the host."""
+    marker = f"631.{uuid.uuid4().int % 10**6}"
+    daemon = (f"import os, subprocess\nfor _ in range(5):\n    subprocess.Popen(['sh', '-c', 'sleep {marker} & "
+              f"sleep {marker}'], start_new_session=True)\n")
+    r = run_sandboxed([sys.executable, "-c", daemon + "print('started')"], tmp_path / "a", timeout=60)
+    assert r.returncode == 0 and "started" in r.tail()
+    assert marker_processes(marker) == []
+    r = run_sandboxed([sys.executable, "-c", daemon + "while True: pass"], tmp_path / "b", timeout=3)
+    assert r.timed_out and r.seconds < 30
+    assert marker_processes(marker) == []
+
+
+@needs_bwrap
+@needs_cgroup
+def test_memory_limit_binds_the_whole_tree(tmp_path):
+    """Three children of 1 GiB each, the tree limited to 1.5 GiB: the kernel kills some, the peak stays below."""
+    limit = 1536 << 20
+    code = ("import subprocess, sys, json\nps = [subprocess.Popen([sys.executable, '-c', 'b = bytearray(1 << 30); "
+            "import time; time.sleep(3)']) for _ in range(3)]\nprint(json.dumps([p.wait() for p in ps]))")
+    out, r = run_py(code, tmp_path / "w", limits=Limits(memory=limit))
+    assert r.limits["memory_scope"] == "tree" and "cgroup-memory" in r.isolation
+    assert -9 in out and r.usage["oom_kills"] >= 1, (out, r.usage)
+    assert r.usage["peak_memory"] <= limit
+    assert any("memory limit" in hit for hit in r.limit_hits())
+
+
+@needs_bwrap
+@needs_cgroup
+def test_process_limit_binds_the_whole_tree(tmp_path):
+    marker = f"632.{uuid.uuid4().int % 10**6}"
+    code = (f"import subprocess, json\nps = []\ntry:\n    for _ in range(100):\n        ps.append(subprocess.Popen("
+            f"['sleep', '{marker}'], start_new_session=True))\nexcept OSError as e:\n    pass\nprint(len(ps))")
+    out, r = run_py(code, tmp_path / "w", limits=Limits(pids=32))
+    assert out < 32 and r.usage["pids_refused"] >= 1, (out, r.usage)
+    assert any("limit of 32 processes" in hit for hit in r.limit_hits())
+    assert marker_processes(marker) == []
+
+
+@needs_bwrap
+@needs_cgroup
+def test_cgroup_removed_after_the_run(tmp_path):
+    run_py("print(1)", tmp_path / "w")
+    own = _own_cgroups()
+    for controller in ("memory", "pids"):
+        folder = Path(f"/sys/fs/cgroup/{controller}") / own.get(controller, "/").lstrip("/")
+        if folder.is_dir():
+            assert not list(folder.glob(f"nerfify-{os.getpid()}-*"))
+
+
+@needs_bwrap
+def test_rlimit_fallback_binds_the_unprivileged_user(tmp_path):
+    """Without a cgroup: RLIMIT_NPROC binds (the command is not root), RLIMIT_AS per process."""
+    marker = f"633.{uuid.uuid4().int % 10**6}"
+    code = (f"import subprocess, json\nps = []\ntry:\n    for _ in range(100):\n        ps.append(subprocess.Popen("
+            f"['sleep', '{marker}']))\nexcept OSError:\n    pass\ntry:\n    b = bytearray(3 << 30); big = 'allocated'\n"
+            "except MemoryError:\n    big = 'MemoryError'\nprint(json.dumps([len(ps), big]))")
+    out, r = run_py(code, tmp_path / "w", limits=Limits(pids=40, memory=1 << 30, cgroups=False))
+    assert "rlimit-nproc" in r.isolation and "rlimit-as" in r.isolation
+    assert out[0] < 40 and out[1] == "MemoryError", out
+    assert marker_processes(marker) == []
+
+
+@needs_unshare
+def test_unshare_fallback_is_recorded_and_offline(tmp_path):
+    out, r = run_py("import socket, json\ntry:\n    socket.create_connection(('1.1.1.1', 80), timeout=3); n = 'net'\n"
+                    "except OSError as e:\n    n = e.errno\nprint(json.dumps(n))", tmp_path / "w", mode="unshare")
+    assert r.mode == "unshare" and "root-with-capabilities" in r.isolation and "no-network" in r.isolation
+    assert out != "net"
+
+
+def test_no_isolation_still_times_out_and_limits(tmp_path):
+    r = run_sandboxed([sys.executable, "-c", "while True: pass"], tmp_path / "loop", timeout=2, mode="none")
+    assert r.timed_out and r.mode == "none"
+
+
+@needs_bwrap
+def test_environment_secrets_not_passed(tmp_path, monkeypatch):
+    monkeypatch.setenv("SECRET_TOKEN_FOR_TEST", "hunter2")
+    out, r = run_py("import os, json; print(json.dumps(sorted(os.environ)))", tmp_path / "w", env={"EXTRA": "1"})
+    assert "SECRET_TOKEN_FOR_TEST" not in out and "EXTRA" in out and "HOME" in out
+
+
+@needs_bwrap
+def test_output_tail_bounded_and_escaped(tmp_path):
+    code = "import sys\nfor _ in range(200000): sys.stdout.write('\\x1b[2J\\x1b]0;pwned\\x07' + 'x' * 40 + '\\n')"
+    r = run_sandboxed([sys.executable, "-c", code], tmp_path / "w", timeout=60)
+    tail = r.tail(30)
+    assert "\x1b" not in tail and "\x07" not in tail and "\\x1b" in tail
+    assert len(tail) < 30 * 200
+
+
+@needs_bwrap
+def test_unreadable_folder_is_refused(tmp_path):
+    private = tmp_path / "private"
+    private.mkdir(mode=0o700)
+    with pytest.raises(SandboxError, match="not readable by other users"):
+        run_sandboxed([sys.executable, "-c", "pass"], tmp_path / "w", timeout=30, readonly=[private])
