@@ -1,0 +1,55 @@
+"""The equation compiler: a paper's LaTeX -> IR -> a verified torch ``nn.Module`` (issue 12, items 2, 4, 5).
+
+Offline, deterministic, no model. Binding symbols to Nerfstudio quantities and wiring the module into a
+plugin's ``components/`` are the caller's (the binder's) job; this package reads, evaluates, lowers and
+checks.
+
+API::
+
+    from nerfify_ns.equations import parse_equation, interpret, lower, check_lowering
+
+    eq = parse_equation(r"T_i = \\exp\\Big(-\\sum_{j=1}^{i-1} \\sigma_j \\delta_j\\Big)", number="3")
+    # -> Equation(lhs=Symbol('T', index=Index('i')), rhs=Apply('exp', ...), number='3')
+    # or ParseFailure: str(f) == "`\\mathcal{F}` unknown operator at column 12" (never a guess)
+    eqs = parse_equations(block)            # every equation of an aligned block / "where" clause
+
+    interpret(eqs, {"sigma": s, "delta": d})                 # numpy float64 -> {"T": [R, S]}
+    source = lower(eqs, inputs={"sigma": ("R", "S"), "delta": ("R", "S"), "c": ("R", "S", 3)},
+                   outputs=["C"], sizes={"W_gamma": (64, 32), "F": 32}, class_name="VolumeRender")
+    lowered = lower_module(...)              # the source + identifier <-> symbol maps, parameters
+    report = check_lowering(eqs, {"sigma": ("R", "S"), ...}, sizes)   # report.ok, str(report)
+
+Conventions (``shapes.py``): per-ray tensors are ``[R, ...]``, per-sample ``[R, S, ...]``; a sum over
+samples sums dim 1; ``\\sum_{j<i}`` / ``\\prod_{j=1}^{i-1}`` are exclusive cumulative reductions along
+the samples; learned matrices and vectors (``W``, ``b``) come from the caller's ``sizes``; ``delta``
+(``Conventions.step``) is the step between samples, which integrals along the ray use as their
+quadrature. Symbols are keyed as ``Symbol.key``: ``sigma``, ``W_Delta^f``, ``hat C``, ``cal L_recon``,
+``h'_c``.
+
+Modules, in the order of the pipeline:
+    normalize.py   noise of converted papers -> clean LaTeX pieces (columns kept)
+    grammar.lark   the grammar (LALR: linear time)
+    parser.py      parse tree -> IR; ParseFailure with reason and column
+    resolve.py     sample indices, what each sum/product runs over, integral quadratures
+    ir.py          the IR dataclasses; render.py: the IR as one line of text
+    shapes.py      layouts, sizes, parameters, the order equations are evaluated in
+    interpret.py   numpy float64 interpreter (the oracle)
+    naming.py      generated identifiers; lower.py: IR -> nn.Module source
+    check.py       check_lowering: module vs interpreter (rtol 1e-6) and gradcheck
+"""
+
+from .check import CheckReport, check_lowering
+from .interpret import interpret
+from .ir import (Apply, BinOp, Cases, Compare, Concat, Conventions, Equation, Expectation, Index, Integral, Neg,
+                 Norm, Number, ParseFailure, Reduce, Symbol)
+from .lower import Lowered, LoweringError, lower, lower_module
+from .parser import parse_equation, parse_equations, parse_expression
+from .render import show
+from .shapes import CompileError, ParamSpec, ShapeError
+
+__all__ = [
+    "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Concat", "Conventions", "Equation",
+    "Expectation", "Index", "Integral", "Lowered", "LoweringError", "Neg", "Norm", "Number", "ParamSpec",
+    "ParseFailure", "Reduce", "ShapeError", "Symbol", "check_lowering", "interpret", "lower", "lower_module",
+    "parse_equation", "parse_equations", "parse_expression", "show",
+]

@@ -1,0 +1,603 @@
+"""Lower equations (IR) to the readable source of a torch ``nn.Module``.
+
+``lower(equations, inputs, outputs, sizes, class_name)`` -> source text; ``lower_module(...)`` -> ``Lowered``
+(the source plus the map from generated identifiers to the paper's symbols).
+
+* One line (or block, for a finite-range loop) per equation, its number and reading in a comment above it.
+* Inputs: ``{key: layout}`` in forward's argument order (``{"sigma": ("R", "S"), "c": ("R", "S", 3)}``);
+  outputs: keys, returned in that order (one tensor, or a tuple).
+* Learned parameters (keys of ``sizes`` with a shape or ``ParamSpec``) are ``nn.Parameter`` attributes
+  named after their symbols (``W_gamma`` -> ``self.p_w_gamma``); fixed ones are buffers.
+* ``W x``: a 2-D parameter times a vector is ``torch.nn.functional.linear(x, W)``; ``\\odot``, ``\\otimes``,
+  ``\\circ`` and every other product are element-wise; sums over samples are ``torch.sum(..., dim=1)``;
+  ``\\sum_{j<i}`` is an exclusive cumulative sum; ``\\prod_{j<i} \\exp(x_j)`` is ``exp`` of an exclusive
+  cumulative sum (log space: no underflow), any other ``\\prod_{j<i}`` an exclusive cumulative product;
+  a reduction whose body depends on both indices uses a triangular mask.
+* Safety: a paper is untrusted input. Nothing of its text reaches the source except through the IR:
+  identifiers are generated (``naming.py``), numbers are ``repr(float)`` literals, and the paper's
+  notation appears only in comments made safe by ``render.safe_comment`` (one line, a fixed ASCII set,
+  truncated). The module's docstrings are fixed text.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Expr, Integral, Neg, Norm, Number,
+                 ParseFailure, Reduce, Symbol)
+from .naming import Names, class_name_ok
+from .render import safe_comment, show
+from .shapes import (RAY, SAMPLE, CompileError, ParamSpec, ShapeError, check_layout, is_bound_variable, named_sizes,
+                     param_specs, resolve_dims, schedule)
+
+_IMPLICIT = "@S"
+_ATOM, _POW, _UNARY, _MUL, _ADD, _CMP = 100, 8, 7, 6, 5, 3
+
+
+class LoweringError(CompileError):
+    """An equation that cannot be lowered (the message names the equation)."""
+
+
+@dataclass
+class _T:
+    axes: tuple[str, ...]
+    feat: tuple[int, ...]
+
+
+@dataclass
+class _C:
+    code: str
+    prec: int
+    t: _T
+    tensor: bool = True
+
+
+@dataclass
+class Lowered:
+    """The generated module and how its names map to the paper's symbols."""
+
+    source: str
+    class_name: str
+    inputs: list[tuple[str, str, tuple]]        # (key, argument name, layout)
+    outputs: list[tuple[str, str]]              # (key, identifier)
+    params: dict[str, tuple[str, ParamSpec]]    # key -> (attribute, spec)
+    names: dict[str, str] = field(default_factory=dict)  # identifier -> key
+    equations: list[str] = field(default_factory=list)   # numbers of the equations compiled, in order
+
+
+PRELUDE = '''import math
+
+import torch
+from torch import nn
+
+
+def _exclusive_cumsum(x, dim):
+    """The sum over the samples before each sample along dim (0 for the first)."""
+    n = x.shape[dim]
+    parts = [torch.zeros_like(x.narrow(dim, 0, 1)), torch.cumsum(x, dim).narrow(dim, 0, n - 1)]
+    return torch.cat(parts, dim)
+
+
+def _exclusive_cumprod(x, dim):
+    """The product over the samples before each sample along dim (1 for the first)."""
+    n = x.shape[dim]
+    return torch.cumprod(torch.cat([torch.ones_like(x.narrow(dim, 0, 1)), x.narrow(dim, 0, n - 1)], dim), dim)
+
+
+def _before_mask(n, inclusive, like):
+    """mask[i, j]: sample j comes before sample i (or is i, when inclusive)."""
+    return torch.ones(n, n, dtype=torch.bool, device=like.device).tril(0 if inclusive else -1)
+
+
+def _cat_features(*xs):
+    """Concatenate along the last (feature) dimension, broadcasting the others; numbers become features."""
+    ref = next(x for x in xs if torch.is_tensor(x))
+    xs = [x if torch.is_tensor(x) else torch.full(ref.shape[:-1] + (1,), x, dtype=ref.dtype, device=ref.device)
+          for x in xs]
+    shape = torch.broadcast_shapes(*[x.shape[:-1] for x in xs])
+    return torch.cat([x.expand(*shape, x.shape[-1]) for x in xs], dim=-1)
+'''
+
+_TORCH_UNARY = {"exp": "torch.exp", "log": "torch.log", "sin": "torch.sin", "cos": "torch.cos", "tan": "torch.tan",
+                "tanh": "torch.tanh", "sigmoid": "torch.sigmoid", "relu": "torch.relu",
+                "softplus": "torch.nn.functional.softplus", "abs": "torch.abs", "sqrt": "torch.sqrt",
+                "ceil": "torch.ceil", "floor": "torch.floor"}
+_MATH_UNARY = {"exp": "math.exp", "log": "math.log", "sin": "math.sin", "cos": "math.cos", "tan": "math.tan",
+               "tanh": "math.tanh", "abs": "abs", "sqrt": "math.sqrt", "ceil": "math.ceil", "floor": "math.floor"}
+
+
+def _paren(c: _C, prec: int) -> str:
+    return c.code if c.prec >= prec else f"({c.code})"
+
+
+def _broadcast(a: tuple[int, ...], b: tuple[int, ...], where: str) -> tuple[int, ...]:
+    n = max(len(a), len(b))
+    a, b = (1,) * (n - len(a)) + a, (1,) * (n - len(b)) + b
+    out = []
+    for x, y in zip(a, b):
+        if x != y and 1 not in (x, y):
+            raise ShapeError(f"{where}: feature shapes {a} and {b} do not combine")
+        out.append(max(x, y))
+    return tuple(out)
+
+
+class _Lower:
+    def __init__(self, names: Names, env: dict[str, tuple[str, _T, bool]], sizes: dict, ref: str | None,
+                 sample_ref: str | None, ray_ref: str | None):
+        self.names, self.env, self.sizes = names, env, sizes
+        self.ref, self.sample_ref, self.ray_ref = ref, sample_ref, ray_ref
+        self.order: list[str] = [RAY]
+        self.sample_vars: list[str] = []
+        self.loop_vars: dict[str, str] = {}
+        self.pre: list[str] = []
+        self.indent = 0
+        self.uses_n_samples = self.uses_n_rays = False
+        self.where = ""
+
+    # --- helpers -------------------------------------------------------------------------------------------
+    def _rank(self, axis: str) -> int:
+        return self.order.index(axis) if axis in self.order else len(self.order)
+
+    def _sorted(self, axes) -> tuple[str, ...]:
+        return tuple(sorted(set(axes), key=self._rank))
+
+    def aligned(self, c: _C, axes: tuple[str, ...], fr: int) -> _C:
+        """c indexed so that it broadcasts against the target batch axes and feature rank."""
+        if not c.tensor:
+            return c
+        idx = [":" if a in c.t.axes else "None" for a in axes] + ["None"] * (fr - len(c.t.feat)) \
+            + [":"] * len(c.t.feat)
+        while idx and idx[-1] == ":":
+            idx.pop()
+        while idx and idx[0] == "None":
+            idx.pop(0)  # leading new axes: broadcasting adds them
+        if not idx:
+            return c
+        return _C(f"{_paren(c, _ATOM)}[{', '.join(idx)}]", _ATOM, c.t, True)
+
+    def align(self, c: _C, axes: tuple[str, ...], fr: int, prec: int = 0) -> str:
+        """The aligned code, parenthesised to bind at least as tightly as ``prec`` (an argument: none)."""
+        return _paren(self.aligned(c, axes, fr), prec)
+
+    def _joint(self, *cs: _C) -> tuple[tuple[str, ...], int, tuple[int, ...]]:
+        axes = self._sorted(a for c in cs for a in c.t.axes)
+        feat: tuple[int, ...] = ()
+        for c in cs:
+            feat = _broadcast(feat, c.t.feat, self.where)
+        return axes, len(feat), feat
+
+    def _n_samples(self) -> str:
+        if self.sample_ref is None:
+            raise LoweringError(f"{self.where}: a reduction over samples without any per-sample input")
+        self.uses_n_samples = True
+        return "n_samples"
+
+    def _emit(self, line: str) -> None:
+        self.pre.append("    " * self.indent + line)
+
+    # --- nodes ---------------------------------------------------------------------------------------------
+    def lo(self, e: Expr) -> _C:
+        if isinstance(e, Number):
+            if not math.isfinite(e.value):
+                raise LoweringError(f"{self.where}: a non-finite number")
+            text = repr(float(e.value))
+            return _C(text, _ATOM if e.value >= 0 else _UNARY, _T((), ()), False)
+        if isinstance(e, Symbol):
+            return self.symbol(e)
+        if isinstance(e, Neg):
+            c = self.lo(e.arg)
+            return _C(f"-{_paren(c, _POW)}", _UNARY, c.t, c.tensor)
+        if isinstance(e, BinOp):
+            return self.binop(e)
+        if isinstance(e, Apply):
+            return self.apply(e)
+        if isinstance(e, Compare):
+            op = {"<": "<", "<=": "<=", ">": ">", ">=": ">=", "==": "==", "!=": "!="}.get(e.op)
+            if op is None:
+                raise LoweringError(f"{self.where}: the condition '{e.op}' is not lowered")
+            a, b = self.lo(e.left), self.lo(e.right)
+            axes, fr, feat = self._joint(a, b)
+            return _C(f"{self.align(a, axes, fr, _ADD)} {op} {self.align(b, axes, fr, _ADD)}", _CMP, _T(axes, feat),
+                      a.tensor or b.tensor)
+        if isinstance(e, Norm):
+            return self.norm(e)
+        if isinstance(e, Concat):
+            return self.concat(e)
+        if isinstance(e, Cases):
+            return self.cases(e)
+        if isinstance(e, Expectation):
+            c = self.lo(e.body)
+            if RAY not in c.t.axes:
+                return c
+            dim = c.t.axes.index(RAY)
+            return _C(f"torch.mean({c.code}, dim={dim})", _ATOM, _T(tuple(a for a in c.t.axes if a != RAY), c.t.feat))
+        if isinstance(e, Reduce):
+            return self.reduce(e)
+        if isinstance(e, Integral):
+            if e.quadrature is None:
+                raise LoweringError(f"{self.where}: an integral without its quadrature (not resolved)")
+            return self.lo(e.quadrature)
+        raise LoweringError(f"{self.where}: cannot lower {type(e).__name__}")
+
+    def symbol(self, s: Symbol) -> _C:
+        if is_bound_variable(s) and s.name in self.loop_vars:
+            return _C(f"float({self.loop_vars[s.name]})", _ATOM, _T((), ()), False)
+        key = s.key
+        if key not in self.env:
+            named = named_sizes(self.sizes)
+            if key in named and s.index is None:
+                return _C(repr(float(named[key])), _ATOM, _T((), ()), False)
+            raise LoweringError(f"{self.where}: '{safe_comment(key, 60)}' is neither an input, a parameter nor "
+                                "defined earlier")
+        ident, t, tensor = self.env[key]
+        if SAMPLE not in t.axes:
+            if s.index is not None and not is_bound_variable(s):
+                raise ShapeError(f"{self.where}: '{safe_comment(key, 60)}' is used with a sample index but has no "
+                                 "sample axis")
+            return _C(ident, _ATOM, t, tensor)
+        if s.index is not None and s.index.offset:
+            raise LoweringError(f"{self.where}: a shifted sample index ({safe_comment(key, 40)}) is not lowered")
+        var = s.index.var if s.index is not None else (self.sample_vars[-1] if self.sample_vars else _IMPLICIT)
+        if var not in self.order:
+            self.order.append(var)
+        return _C(ident, _ATOM, _T(tuple(var if a == SAMPLE else a for a in t.axes), t.feat), tensor)
+
+    def binop(self, e: BinOp) -> _C:
+        if (e.op == "^" and isinstance(e.left, Norm) and e.left.order == 2 and isinstance(e.right, Number)
+                and e.right.value == 2.0):
+            x = self.lo(e.left.arg)  # ||x||^2: the sum of squares (no square root)
+            if not x.t.feat:
+                return _C(f"{_paren(x, _POW + 1)} ** 2", _POW, x.t, x.tensor)
+            return _C(f"torch.sum({x.code} ** 2, dim=-1)" if x.prec > _POW else f"torch.sum(({x.code}) ** 2, dim=-1)",
+                      _ATOM, _T(x.t.axes, x.t.feat[:-1]))
+        a, b = self.lo(e.left), self.lo(e.right)
+        if e.op == "*" and a.tensor and not a.t.axes and len(a.t.feat) == 2:
+            if not b.t.feat or b.t.feat[-1] != a.t.feat[1]:
+                raise ShapeError(f"{self.where}: a matrix {a.t.feat} times a value with features {b.t.feat}")
+            return _C(f"torch.nn.functional.linear({b.code}, {a.code})", _ATOM,
+                      _T(b.t.axes, b.t.feat[:-1] + (a.t.feat[0],)))
+        if e.op == "*" and b.tensor and not b.t.axes and len(b.t.feat) == 2 and a.t.feat:
+            raise ShapeError(f"{self.where}: a matrix on the right of a product (x W) is not read")
+        axes, fr, feat = self._joint(a, b)
+        op, prec = {"+": ("+", _ADD), "-": ("-", _ADD), "*": ("*", _MUL), "odot": ("*", _MUL), "/": ("/", _MUL),
+                    "^": ("**", _POW)}[e.op]
+        left_prec = prec + 1 if e.op == "^" else prec
+        right_prec = prec + 1 if e.op in ("-", "/") else (prec if e.op != "^" else _UNARY)
+        la, rb = self.align(a, axes, fr, left_prec), self.align(b, axes, fr, right_prec)
+        return _C(f"{la} {op} {rb}", prec, _T(axes, feat), a.tensor or b.tensor)
+
+    def apply(self, e: Apply) -> _C:
+        args = [self.lo(a) for a in e.args]
+        f = e.func
+        if f in _TORCH_UNARY or f in ("sigmoid", "relu", "softplus", "stopgrad"):
+            x = args[0]
+            if not x.tensor:
+                scalar = {"sigmoid": f"1.0 / (1.0 + math.exp(-{_paren(x, _POW)}))",
+                          "relu": f"max({x.code}, 0.0)", "softplus": f"math.log1p(math.exp({x.code}))",
+                          "stopgrad": x.code}
+                if f in scalar:
+                    return _C(scalar[f], _MUL if f == "sigmoid" else _ATOM, x.t, False)
+                return _C(f"{_MATH_UNARY[f]}({x.code})", _ATOM, x.t, False)
+            if f == "stopgrad":
+                return _C(f"{_paren(x, _ATOM)}.detach()", _ATOM, x.t)
+            return _C(f"{_TORCH_UNARY[f]}({x.code})", _ATOM, x.t)
+        if f in ("min", "max"):
+            a, b = args
+            if not a.tensor and not b.tensor:
+                return _C(f"{f}({a.code}, {b.code})", _ATOM, a.t, False)
+            if not a.tensor or not b.tensor:
+                tensor, number = (a, b) if a.tensor else (b, a)
+                bound = "max" if f == "min" else "min"
+                return _C(f"torch.clamp({tensor.code}, {bound}={number.code})", _ATOM, tensor.t)
+            axes, fr, feat = self._joint(a, b)
+            fn = "torch.minimum" if f == "min" else "torch.maximum"
+            return _C(f"{fn}({self.align(a, axes, fr)}, {self.align(b, axes, fr)})", _ATOM, _T(axes, feat))
+        if f == "clamp":
+            x, lo, hi = args
+            if not lo.tensor and not hi.tensor:
+                if not x.tensor:
+                    return _C(f"min(max({x.code}, {lo.code}), {hi.code})", _ATOM, x.t, False)
+                return _C(f"torch.clamp({x.code}, {lo.code}, {hi.code})", _ATOM, x.t)
+            axes, fr, feat = self._joint(x, lo, hi)
+            inner = f"torch.maximum({self.align(x, axes, fr)}, {self.align(lo, axes, fr)})"
+            return _C(f"torch.minimum({inner}, {self.align(hi, axes, fr)})", _ATOM, _T(axes, feat))
+        if f == "mse":
+            a, b = args
+            axes, fr, _ = self._joint(a, b)
+            return _C(f"torch.mean(({self.align(a, axes, fr, _ADD)} - {self.align(b, axes, fr, _ADD + 1)}) ** 2)",
+                      _ATOM, _T((), ()))
+        raise LoweringError(f"{self.where}: the function {f} is not lowered")
+
+    def norm(self, e: Norm) -> _C:
+        x = self.lo(e.arg)
+        if not x.t.feat:
+            return _C(f"torch.abs({x.code})", _ATOM, x.t, x.tensor) if x.tensor else _C(f"abs({x.code})", _ATOM,
+                                                                                         x.t, False)
+        t = _T(x.t.axes, x.t.feat[:-1])
+        if e.order == 2:
+            return _C(f"torch.linalg.vector_norm({x.code}, dim=-1)", _ATOM, t)
+        if e.order == 1:
+            return _C(f"torch.sum(torch.abs({x.code}), dim=-1)", _ATOM, t)
+        return _C(f"torch.amax(torch.abs({x.code}), dim=-1)", _ATOM, t)
+
+    def concat(self, e: Concat) -> _C:
+        items = [self.lo(item) for item in e.items]
+        if not any(c.tensor for c in items):
+            raise LoweringError(f"{self.where}: a concatenation of numbers only")
+        for c in items:
+            if len(c.t.feat) > 1:
+                raise ShapeError(f"{self.where}: concatenating a value with features {c.t.feat}")
+        axes = self._sorted(a for c in items for a in c.t.axes)
+        parts, width = [], 0
+        for c in items:
+            if not c.tensor:
+                parts.append(c.code)
+                width += 1
+                continue
+            aligned = self.aligned(c, axes, len(c.t.feat))
+            parts.append(aligned.code if c.t.feat else f"{_paren(aligned, _ATOM)}[..., None]")
+            width += c.t.feat[0] if c.t.feat else 1
+        return _C(f"_cat_features({', '.join(parts)})", _ATOM, _T(axes, (width,)))
+
+    def cases(self, e: Cases) -> _C:
+        values = [self.lo(v) for v, _ in e.branches]
+        conds = [self.lo(c) for _, c in e.branches if c is not None]
+        if e.branches[-1][1] is not None:
+            raise LoweringError(f"{self.where}: cases without 'otherwise' are not lowered")
+        axes, fr, feat = self._joint(*values, *conds)
+        code = self.align(values[-1], axes, fr)
+        for value, cond in zip(reversed(values[:-1]), reversed(conds)):
+            code = f"torch.where({self.align(cond, axes, fr)}, {self.align(value, axes, fr)}, {code})"
+        if not any(v.tensor for v in values) and not any(c.tensor for c in conds):
+            raise LoweringError(f"{self.where}: cases of numbers only")
+        return _C(code, _ATOM, _T(axes, feat))
+
+    def reduce(self, r: Reduce) -> _C:
+        fn = "torch.sum" if r.kind == "sum" else "torch.prod"
+        if r.axis == "range":
+            return self._range(r)
+        if r.axis == "rays":
+            c = self.lo(r.body)
+            if RAY not in c.t.axes:
+                if self.ray_ref is None:
+                    raise LoweringError(f"{self.where}: a sum over rays without any per-ray input")
+                self.uses_n_rays = True
+                op = "*" if r.kind == "sum" else "**"
+                return _C(f"{_paren(c, _POW + 1)} {op} n_rays", _MUL if op == "*" else _POW, c.t, c.tensor)
+            dim = c.t.axes.index(RAY)
+            return _C(f"{fn}({c.code}, dim={dim})", _ATOM, _T(tuple(a for a in c.t.axes if a != RAY), c.t.feat))
+        v = r.index
+        if v not in self.order:
+            self.order.append(v)
+        self.sample_vars.append(v)
+        try:
+            body = self.lo(r.body)
+        finally:
+            self.sample_vars.pop()
+        if v not in body.t.axes:
+            if r.mode != "full":
+                raise LoweringError(f"{self.where}: a cumulative reduction of a value that does not depend on the "
+                                    "samples")
+            n = self._n_samples()
+            op = "*" if r.kind == "sum" else "**"
+            return _C(f"{_paren(body, _POW + 1)} {op} {n}", _MUL if op == "*" else _POW, body.t, body.tensor)
+        dim = body.t.axes.index(v)
+        rest = tuple(a for a in body.t.axes if a != v)
+        if r.mode == "full":
+            return _C(f"{fn}({body.code}, dim={dim})", _ATOM, _T(rest, body.t.feat))
+        u = r.outer
+        if u not in self.order:
+            self.order.append(u)
+        inclusive = r.mode == "inclusive"
+        if u not in body.t.axes:
+            if r.kind == "sum":
+                code = f"torch.cumsum({body.code}, dim={dim})" if inclusive else \
+                    f"_exclusive_cumsum({body.code}, dim={dim})"
+            elif isinstance(r.body, Apply) and r.body.func == "exp":
+                inner = self.lo_in_scope(r.body.args[0], v)
+                code = f"torch.exp(torch.cumsum({inner.code}, dim={dim}))" if inclusive else \
+                    f"torch.exp(_exclusive_cumsum({inner.code}, dim={dim}))"
+            else:
+                code = f"torch.cumprod({body.code}, dim={dim})" if inclusive else \
+                    f"_exclusive_cumprod({body.code}, dim={dim})"
+            renamed = tuple(u if a == v else a for a in body.t.axes)
+            target = self._sorted(renamed)
+            if renamed != target:
+                perm = [renamed.index(a) for a in target] + [len(renamed) + k for k in range(len(body.t.feat))]
+                code = f"{code}.permute({', '.join(str(p) for p in perm)})"
+            return _C(code, _ATOM, _T(target, body.t.feat))
+        n = self._n_samples()
+        mask = _C(f"_before_mask({n}, {inclusive}, {self.ref})", _ATOM, _T(self._sorted((u, v)), ()))
+        axes = self._sorted(body.t.axes + (u,))
+        fr = len(body.t.feat)
+        b, m = self.align(body, axes, fr), self.align(mask, axes, fr, _MUL + 1)
+        dim = axes.index(v)
+        rest = tuple(a for a in axes if a != v)
+        if r.kind == "sum":
+            return _C(f"torch.sum({self.align(body, axes, fr, _MUL)} * {m}, dim={dim})", _ATOM, _T(rest, body.t.feat))
+        return _C(f"torch.prod(torch.where({m}, {b}, 1.0), dim={dim})", _ATOM, _T(rest, body.t.feat))
+
+    def lo_in_scope(self, e: Expr, var: str) -> _C:
+        self.sample_vars.append(var)
+        try:
+            return self.lo(e)
+        finally:
+            self.sample_vars.pop()
+
+    def _static_int(self, e: Expr) -> int:
+        if isinstance(e, Number):
+            value = e.value
+        elif isinstance(e, Symbol) and e.key in named_sizes(self.sizes):
+            value = named_sizes(self.sizes)[e.key]
+        elif isinstance(e, Neg):
+            value = -self._static_int(e.arg)
+        elif isinstance(e, BinOp) and e.op in "+-*":
+            a, b = self._static_int(e.left), self._static_int(e.right)
+            value = a + b if e.op == "+" else (a - b if e.op == "-" else a * b)
+        else:
+            raise LoweringError(f"{self.where}: a range limit that is not a number or a size ({safe_comment(show(e), 40)})")
+        if value != int(value):
+            raise LoweringError(f"{self.where}: a range limit that is not an integer")
+        return int(value)
+
+    def _range(self, r: Reduce) -> _C:
+        lo, hi = self._static_int(r.lower), self._static_int(r.upper)
+        if hi - lo + 1 > 4096:
+            raise LoweringError(f"{self.where}: a range of more than 4096 terms")
+        acc = self.names.fresh("acc", r.kind)
+        loop = self.names.fresh("k", r.index)
+        self._emit(f"{acc} = {0.0 if r.kind == 'sum' else 1.0}")
+        self._emit(f"for {loop} in range({lo}, {hi + 1}):")
+        self.loop_vars[r.index] = loop
+        self.indent += 1
+        try:
+            body = self.lo(r.body)
+            op = "+" if r.kind == "sum" else "*"
+            self._emit(f"{acc} = {acc} {op} {_paren(body, _MUL + 1)}")
+        finally:
+            self.indent -= 1
+            self.loop_vars.pop(r.index, None)
+        return _C(acc, _ATOM, body.t, body.tensor)
+
+
+def _as_equations(ir) -> list[Equation]:
+    items = ir if isinstance(ir, (list, tuple)) else [ir]
+    for item in items:
+        if isinstance(item, ParseFailure):
+            raise LoweringError(f"an equation that was not read: {item}")
+        if not isinstance(item, Equation):
+            raise LoweringError(f"not an equation: {type(item).__name__}")
+    return list(items)
+
+
+def _dims_text(dims) -> str:
+    return "[" + ", ".join(safe_comment(str(d), 12) for d in dims) + "]"
+
+
+def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None = None,
+                 class_name: str = "CompiledEquations") -> Lowered:
+    """Lower equations to an nn.Module's source (see the module docstring); raises LoweringError/ShapeError."""
+    equations = _as_equations(equations)
+    sizes = dict(sizes or {})
+    if not class_name_ok(class_name):
+        raise LoweringError("the class name must be a CamelCase identifier of letters and digits")
+    inputs = dict(inputs.items() if isinstance(inputs, dict) else inputs)
+    params = param_specs(sizes)
+    names = Names()
+    env: dict[str, tuple[str, _T, bool]] = {}
+    input_rows = []
+    for key, dims in inputs.items():
+        dims = tuple(dims)
+        check_layout(key, dims)
+        feat = resolve_dims(tuple(d for d in dims if d not in (RAY, SAMPLE)), sizes)
+        ident = names.get("v", key)
+        env[key] = (ident, _T(tuple(d for d in dims if d in (RAY, SAMPLE)), feat), True)
+        input_rows.append((key, ident, dims))
+    param_rows = {}
+    for key, spec in params.items():
+        if key in env:
+            raise LoweringError(f"'{safe_comment(key, 40)}' is both an input and a parameter")
+        attr = names.get("p", key)
+        env[key] = (f"self.{attr}", _T((), tuple(spec.shape)), True)
+        param_rows[key] = (attr, spec)
+    order = schedule(equations, list(outputs), set(env) | set(named_sizes(sizes)))
+    first = input_rows[0][1] if input_rows else None
+    sample_ref = next((ident for key, ident, dims in input_rows if SAMPLE in dims), None)
+    ray_ref = next((ident for key, ident, dims in input_rows if RAY in dims), None)
+    lw = _Lower(names, env, sizes, first, sample_ref, ray_ref)
+    body: list[str] = []
+    for eq in order:
+        lw.where = f"equation {safe_comment(eq.number, 12)}" if eq.number else \
+            f"the equation of '{safe_comment(eq.defines, 40)}'"
+        lw.order = [RAY] + ([eq.free_index] if eq.free_index else [])
+        lw.sample_vars = [eq.free_index] if eq.free_index else []
+        lw.pre = []
+        result = lw.lo(eq.rhs)
+        keep = {RAY, eq.free_index, _IMPLICIT} if eq.free_index else {RAY, _IMPLICIT}
+        samples = [a for a in result.t.axes if a != RAY]
+        if any(a not in keep for a in result.t.axes) or len(samples) > 1:
+            raise ShapeError(f"{lw.where}: a sample index is left free on the right side")
+        ident = names.fresh("v", eq.defines)
+        label = f"({safe_comment(eq.number, 12)}) " if eq.number else ""
+        body.append(f"# {label}{safe_comment(show(eq))}")
+        body.extend(lw.pre)
+        body.append(f"{ident} = {result.code}")
+        env[eq.defines] = (ident, _T(tuple(SAMPLE if a != RAY else RAY for a in result.t.axes), result.t.feat),
+                           result.tensor)
+    output_rows = []
+    returns = []
+    for key in outputs:
+        ident, t, tensor = env[key]
+        output_rows.append((key, ident))
+        returns.append(ident if tensor else f"torch.as_tensor({ident})")
+    head = []
+    if lw.uses_n_samples:
+        head.append(f"n_samples = {sample_ref}.shape[1]")
+    if lw.uses_n_rays:
+        head.append(f"n_rays = {ray_ref}.shape[0]")
+    source = _assemble(class_name, input_rows, output_rows, param_rows, head + body, returns, order, env)
+    return Lowered(source, class_name, input_rows, output_rows, param_rows, dict(names.mapping),
+                   [eq.number or "" for eq in order])
+
+
+def _assemble(class_name, input_rows, output_rows, param_rows, body, returns, order, env) -> str:
+    numbers = ", ".join(f"({safe_comment(eq.number, 12)})" for eq in order if eq.number) or "(unnumbered)"
+    lines = [
+        f'"""{class_name}: compiled by nerfify-ns from a paper\'s equations; generated code, do not edit."""',
+        "",
+        PRELUDE.rstrip("\n"),
+        "",
+        "",
+        f"# equations {numbers}",
+        "# symbol map (identifier <- the paper's symbol [layout]):",
+    ]
+    for key, ident, dims in input_rows:
+        lines.append(f"#   {ident} <- {safe_comment(key, 60)} {_dims_text(dims)}  (input)")
+    for key, (attr, spec) in param_rows.items():
+        kind = "parameter" if spec.learned else "fixed"
+        lines.append(f"#   self.{attr} <- {safe_comment(key, 60)} {_dims_text(spec.shape)}  ({kind})")
+    for key, ident in output_rows:
+        lines.append(f"#   {ident} <- {safe_comment(key, 60)}  (output)")
+    lines += [
+        f"class {class_name}(nn.Module):",
+        '    """Equations lowered to torch; forward takes the inputs and returns the outputs in the order of the '
+        'symbol map."""',
+        "",
+        "    def __init__(self):",
+        "        super().__init__()",
+    ]
+    for key, (attr, spec) in param_rows.items():
+        shape = ", ".join(str(int(s)) for s in spec.shape)
+        if spec.learned:
+            lines.append(f"        self.{attr} = nn.Parameter(torch.empty({shape}))")
+        else:
+            lines.append(f"        self.register_buffer({attr!r}, torch.empty({shape}))")
+    lines += ["        self.reset_parameters()", "", "    def reset_parameters(self):"]
+    init_lines = []
+    for key, (attr, spec) in param_rows.items():
+        target = f"self.{attr}"
+        if spec.init == "normal":
+            init_lines.append(f"nn.init.normal_({target}, std={float(spec.std)!r})")
+        elif spec.init == "ones":
+            init_lines.append(f"nn.init.ones_({target})")
+        elif spec.init == "zeros" or len(spec.shape) < 2:
+            init_lines.append(f"nn.init.zeros_({target})")
+        else:
+            init_lines.append(f"nn.init.kaiming_uniform_({target}, a=math.sqrt(5))")
+    if not init_lines:
+        init_lines.append("return")
+    lines += [f"        with torch.no_grad():" if init_lines != ["return"] else "        return"]
+    if init_lines != ["return"]:
+        lines += [f"            {line}" for line in init_lines]
+    args = ", ".join(["self"] + [ident for _, ident, _ in input_rows])
+    lines += ["", f"    def forward({args}):"]
+    lines += [f"        {line}" if line else "" for line in body]
+    lines.append(f"        return {', '.join(returns)}" if returns else "        return None")
+    return "\n".join(lines) + "\n"
+
+
+def lower(equations, inputs: dict, outputs: list[str], sizes: dict | None = None,
+          class_name: str = "CompiledEquations") -> str:
+    """The source of an nn.Module computing ``outputs`` from ``inputs`` (see ``lower_module``)."""
+    return lower_module(equations, inputs, outputs, sizes, class_name).source
