@@ -203,8 +203,7 @@ class _Eval:
     def cases(self, e: Cases) -> Val:
         values = [self.ev(v) for v, _ in e.branches]
         conds = [self.ev(c) if c is not None else None for _, c in e.branches]
-        if conds[-1] is not None:
-            raise CompileError(f"{self.where}: cases without 'otherwise' are not evaluated")
+        conds[-1] = None  # the last case is the fallback (its condition, if any, is the complement)
         items = values + [c for c in conds if c is not None]
         arrays, axes = self.align(*items)
         vals, cs = arrays[:len(values)], arrays[len(values):]

@@ -158,7 +158,9 @@ class Concat:
 
 @dataclass(frozen=True)
 class Cases:
-    """``\\begin{cases}``: (value, condition) pairs in order; a condition None is 'otherwise'."""
+    """``\\begin{cases}``: (value, condition) pairs in order; a condition None is 'otherwise'. The first
+    branch whose condition holds gives the value; the last branch is the fallback (its condition, when the
+    paper writes one, is taken to be the complement of the others)."""
 
     branches: tuple[tuple[Expr, Compare | None], ...]
 

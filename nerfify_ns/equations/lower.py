@@ -342,9 +342,7 @@ class _Lower:
 
     def cases(self, e: Cases) -> _C:
         values = [self.lo(v) for v, _ in e.branches]
-        conds = [self.lo(c) for _, c in e.branches if c is not None]
-        if e.branches[-1][1] is not None:
-            raise LoweringError(f"{self.where}: cases without 'otherwise' are not lowered")
+        conds = [self.lo(c) for _, c in e.branches[:-1]]  # the last case is the fallback
         axes, fr, feat = self._joint(*values, *conds)
         code = self.align(values[-1], axes, fr)
         for value, cond in zip(reversed(values[:-1]), reversed(conds)):

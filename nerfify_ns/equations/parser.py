@@ -348,7 +348,7 @@ class _Reader(Transformer):
                                value.decorations + ("prime",) * arg, value.index, value.args)
             elif isinstance(value, Symbol) and not value.args:
                 value = self._symbol_script(value, kind, arg, pos)
-            elif kind == "sup" and re.sub(r"[\s{}]", "", arg.raw) in (r"\top", r"\intercal"):
+            elif kind == "sup" and re.sub(r"[\s{}]", "", arg.raw) in (r"\top", r"\intercal", "T"):
                 pass  # the transpose of a vector: features are last either way
             elif isinstance(value, _Func):
                 if kind == "sub":

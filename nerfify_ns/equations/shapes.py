@@ -160,4 +160,17 @@ def schedule(equations: list[Equation], outputs: list[str], available: set[str])
 
     for key in outputs:
         visit(key, ())
-    return order
+    # the paper's order wherever the dependencies allow it
+    needed, done, stable = {id(eq) for eq in order}, set(), []
+    pending = [eq for eq in equations if id(eq) in needed]
+    while pending:
+        for eq in pending:
+            deps = {d for d in uses(eq) if d in by_key and d != eq.defines and id(by_key[d]) in needed}
+            if deps <= done:
+                stable.append(eq)
+                done.add(eq.defines)
+                pending.remove(eq)
+                break
+        else:  # pragma: no cover - the walk above already rejected cycles
+            raise CompileError("equations define each other in a cycle")
+    return stable
