@@ -203,6 +203,10 @@ def read_blender(root: Path, evidence: str, *, timed: bool = False) -> Dataset:
                                        "on every frame)")
                 time = number(frame["time"], "time", fwhere)
             image = root / (file_path.replace("./", "") + ".png")  # exactly as blender-data/dnerf-data
+            if not image.exists() and (root / file_path).is_file():
+                raise DatasetError(f"{fwhere}: Nerfstudio's {'dnerf' if timed else 'blender'}-data reads "
+                                   f"{show(image, root)} (file_path + '.png'), which does not exist; write "
+                                   "file_path without the extension")
             if size is None:
                 try:
                     info = inspect_image(image)

@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Dict, Iterable, List, Optional, Sequence, Union
 
+from nerfify_ns.dataset import DataLike
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.events import ITER_TIME_TAG, read_scalars
 from nerfify_ns.runtime.launch import ProgressHook, TrainRun, ns_train, offline_prefix, run_logged
@@ -79,7 +80,7 @@ def curve_train_args(every: int) -> List[str]:
 
 def train_for_curve(
     method: str,
-    data: Path,
+    data: DataLike,
     out_dir: Path,
     *,
     iterations: int,
@@ -211,7 +212,7 @@ def record_curve(
 
 def run_curve(
     method: str,
-    data: Path,
+    data: DataLike,
     out_dir: Path,
     *,
     iterations: int,

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional
 
+from nerfify_ns.dataset import DataLike
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook, TrainRun, ns_eval, ns_train
 from nerfify_ns.runtime.presets import preset_args
@@ -58,7 +59,7 @@ class SmokeResult:
 
 def smoke_train(
     method: str,
-    data: Path,
+    data: DataLike,
     out_dir: Path,
     *,
     iterations: int = 100,

@@ -278,6 +278,10 @@ def test_splits_views_and_layouts(sources, tmp_path):
     (blender / "transforms_val.json").unlink()
     refuses(blender, r"a Blender dataset needs transforms_train\.json, transforms_val\.json and transforms_test\.json; "
                      r"missing transforms_val\.json")
+    blender = copy(sources, "blender", tmp_path / "suffixed")
+    edit_json(blender / "transforms_train.json", lambda m: m["frames"][0].update(file_path="./train/r_0.png"))
+    refuses(blender, r"frame 0 \(\./train/r_0\.png\): Nerfstudio's blender-data reads train/r_0\.png\.png "
+                     r"\(file_path \+ '\.png'\), which does not exist")
     dnerf = copy(sources, "dnerf", tmp_path)
     edit_json(dnerf / "transforms_val.json", lambda m: m["frames"][0].pop("time"))
     refuses(dnerf, r"transforms_val\.json frame 0 \(\./val/r_0\): no time")
