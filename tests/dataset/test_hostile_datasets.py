@@ -8,6 +8,7 @@ exit 2, one ``error:`` line, no output folder and no staging folder left. The re
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import struct
 import subprocess
@@ -148,8 +149,6 @@ def test_the_cli_refuses_a_hostile_dataset_in_one_line_and_writes_nothing(case, 
     lines = [line for line in (done.stdout + done.stderr).splitlines() if line.strip()]
     assert done.returncode == 2, done.stdout + done.stderr
     assert len(lines) == 1 and lines[0].startswith("error: "), lines
-    import re
-
     assert re.search(needle, lines[0]), lines[0]
     assert str(data) in lines[0]
     assert not out.exists() and not list(tmp_path.glob(".out.*"))
@@ -159,8 +158,6 @@ def test_the_cli_refuses_a_hostile_dataset_in_one_line_and_writes_nothing(case, 
 
 
 def refuses(folder: Path, needle: str) -> str:
-    import re
-
     with pytest.raises(DatasetError) as info:
         read_dataset(folder)
     message = str(info.value)
@@ -301,3 +298,15 @@ def test_control_characters_in_names_stay_on_one_line(sources, tmp_path):
     edit_json(data / "transforms.json", lambda m: m["frames"][0].__setitem__("file_path", "images/evil\nname\x1b[31m.png"))
     message = refuses(data, r"evil\\nname\\x1b\[31m\.png")
     assert "\x1b" not in message
+
+
+def test_compose_refuses_a_hostile_dataset_the_same_way(sources, tmp_path):
+    data = copy(sources, "colmap", tmp_path)
+    huge_png_header(data / "images" / "0003_train_r_3.png")
+    out = tmp_path / "out"
+    done = subprocess.run([str(CLI), "compose", "--method", "nerfacto", "--data", str(data), "--out", str(out)],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    lines = [line for line in (done.stdout + done.stderr).splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("error: ") and "frame 0003_train_r_3.png" in lines[0] and "20000x20000" in lines[0]
+    assert not out.exists() and not list(tmp_path.glob(".out.*"))
