@@ -17,7 +17,7 @@ MAX_LEN = 24
 
 #: names the generated source may use besides the identifiers of ``Names`` (tested by the safety test)
 RESERVED = frozenset({
-    "torch", "nn", "math", "self", "super", "range", "float", "min", "max", "abs", "x", "xs", "dim", "like",
+    "torch", "nn", "math", "self", "super", "range", "float", "min", "max", "abs", "next", "x", "xs", "dim", "like",
     "inclusive", "n", "shape", "ref", "parts", "n_rays", "n_samples", "_exclusive_cumsum", "_exclusive_cumprod",
     "_before_mask", "_cat_features", "forward", "reset_parameters", "__init__",
 })

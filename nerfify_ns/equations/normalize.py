@@ -152,11 +152,15 @@ def _bars(m: Mapped) -> Mapped:
     rx = re.compile(r"\\lVert|\\rVert|\\lvert|\\rvert|\\Vert|\\vert|\\\||\|")
     out, origin, last, stack = [], [], 0, []
     text = m.text
+    previous = ""  # the last non-space character written
     for match in rx.finditer(text):
         if match.start() > 0 and text[match.start() - 1] == "\\" and match.group() == "|":
             continue  # the second character of \|, handled with it
-        out.append(text[last:match.start()])
+        chunk = text[last:match.start()]
+        out.append(chunk)
         origin.extend(m.origin[last:match.start()])
+        if chunk.strip():
+            previous = chunk.rstrip()[-1]
         tok = match.group()
         kind = "norm" if tok in (r"\lVert", r"\rVert", r"\Vert", r"\|") else "abs"
         if tok in (r"\lVert", r"\lvert"):
@@ -164,8 +168,7 @@ def _bars(m: Mapped) -> Mapped:
         elif tok in (r"\rVert", r"\rvert"):
             side = "r"
         else:
-            before = "".join(out).rstrip()
-            operand_end = bool(before) and (before[-1].isalnum() or before[-1] in ")]}'")
+            operand_end = bool(previous) and (previous.isalnum() or previous in ")]}'")
             side = "r" if (stack and stack[-1] == kind and operand_end) else "l"
         if side == "l":
             stack.append(kind)
@@ -175,6 +178,7 @@ def _bars(m: Mapped) -> Mapped:
                ("abs", "r"): r"\rvert "}[kind, side]
         out.append(new)
         origin.extend([m.origin[match.start()]] * len(new))
+        previous = "t" if side == "r" else "{"  # a closed bar ends an operand; an opened one does not
         last = match.end()
     out.append(text[last:])
     origin.extend(m.origin[last:])
@@ -337,7 +341,7 @@ def normalize(latex: str) -> Normalized:
     m = _unicode(latex)
     m = m.sub(r"(?<!\\)%[^\n]*", " ")
     m = m.sub(r"\\\\\s*\[[^\]\n]{0,12}\]", r"\\\\ ")  # \\[6pt]
-    m = m.sub(r"(?<![\\A-Za-z0-9])\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]", r"\\\\ ")  # a lost \\ of \\[2pt]
+    m = m.sub(r"(?<!\\)\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]", r"\\\\ ")  # a lost \\ of \\[2pt]
     m = m.sub(r"(?<!\\)\\[ \t]*\n", r"\\\\ ")  # a backslash ending a line: a lost \\
     m = m.sub(r"\s+", " ")
     number = None

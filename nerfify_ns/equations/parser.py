@@ -36,6 +36,7 @@ from .ir import (DEFAULT_CONVENTIONS, FUNCTIONS, Apply, BinOp, Cases, Compare, C
 from .normalize import Mapped, NormalizeError, normalize
 
 MAX_IR_DEPTH = 120
+MAX_EQUATIONS = 64
 
 FUNCTION_WORDS = {
     "exp": "exp", "log": "log", "ln": "log", "sin": "sin", "cos": "cos", "tan": "tan", "tanh": "tanh",
@@ -503,12 +504,12 @@ class _Reader(Transformer):
         return items, seps, meta.start_pos
 
     def paren(self, meta, children):
-        items, seps, pos = [c for c in children if isinstance(c, tuple)][0]
-        return [(_Paren(items, seps, "(", pos), pos)]
+        items, seps, _ = [c for c in children if isinstance(c, tuple)][0]
+        return [(_Paren(items, seps, "(", meta.start_pos), meta.start_pos)]
 
     def bracket(self, meta, children):
-        items, seps, pos = children[0]
-        return [(_Paren(items, seps, "[", pos), pos)]
+        items, seps, _ = children[0]
+        return [(_Paren(items, seps, "[", meta.start_pos), meta.start_pos)]
 
     def brace(self, meta, children):
         items, seps, pos = children[0]
@@ -627,7 +628,7 @@ class _Reader(Transformer):
             else:
                 specs.append((self._index_name(item, sub.pos), None, None))
         if not specs:
-            raise ReadError("an empty range", sub.pos, op)
+            raise ReadError("a range that is not an index", sub.pos, op + "_{" + sub.raw[:20] + "}")
         # \sum_{i,j=1}^{N}: the bound of the last applies to every bare index before it
         last_lower = specs[-1][1]
         result = body
@@ -766,6 +767,8 @@ def parse_equations(latex: str, *, number: str | None = None,
     number = number if number is not None else normalized.number
     if not normalized.pieces:
         return [ParseFailure("empty", None, "", latex, number)]
+    if len(normalized.pieces) > MAX_EQUATIONS:
+        return [ParseFailure(f"more than {MAX_EQUATIONS} equations in one block", None, "", latex, number)]
     return [_equation(_read_piece(piece, latex, number), piece, latex, number, conventions)
             for piece in normalized.pieces]
 

@@ -169,6 +169,10 @@ class _Resolver:
             return "samples", "exclusive", upper.left.name
         if self._is_sample_upper(upper, scope):
             return "samples", "full", None
+        if (isinstance(upper, Symbol) and _plain(upper) and upper.name in self.c.index_letters) or any(
+                isinstance(n, Symbol) and _plain(n) and n.name in self.c.index_letters and n.name not in scope
+                for n in walk(upper)):
+            raise ResolveError(f"the limit of '{index}' names an index that nothing binds", index)
         if lower is None:
             raise ResolveError(f"a finite range over '{index}' without a lower limit", index)
         return "range", "full", None
