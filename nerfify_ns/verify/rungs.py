@@ -48,12 +48,16 @@ def limit_diagnoses(rung: str, result: SandboxResult, left_running: bool = True)
 
 
 def _exit_text(result: SandboxResult) -> str:
+    """How the process ended: ``exit N``, or the signal that killed it (bwrap reports a command killed by
+    signal S as exit 128 + S)."""
     code = result.returncode
-    if code < 0:
+    signum = -code if code < 0 else code - 128 if result.mode == "bwrap" and 128 < code < 160 else 0
+    if signum:
         try:
-            return f"killed by {signal.Signals(-code).name}"
+            name = signal.Signals(signum).name
         except ValueError:
-            return f"killed by signal {-code}"
+            name = f"signal {signum}"
+        return f"killed by {name}" + (f" (exit {code})" if code > 0 else "")
     return f"exit {code}"
 
 

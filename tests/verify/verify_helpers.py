@@ -31,16 +31,19 @@ def reference_plugins(tiny_scene, tmp_path_factory):
     return {name: compose_reference(name, tiny_scene, root / name) for name in reference_plans()}
 
 
-def corpus() -> list:
-    return sorted(p.stem for p in BROKEN.glob("*.yaml"))
+def corpus(hostile: bool = False) -> list:
+    """The corpus entries: the broken ones, or (``hostile``) those trying to escape the sandbox, which their
+    own test runs with canaries (tests/verify/test_verify_hostile.py)."""
+    return sorted(p.stem for p in BROKEN.glob("*.yaml") if bool(load_case(p.stem).get("hostile")) == hostile)
 
 
 def load_case(name: str) -> dict:
     return yaml.safe_load((BROKEN / f"{name}.yaml").read_text())
 
 
-def broken_plugin(name: str, reference: Path, dest: Path, outside: Path) -> Path:
-    """A copy of ``reference`` with the mutations of corpus entry ``name`` applied (each must match)."""
+def broken_plugin(name: str, reference: Path, dest: Path, outside: Path, **canaries: object) -> Path:
+    """A copy of ``reference`` with the mutations of corpus entry ``name`` applied (each must match);
+    ``{OUTSIDE}`` and ``{NAME}`` for each of ``canaries`` (``PORT=...``) are replaced in the new text."""
     case = load_case(name)
     shutil.copytree(reference, dest)
     package = next(p for p in dest.iterdir() if (p / "config.py").is_file())
@@ -48,5 +51,8 @@ def broken_plugin(name: str, reference: Path, dest: Path, outside: Path) -> Path
         path = package / m["file"]
         text = path.read_text()
         assert m["old"] in text, f"corpus {name}: {m['old']!r} not in {m['file']} (a template changed?)"
-        path.write_text(text.replace(m["old"], m["new"].replace("{OUTSIDE}", str(outside))))
+        new = m["new"].replace("{OUTSIDE}", str(outside))
+        for key, value in canaries.items():
+            new = new.replace("{" + key + "}", str(value))
+        path.write_text(text.replace(m["old"], new))
     return dest
