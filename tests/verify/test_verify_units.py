@@ -144,3 +144,35 @@ def test_report_round_trip():
         and data["failures"][0]["line"] == 3
         and str(report.failures[0]).startswith("[static/import]")
     )
+
+
+def test_static_rung_parses_in_the_sandbox(reference_plugins, tmp_path):
+    """A 300,000-deep expression exhausts the parser in a sandboxed subprocess: the rung fails naming the file."""
+    import shutil
+
+    from nerfify_ns.verify.rungs import static_ast
+
+    plugin = shutil.copytree(reference_plugins["nerfacto"], tmp_path / "p")
+    (plugin / "nerfacto_ref" / "deep.py").write_text("x = " + "-" * 300000 + "1\n")
+    (plugin / "nerfacto_ref" / "calls.py").write_text("x = f" + "()" * 300000 + "\n")
+    r = static_ast(load_plugin(plugin), tmp_path / "static")
+    found = {d.file: d for d in r.failures}
+    assert set(found) == {"nerfacto_ref/deep.py", "nerfacto_ref/calls.py"}, [str(d) for d in r.failures]
+    assert all(d.rule == "syntax" and "too deeply nested" in d.message for d in found.values())
+    assert r.details["sandbox"]["mode"] in available_modes()
+
+
+def test_static_rung_parser_crash_is_named(reference_plugins, tmp_path):
+    """The parser killed at its memory limit: the rung names the file it was parsing and how it ended."""
+    import shutil
+
+    from nerfify_ns.verify.rungs import static_ast
+    from nerfify_ns.verify.sandbox import Limits
+
+    plugin = shutil.copytree(reference_plugins["nerfacto"], tmp_path / "p")
+    (plugin / "nerfacto_ref" / "big.py").write_text("x = [" + "(1, 2.5, 'abc'), " * 200000 + "]\n")
+    r = static_ast(load_plugin(plugin), tmp_path / "static", limits=Limits(memory=48 << 20, pids=16))
+    assert not r.ok
+    d = next(d for d in r.failures if d.rule == "syntax")
+    assert d.file == "nerfacto_ref/big.py", [str(d) for d in r.failures]
+    assert "crashed the parser" in d.message or "too deeply nested or too complex" in d.message
