@@ -69,8 +69,12 @@ def check_lowering(ir, bindings_spec: dict, sizes: dict | None = None, outputs: 
         return CheckReport(False, f"lowering: {err}")
     report = CheckReport(False, source=lowered.source)
     namespace: dict = {}
-    exec(compile(lowered.source, f"<nerfify-equations {class_name}>", "exec"), namespace)  # our own source
-    module = namespace[class_name]().double()
+    try:
+        exec(compile(lowered.source, f"<nerfify-equations {class_name}>", "exec"), namespace)  # our own source
+        module = namespace[class_name]().double()
+    except Exception as err:  # noqa: BLE001 - a lowering bug: report it with the source
+        report.reason = f"the module does not build: {type(err).__name__}: {err}"
+        return report
     rng = np.random.default_rng(seed)
     values: dict[str, np.ndarray] = {}
     layout: dict[str, tuple] = {}
