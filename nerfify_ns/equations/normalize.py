@@ -368,6 +368,8 @@ def normalize(latex: str) -> Normalized:
     m = m.sub(r"\\mathbb\s*E(?![A-Za-z])|\\mathbb\s*\{\s*E\s*\}", r"\\mathbb{E}")
     m = m.sub(r"(?<=[A-Za-z0-9}])\*\s*\{", "_{")  # P*{\mathrm{new}}: a lost _
     m = m.sub(r"(?<=[A-Za-z})\]])(\s*)!(?=\s*[\\({\[])", r"\1 ")  # \exp!\big(: a lost \!
+    if r"\int" in m.text:  # \sigma(s),ds: the lost thin space before an integral's differential
+        m = m.sub(r",(?=\s*d\s*[A-Za-z](?![A-Za-z]))", " ")
     m = _bars(m)
     check_depth(m)
     m = _protect_cases_ampersands(m)
