@@ -222,7 +222,7 @@ def _proposal(plugin_dir: Path, out: Path, st: _Settings, first: List[RungResult
     scratch = out / "proposal"
     shutil.rmtree(scratch, ignore_errors=True)
     copy = scratch / "plugin"
-    shutil.copytree(plugin_dir, copy, ignore=_copy_ignore(plugin_dir, out))
+    shutil.copytree(plugin_dir, copy, ignore=_copy_ignore(plugin_dir, out), symlinks=True)  # links stay links
     climb = _climb(copy, scratch, st, repair=True, first=first)
     report.notes += [f"proposal {note}" for note in climb.notes]
     if not climb.patches:
@@ -258,7 +258,11 @@ def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> Li
     patches: List[CodePatch] = []
     seen = set()
     for fixer in fixers:
-        for patch in fixer.propose(info, failures):
+        try:
+            proposed = fixer.propose(info, failures)
+        except VerifyError:  # a diagnosis naming no file of the plugin: nothing to repair there
+            continue
+        for patch in proposed:
             if patch.file not in seen and patch.after != patch.before:
                 seen.add(patch.file)
                 patches.append(patch)

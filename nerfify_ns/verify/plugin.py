@@ -13,6 +13,49 @@ import yaml
 from nerfify_ns.verify.errors import NotAPluginError
 
 ENTRY_GROUP = "nerfstudio.method_configs"
+MAX_META_BYTES = 1 << 20
+"""``pyproject.toml``, ``nerfify.json`` and ``plan.yaml`` are read in our own process: larger ones are refused."""
+MAX_YAML_ALIASES = 1000
+"""A ``plan.yaml`` with more aliases than this is not read (an alias bomb expands exponentially downstream)."""
+
+
+def plugin_file(root: Path, rel: object) -> Optional[str]:
+    """``rel`` when it names a regular file inside the plugin folder ``root`` (relative, no link and no ``..``
+    leading out of it), else None. File names in diagnoses come from the sandboxed probe, which runs plugin code
+    and could name any path: the repairs read and write only files this admits."""
+    if not isinstance(rel, str) or not rel or len(rel) > 500 or "\0" in rel or Path(rel).is_absolute():
+        return None
+    root = Path(root).resolve()
+    path = root / rel
+    try:
+        inside = path.resolve(strict=True)
+    except (OSError, RuntimeError):
+        return None
+    if inside == root or root not in inside.parents or not inside.is_file():
+        return None
+    if any((root / Path(*Path(rel).parts[:i])).is_symlink() for i in range(1, len(Path(rel).parts) + 1)):
+        return None
+    return rel
+
+
+def _read_small(path: Path) -> str:
+    """The text of a metadata file of the plugin, refused (ValueError) above :data:`MAX_META_BYTES`."""
+    if path.stat().st_size > MAX_META_BYTES:
+        raise ValueError(f"{path.name} is larger than {MAX_META_BYTES} bytes")
+    return path.read_text()
+
+
+def _load_plan(path: Path) -> Optional[dict]:
+    """``plan.yaml`` as a mapping; None when it cannot be read safely (too large, too deep, too many aliases)."""
+    try:
+        text = _read_small(path)
+        aliases = sum(isinstance(e, yaml.AliasEvent) for e in yaml.parse(text, Loader=yaml.SafeLoader))
+        if aliases > MAX_YAML_ALIASES:
+            return None
+        plan = yaml.safe_load(text)
+    except (OSError, ValueError, UnicodeDecodeError, yaml.YAMLError, RecursionError, MemoryError):
+        return None
+    return plan if isinstance(plan, dict) else None
 
 
 @dataclass
@@ -41,17 +84,19 @@ def _entry_point(root: Path):
     if not path.is_file():
         return None
     try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError):
+        text = _read_small(path)
+        data = tomllib.loads(text)
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError, MemoryError):  # TOMLDecodeError too
         return None
-    entries = data.get("project", {}).get("entry-points", {}).get(ENTRY_GROUP, {})
-    if not entries:
+    project = data.get("project")
+    points = project.get("entry-points") if isinstance(project, dict) else None
+    entries = points.get(ENTRY_GROUP) if isinstance(points, dict) else None
+    if not entries or not isinstance(entries, dict):
         return None
     method, target = next(iter(entries.items()))
-    line = next(
-        (i for i, text in enumerate(path.read_text().splitlines(), 1) if text.strip().startswith(method)),
-        None,
-    )
+    if not isinstance(target, str):
+        return None
+    line = next((i for i, row in enumerate(text.splitlines(), 1) if row.strip().startswith(method)), None)
     return method, target, line
 
 
@@ -63,8 +108,11 @@ def load_plugin(root: Path) -> PluginInfo:
     meta = {}
     if (root / "nerfify.json").is_file():
         try:
-            meta = json.loads((root / "nerfify.json").read_text())
-        except ValueError:
+            meta = json.loads(_read_small(root / "nerfify.json"))
+        except (OSError, ValueError, UnicodeDecodeError, RecursionError, MemoryError):
+            meta = {}
+        if not isinstance(meta, dict) or not all(isinstance(meta.get(k, ""), str)
+                                                 for k in ("config", "method", "package")):
             meta = {}
     entry = _entry_point(root)
     if entry is None and not meta.get("config"):
@@ -72,7 +120,8 @@ def load_plugin(root: Path) -> PluginInfo:
             f'{root} has no [project.entry-points."{ENTRY_GROUP}"] in pyproject.toml '
             "and no nerfify.json: not a Nerfstudio plugin folder"
         )
-    method, target, line = entry if entry else (meta["method"], meta["config"], None)
+    method, target, line = entry if entry else (meta.get("method") or meta["config"].split(".")[0], meta["config"],
+                                                 None)
     package = meta.get("package") or target.split(".")[0]
     files = sorted(
         str(p.relative_to(root))
@@ -81,12 +130,7 @@ def load_plugin(root: Path) -> PluginInfo:
             part.startswith(".") or part in ("__pycache__", "build") for part in p.relative_to(root).parts
         )
     )
-    plan = None
-    if (root / "plan.yaml").is_file():
-        try:
-            plan = yaml.safe_load((root / "plan.yaml").read_text())
-        except yaml.YAMLError:
-            plan = None
+    plan = _load_plan(root / "plan.yaml") if (root / "plan.yaml").is_file() else None
     return PluginInfo(
         root=root,
         method=method,

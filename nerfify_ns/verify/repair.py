@@ -19,7 +19,8 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
 
 from nerfify_ns.plan import Plan
-from nerfify_ns.verify.plugin import PluginInfo
+from nerfify_ns.verify.errors import VerifyError
+from nerfify_ns.verify.plugin import PluginInfo, plugin_file
 from nerfify_ns.verify.report import Diagnosis
 
 NAME_CUTOFF = 0.6
@@ -86,6 +87,8 @@ class CodePatch:
         )
 
     def apply(self, root: Path) -> None:
+        if plugin_file(root, self.file) is None:
+            raise VerifyError(f"refusing to patch {self.file!r}: not a file inside the plugin folder {root}")
         (root / self.file).write_text(self.after)
 
     def revert(self, root: Path) -> None:
@@ -104,6 +107,9 @@ class Fixer(Protocol):
 
 
 def _read(info: PluginInfo, rel: str) -> str:
+    """A file of the plugin (only a regular file inside its folder: diagnoses name files the probe reported)."""
+    if plugin_file(info.root, rel) is None:
+        raise VerifyError(f"{rel!r} is not a file inside the plugin folder")
     return (info.root / rel).read_text()
 
 

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
-from nerfify_ns.verify.plugin import PluginInfo
+from nerfify_ns.verify.plugin import PluginInfo, plugin_file
 from nerfify_ns.verify.report import Diagnosis, RungResult, clean_data
 from nerfify_ns.verify.sandbox import Limits, SandboxResult, python_cmd, run_sandboxed
 
@@ -95,7 +95,11 @@ def run_probe(
         elif kind == "end":
             r.details["finished"] = True
         elif kind == "diagnosis":
-            r.fail(Diagnosis.from_dict(e))
+            d = Diagnosis.from_dict(e)
+            if d.file is not None and info is not None and plugin_file(info.root, d.file) is None:
+                d.message += f" (reported in {d.file}, not a file of the plugin)"
+                d.file, d.line = None, None
+            r.fail(d)
         elif kind in ("case", "component"):
             r.checks += 1
             r.details.setdefault("cases", []).append(clean_data(
@@ -158,7 +162,10 @@ def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOU
     parsing = [e.get("file") for e in events if e.get("event") == "parsing"]
     for e in events:
         if e.get("event") == "diagnosis":
-            r.fail(Diagnosis.from_dict({**e, "rung": "static"}))
+            d = Diagnosis.from_dict({**e, "rung": "static"})
+            if d.file is not None and plugin_file(info.root, d.file) is None and d.file not in info.python_files:
+                d.file = None
+            r.fail(d)
     if not any(e.get("event") == "end" for e in events):
         where = parsing[-1] if parsing else None
         what = f"parsing {where}" if where else "the static check"

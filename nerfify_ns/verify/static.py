@@ -18,7 +18,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Callable, List, Optional
 
-from nerfify_ns.verify.plugin import PluginInfo
+from nerfify_ns.verify.plugin import PluginInfo, plugin_file
 from nerfify_ns.verify.report import Diagnosis
 
 MAX_SOURCE_BYTES = 4 << 20
@@ -34,6 +34,10 @@ def ast_checks(info: PluginInfo, on_file: Optional[Callable[[str], None]] = None
         if on_file is not None:
             on_file(rel)
         path = info.root / rel
+        if plugin_file(info.root, rel) is None:
+            found.append(Diagnosis("static", "syntax", "not a regular file inside the plugin folder (a link "
+                                   "leading out of it?)", rel))
+            continue
         try:
             if path.stat().st_size > MAX_SOURCE_BYTES:
                 found.append(Diagnosis("static", "syntax", f"too large to parse ({path.stat().st_size} bytes, at "

@@ -11,6 +11,7 @@ from nerfify_ns.verify import Diagnosis, LadderReport, NotAPluginError, RungResu
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import ExpGuardFixer, OptimizerGroupFixer
 from nerfify_ns.verify.sandbox import available_modes, isolation_available, run_sandboxed
+from nerfify_ns.verify.rungs import static_ast
 from nerfify_ns.verify.static import ast_checks
 
 
@@ -176,3 +177,62 @@ def test_static_rung_parser_crash_is_named(reference_plugins, tmp_path):
     d = next(d for d in r.failures if d.rule == "syntax")
     assert d.file == "nerfacto_ref/big.py", [str(d) for d in r.failures]
     assert "crashed the parser" in d.message or "too deeply nested or too complex" in d.message
+
+
+def test_repairs_touch_only_files_inside_the_plugin(reference_plugins, tmp_path):
+    """A diagnosis names its file as the sandboxed probe (running plugin code) reported it: a path leading out
+    of the plugin, or a link out of it, is neither read nor written by the repairs."""
+    import shutil
+
+    from nerfify_ns.verify.errors import VerifyError
+    from nerfify_ns.verify.plugin import plugin_file
+    from nerfify_ns.verify.repair import CodePatch
+
+    plugin = shutil.copytree(reference_plugins["nerfacto"], tmp_path / "p")
+    outside = tmp_path / "outside.txt"
+    outside.write_text("secret\n")
+    (plugin / "nerfacto_ref" / "link.py").symlink_to(outside)
+    assert plugin_file(plugin, "nerfacto_ref/config.py") == "nerfacto_ref/config.py"
+    for rel in ("../outside.txt", str(outside), "nerfacto_ref/link.py", "nerfacto_ref", "", None, "x\0y"):
+        assert plugin_file(plugin, rel) is None, rel
+    d = Diagnosis("static", "param-groups", "forged", "../outside.txt", 1, data={"missing": ["a"], "extra": ["b"]})
+    with pytest.raises(VerifyError):  # the fixer would read the file: refused
+        OptimizerGroupFixer().propose(load_plugin(plugin), [d])
+    with pytest.raises(VerifyError):
+        CodePatch("../outside.txt", "secret\n", "overwritten\n", "param-groups", "forged").apply(plugin)
+    assert outside.read_text() == "secret\n"
+    r = static_ast(load_plugin(plugin), tmp_path / "static")
+    assert any(d.file == "nerfacto_ref/link.py" and "not a regular file" in d.message for d in r.failures)
+
+
+def test_plugin_metadata_read_safely(tmp_path):
+    """pyproject.toml, nerfify.json and plan.yaml are read in our own process: deep nesting, huge files and
+    alias bombs are refused, not crashes."""
+    deep = tmp_path / "deep"
+    deep.mkdir()
+    (deep / "pyproject.toml").write_text("a = " + "[" * 100000 + "]" * 100000 + "\n")
+    (deep / "nerfify.json").write_text("[" * 100000 + "]" * 100000)
+    with pytest.raises(NotAPluginError, match=r'\[project.entry-points."nerfstudio.method_configs"\]'):
+        load_plugin(deep)
+    bomb = tmp_path / "bomb"
+    bomb.mkdir()
+    (bomb / "pyproject.toml").write_text('[project.entry-points."nerfstudio.method_configs"]\nm = "m.config:spec"\n')
+    lines = ['a: &a ["x", "x", "x", "x", "x", "x", "x", "x", "x"]']
+    lines += [f"{chr(98 + i)}: &{chr(98 + i)} [" + ", ".join([f"*{chr(97 + i)}"] * 9) + "]" for i in range(20)]
+    lines += ["tail: [" + ", ".join(["*u"] * 1000) + "]"]
+    (bomb / "plan.yaml").write_text("\n".join(lines) + "\n")
+    info = load_plugin(bomb)
+    assert info.method == "m" and info.plan is None
+
+
+def test_verify_cli_shows_the_section_name(tmp_path):
+    """A pyproject.toml without the entry point: one error line naming the bracketed section, exit 2."""
+    import subprocess
+    from pathlib import Path
+
+    (tmp_path / "pyproject.toml").write_text('[project]\nname = "x"\n')
+    cli = Path(sys.executable).with_name("ns-nerfify")
+    r = subprocess.run([str(cli), "verify", str(tmp_path)], capture_output=True, text=True, timeout=300,
+                       env={"COLUMNS": "300", "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert '[project.entry-points."nerfstudio.method_configs"] in pyproject.toml' in r.stdout + r.stderr
