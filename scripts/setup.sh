@@ -28,6 +28,16 @@ $PIP install --quiet -c constraints.txt -e ".${extra}"
 # runtime uses its pure-torch hash grid.
 .venv/bin/python -m nerfify_ns.runtime.hashgrid_ext build \
   || echo "warning: the C++ hash-grid kernel did not build; the pure-torch hash grid will be used" >&2
+# bubblewrap: the sandbox plugin code runs in (README, "Sandbox"); util-linux's setpriv comes with Debian.
+# Without it the ladder falls back to the weaker unshare sandbox and says so in verify.json.
+if ! command -v bwrap >/dev/null; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    (apt-get install -y -qq bubblewrap >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq bubblewrap; }) \
+      || echo "warning: bubblewrap did not install; plugin code will run in the weaker unshare sandbox" >&2
+  else
+    echo "warning: no bwrap (install Debian's 'bubblewrap' package, and run as root, for the full sandbox)" >&2
+  fi
+fi
 if [ "$dev" = 1 ] && ! command -v chromium >/dev/null; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     (apt-get install -y -qq chromium >/dev/null 2>&1 || { apt-get update -qq && apt-get install -y -qq chromium; }) \
