@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Expr, Integral, Neg, Norm, Number,
                  ParseFailure, Reduce, Symbol)
+from .emit import assemble
 from .naming import Names, class_name_ok
 from .render import safe_comment, show
 from .shapes import (RAY, SAMPLE, CompileError, ParamSpec, ShapeError, check_layout, is_bound_variable, named_sizes,
@@ -65,39 +66,6 @@ class Lowered:
     names: dict[str, str] = field(default_factory=dict)  # identifier -> key
     equations: list[str] = field(default_factory=list)   # numbers of the equations compiled, in order
 
-
-PRELUDE = '''import math
-
-import torch
-from torch import nn
-
-
-def _exclusive_cumsum(x, dim):
-    """The sum over the samples before each sample along dim (0 for the first)."""
-    n = x.shape[dim]
-    parts = [torch.zeros_like(x.narrow(dim, 0, 1)), torch.cumsum(x, dim).narrow(dim, 0, n - 1)]
-    return torch.cat(parts, dim)
-
-
-def _exclusive_cumprod(x, dim):
-    """The product over the samples before each sample along dim (1 for the first)."""
-    n = x.shape[dim]
-    return torch.cumprod(torch.cat([torch.ones_like(x.narrow(dim, 0, 1)), x.narrow(dim, 0, n - 1)], dim), dim)
-
-
-def _before_mask(n, inclusive, like):
-    """mask[i, j]: sample j comes before sample i (or is i, when inclusive)."""
-    return torch.ones(n, n, dtype=torch.bool, device=like.device).tril(0 if inclusive else -1)
-
-
-def _cat_features(*xs):
-    """Concatenate along the last (feature) dimension, broadcasting the others; numbers become features."""
-    ref = next(x for x in xs if torch.is_tensor(x))
-    xs = [x if torch.is_tensor(x) else torch.full(ref.shape[:-1] + (1,), x, dtype=ref.dtype, device=ref.device)
-          for x in xs]
-    shape = torch.broadcast_shapes(*[x.shape[:-1] for x in xs])
-    return torch.cat([x.expand(*shape, x.shape[-1]) for x in xs], dim=-1)
-'''
 
 _TORCH_UNARY = {"exp": "torch.exp", "log": "torch.log", "sin": "torch.sin", "cos": "torch.cos", "tan": "torch.tan",
                 "tanh": "torch.tanh", "sigmoid": "torch.sigmoid", "relu": "torch.relu",
@@ -469,10 +437,6 @@ def _as_equations(ir) -> list[Equation]:
     return list(items)
 
 
-def _dims_text(dims) -> str:
-    return "[" + ", ".join(safe_comment(str(d), 12) for d in dims) + "]"
-
-
 def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None = None,
                  class_name: str = "CompiledEquations") -> Lowered:
     """Lower equations to an nn.Module's source (see the module docstring); raises LoweringError/ShapeError."""
@@ -538,65 +502,10 @@ def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None
         head.append(f"n_samples = {sample_ref}.shape[1]")
     if lw.uses_n_rays:
         head.append(f"n_rays = {ray_ref}.shape[0]")
-    source = _assemble(class_name, input_rows, output_rows, param_rows, head + body, returns, order, env)
+    source = assemble(class_name, input_rows, output_rows, param_rows, head + body, returns,
+                      [eq.number or "" for eq in order])
     return Lowered(source, class_name, input_rows, output_rows, param_rows, dict(names.mapping),
                    [eq.number or "" for eq in order])
-
-
-def _assemble(class_name, input_rows, output_rows, param_rows, body, returns, order, env) -> str:
-    numbers = ", ".join(f"({safe_comment(eq.number, 12)})" for eq in order if eq.number) or "(unnumbered)"
-    lines = [
-        f'"""{class_name}: compiled by nerfify-ns from a paper\'s equations; generated code, do not edit."""',
-        "",
-        PRELUDE.rstrip("\n"),
-        "",
-        "",
-        f"# equations {numbers}",
-        "# symbol map (identifier <- the paper's symbol [layout]):",
-    ]
-    for key, ident, dims in input_rows:
-        lines.append(f"#   {ident} <- {safe_comment(key, 60)} {_dims_text(dims)}  (input)")
-    for key, (attr, spec) in param_rows.items():
-        kind = "parameter" if spec.learned else "fixed"
-        lines.append(f"#   self.{attr} <- {safe_comment(key, 60)} {_dims_text(spec.shape)}  ({kind})")
-    for key, ident in output_rows:
-        lines.append(f"#   {ident} <- {safe_comment(key, 60)}  (output)")
-    lines += [
-        f"class {class_name}(nn.Module):",
-        '    """Equations lowered to torch; forward takes the inputs and returns the outputs in the order of the '
-        'symbol map."""',
-        "",
-        "    def __init__(self):",
-        "        super().__init__()",
-    ]
-    for key, (attr, spec) in param_rows.items():
-        shape = ", ".join(str(int(s)) for s in spec.shape)
-        if spec.learned:
-            lines.append(f"        self.{attr} = nn.Parameter(torch.empty({shape}))")
-        else:
-            lines.append(f"        self.register_buffer({attr!r}, torch.empty({shape}))")
-    lines += ["        self.reset_parameters()", "", "    def reset_parameters(self):"]
-    init_lines = []
-    for key, (attr, spec) in param_rows.items():
-        target = f"self.{attr}"
-        if spec.init == "normal":
-            init_lines.append(f"nn.init.normal_({target}, std={float(spec.std)!r})")
-        elif spec.init == "ones":
-            init_lines.append(f"nn.init.ones_({target})")
-        elif spec.init == "zeros" or len(spec.shape) < 2:
-            init_lines.append(f"nn.init.zeros_({target})")
-        else:
-            init_lines.append(f"nn.init.kaiming_uniform_({target}, a=math.sqrt(5))")
-    if not init_lines:
-        init_lines.append("return")
-    lines += [f"        with torch.no_grad():" if init_lines != ["return"] else "        return"]
-    if init_lines != ["return"]:
-        lines += [f"            {line}" for line in init_lines]
-    args = ", ".join(["self"] + [ident for _, ident, _ in input_rows])
-    lines += ["", f"    def forward({args}):"]
-    lines += [f"        {line}" if line else "" for line in body]
-    lines.append(f"        return {', '.join(returns)}" if returns else "        return None")
-    return "\n".join(lines) + "\n"
 
 
 def lower(equations, inputs: dict, outputs: list[str], sizes: dict | None = None,

@@ -263,3 +263,18 @@ def test_the_reading_matches_a_reference_written_by_hand(case: Case):
     want = case.reference(values)
     for key in case.outputs:
         np.testing.assert_allclose(got[key], want[key], rtol=1e-10, atol=1e-12, err_msg=f"{case.name}: {key}")
+
+
+def test_the_generated_sources_are_clean_python():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from nerfify_ns.equations import lower
+
+    ruff = Path(sys.executable).with_name("ruff")
+    for case in CORPUS:
+        source = lower(_parse(case), case.inputs, case.outputs, case.sizes, "Compiled")
+        result = subprocess.run([str(ruff), "check", "--no-cache", "--select", "F,E9,E7", "--stdin-filename",
+                                 "compiled.py", "-"], input=source, capture_output=True, text=True)
+        assert result.returncode == 0, f"{case.name}: {result.stdout}"
