@@ -11,24 +11,53 @@ from typing import Iterator, Optional
 from nerfify_ns.paper.bibtex import load_references, parse_bbl
 from nerfify_ns.paper.builder import Block, build
 from nerfify_ns.paper.document import Document, Location
-from nerfify_ns.paper.errors import EmptyDocumentError
+from nerfify_ns.paper.errors import EmptyDocumentError, PaperLimitError
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.latex_source import (
-    Flat, MacroBudget, SourceTree, collect_macros, expand_macros, find_main_file, flatten, read_group, safe_extract,
+    Flat, MacroBudget, SourceTree, collect_macros, expand_macros, find_main_file, flatten, line_starts, read_group,
+    safe_extract,
 )
-from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements
 
 MATH_ENVS = ("equation", "align", "eqnarray", "gather", "multline", "displaymath", "flalign", "alignat")
 _ENV = ("abstract", *MATH_ENVS, "figure", "table", "algorithm", "algorithm2e", "thebibliography")
 _TOKEN = re.compile(
-    r"\\(?P<sec>section|subsection|subsubsection|paragraph)(?P<star>\*?)\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)"
+    r"\\(?P<sec>section|subsection|subsubsection|paragraph)(?P<star>\*?)\s*(?:\[[^\[\]]{0,2000}\])?\s*(?=\{)"
     r"|\\begin\{(?P<env>(?:" + "|".join(_ENV) + r")\*?)\}"
     r"|(?P<dmath>\\\[|\$\$)|(?P<appendix>\\appendix\b)")
-_LABEL_AFTER = re.compile(r"\s*\\label\s*\{([^}]{0,2000})\}")
-_PARAGRAPH = re.compile(r"(?:[^\n]|\n(?![^\S\n]*\n))+")
-"""A paragraph: text up to a blank line (the lookahead stops at the next line break, so the scan is linear)."""
+_LABEL_AFTER = re.compile(r"\s*\\label\s*\{([^{}]{0,2000})\}")
+_PARAGRAPH = re.compile(r"\S[^\n]*(?:\n(?![^\S\n]*\n)[^\n]*)*")
+"""A paragraph: from a non-blank character up to a blank line (the lookahead stops at the next line break, so
+the scan is linear)."""
+_TWO_LETTERS = re.compile(r"[A-Za-z]{2}")
+_COMMAND_NAME = re.compile(r"\\[A-Za-z]+")
 _LEVEL = {"section": 1, "subsection": 2, "subsubsection": 3, "paragraph": 4}
 ARCHIVES = (".tar.gz", ".tgz", ".tar")
+
+# Patterns of _clean/_prose, compiled once. Arguments stop at the next brace or bracket and are bounded, so every
+# scan starts after the previous one ended (linear in the text, however many unclosed commands it holds).
+_ARG = r"\{([^{}]{0,2000})\}"
+_OPT = r"\[[^\[\]]{0,2000}\]"
+_SPECIAL = re.compile(r"[\\~${}`'-]")
+_BLANKS = re.compile(r"[ \t]+")
+_CITE = re.compile(r"\\(?:cite|citep|citet|citealp|autocite|parencite|textcite|citeauthor)\*?\s*(?:" + _OPT + r"\s*){0,2}"
+                   + _ARG)
+_EQREF = re.compile(r"\\eqref\s*" + _ARG)
+_REF = re.compile(r"\\(?:ref|autoref|cref|Cref)\s*" + _ARG)
+_LABEL = re.compile(r"\\label\s*" + _ARG)
+_URL = re.compile(r"\\url\s*" + _ARG)
+_HREF = re.compile(r"\\href\s*\{[^{}]{0,2000}\}\s*" + _ARG)
+_FOOTNOTE = re.compile(r"\\footnote\s*\{((?:[^{}]|\{[^{}]*\})*)\}")
+_LIST_ENV = re.compile(r"\\(?:begin|end)\s*\{(?:itemize|enumerate|description|center|small|footnotesize)\}")
+_ITEM = re.compile(r"\\item\s*(?:\[([^\[\]]{0,2000})\])?")
+_INLINE_MATH = re.compile(r"(\$[^$]+\$)")
+_STYLE = re.compile(r"\\(?:emph|textbf|textit|texttt|textsc|underline|text|mbox|textrm|textsf|noindent)\s*"
+                    r"\{((?:[^{}]|\{[^{}]*\})*)\}")
+_SPACING = re.compile(r"\\(?:noindent|centering|vspace\*?\{[^{}]{0,2000}\}|hspace\*?\{[^{}]{0,2000}\}|medskip|smallskip|"
+                      r"bigskip|maketitle|newpage|clearpage|par)\b")
+_BIB_CMD = re.compile(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^{}]{0,2000}\}")
+_GRAPHICS = re.compile(r"\\(?:includegraphics|input)\s*(?:" + _OPT + r")?\{[^{}]{0,2000}\}")
+_COMMAND = re.compile(r"\\[A-Za-z]+\*?")
 
 
 def read_latex(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
@@ -52,6 +81,7 @@ def _read_tree(main: Path, tree: SourceTree, source: str) -> Document:
     blocks = list(parser.blocks())
     if not blocks and not parser.title:
         raise EmptyDocumentError(f"{source}: no text found in the LaTeX sources; check the main file")
+    check_elements(blocks, Path(source).name, tree.limits)
     require_english(prose([Block("title", parser.title), *blocks]), Path(source).name)
     refs = parser.bib_refs if parser.bib_refs is not None else load_references(
         tree, main, parser.bib_names, parser.cited)
@@ -66,6 +96,8 @@ class _Parser:
     def __init__(self, text: str, flat: Flat, macros: dict, budget: Optional[MacroBudget] = None):
         self.text, self.flat, self.macros = text, flat, macros
         self.budget = budget or MacroBudget()
+        self.source = self.budget.source or "the paper"
+        self.pieces, self.max_pieces = 0, self.budget.limits.max_elements
         self.eq_no = self.fig_no = self.tab_no = self.alg_no = 0
         self.sec = [0, 0, 0, 0]
         self.appendix = False
@@ -73,7 +105,7 @@ class _Parser:
         self.cited: list[str] = []
         self.bib_names: list[str] = []
         self.bib_refs: Optional[list] = None
-        self.line_starts = [0] + [m.end() for m in re.finditer("\n", text)]
+        self.line_starts = line_starts(text)
         self.title = self._clean(self._command_arg("title"))
         self.authors = self._authors()
 
@@ -84,7 +116,7 @@ class _Parser:
         return Location(file=fname, line=line)
 
     def _command_arg(self, name: str) -> str:
-        m = re.search(r"\\" + name + r"\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)", self.text)
+        m = re.search(r"\\" + name + r"\s*(?:\[[^\[\]]{0,2000}\])?\s*(?=\{)", self.text)
         return read_group(self.text, m.end())[0] if m else ""
 
     def _authors(self) -> list[str]:
@@ -103,20 +135,29 @@ class _Parser:
 
     def _clean(self, s: str) -> str:
         """LaTeX prose to text: macros expanded, citations as [keys], math kept in $...$."""
+        self._count()
+        if not _SPECIAL.search(s):  # plain words: nothing to expand or convert
+            return _BLANKS.sub(" ", s).strip()
         s = self._expand(s)
-        for cmd in ("cite", "citep", "citet", "citealp", "autocite", "parencite", "textcite", "citeauthor"):
-            s = re.sub(r"\\" + cmd + r"\*?\s*(?:\[[^\]]{0,2000}\]\s*)*\{([^}]{0,2000})\}", self._cite, s)
-        s = re.sub(r"\\(?:eqref)\s*\{([^}]{0,2000})\}", lambda m: f"({self.labels.get(m.group(1).strip(), '?')})", s)
-        s = re.sub(r"\\(?:ref|autoref|cref|Cref)\s*\{([^}]{0,2000})\}", lambda m: self.labels.get(m.group(1).strip(), "?"), s)
-        s = re.sub(r"\\label\s*\{[^}]{0,2000}\}", "", s)
-        s = re.sub(r"\\(?:url)\s*\{([^}]{0,2000})\}", r"\1", s)
-        s = re.sub(r"\\href\s*\{[^}]{0,2000}\}\s*\{([^}]{0,2000})\}", r"\1", s)
-        s = re.sub(r"\\footnote\s*\{((?:[^{}]|\{[^{}]*\})*)\}", r" (\1)", s)
-        s = re.sub(r"\\(?:begin|end)\s*\{(?:itemize|enumerate|description|center|small|footnotesize)\}", "\n", s)
-        s = re.sub(r"\\item\s*(?:\[([^\]]{0,2000})\])?", lambda m: "\n- " + (m.group(1) or ""), s)
-        segs = re.split(r"(\$[^$]+\$)", s)
+        s = _CITE.sub(self._cite, s)
+        s = _EQREF.sub(lambda m: f"({self.labels.get(m.group(1).strip(), '?')})", s)
+        s = _REF.sub(lambda m: self.labels.get(m.group(1).strip(), "?"), s)
+        s = _LABEL.sub("", s)
+        s = _URL.sub(r"\1", s)
+        s = _HREF.sub(r"\1", s)
+        s = _FOOTNOTE.sub(r" (\1)", s)
+        s = _LIST_ENV.sub("\n", s)
+        s = _ITEM.sub(lambda m: "\n- " + (m.group(1) or ""), s)
+        segs = _INLINE_MATH.split(s)
         segs = [seg if seg.startswith("$") else self._prose(seg) for seg in segs]
-        return re.sub(r"[ \t]+", " ", "".join(segs)).strip()
+        return _BLANKS.sub(" ", "".join(segs)).strip()
+
+    def _count(self) -> None:
+        """One more piece of the paper (a text cleaned, an equation): refused beyond ``max_elements``."""
+        self.pieces += 1
+        if self.pieces > self.max_pieces:
+            raise PaperLimitError(f"{self.source}: more than {self.max_pieces:,} pieces of text and equations "
+                                  "(paragraphs, table cells, algorithm lines; the limit); pass the paper's own sources")
 
     def _cite(self, m: re.Match) -> str:
         keys = [k.strip() for k in m.group(1).split(",") if k.strip()]
@@ -127,14 +168,13 @@ class _Parser:
     def _prose(s: str) -> str:
         s = s.replace("~", " ").replace("\\\\", " ").replace("---", "—").replace("--", "–")
         s = s.replace("``", "“").replace("''", "”").replace("\\%", "%").replace("\\&", "&").replace("\\_", "_")
-        for _ in range(3):
-            s = re.sub(r"\\(?:emph|textbf|textit|texttt|textsc|underline|text|mbox|textrm|textsf|noindent)\s*"
-                       r"\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", s)
-        s = re.sub(r"\\(?:noindent|centering|vspace\*?\{[^}]{0,2000}\}|hspace\*?\{[^}]{0,2000}\}|medskip|smallskip|bigskip|"
-                   r"maketitle|newpage|clearpage|par)\b", " ", s)
-        s = re.sub(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^}]{0,2000}\}", "", s)
-        s = re.sub(r"\\(?:includegraphics|input)\s*(?:\[[^\]]{0,2000}\])?\{[^}]{0,2000}\}", "", s)
-        s = re.sub(r"\\[A-Za-z]+\*?", "", s)
+        if "\\" in s:
+            for _ in range(3):
+                s = _STYLE.sub(r"\1", s)
+            s = _SPACING.sub(" ", s)
+            s = _BIB_CMD.sub("", s)
+            s = _GRAPHICS.sub("", s)
+            s = _COMMAND.sub("", s)
         return s.replace("{", "").replace("}", "")
 
     # ----- walk ---------------------------------------------------------------------------------------
@@ -143,7 +183,7 @@ class _Parser:
         start = begin + len("\\begin{document}") if begin >= 0 else 0
         end = self.text.find("\\end{document}")
         end = end if end >= 0 else len(self.text)
-        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^}]{0,2000})\}", self.text)
+        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^{}]{0,2000})\}", self.text)
                           for n in m.group(1).split(",")]
         out: list[Block] = []
         pos = start
@@ -161,8 +201,8 @@ class _Parser:
 
     def _prose_blocks(self, chunk: str, offset: int) -> Iterator[Block]:
         for m in _PARAGRAPH.finditer(chunk):
-            para = m.group(0).strip()
-            if para and re.search(r"[A-Za-z]{2}", re.sub(r"\\[A-Za-z]+", "", para)):
+            para = m.group(0).rstrip()
+            if _TWO_LETTERS.search(_COMMAND_NAME.sub("", para)):
                 yield Block("para", para, self._loc(offset + m.start()))
 
     def _token(self, m: re.Match, out: list) -> int:
@@ -175,6 +215,7 @@ class _Parser:
             closer = "\\]" if m.group("dmath") == "\\[" else "$$"
             stop = self.text.find(closer, m.end())
             stop = stop if stop >= 0 else len(self.text)
+            self._count()
             latex = self._expand(self.text[m.end():stop]).strip()
             out.append(Block("equation", "", self._loc(m.start()), latex=latex))
             return stop + len(closer)
@@ -217,7 +258,7 @@ class _Parser:
     def _float(self, env: str, body: str, loc: Location) -> Iterator[Block]:
         is_table = env.startswith("table")
         read = 0
-        for cm in re.finditer(r"\\caption\s*(?:\[[^\]]{0,2000}\])?\s*(?=\{)", body):
+        for cm in re.finditer(r"\\caption\s*(?:\[[^\[\]]{0,2000}\])?\s*(?=\{)", body):
             if cm.start() < read:
                 continue  # inside the previous caption (an unclosed one runs to the end of the float)
             if is_table:
@@ -226,7 +267,7 @@ class _Parser:
                 self.fig_no += 1
             number = str(self.tab_no if is_table else self.fig_no)
             caption, read = read_group(body, cm.end())
-            label = re.search(r"\\label\s*\{([^}]{0,2000})\}", body)
+            label = re.search(r"\\label\s*\{([^{}]{0,2000})\}", body)
             if label:
                 self.labels[label.group(1).strip()] = number
             kind = "Table" if is_table else "Figure"
@@ -236,14 +277,14 @@ class _Parser:
             yield Block("table", "", loc, rows=rows, number=str(self.tab_no))
 
     def _tabular_rows(self, body: str) -> list[list[str]]:
-        m = re.search(r"\\begin\{tabular\*?\}\s*(?:\{[^}]{0,2000}\}\s*)?(?:\{(?:[^{}]|\{[^{}]*\})*\})", body)
+        m = re.search(r"\\begin\{tabular\*?\}\s*(?:\{[^{}]{0,2000}\}\s*)?(?:\{(?:[^{}]|\{[^{}]*\})*\})", body)
         if not m:
             return []
         end = body.find("\\end{tabular", m.end())
         content = body[m.end(): end if end >= 0 else len(body)]
-        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^}]{0,2000}\}|cmidrule(?:\([^)]{0,2000}\))?\{[^}]{0,2000}\})", "", content)
-        content = re.sub(r"\\multicolumn\{\d+\}\{[^}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
-        content = re.sub(r"\\multirow\{[^}]{0,2000}\}\{[^}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^{}]{0,2000}\}|cmidrule(?:\([^)]{0,2000}\))?\{[^{}]{0,2000}\})", "", content)
+        content = re.sub(r"\\multicolumn\{\d+\}\{[^{}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
+        content = re.sub(r"\\multirow\{[^{}]{0,2000}\}\{[^{}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
         rows = []
         for row in re.split(r"\\\\", content):
             cells = [self._clean(c).strip() for c in row.split("&")]
@@ -256,13 +297,13 @@ class _Parser:
         self.alg_no += 1
         caption = re.search(r"\\caption\s*(?=\{)", body)
         title = self._clean(read_group(body, caption.end())[0]) if caption else ""
-        label = re.search(r"\\label\s*\{([^}]{0,2000})\}", body)
+        label = re.search(r"\\label\s*\{([^{}]{0,2000})\}", body)
         if label:
             self.labels[label.group(1).strip()] = str(self.alg_no)
         lines = []
         for raw in re.split(r"\n|\\\\|(?=\\(?:State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|"
                             r"Ensure|Return|Function|EndFunction|Procedure|EndProcedure|KwIn|KwOut)\b)", body):
-            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\]]{0,2000}\])?", "", raw)
+            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\[\]]{0,2000}\])?", "", raw)
             kw = re.match(r"\s*\\(State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|Ensure|Return|"
                           r"Function|EndFunction|Procedure|EndProcedure)\b", raw)
             prefix = "" if not kw or kw.group(1) == "State" else kw.group(1).lower() + " "
@@ -284,9 +325,9 @@ class _Parser:
         rows = [body] if base in ("equation", "multline") else _split_rows(body)
         pending: list[str] = []
         for row in rows:
-            label = re.search(r"\\label\s*\{([^}]{0,2000})\}", row)
-            tag = re.search(r"\\tag\*?\s*\{([^}]{0,2000})\}", row)
-            clean = re.sub(r"\\(?:label|tag\*?)\s*\{[^}]{0,2000}\}|\\(?:nonumber|notag)\b", "", row).strip()
+            label = re.search(r"\\label\s*\{([^{}]{0,2000})\}", row)
+            tag = re.search(r"\\tag\*?\s*\{([^{}]{0,2000})\}", row)
+            clean = re.sub(r"\\(?:label|tag\*?)\s*\{[^{}]{0,2000}\}|\\(?:nonumber|notag)\b", "", row).strip()
             numbered = not starred and not re.search(r"\\(?:nonumber|notag)\b", row) or tag
             pending.append(clean)
             if not numbered or not clean and not tag:
@@ -298,6 +339,7 @@ class _Parser:
                 number = str(self.eq_no)
             if label:
                 self.labels[label.group(1).strip()] = number
+            self._count()
             yield Block("equation", "", loc, number=number, latex=" \\\\ ".join(p for p in pending if p),
                         label=label.group(1).strip() if label else "")
             pending = []
@@ -305,25 +347,24 @@ class _Parser:
             yield Block("equation", "", loc, latex=" \\\\ ".join(p for p in pending if p))
 
 
+_ROW_TOKEN = re.compile(r"\\begin(?=\{)|\\end(?=\{)|\\\\|[{}]")
+
+
 def _split_rows(body: str) -> list[str]:
-    """Split an align-like body at top-level ``\\\\`` (not inside nested environments or braces)."""
-    rows, depth, env_depth, cur, i = [], 0, 0, [], 0
-    while i < len(body):
-        if body.startswith("\\begin{", i):
-            env_depth += 1
-        elif body.startswith("\\end{", i):
-            env_depth -= 1
-        c = body[i]
-        if c == "{":
+    """Split an align-like body at top-level ``\\\\`` (not inside nested environments or braces); one scan."""
+    rows, depth, env_depth, start = [], 0, 0, 0
+    for m in _ROW_TOKEN.finditer(body):
+        t = m.group()
+        if t == "{":
             depth += 1
-        elif c == "}":
+        elif t == "}":
             depth -= 1
-        if body.startswith("\\\\", i) and depth == 0 and env_depth == 0:
-            rows.append("".join(cur))
-            cur = []
-            i += 2
-            continue
-        cur.append(c)
-        i += 1
-    rows.append("".join(cur))
+        elif t == "\\begin":
+            env_depth += 1
+        elif t == "\\end":
+            env_depth -= 1
+        elif depth == 0 and env_depth == 0:
+            rows.append(body[start:m.start()])
+            start = m.end()
+    rows.append(body[start:])
     return [r for r in rows if r.strip()]

@@ -10,12 +10,14 @@ refused within seconds. Tests (and callers that know better) pass a :class:`Limi
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from nerfify_ns.paper.errors import PaperLimitError
 
 MiB = 1024 * 1024
+_DIGIT = re.compile(r"\d")
 
 MAX_FILE_BYTES = 200 * MiB
 """The paper file itself (a PDF with its figures, a tarball), checked from its size before it is opened."""
@@ -40,6 +42,15 @@ hundred files)."""
 MAX_LATEX_CHARS = 4_000_000
 """Characters of one LaTeX source file and of the whole document once every ``\\input``/``\\include`` is inlined
 (the source of a long paper: 100,000-400,000)."""
+
+MAX_ELEMENTS = 20_000
+"""Elements of a paper: its paragraphs, headings, equations, captions, tables and algorithms, plus every table cell
+and algorithm line (LaTeX), all together (a long paper with appendices: 1,000-5,000, most of them table cells).
+Bounds the per-element work of parsing (citations, hyperparameters, equations) on a paper made of tiny pieces."""
+
+MAX_NUMBER_TEXT_CHARS = 300_000
+"""Characters of the sentences that hold a number, where hyperparameters are looked for (80 patterns per
+sentence): a long paper has 20,000-40,000. Bounds the hyperparameter search on a paper made of numbers."""
 
 MAX_INCLUDE_DEPTH = 16
 """Nesting of ``\\input``/``\\include``/``\\subfile``/``\\import`` (real papers: 1-3 levels)."""
@@ -73,6 +84,8 @@ class Limits:
     max_archive_bytes: int = MAX_ARCHIVE_BYTES
     max_archive_files: int = MAX_ARCHIVE_FILES
     max_latex_chars: int = MAX_LATEX_CHARS
+    max_elements: int = MAX_ELEMENTS
+    max_number_text_chars: int = MAX_NUMBER_TEXT_CHARS
     max_include_depth: int = MAX_INCLUDE_DEPTH
     max_includes: int = MAX_INCLUDES
     max_macro_steps: int = MAX_MACRO_STEPS
@@ -91,6 +104,26 @@ def size_text(n: int) -> str:
     if n >= 1024:
         return f"{n / 1024:.0f} KB"
     return f"{n} bytes"
+
+
+def check_elements(blocks: list, source: str, limits: Limits) -> None:
+    """Refuse a reader's blocks, before any per-element work is done on them, when the paper has more than
+    ``limits.max_elements`` elements (blocks, table cells, algorithm lines) or more than
+    ``limits.max_number_text_chars`` characters of sentences with a number."""
+    from nerfify_ns.paper.hyperparams import split_sentences
+
+    n = numeric = 0
+    for b in blocks:
+        n += 1 + sum(len(r) for r in (getattr(b, "rows", None) or [])) + (b.text.count("\n") if b.kind == "algorithm" else 0)
+        if n > limits.max_elements:
+            raise PaperLimitError(f"{source}: more than {limits.max_elements:,} elements (paragraphs, equations, table "
+                                  "cells, algorithm lines; the limit); pass the paper alone")
+        if b.kind in ("para", "abstract", "caption", "algorithm") and _DIGIT.search(b.text):
+            numeric += sum(len(s) for s in split_sentences(b.text) if _DIGIT.search(s))
+            if numeric > limits.max_number_text_chars:
+                raise PaperLimitError(f"{source}: more than {limits.max_number_text_chars:,} characters of sentences "
+                                      "with numbers (the limit on the text searched for hyperparameters); pass the "
+                                      "paper alone")
 
 
 def read_text_file(path: Path, limits: Limits) -> str:

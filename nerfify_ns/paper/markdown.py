@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Optional
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
-from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, read_text_file
-from nerfify_ns.paper.mathdup import fix_inline, has_duplicated_math, split_display
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
+from nerfify_ns.paper.mathdup import Budget, fix_inline, has_duplicated_math, split_display
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
 _TRAILING_NUM = re.compile(r"\s*\(\s*(\d+[a-z]?)\s*\)\s*$")
-_TAG = re.compile(r"\\tag\{([^}]*)\}")
+_END_NUM = re.compile(r"\(\s*(\d+[a-z]?)\s*\)\s*$")
+"""A trailing ``(n)``, searched in the last characters only (no leading ``\\s*``: linear)."""
+_TAG = re.compile(r"\\tag\{([^{}]{0,200})\}")
 _NUMERIC_CELL = re.compile(r"^[-−+]?\d+(?:\.\d+)?%?$")
 _LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
 
@@ -22,6 +24,7 @@ _LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
 def read_markdown(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a ``.md`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
     blocks = markdown_blocks(read_text_file(path, limits))
+    check_elements(blocks, path.name, limits)
     require_english(prose(blocks), path.name)
     return build(blocks, source=str(path), kind="markdown")
 
@@ -29,14 +32,16 @@ def read_markdown(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
 def markdown_blocks(text: str) -> list[Block]:
     """The blocks of a markdown text, in order."""
     lines = text.splitlines()
-    fix = fix_inline if has_duplicated_math(text) else (lambda s: s)
-    reader = _Reader(lines, fix)
+    budget = Budget()  # the whole document's de-duplication work
+    fix = (lambda s: fix_inline(s, budget)) if has_duplicated_math(text) else (lambda s: s)
+    reader = _Reader(lines, fix, budget)
     return list(reader.blocks())
 
 
 class _Reader:
-    def __init__(self, lines: list[str], fix):
+    def __init__(self, lines: list[str], fix, budget: Optional[Budget] = None):
         self.lines, self.fix, self.i = lines, fix, 0
+        self.budget = budget or Budget()
         self.seen_title = False
         self.last_para = ""
 
@@ -83,27 +88,31 @@ class _Reader:
         self.i += 1
         text = "\n".join(body)
         m = re.match(r"\s*Algorithm\s+(\d+)", text)
-        if m or re.search(r"^\s*\d+:\s", text, re.MULTILINE):
+        if m or re.search(r"^[^\S\n]*\d+:\s", text, re.MULTILINE):
             yield Block("algorithm", text, self._loc(start), number=m.group(1) if m else "")
 
     def _math(self) -> Iterator[Block]:
         start = self.i
         first = self.lines[self.i].strip()
         closer = "$$" if first.startswith("$$") else "\\]"
-        body = first[2:]
-        while not body.rstrip().endswith(closer) or body.strip() == "" and self.i == start:
+        parts = [first[2:]]
+        ends = parts[0].rstrip().endswith(closer)  # does the body so far end with the closer (blanks aside)?
+        while not ends:
             self.i += 1
             if self.i >= len(self.lines):
                 break
-            body += "\n" + self.lines[self.i]
+            parts.append(self.lines[self.i])
+            if parts[-1].strip():
+                ends = parts[-1].rstrip().endswith(closer)
+        body = "\n".join(parts)
         self.i += 1
         latex, _, after = body.rpartition(closer) if closer in body else (body, "", "")
         number = ""
         if (m := _TAG.search(latex)):
             number, latex = m.group(1), _TAG.sub("", latex)
-        elif (m := _TRAILING_NUM.match(after)) or (m := _TRAILING_NUM.search(latex)):
+        elif (m := _TRAILING_NUM.match(after)) or (m := _END_NUM.search(latex, max(0, len(latex) - 200))):
             number = m.group(1)
-            latex = _TRAILING_NUM.sub("", latex) if m.string == latex else latex
+            latex = latex[:m.start()] if m.string == latex else latex
         if not number and self.i < len(self.lines) and _EQ_NUM.match(self.lines[self.i].strip()):
             number = _EQ_NUM.match(self.lines[self.i].strip()).group(1)
             self.i += 1
@@ -136,7 +145,7 @@ class _Reader:
             nums = [c for c in r if _EQ_NUM.match(c)]
             body = [c for c in r if c and not _EQ_NUM.match(c)]
             for cell in body:
-                u, lx = split_display(cell)
+                u, lx = split_display(cell, self.budget)
                 pending_u.append(u)
                 pending_l.append(lx)
             if nums:

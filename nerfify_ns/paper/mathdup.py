@@ -3,6 +3,10 @@
 Such files print each formula as its unicode rendering immediately followed by its LaTeX source,
 e.g. ``𝐱=(x,y,z)\\mathbf{x}=(x,y,z)`` or ``L=10L=10``. We find the LaTeX part, check that it renders
 to the unicode part, and keep ``$LaTeX$`` only.
+
+Bounded: a formula is looked for within :data:`MAX_FRAGMENT` characters of its first command, and a document's
+de-duplication scans and renders at most :data:`MAX_WORK_CHARS` characters in all (a :class:`Budget` shared by
+its paragraphs and cells); past that the text is kept as written, so a hostile text costs linear time.
 """
 
 from __future__ import annotations
@@ -23,6 +27,29 @@ _SYMBOLS = {
     "uparrow": "↑", "downarrow": "↓", "exp": "exp", "log": "log", "sin": "sin", "cos": "cos", "max": "max",
     "min": "min", "neq": "≠", "cup": "∪", "cap": "∩", "forall": "∀", "mid": "∣", "star": "⋆", "ell": "ℓ",
 }
+MAX_FRAGMENT = 1000
+"""Characters looked at on each side of a formula's first command (a unicode+LaTeX pair is far shorter)."""
+
+MAX_WORK_CHARS = 4_000_000
+"""Characters one document's de-duplication may scan and render, all formulas together (the NeRF paper converted
+from arXiv uses about 530,000); past it the rest of the text is kept as written (a few seconds at most)."""
+
+
+class Budget:
+    """What de-duplication may still scan and render in one document."""
+
+    def __init__(self, chars: int = MAX_WORK_CHARS):
+        self.left = chars
+
+    def take(self, n: int) -> bool:
+        """Spend ``n`` characters; False (nothing spent) when the budget cannot afford them."""
+        if n > self.left:
+            self.left = 0
+            return False
+        self.left -= n
+        return True
+
+
 _ACCENTS = {"hat": "^", "widehat": "^", "tilde": "~", "bar": "¯", "overline": "¯", "dot": "˙", "vec": "→"}
 _UNI_DASH = str.maketrans({"−": "-", "–": "-", "∗": "*", "ε": "ϵ"})
 
@@ -48,42 +75,55 @@ def _loose(s: str) -> str:
     return re.sub(r"[^\w]|_", "", _strict(s))
 
 
-def _split_point(text: str, start: int, occ: int, end: int) -> Optional[int]:
+def _split_point(text: str, start: int, occ: int, end: int, budget: Optional[Budget] = None) -> Optional[int]:
     """The p in (start, occ] where text[start:p] renders text[p:end], strict comparison first."""
+    budget = budget or Budget()
     for norm in (_strict, _loose):
         for p in range(occ, start, -1):
+            if not budget.take(end - start):
+                return None
             u, lx = text[start:p], text[p:end]
             if u and norm(u) and norm(u) == norm(render(lx)):
                 return p
     return None
 
 
-def _split_by_ends(cell: str, occ: int, k: int = 3) -> Optional[int]:
+def _split_by_ends(cell: str, occ: int, k: int = 3, budget: Optional[Budget] = None) -> Optional[int]:
     """Fallback split: the first/last ``k`` symbols of both renderings agree."""
+    budget = budget or Budget()
     for p in range(occ, 0, -1):
+        if not budget.take(len(cell)):
+            return None
         u, lx = _loose(cell[:p]), _loose(render(cell[p:]))
         if len(u) >= k and u[:k] == lx[:k] and u[-k:] == lx[-k:]:
             return p
     return None
 
 
-def split_display(cell: str) -> tuple[str, str]:
-    """(unicode, latex) of a display-equation cell; ("", cell) when no LaTeX part is found."""
+def split_display(cell: str, budget: Optional[Budget] = None) -> tuple[str, str]:
+    """(unicode, latex) of a display-equation cell; ("", cell) when no LaTeX part is found (or the cell is
+    longer than a formula pair, or the budget is spent)."""
     cell = cell.strip()
     occ = cell.find("\\")
     if occ < 0:
         return cell, ""
-    p = _split_point(cell, 0, occ, len(cell))
+    if occ > MAX_FRAGMENT or len(cell) > 4 * MAX_FRAGMENT:
+        return "", cell
+    p = _split_point(cell, 0, occ, len(cell), budget)
     if p is None:
-        p = _split_by_ends(cell, occ)
+        p = _split_by_ends(cell, occ, budget=budget)
     if p is None:
         return "", cell
     return cell[:p].replace("OPEN", "").replace("CLOSE", "").strip(), cell[p:].strip()
 
 
-def _latex_end(text: str, occ: int) -> int:
-    """Where the inline LaTeX fragment containing ``occ`` ends (braces balanced, next word is prose)."""
-    depth, i, n = 0, occ, len(text)
+_NEXT_WORD = re.compile(r"\s*(\S+)")
+
+
+def _latex_end(text: str, occ: int, stop: Optional[int] = None) -> int:
+    """Where the inline LaTeX fragment containing ``occ`` ends (braces balanced, next word is prose), at most
+    ``stop``."""
+    depth, i, n = 0, occ, min(len(text), stop if stop is not None else len(text))
     while i < n:
         c = text[i]
         if c == "{":
@@ -91,7 +131,7 @@ def _latex_end(text: str, occ: int) -> int:
         elif c == "}":
             depth = max(0, depth - 1)
         elif depth == 0 and c.isspace():
-            nxt = re.match(r"\s*(\S+)", text[i:])
+            nxt = _NEXT_WORD.match(text, i, min(len(text), i + MAX_FRAGMENT))
             tok = nxt.group(1) if nxt else ""
             if not re.search(r"[\\{}^_=]", tok) and not re.fullmatch(r"[\d.]+[}\\]?.*", tok):
                 return i
@@ -126,21 +166,27 @@ def has_duplicated_math(text: str) -> bool:
     return len(re.findall(r"[^\s$\\]\\(?:mathbf|sigma|theta|mathrm|mathcal|times|hat)\b", text)) >= 5
 
 
-def fix_inline(text: str) -> str:
-    """Replace each unicode+LaTeX pair in running text by ``$LaTeX$``, and plain repeats by one copy."""
+def fix_inline(text: str, budget: Optional[Budget] = None) -> str:
+    """Replace each unicode+LaTeX pair in running text by ``$LaTeX$``, and plain repeats by one copy; within
+    ``budget`` (the document's), the rest kept as written."""
+    budget = budget or Budget()
     out, pos = [], 0
     for m in re.finditer(r"\\[A-Za-z]+|[_^]\{", text):
         occ = m.start()
         if occ < pos:
             continue
-        start = occ
-        while start > pos and not text[start - 1].isspace():
+        if not budget.take(2 * MAX_FRAGMENT if budget.left > 2 * MAX_FRAGMENT else budget.left + 1):
+            break
+        start, floor = occ, max(pos, occ - MAX_FRAGMENT)
+        while start > floor and not text[start - 1].isspace():
             start -= 1
-        end = _latex_end(text, occ)
-        while text[end - 1:end] in (")", "]") and text[start:end].count(text[end - 1]) > \
-                text[start:end].count("(" if text[end - 1] == ")" else "["):
+        end = _latex_end(text, occ, occ + MAX_FRAGMENT)
+        count = {c: text.count(c, start, end) for c in "()[]"}
+        while text[end - 1:end] in (")", "]") and end > start and \
+                count[text[end - 1]] > count["(" if text[end - 1] == ")" else "["]:
+            count[text[end - 1]] -= 1
             end -= 1  # a bracket closing the surrounding prose
-        p = _split_point(text, start, occ, end)
+        p = _split_point(text, start, occ, end, budget)
         if p is None:
             continue
         latex = text[p:end]

@@ -14,7 +14,7 @@ from nerfify_ns.paper.errors import (
     CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, PaperLimitError, ScannedPdfError,
 )
 from nerfify_ns.paper.language import SAMPLE_CHARS, require_english
-from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements
 from nerfify_ns.paper.plaintext import MATHY, NAMED_HEADING
 from nerfify_ns.paper.references import is_references_heading
 
@@ -92,6 +92,7 @@ def read_pdf(path: Path, max_pages: Optional[int] = None, limits: Limits = DEFAU
             raise EmptyDocumentError(f"{path.name}: the PDF holds no text; pass a PDF with text or the source")
         require_english(_sample(units), path.name)  # every unit: a paper in another script may yield no block
         blocks = _to_blocks(units, words)
+        check_elements(blocks, path.name, limits)
         meta_title = (pdf.metadata or {}).get("title", "") or ""
         doc = build(blocks, source=str(path), kind="pdf", page_count=pdf.page_count)
         if not doc.title and len(meta_title) > 8:

@@ -9,7 +9,7 @@ from typing import Iterator
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
-from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, read_text_file
+from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
 
 NUMBERED_HEADING = re.compile(r"^(?:\d+(?:\.\d+){0,3}\.?|[A-Z]\.(?:\d+\.?)*|Appendix [A-Z0-9]+\.?)\s+[A-Z][^.!?]{1,90}$")
 NAMED_HEADING = re.compile(r"^(?:abstract|references|bibliography|acknowledge?ments?|introduction|related work|"
@@ -21,6 +21,7 @@ MATHY = re.compile(r"[=+∑∫∏σαβγδλθ^_\\≈≤≥×·∈→‖]")
 def read_text(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a ``.txt`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
     blocks = text_blocks(read_text_file(path, limits))
+    check_elements(blocks, path.name, limits)
     require_english(prose(blocks), path.name)
     return build(blocks, source=str(path), kind="text")
 
