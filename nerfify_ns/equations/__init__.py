@@ -19,12 +19,21 @@ API::
     lowered = lower_module(...)              # the source + identifier <-> symbol maps, parameters
     report = check_lowering(eqs, {"sigma": ("R", "S"), ...}, sizes)   # report.ok, str(report)
 
+    # all at once, for a hole's equations: read, lower what the outputs need, check; never raises
+    compiled = compile_equations([(latex, "1"), (latex2, "2")], inputs, outputs, sizes, "MediumRenderer")
+    compiled.ok, compiled.reason, compiled.failures, compiled.source, compiled.lowered.names
+
 Conventions (``shapes.py``): per-ray tensors are ``[R, ...]``, per-sample ``[R, S, ...]``; a sum over
 samples sums dim 1; ``\\sum_{j<i}`` / ``\\prod_{j=1}^{i-1}`` are exclusive cumulative reductions along
 the samples; learned matrices and vectors (``W``, ``b``) come from the caller's ``sizes``; ``delta``
 (``Conventions.step``) is the step between samples, which integrals along the ray use as their
 quadrature. Symbols are keyed as ``Symbol.key``: ``sigma``, ``W_Delta^f``, ``hat C``, ``cal L_recon``,
-``h'_c``.
+``h'_c``; a sample index is not part of the key (``\\sigma_i`` and ``\\sigma_j`` are both ``sigma``), nor
+is the point a field is evaluated at (``C(\\mathbf{r})`` is ``C``).
+
+Not supported (each refused with its reason): packed samples (segment sums over ragged rays), shifted
+sample indices in evaluation (``t_{i+1}``: bind the quantity they define, e.g. ``delta``), reductions
+over sets other than samples/rays/integer ranges, max/min over an index, matrix literals, ellipses.
 
 Modules, in the order of the pipeline:
     normalize.py   noise of converted papers -> clean LaTeX pieces (columns kept)
@@ -35,10 +44,13 @@ Modules, in the order of the pipeline:
     shapes.py      layouts, sizes, parameters, the order equations are evaluated in
     interpret.py   numpy float64 interpreter (the oracle)
     naming.py      generated identifiers; lower.py: IR -> nn.Module source
+    emit.py        the module's source around the lowered lines (fixed prelude and class text)
     check.py       check_lowering: module vs interpreter (rtol 1e-6) and gradcheck
+    compile.py     compile_equations: the three steps for one hole
 """
 
 from .check import CheckReport, check_lowering
+from .compile import Compiled, compile_equations
 from .interpret import interpret
 from .ir import (Apply, BinOp, Cases, Compare, Concat, Conventions, Equation, Expectation, Index, Integral, Neg,
                  Norm, Number, ParseFailure, Reduce, Symbol)
@@ -48,8 +60,8 @@ from .render import show
 from .shapes import CompileError, ParamSpec, ShapeError
 
 __all__ = [
-    "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Concat", "Conventions", "Equation",
+    "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Compiled", "Concat", "Conventions", "Equation",
     "Expectation", "Index", "Integral", "Lowered", "LoweringError", "Neg", "Norm", "Number", "ParamSpec",
-    "ParseFailure", "Reduce", "ShapeError", "Symbol", "check_lowering", "interpret", "lower", "lower_module",
+    "ParseFailure", "Reduce", "ShapeError", "Symbol", "check_lowering", "compile_equations", "interpret", "lower", "lower_module",
     "parse_equation", "parse_equations", "parse_expression", "show",
 ]

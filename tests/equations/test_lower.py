@@ -47,7 +47,7 @@ def test_the_module_reads_like_the_paper():
 
 
 def test_learned_parameters_are_named_after_their_symbols():
-    eqs = [P(r"h = \mathrm{ReLU}(\mathbf{W}_\gamma \cdot \gamma + \mathbf{b}_\gamma)")]
+    eqs = [P(r"h = \mathrm{ReLU}(\mathbf{W}_\gamma \cdot \gamma(\mathbf{x}) + \mathbf{b}_\gamma)")]
     sizes = {"W_gamma": (5, 4), "b_gamma": (5,), "B": ParamSpec((2, 2), learned=False)}
     lowered = lower_module(eqs, {"gamma": ("R", 4)}, ["h"], sizes, "Layer")
     assert "self.p_w_gamma = nn.Parameter(torch.empty(5, 4))" in lowered.source
@@ -142,3 +142,17 @@ def test_float64_agreement_on_many_random_draws():
                                 domains={"sigma": (0.0, 5.0)}, gradcheck=seed == 0)
         assert report.ok, str(report)
         assert np.max([o.max_rel for o in report.outputs]) < 1e-6
+
+
+def test_compile_equations_reads_lowers_and_checks_a_hole():
+    from nerfify_ns.equations import compile_equations
+
+    latex = [(r"\alpha_i = 1 - \exp(-\sigma_i \delta_i)", "4"), (r"T_i = \prod_{j<i}(1 - \alpha_j)", "5"),
+             (r"\hat{C} = \sum_i T_i \alpha_i \mathbf{c}_i", "6"), (r"y = \nabla x", "7")]
+    compiled = compile_equations(latex, PER_SAMPLE, ["hat C"], class_name="Renderer")
+    assert compiled.ok and compiled.report.gradcheck == "passed"
+    assert [f.number for f in compiled.failures] == ["7"]  # not needed by the outputs: reported, not fatal
+    assert "class Renderer(nn.Module)" in compiled.source
+    broken = compile_equations(latex[:2] + [(r"\hat{C} = \sum_i T_i \mathcal{F}(\alpha_i + 1)", "6")],
+                               PER_SAMPLE, ["hat C"])
+    assert not broken.ok and "'hat C' is neither" in broken.reason and "unknown operator" in broken.reason
