@@ -10,6 +10,7 @@ from nerfify_ns.paper.document import (
     Algorithm, Caption, Citation, Document, Equation, Location, Paragraph, Reference, ResultTable, Section,
 )
 from nerfify_ns.paper.hyperparams import extract_hyperparameters, split_sentences
+from nerfify_ns.paper.mathnorm import annotate_equations
 from nerfify_ns.paper.references import is_references_heading, parse_reference_text
 
 KINDS = ("title", "authors", "abstract", "heading", "para", "equation", "caption", "algorithm", "table",
@@ -73,6 +74,7 @@ def build(blocks: Iterable[Block], source: str, kind: str, page_count: int = 0,
                                                            for a in doc.algorithms for line in a.lines])
     keys = cite_keys if cite_keys is not None else {r.key for r in doc.references}
     doc.citations = extract_citations(items, keys)
+    annotate_equations(doc)
     return doc
 
 

@@ -74,7 +74,16 @@ class Section(_Dictable):
 
 @dataclass
 class Equation(_Dictable):
-    """A display equation: LaTeX where the source has it, text best-effort, number as printed ("3")."""
+    """A display equation: its LaTeX from every input, number as printed ("3"), and how far to trust it.
+
+    ``latex`` is normalised (``paper/mathnorm.py``; the source's own spelling in ``latex_raw`` when that
+    differs); for a PDF it is reconstructed from the text layer (``paper/pdf_math.py``). ``source`` is
+    tex | markdown | pdf | text; ``method`` how the LaTeX was obtained: source (written in the input),
+    actualtext (a PDF's embedded LaTeX, e.g. axessibility), layout (rebuilt from glyphs and rules), none.
+    ``page`` (1-based) and ``bbox`` (x0, y0, x1, y1 in PDF points) locate a PDF equation; ``confidence`` is
+    0..1 with ``notes`` saying what lowered it; ``sentence`` is the sentence the equation belongs to, the
+    equation shown as ``⟨Eq. n⟩``.
+    """
 
     latex: str = ""
     text: str = ""
@@ -82,6 +91,14 @@ class Equation(_Dictable):
     label: str = ""
     loc: Location = field(default_factory=Location)
     section: str = ""
+    source: str = ""
+    method: str = ""
+    page: Optional[int] = None
+    bbox: Optional[list[float]] = None
+    confidence: Optional[float] = None
+    sentence: str = ""
+    notes: list[str] = field(default_factory=list)
+    latex_raw: str = ""
 
 
 @dataclass

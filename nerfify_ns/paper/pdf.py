@@ -15,6 +15,7 @@ from nerfify_ns.paper.errors import (
 )
 from nerfify_ns.paper.language import SAMPLE_CHARS, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements
+from nerfify_ns.paper.pdf_math import enrich_document
 from nerfify_ns.paper.plaintext import MATHY, NAMED_HEADING
 from nerfify_ns.paper.references import is_references_heading
 
@@ -97,6 +98,7 @@ def read_pdf(path: Path, max_pages: Optional[int] = None, limits: Limits = DEFAU
         doc = build(blocks, source=str(path), kind="pdf", page_count=pdf.page_count)
         if not doc.title and len(meta_title) > 8:
             doc.title = meta_title.strip()
+        enrich_document(doc, pdf)  # display equations as LaTeX from the text layer, with confidences
         return doc
     finally:
         pdf.close()

@@ -617,6 +617,13 @@ class _Deriver:
             for t in context:
                 if t not in grp["text"]:
                     grp["text"].append(t)
+        for (section, kind), grp in groups.items():  # unnumbered equations under "Derivation of Eqs. (10-11)"
+            if not any(e["number"] for e in grp["equations"]):
+                m = re.search(r"Eqs?\.?\s*\(?(\d+)\)?(?:\s*[-\u2013]\s*\(?(\d+)\)?)?", section)
+                if m:
+                    lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
+                    grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [m.group(1)]
+                    grp["text"] = [t for _o, s_, t, _l, _r in paragraphs if s_ == section and len(_MATHY.findall(t)) < 2]
         if not equations:  # equations the converter left in the running text (e.g. an appendix PDF)
             by_section: dict[str, list] = {}
             for order, section, text, loc, role in paragraphs:
