@@ -89,8 +89,9 @@ def train_for_curve(
     timeout: float = 900,
     env: Optional[dict] = None,
     on_progress: Optional[ProgressHook] = None,
+    sandbox: Optional[Sequence[Path]] = None,
 ) -> TrainRun:
-    """``ns_train`` with :func:`curve_train_args` appended to ``method_args``."""
+    """``ns_train`` with :func:`curve_train_args` appended to ``method_args`` (``sandbox``: as for ``ns_train``)."""
     return ns_train(
         method,
         data,
@@ -100,6 +101,7 @@ def train_for_curve(
         timeout=timeout,
         env=env,
         on_progress=on_progress,
+        sandbox=sandbox,
     )
 
 
@@ -145,12 +147,15 @@ def evaluate_checkpoints(
     timeout: float = 600,
     env: Optional[dict] = None,
     save_dir: Optional[Path] = None,
+    sandbox: Optional[Sequence[Path]] = None,
 ) -> tuple[List[dict], float]:
-    """Render and score every checkpoint in one subprocess; returns its results and wall seconds."""
+    """Render and score every checkpoint in one subprocess; returns its results and wall seconds. ``sandbox``:
+    the checkpoints are a generated plugin's (its code runs to load them), so the subprocess runs in the
+    sandbox with these folders (the plugin, the data) readable and ``out_json``'s folder writable."""
     out_json = Path(out_json).resolve()
     out_json.parent.mkdir(parents=True, exist_ok=True)
     cmd = [
-        *offline_prefix(),
+        *(offline_prefix() if sandbox is None else []),
         sys.executable,
         "-m",
         "nerfify_ns.evaluate.render_views",
@@ -162,7 +167,13 @@ def evaluate_checkpoints(
     if save_dir is not None:
         cmd += ["--save-dir", str(Path(save_dir).resolve())]
     log = out_json.with_suffix(".log")
-    result = run_logged(cmd, log, out_json.parent, timeout=timeout, env=env)
+    if sandbox is not None:
+        from nerfify_ns.runtime.sandbox import run_sandboxed
+
+        result = run_sandboxed(cmd, out_json.parent, timeout=timeout, log_name=log.name, env=env,
+                               readonly=sandbox)
+    else:
+        result = run_logged(cmd, log, out_json.parent, timeout=timeout, env=env)
     if result.returncode != 0 or result.timed_out or not out_json.exists():
         raise CurveError(
             f"checkpoint evaluation failed (exit {result.returncode}, timed out: {result.timed_out}); "
@@ -179,8 +190,10 @@ def record_curve(
     timeout: float = 600,
     env: Optional[dict] = None,
     save_dir: Optional[Path] = None,
+    sandbox: Optional[Sequence[Path]] = None,
 ) -> Curve:
-    """Evaluate every checkpoint of a finished run and write ``out_dir/curve.csv``."""
+    """Evaluate every checkpoint of a finished run and write ``out_dir/curve.csv`` (``sandbox``: as for
+    :func:`evaluate_checkpoints`)."""
     if run.run_dir is None or run.config_path is None:
         raise CurveError(f"run of {run.method} left no run folder or config; see {run.log_path}")
     ckpts = checkpoints(run.run_dir)
@@ -194,6 +207,7 @@ def record_curve(
         timeout=timeout,
         env=env,
         save_dir=save_dir,
+        sandbox=sandbox,
     )
     label = label or run.method
     points, previous = [], -1

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import List, Optional, Sequence
 
@@ -176,11 +175,14 @@ def evaluate_run(
     test_frames = dataset.eval_frames
     frames = [{"name": f.stem, "gt": f.image} for f in test_frames]
     out_dir.mkdir(parents=True, exist_ok=True)
-    run_env = {**os.environ, **(env or {}), ENV_GENERATED: str(plugin_dir)}
+    # the plugin's code runs in training and in loading its checkpoints: both in the sandbox, which passes on
+    # only an allow-list of our environment plus run_env
+    run_env = {**(env or {}), ENV_GENERATED: str(plugin_dir)}
+    readable = [plugin_dir, dataset.root]
     args = [*method_args, *(["--machine.seed", str(seed)] if seed is not None else [])]
     run = train_for_curve(
         GENERATED_METHOD, dataset, out_dir / "train", iterations=iterations, every=every, method_args=args,
-        timeout=timeout, env=run_env, on_progress=on_progress,
+        timeout=timeout, env=run_env, on_progress=on_progress, sandbox=[plugin_dir],
     )
     summary: dict = {
         "label": label,
@@ -193,6 +195,7 @@ def evaluate_run(
         "method_args": list(args),
         "train_log": str(run.log_path),
         "train_wall_seconds": run.wall_seconds,
+        "isolation": run.isolation,
         "iterations_done": run.last_step + 1,
         "losses": loss_stats(run.losses),
     }
@@ -209,7 +212,8 @@ def evaluate_run(
         return summary
     renders = out_dir / "renders"
     try:
-        curve = record_curve(run, out_dir, label=label, timeout=timeout, env=run_env, save_dir=renders)
+        curve = record_curve(run, out_dir, label=label, timeout=timeout, env=run_env, save_dir=renders,
+                             sandbox=readable)
     except CurveError as exc:
         summary.update(status="failed", reason=f"evaluation failed: {exc}", psnr=None, ssim=None, lpips=None,
                        seconds=None)

@@ -97,6 +97,8 @@ class TrainRun:
     """Nerfstudio's per-step ``Train Rays / Sec`` (steps after the first two)."""
     scalars: Scalars = field(default_factory=dict)
     """Every scalar the run logged (tag -> step -> value)."""
+    isolation: List[str] = field(default_factory=list)
+    """The sandbox's isolation tags when the run was sandboxed (``bwrap``, ``no-network``...), else empty."""
 
     @property
     def last_step(self) -> int:
@@ -225,20 +227,32 @@ def ns_train(
     env: Optional[dict] = None,
     offline: bool = True,
     on_progress: Optional[ProgressHook] = None,
+    sandbox: Optional[Sequence[Path]] = None,
 ) -> TrainRun:
     """Train ``method`` on ``data`` (a dataset or its folder) with Nerfstudio's trainer in a subprocess; the
-    dataparser as for :func:`train_command`."""
+    dataparser as for :func:`train_command`. ``sandbox``: the method runs code we do not trust (a generated
+    plugin), so the run goes through :func:`nerfify_ns.runtime.sandbox.run_sandboxed` with these folders (the
+    plugin) and the data's readable and ``out_dir`` the only writable one; ``env`` is then all it gets of ours
+    beyond the sandbox's allow-list."""
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     layout = RunLayout(out_dir, method)
+    data = as_dataset(data) if sandbox is not None else data
     cmd = train_command(method, data, layout, iterations=iterations, method_args=method_args, dataparser=dataparser,
-                        dataparser_args=dataparser_args, prefix=offline_prefix() if offline else ())
+                        dataparser_args=dataparser_args,
+                        prefix=offline_prefix() if offline and sandbox is None else ())
     poll = progress_poll(layout.run_dir, iterations, on_progress)
-    result = run_process(cmd, layout.log, cwd=out_dir, timeout=timeout, env=launch_env(env), poll=poll)
+    if sandbox is not None:
+        from nerfify_ns.runtime.sandbox import run_sandboxed
+
+        result = run_sandboxed(cmd, out_dir, timeout=timeout, log_name=layout.log.name, env=env, poll=poll,
+                               readonly=[*sandbox, data.root])
+    else:
+        result = run_process(cmd, layout.log, cwd=out_dir, timeout=timeout, env=launch_env(env), poll=poll)
     if poll is not None:
         poll()  # the last steps, logged after the previous poll
     run = TrainRun(method=method, returncode=result.returncode, wall_seconds=result.seconds, log_path=layout.log,
-                   timed_out=result.timed_out)
+                   timed_out=result.timed_out, isolation=list(getattr(result, "isolation", [])))
     return read_run(run, layout)
 
 

@@ -150,6 +150,7 @@ def test_evaluate_run_and_report_open_offline_in_chromium(tiny_scene, tmp_path):
     summary = evaluate_run(plugin.out, tiny_scene, run / "eval", iterations=20, every=10, label="nerfacto-ref",
                            seed=0, env=NO_WEIGHTS_ENV, timeout=600)
     assert summary["status"] == "ok", summary
+    assert "no-network" in summary["isolation"]  # the plugin trains in the sandbox
     assert summary["psnr"] > 8 and 0 < summary["ssim"] <= 1 and summary["seconds"] > 0
     assert json.loads((run / "eval" / "summary.json").read_text())["psnr"] == summary["psnr"]
     for name in ("curve.csv", "curve.png", "error_maps.json", "consistency.json", "r_0_errors.png",
