@@ -63,6 +63,15 @@ def test_out_under_a_read_only_folder(command, tmp_path):
     assert list(locked.iterdir()) == [] and sorted(p.name for p in tmp_path.iterdir()) == ["locked"]
 
 
+def test_report_into_a_read_only_run_folder(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "run.json").write_text("{}")
+    done = run_cli("report", str(run), cwd=tmp_path, prefix=read_only_prefix(run))
+    assert_one_error(done, f"cannot write into {run}")
+    assert [p.name for p in run.iterdir()] == ["run.json"]
+
+
 @pytest.mark.parametrize("command", [
     ["compose", "--method", "nerfacto", "--until", "plan", "--out"],
     [str(EXAMPLE), "--until", "plan", "--out"],

@@ -26,8 +26,11 @@ class Report:
     """Print nothing but errors."""
 
     def main(self) -> None:
+        from nerfify_ns.atomic import check_writable_dir
+
         if not Path(self.run_dir).is_dir():
             raise ReportError(f"{self.run_dir} is not a folder; pass the output folder of 'ns-nerfify PAPER'")
+        check_writable_dir(self.run_dir)  # report.html and report.json are written into it
         html_path, json_path = write_report(self.run_dir)
         if not self.quiet:
             outcome = json.loads(json_path.read_text())["outcome"]
