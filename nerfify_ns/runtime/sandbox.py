@@ -104,7 +104,7 @@ class Limits:
     memory: int = DEFAULT_MEMORY
     """Bytes of memory (resident, page cache, tmpfs) of the whole process tree; per process (address space)
     where no memory cgroup can be written."""
-    pids: int = 512
+    pids: int = 1024
     """Processes and threads of the whole tree; of the sandbox's user (``RLIMIT_NPROC``) without a pids cgroup."""
     files: int = 4096
     """Open files per process (``RLIMIT_NOFILE``)."""
