@@ -285,3 +285,32 @@ def test_unreadable_folder_is_refused(tmp_path):
     private.mkdir(mode=0o700)
     with pytest.raises(SandboxError, match="not readable by other users"):
         run_sandboxed([sys.executable, "-c", "pass"], tmp_path / "w", timeout=30, readonly=[private])
+
+
+def test_cgroup_v2_layout_on_a_stand_in_hierarchy(tmp_path, monkeypatch):
+    """The cgroup v2 path (this machine has v1): on a stand-in hierarchy, the controllers enabled for the
+    children, the run's cgroup made below ours with its limits, and what it used read back."""
+    import shutil
+
+    import nerfify_ns.runtime.sandbox as sb
+
+    root = tmp_path / "cgroup"
+    own = root / "user.slice" / "me"
+    own.mkdir(parents=True)
+    (own / "cgroup.controllers").write_text("cpu memory pids\n")
+    (own / "cgroup.subtree_control").write_text("cpu\n")
+    monkeypatch.setattr(sb, "_mountinfo", lambda: [("/", str(root), "cgroup2", "rw")])
+    monkeypatch.setattr(sb, "_own_cgroups", lambda: {"": "/user.slice/me"})
+    group = sb.TreeCgroup.create(Limits(memory=123 << 20, pids=7))
+    assert group is not None and group.version == 2
+    folder = group.dirs["memory"]
+    assert group.dirs["pids"] == folder and folder.parent == own and folder.name.startswith(f"nerfify-{os.getpid()}-")
+    assert (own / "cgroup.subtree_control").read_text() == "+memory +pids"
+    assert (folder / "memory.max").read_text() == str(123 << 20) and (folder / "pids.max").read_text() == "7"
+    (folder / "memory.events").write_text("low 0\nhigh 0\nmax 3\noom 1\noom_kill 2\n")
+    (folder / "memory.peak").write_text("456\n")
+    (folder / "pids.events").write_text("max 5\n")
+    assert group.usage() == {"oom_kills": 2, "peak_memory": 456, "pids_refused": 5}
+    shutil.rmtree(folder)
+    (own / "cgroup.controllers").write_text("cpu\n")  # no memory controller here: not usable
+    assert sb.TreeCgroup._v2("x", Limits()) is None
