@@ -174,11 +174,11 @@ class Paper:
     """AlexNet weights for LPIPS (else $NERFIFY_LPIPS_WEIGHTS, the torch hub cache, or LPIPS is null)."""
 
     def main(self) -> None:
+        budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
+                         smoke_iterations=self.smoke_iterations)  # checked before anything heavy is imported
         from nerfify_ns.pipeline import run_paper
 
         _set_lpips(self.lpips_weights)
-        budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
-                         smoke_iterations=self.smoke_iterations)
         with ConsoleProgress() as progress:
             result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
                                until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
@@ -267,19 +267,19 @@ class Compose:
     """Replace an existing output folder."""
 
     def main(self) -> None:
+        if (self.plan is None) == (self.method is None):
+            raise UsageError("give a plan file or --method NAME (one of them)")
+        budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
+                         smoke_iterations=self.smoke_iterations,
+                         scene={**COMPOSE_BUDGET.scene, "resolution": self.resolution})  # checked here, early
         from nerfify_ns.pipeline import run_compose
         from nerfify_ns.plan import Plan
         from nerfify_ns.synthesis.compose import sources_from_folder
         from nerfify_ns.synthesis.resources import load_reference_plan
 
-        if (self.plan is None) == (self.method is None):
-            raise UsageError("give a plan file or --method NAME (one of them)")
         plan = Plan.load(self.plan) if self.plan is not None else load_reference_plan(self.method)
         sources = sources_from_folder(self.components) if self.components is not None else None
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
-        budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
-                         smoke_iterations=self.smoke_iterations,
-                         scene={**COMPOSE_BUDGET.scene, "resolution": self.resolution})
         with ConsoleProgress() as progress:
             result = run_compose(plan, out, data=self.data, scene=self.scene, budget=budget, until=self._until(),
                                  keep_all=self.keep_all, patch_rounds=self.patch_rounds, overwrite=self.overwrite,
