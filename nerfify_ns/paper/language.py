@@ -83,10 +83,10 @@ def prose(blocks: Iterable) -> str:
 def english_signals(text: str) -> dict:
     """The measures the check decides on: letters, the share in another script (and which), words, the share of
     common English words."""
-    text = text[:SAMPLE_CHARS]
+    text = _NOT_PROSE.sub(" ", text[:SAMPLE_CHARS])
     letters = [ch for ch in text if ch.isalpha()]
     foreign = Counter(_script(ch) for ch in letters if not _latin_or_greek(ch))
-    words = [w.lower() for w in _WORD.findall(_NOT_PROSE.sub(" ", text))]
+    words = [w.lower() for w in _WORD.findall(text)]
     latin_words = [w for w in words if all(_latin_or_greek(ch) for ch in w)]
     return {
         "letters": len(letters),

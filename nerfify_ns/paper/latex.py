@@ -29,7 +29,8 @@ _LABEL_AFTER = re.compile(r"\s*\\label\s*\{([^{}]{0,2000})\}")
 _PARAGRAPH = re.compile(r"\S[^\n]*(?:\n(?![^\S\n]*\n)[^\n]*)*")
 """A paragraph: from a non-blank character up to a blank line (the lookahead stops at the next line break, so
 the scan is linear)."""
-_TWO_LETTERS = re.compile(r"[A-Za-z]{2}")
+_TWO_LETTERS = re.compile(r"[^\W\d_]{2}")
+"""A paragraph has two letters in a row (in any script) once commands are removed."""
 _COMMAND_NAME = re.compile(r"\\[A-Za-z]+")
 _LEVEL = {"section": 1, "subsection": 2, "subsubsection": 3, "paragraph": 4}
 ARCHIVES = (".tar.gz", ".tgz", ".tar")
