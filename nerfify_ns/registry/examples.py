@@ -158,8 +158,9 @@ def planes(case: str):
             _values((1, 4, 6, 8), spec, case, 8).to(case_dtype(case)).requires_grad_(True)]
 
 
-def ray_bundle(case: str, rays: int = 16):
-    """Rays from a sphere of radius 4 towards the box centre; nears/fars per case (None: a collider decides)."""
+def ray_bundle(case: str, rays: int = 16, times: bool = False):
+    """Rays from a sphere of radius 4 towards the box centre; nears/fars per case (None: a collider decides);
+    ``times``: each ray carries a time in [0, 1], as a dynamic (D-NeRF) dataset's rays do."""
     import torch
     from nerfstudio.cameras.rays import RayBundle
 
@@ -176,7 +177,8 @@ def ray_bundle(case: str, rays: int = 16):
         directions = -directions
     bundle = RayBundle(origins=origins * scale, directions=directions,
                        pixel_area=torch.full((rays, 1), 1e-4 * scale * scale),
-                       camera_indices=torch.zeros(rays, 1, dtype=torch.long))
+                       camera_indices=torch.zeros(rays, 1, dtype=torch.long),
+                       times=torch.rand(rays, 1, generator=gen) if times else None)
     if case in ("grazing_rays", "missing_rays"):
         return bundle
     near, far = (4.0, 4.0) if case == "near_eq_far" else (2.0, 1e5 if case == "far_1e5" else 6.0)

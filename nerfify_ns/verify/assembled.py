@@ -54,7 +54,7 @@ def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
     from nerfstudio.field_components.field_heads import FieldHeadNames
     from nerfstudio.model_components.ray_samplers import UniformSampler
 
-    bundle = collide(ray_bundle(case), case)
+    bundle = collide(ray_bundle(case, times=True), case)  # times: a space-time field reads them, others not
     samples = UniformSampler(num_samples=8)(bundle)
     samples.camera_indices = torch.zeros(*samples.shape, 1, dtype=torch.long)
     out = field(samples)
@@ -78,7 +78,7 @@ def train_step(model, case: str = "nominal", rays: int = 16):
     """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done)."""
     model.train()
     before_iteration(model)
-    bundle = ray_bundle(case, rays)
+    bundle = ray_bundle(case, rays, times=True)
     if case in ("grazing_rays", "missing_rays"):
         bundle.nears = bundle.fars = None  # the model's own collider decides
     n = bundle.origins.shape[0]
