@@ -32,6 +32,11 @@ def _before_mask(n, inclusive, like):
     return torch.ones(n, n, dtype=torch.bool, device=like.device).tril(0 if inclusive else -1)
 
 
+def _sample_ones(n, like):
+    """n ones along the sample axis: a value that does not depend on the samples, repeated for each."""
+    return torch.ones(n, dtype=like.dtype, device=like.device)
+
+
 def _cat_features(*xs):
     """Concatenate along the last (feature) dimension, broadcasting the others; numbers become features."""
     ref = next(x for x in xs if torch.is_tensor(x))

@@ -141,6 +141,11 @@ class _Lower:
         self.uses_n_samples = True
         return "n_samples"
 
+    def _dtype_ref(self) -> str:
+        if self.ref is None:
+            raise LoweringError(f"{self.where}: no input to take a dtype from")
+        return self.ref
+
     def _emit(self, line: str) -> None:
         self.pre.append("    " * self.indent + line)
 
@@ -292,7 +297,11 @@ class _Lower:
     def concat(self, e: Concat) -> _C:
         items = [self.lo(item) for item in e.items]
         if not any(c.tensor for c in items):
-            raise LoweringError(f"{self.where}: a concatenation of numbers only")
+            if self.ref is None:
+                raise LoweringError(f"{self.where}: a concatenation of numbers without any input")
+            values = ", ".join(c.code for c in items)
+            return _C(f"torch.tensor([{values}], dtype={self.ref}.dtype, device={self.ref}.device)", _ATOM,
+                      _T((), (len(items),)))
         for c in items:
             if len(c.t.feat) > 1:
                 raise ShapeError(f"{self.where}: concatenating a value with features {c.t.feat}")
@@ -312,12 +321,16 @@ class _Lower:
         values = [self.lo(v) for v, _ in e.branches]
         conds = [self.lo(c) for _, c in e.branches[:-1]]  # the last case is the fallback
         axes, fr, feat = self._joint(*values, *conds)
-        code = self.align(values[-1], axes, fr)
+        result = values[-1]
         for value, cond in zip(reversed(values[:-1]), reversed(conds)):
-            code = f"torch.where({self.align(cond, axes, fr)}, {self.align(value, axes, fr)}, {code})"
-        if not any(v.tensor for v in values) and not any(c.tensor for c in conds):
-            raise LoweringError(f"{self.where}: cases of numbers only")
-        return _C(code, _ATOM, _T(axes, feat))
+            if not cond.tensor:  # a condition on numbers only (0.5 > k): a 0-d tensor, so shapes stay known
+                ref = self._dtype_ref()
+                cond = _C(f"torch.as_tensor({cond.code}, device={ref}.device)", _ATOM, _T((), ()))
+            a, b = self.align(value, axes, fr), self.align(result, axes, fr)
+            if not value.tensor and not result.tensor:
+                a = f"torch.full_like({self.align(cond, axes, fr, _ATOM)}, {a}, dtype={self._dtype_ref()}.dtype)"
+            result = _C(f"torch.where({self.align(cond, axes, fr)}, {a}, {b})", _ATOM, _T(axes, feat))
+        return result
 
     def reduce(self, r: Reduce) -> _C:
         fn = "torch.sum" if r.kind == "sum" else "torch.prod"
@@ -341,10 +354,14 @@ class _Lower:
             body = self.lo(r.body)
         finally:
             self.sample_vars.pop()
+        expanded = v not in body.t.axes and r.mode != "full"
+        if expanded:
+            ones = _C(f"_sample_ones({self._n_samples()}, {self.ref})", _ATOM, _T((v,), ()))
+            axes = self._sorted(body.t.axes + (v,))
+            fr = len(body.t.feat)
+            body = _C(f"{self.align(body, axes, fr, _MUL)} * {self.align(ones, axes, fr, _MUL + 1)}", _MUL,
+                      _T(axes, body.t.feat))
         if v not in body.t.axes:
-            if r.mode != "full":
-                raise LoweringError(f"{self.where}: a cumulative reduction of a value that does not depend on the "
-                                    "samples")
             n = self._n_samples()
             op = "*" if r.kind == "sum" else "**"
             return _C(f"{_paren(body, _POW + 1)} {op} {n}", _MUL if op == "*" else _POW, body.t, body.tensor)
@@ -360,7 +377,7 @@ class _Lower:
             if r.kind == "sum":
                 code = f"torch.cumsum({body.code}, dim={dim})" if inclusive else \
                     f"_exclusive_cumsum({body.code}, dim={dim})"
-            elif isinstance(r.body, Apply) and r.body.func == "exp":
+            elif isinstance(r.body, Apply) and r.body.func == "exp" and not expanded:
                 inner = self.lo_in_scope(r.body.args[0], v)
                 code = f"torch.exp(torch.cumsum({inner.code}, dim={dim}))" if inclusive else \
                     f"torch.exp(_exclusive_cumsum({inner.code}, dim={dim}))"

@@ -19,7 +19,7 @@ MAX_LEN = 24
 RESERVED = frozenset({
     "torch", "nn", "math", "self", "super", "range", "float", "min", "max", "abs", "next", "x", "xs", "dim", "like",
     "inclusive", "n", "shape", "ref", "parts", "n_rays", "n_samples", "_exclusive_cumsum", "_exclusive_cumprod",
-    "_before_mask", "_cat_features", "forward", "reset_parameters", "__init__",
+    "_before_mask", "_cat_features", "_sample_ones", "forward", "reset_parameters", "__init__",
 })
 
 

@@ -153,6 +153,7 @@ def _bars(m: Mapped) -> Mapped:
     out, origin, last, stack = [], [], 0, []
     text = m.text
     previous = ""  # the last non-space character written
+    depth = 0  # brackets around the current position: a bar closes only the bar opened at its own depth
     for match in rx.finditer(text):
         if match.start() > 0 and text[match.start() - 1] == "\\" and match.group() == "|":
             continue  # the second character of \|, handled with it
@@ -161,6 +162,9 @@ def _bars(m: Mapped) -> Mapped:
         origin.extend(m.origin[last:match.start()])
         if chunk.strip():
             previous = chunk.rstrip()[-1]
+            if re.search(r"\\begin\s*\{[A-Za-z*]*\}\s*$", chunk):
+                previous = "{"  # \begin{cases}| opens
+        depth += sum(chunk.count(c) for c in "{([") - sum(chunk.count(c) for c in "})]")
         tok = match.group()
         kind = "norm" if tok in (r"\lVert", r"\rVert", r"\Vert", r"\|") else "abs"
         if tok in (r"\lVert", r"\lvert"):
@@ -169,10 +173,10 @@ def _bars(m: Mapped) -> Mapped:
             side = "r"
         else:
             operand_end = bool(previous) and (previous.isalnum() or previous in ")]}'")
-            side = "r" if (stack and stack[-1] == kind and operand_end) else "l"
+            side = "r" if (stack and stack[-1] == (kind, depth) and operand_end) else "l"
         if side == "l":
-            stack.append(kind)
-        elif stack and stack[-1] == kind:
+            stack.append((kind, depth))
+        elif stack and stack[-1][0] == kind:
             stack.pop()
         new = {("norm", "l"): r"\lVert ", ("norm", "r"): r"\rVert ", ("abs", "l"): r"\lvert ",
                ("abs", "r"): r"\rvert "}[kind, side]

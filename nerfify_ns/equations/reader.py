@@ -314,6 +314,10 @@ class Reader(Transformer):
         return ("prime", len(str(children[0])))
 
     def _scripts(self, value, pos, scripts):
+        sups = [arg for kind, arg in scripts if kind == "sup"]
+        subs = [arg for kind, arg in scripts if kind == "sub"]
+        for extra in (sups[1:2] or subs[1:2]):
+            raise ReadError("a double superscript or subscript (x^a^b)", extra.pos, "^" if sups[1:2] else "_")
         for kind, arg in scripts:
             if kind == "prime":
                 if not isinstance(value, Symbol):
