@@ -225,12 +225,10 @@ def _product(factors: list[Expr]) -> Expr:
 
 
 def _is_exp_of_cumulative(e: Expr) -> bool:
+    """``\\exp(-\\int_{t_n}^{t} \\sigma)`` or ``\\exp(-\\sum_{j<i} ...)``: a transmittance written out."""
     if not (isinstance(e, Apply) and e.func == "exp"):
         return False
-    return any(isinstance(n, (Reduce, Integral)) and (getattr(n, "mode", "") == "exclusive"
-                                                       or (isinstance(n, Integral) and n.quadrature is not None
-                                                           and getattr(n.quadrature, "mode", "") == "exclusive"))
-               for n in walk(e.args[0]))
+    return any(isinstance(n, Reduce) and n.mode == "exclusive" for n in walk(e.args[0]))
 
 
 def _lhs_free(lhs: Symbol, rhs: Expr, c: Conventions) -> str | None:

@@ -69,5 +69,6 @@ def test_hostile_input_is_answered_quickly_and_in_linear_time(name):
     assert len(large) <= MAX_CHARS
     t_small = min(timed(small) for _ in range(2))
     t_large = min(timed(large) for _ in range(2))
-    assert t_large < 1.0, f"{name}: {t_large:.3f} s"
-    assert t_large < 16 * t_small + 0.05, f"{name}: {t_small:.4f} s -> {t_large:.4f} s for 8x the input"
+    assert t_large < 2.5, f"{name}: {t_large:.3f} s"  # generous: CI machines are shared
+    # linear: 8x the input takes about 8x the time (quadratic would be 64x)
+    assert t_large < 20 * t_small + 0.1, f"{name}: {t_small:.4f} s -> {t_large:.4f} s for 8x the input"
