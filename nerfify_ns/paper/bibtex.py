@@ -141,14 +141,14 @@ def load_references(tree: SourceTree, main: Path, bib_names: list[str], cited: l
             if found is not None:
                 files.append((found, shown))
     else:
-        files = [(f, tree.rel(f)) for f in tree.with_suffix(".bib")]
+        files = [(f, tree.rel(f)) for f in tree.with_suffix(".bib", strict=False)]
     for f, shown in files:
         text = budget.read(tree, f, shown)
         for key, fields in bib_entries(text, budget.entries_left(), shown):
             budget.entries += 1
             bib[key] = fields
     bbl = main.with_suffix(".bbl")
-    bbls = [bbl] if os.path.lexists(bbl) else tree.with_suffix(".bbl")
+    bbls = [bbl] if os.path.lexists(bbl) else tree.with_suffix(".bbl", strict=False)
     if bbls:
         shown = tree.rel(bbls[0])
         refs = parse_bbl(budget.read(tree, bbls[0], shown), budget.entries_left(), shown)

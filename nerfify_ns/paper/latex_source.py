@@ -169,6 +169,7 @@ class SourceTree:
         self.bytes_read = 0
         self._cache: dict[Path, str] = {}
         self._files: Optional[list[Path]] = None
+        self._complete = True
 
     def rel(self, path: Path) -> str:
         """``path`` as the paper names it: relative to the folder when inside it."""
@@ -219,22 +220,27 @@ class SourceTree:
         self._cache[real] = text
         return text
 
-    def files(self) -> list[Path]:
-        """Every file under the folder, sorted (links listed, not followed into folders)."""
+    def files(self, strict: bool = True) -> list[Path]:
+        """Every file under the folder, sorted (links listed, not followed into folders). Past
+        ``limits.max_archive_files`` entries: PaperLimitError when ``strict``, else the files seen so far (a
+        lookup for a .bib beside a single .tex file in a crowded folder)."""
         if self._files is None:
-            found, seen = [], 0
+            found, seen, complete = [], 0, True
             for dirpath, dirnames, filenames in os.walk(self.root, followlinks=False):
                 seen += len(dirnames) + len(filenames)
                 if seen > self.limits.max_archive_files:
-                    raise PaperLimitError(f"{self.root.name}: more than {self.limits.max_archive_files} files in the "
-                                          "paper's folder (the limit); pass the paper's own folder")
+                    complete = False
+                    break
                 dirnames.sort()
                 found.extend(Path(dirpath) / f for f in filenames)
-            self._files = sorted(found)
+            self._files, self._complete = sorted(found), complete
+        if strict and not self._complete:
+            raise PaperLimitError(f"{self.root.name}: more than {self.limits.max_archive_files} files in the "
+                                  "paper's folder (the limit); pass the paper's own folder")
         return self._files
 
-    def with_suffix(self, suffix: str) -> list[Path]:
-        return [p for p in self.files() if p.name.endswith(suffix)]
+    def with_suffix(self, suffix: str, strict: bool = True) -> list[Path]:
+        return [p for p in self.files(strict) if p.name.endswith(suffix)]
 
     def locate(self, name: str, bases: list[Path], shown: str, suffixes: tuple = ("", ".tex")) -> Optional[Path]:
         """The file an include names, tried under each of ``bases`` with each suffix; None when there is none.

@@ -253,6 +253,8 @@ def test_a_folder_with_too_many_files_is_refused(tmp_path):
     for k in range(60):
         (paper / f"f{k}.txt").write_text("")
     refused(paper, PaperLimitError, "more than 50 files", limits=Limits(max_archive_files=50))
+    # a single .tex file in a crowded folder is still read: the look-up of a .bib beside it stops at the limit
+    assert ingest(paper / "main.tex", Limits(max_archive_files=50)).title.startswith("HostNeRF")
 
 
 @pytest.mark.parametrize("suffix", [".md", ".txt"])
