@@ -15,7 +15,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -237,6 +237,28 @@ def _wrap(reader, path: Path):
         return reader(path)
     except ColmapFormatError as exc:
         raise ColmapFormatError(f"{path.name} {exc}") from None
+
+
+def reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
+    """Mean reprojection error (pixels) over the model's 3D points and their count, from ``points3D.bin`` or
+    ``points3D.txt`` (each point stores its mean error); None when there are no points or no such file.
+    Binary record: ``uint64 id, float64 xyz[3], uint8 rgb[3], float64 error, uint64 n, n x (int32, int32)``."""
+    errors: List[float] = []
+    if (folder / "points3D.txt").is_file():
+        for no, line in enumerate(_text_lines(folder / "points3D.txt"), 1):
+            parts = line.split()
+            if parts and not parts[0].startswith("#"):
+                errors.append(_parse(parts[:8], "ifffffff", no)[7])
+    elif (folder / "points3D.bin").is_file():
+        r = _Reader(_read_bytes(folder / "points3D.bin"))
+        for _ in range(r.count(51, "3D points")):
+            errors.append(r.take("<Q3d3Bd")[-1])
+            track = r.count(8, "track entries")
+            r.pos += 8 * track
+    else:
+        return None
+    good = [e for e in errors if np.isfinite(e)]
+    return (float(np.mean(good)), len(good)) if good else None
 
 
 def write_model_text(folder: Path, cameras: List[ColmapCamera], images: List[ColmapImage]) -> None:

@@ -306,8 +306,10 @@ def read_nerfstudio(root: Path, evidence: str) -> Dataset:
                "per-frame intrinsics" if per_frame else "intrinsics at the top"]
     if with_masks:
         details.append("masks")
+    model_dir = root / "colmap" / "sparse" / "0"  # ns-process-data keeps the COLMAP model it ran
     return Dataset("nerfstudio", root, frames, f"{evidence}: {', '.join(details)}",
-                   {"declares_size": declares, "camera_model": model})
+                   {"declares_size": declares, "camera_model": model,
+                    "reprojection_error": _reprojection_error(model_dir) if model_dir.is_dir() else None})
 
 
 def _listed_splits(meta: dict, images: List[Path], root: Path, where: str) -> Optional[List[str]]:
@@ -409,7 +411,17 @@ def read_colmap(root: Path, evidence: str) -> Dataset:
         frame.split = split
     details = f"{evidence}{', masks/' if masks.is_dir() else ''}"
     return Dataset("colmap", root, frames, details,
-                   {"colmap_path": rel, "declares_size": f"its camera in {rel}/cameras.{ext}"})
+                   {"colmap_path": rel, "declares_size": f"its camera in {rel}/cameras.{ext}",
+                    "reprojection_error": _reprojection_error(folder)})
+
+
+def _reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
+    """The COLMAP model's mean reprojection error and point count (pose quality), None when unknown; a model
+    whose points cannot be read is not refused for it (runs do not read the points)."""
+    try:
+        return colmap_io.reprojection_error(folder)
+    except (colmap_io.ColmapFormatError, OSError):
+        return None
 
 
 def _colmap_lists(root: Path, frames: List[Frame]) -> Optional[List[str]]:

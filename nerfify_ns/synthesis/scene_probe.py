@@ -105,6 +105,9 @@ def probe_scene(data: DataLike) -> SceneFacts:
             evidence["bounded"] = f"{how}{' and transparent background' if alpha else ', background present'}"
         evidence["exact_poses"] = (f"{dataset.format} format (synthetic renders): poses are exact" if exact_poses
                                    else f"poses from a reconstruction ({dataset.format} format)")
+        if dataset.meta.get("reprojection_error"):
+            error, points = dataset.meta["reprojection_error"]
+            evidence["exact_poses"] += f"; COLMAP mean reprojection error {error:.2f} px over {points} points"
         appearance_variation = not exact_poses
         evidence["appearance_variation"] = ("synthetic renders: fixed lighting" if exact_poses
                                             else "real capture: exposure and lighting may vary")

@@ -178,3 +178,24 @@ def test_colmap_quaternions_round_trip():
         r = qvec_to_rotation(q)
         assert np.allclose(r.T @ r, np.eye(3)) and math.isclose(np.linalg.det(r), 1.0)
         np.testing.assert_allclose(qvec_to_rotation(rotation_to_qvec(r)), r, atol=1e-12)
+
+
+def test_colmap_reprojection_error_is_a_pose_quality_fact(scenes, tmp_path):
+    """Each COLMAP 3D point stores its mean reprojection error (points3D.txt / .bin): the probe states their mean."""
+    import shutil
+    import struct
+
+    for binary in (False, True):
+        _, folder = build("colmap-bin" if binary else "colmap-txt", scenes)
+        data = Path(shutil.copytree(folder, tmp_path / f"model-{binary}"))
+        model = data / "sparse" / "0"
+        if binary:
+            points = [struct.pack("<Q3d3Bd", i, 0.0, 0.0, 0.0, 1, 2, 3, err) + struct.pack("<Q", 1)
+                      + struct.pack("<ii", 1, 0) for i, err in ((1, 0.5), (2, 1.5))]
+            (model / "points3D.bin").write_bytes(struct.pack("<Q", 2) + b"".join(points))
+        else:
+            (model / "points3D.txt").write_text("# comment\n1 0 0 0 1 2 3 0.5 1 0\n2 0 0 0 1 2 3 1.5 1 0 2 0\n")
+        assert read_dataset(data).meta["reprojection_error"] == (1.0, 2)
+        facts = probe_scene(data)
+        assert facts.exact_poses is False
+        assert "COLMAP mean reprojection error 1.00 px over 2 points" in facts.evidence["exact_poses"]
