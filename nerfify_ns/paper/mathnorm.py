@@ -263,10 +263,16 @@ def _over_to_frac(s: str) -> str:
 
 
 def _mathpix_spacing(s: str, spaced: bool = False) -> str:
-    """Blanks next to ``{ } _ ^`` dropped, and letter-by-letter words inside text commands joined."""
-    s = re.sub(r"(?<!\\)\s*([{_^])\s*", r"\1", s)
-    s = re.sub(r"(?<!\\)\s*\}(?:\s+(?![A-Za-z\\]))?", "}", s)
+    """Blanks next to ``_ ^``, inside ``{ }`` dropped; with ``spaced`` (Mathpix's blank between every token)
+    also around brackets and operators; letter-by-letter words inside text commands joined. Blanks after a
+    control word stay (``\\alpha x``); TeX ignores the others in math."""
+    s = re.sub(r"(?<!\\)\s*([_^])\s*", r"\1", s)
+    s = re.sub(r"(?<!\\)\{\s+", "{", s)
+    s = re.sub(r"(?<![\\\s])\s+\}", "}", s)
+    s = re.sub(r"(\\[A-Za-z]+)\s+\{", r"\1{", s)  # "\pmb {x}" -> "\pmb{x}"
     if spaced:  # Mathpix's "C ( r ) = x" -> "C(r)=x"
+        s = re.sub(r"(?<!\\)\s+\{", "{", s)
+        s = re.sub(r"(?<!\\)\}\s+(?![A-Za-z\\])", "}", s)
         s = re.sub(r"(?<![\\\s])\s+([()\[\]=+\-,|])", r"\1", s)
         s = re.sub(r"(?<!\\)([(\[=+\-|])\s+(?=[^\s&])", r"\1", s)
 

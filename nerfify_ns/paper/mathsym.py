@@ -187,7 +187,7 @@ PIECES = {
 
 ACCENT_CHARS = {"^": "hat", "ˆ": "hat", "\u0302": "hat", "~": "tilde", "˜": "tilde", "\u0303": "tilde",
                 "¯": "bar", "ˉ": "bar", "\u0304": "bar", "˙": "dot", "\u0307": "dot", "¨": "ddot", "\u0308": "ddot",
-                "→": "vec", "⃗": "vec", "\u20d7": "vec", "´": "acute", "`": "grave", "˘": "breve", "ˇ": "check"}
+                "→": "vec", "\u20d7": "vec", "´": "acute", "`": "grave", "˘": "breve", "ˇ": "check"}
 
 OPEN = {"(", "[", r"\{", r"\langle", r"\lfloor", r"\lceil"}
 CLOSE = {")", "]", r"\}", r"\rangle", r"\rfloor", r"\rceil"}

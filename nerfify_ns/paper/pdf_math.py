@@ -191,7 +191,7 @@ def _make_token(ch: str, font: str, size: float, flags: int, bbox, origin, body_
             mapped = False
         if kind in ("open", "close", "middle", "radical"):
             g.extra["tall"] = depth >= 1.15
-    elif role in ("italic", "roman", "symbol", "blackboard", "script", "fraktur") and 0 <= code < 0x20:
+    elif role in ("italic", "roman", "symbol", "blackboard", "script", "fraktur") and (0 <= code < 0x20 or code == 0x7F):
         # a raw TeX font code: the font had no Unicode for this glyph
         table = {"italic": CMMI, "roman": CMR, "symbol": CMSY}.get(role, CMR)
         tex = table.get(code)
@@ -342,7 +342,7 @@ def _raw_spans(page) -> list[tuple]:
                 continue
             for s in ln["spans"]:
                 chars = [(ch["c"], ch["bbox"], ch["origin"]) for ch in s["chars"]
-                         if ch["c"] and ch["c"] != " " and not (ch["c"] in _SPACES)]
+                         if ch["c"] and ch["c"] != " " and ch["c"] not in _SPACES]
                 if chars:
                     out.append((s["font"], s["size"], s["flags"], chars))
     return out
