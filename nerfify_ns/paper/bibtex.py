@@ -18,11 +18,13 @@ from nerfify_ns.paper.latex_source import SourceTree, read_group
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, size_text
 from nerfify_ns.paper.references import ARXIV, DOI, parse_reference
 
-_ENTRY = re.compile(r"@\s*([A-Za-z]+)\s*\{\s*([^,\s]+)\s*,")
+_ENTRY = re.compile(r"@\s*([A-Za-z]{1,40})\s*\{\s*([^,\s@{}]{1,500})\s*,")
+"""An entry's start; its key stops at the next ``@`` or brace (scans never overlap)."""
 _FIELD = re.compile(r"\s*([A-Za-z_\-]+)\s*=\s*")
 _COMMA = re.compile(r"\s*,")
 _BARE = re.compile(r"[\w.\-]+")
 _QUOTED = re.compile(r'[{}"]')
+_BIBITEM = re.compile(r"\\bibitem\s*(?:\[[^\[\]]{0,2000}\])?\s*\{([^{}]{1,2000})\}")
 
 
 def _value(text: str, i: int) -> tuple[str, int]:
@@ -109,11 +111,11 @@ def parse_bbl(text: str, max_entries: Optional[int] = None, source: str = "") ->
     """The \\bibitem entries of a .bbl (or a thebibliography environment)."""
     refs = []
     items = []
-    for m in re.finditer(r"\\bibitem\s*(?:\[[^\]]{0,2000}\])?\s*\{([^}]{1,2000})\}", text):
+    for m in _BIBITEM.finditer(text):
         items.append(m)
         if max_entries is not None and len(items) > max_entries:
-            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} bibliography entries "
-                                  "(the limit); pass the paper's own .bib or .bbl")
+            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} references (the "
+                                  "limit); pass the paper's own .bbl")
     for n, (m, nxt) in enumerate(zip(items, [*items[1:], None]), start=1):
         body = text[m.end(): nxt.start() if nxt else len(text)]
         body = body.split("\\end{thebibliography}", 1)[0]
@@ -151,7 +153,7 @@ def load_references(tree: SourceTree, main: Path, bib_names: list[str], cited: l
     bbls = [bbl] if os.path.lexists(bbl) else tree.with_suffix(".bbl", strict=False)
     if bbls:
         shown = tree.rel(bbls[0])
-        refs = parse_bbl(budget.read(tree, bbls[0], shown), budget.entries_left(), shown)
+        refs = parse_bbl(budget.read(tree, bbls[0], shown), limits.max_references, shown)
         for r in refs:
             if r.key in bib:  # the .bib has cleaner fields
                 b = _reference(r.key, bib[r.key])
@@ -159,7 +161,7 @@ def load_references(tree: SourceTree, main: Path, bib_names: list[str], cited: l
                 r.year, r.venue = b.year or r.year, b.venue or r.venue
                 r.arxiv, r.doi = b.arxiv or r.arxiv, b.doi or r.doi
         return refs
-    keys = [k for k in dict.fromkeys(cited) if k in bib] or list(bib)
+    keys = ([k for k in dict.fromkeys(cited) if k in bib] or list(bib))[:limits.max_references]
     refs = [_reference(k, bib[k]) for k in keys]
     for n, r in enumerate(refs, start=1):
         r.index = n

@@ -316,7 +316,7 @@ class _Parser:
         yield Block("algorithm", text, loc, number=str(self.alg_no), title=title)
 
     def _bibliography(self, env: str, body: str, loc: Location) -> Iterator[Block]:
-        self.bib_refs = parse_bbl(body)
+        self.bib_refs = parse_bbl(body, self.budget.limits.max_references, self.source)
         return iter(())
 
     def _math(self, env: str, body: str, loc: Location) -> Iterator[Block]:

@@ -71,7 +71,12 @@ MAX_BIB_BYTES = 16 * MiB
 """Bytes of the ``.bib`` and ``.bbl`` files of a paper together (a large shared bibliography: 1-5 MB)."""
 
 MAX_BIB_ENTRIES = 50_000
-"""Entries of the ``.bib``/``.bbl`` files of a paper together (a large shared bibliography: up to 20,000)."""
+"""Entries of the ``.bib`` files of a paper together (a large shared bibliography: up to 20,000); parsed in one
+linear scan, only the cited ones made into references."""
+
+MAX_REFERENCES = 2_000
+"""References of one paper: the entries of its ``.bbl`` (a survey cites 300-600). When the paper cites no entry
+of its ``.bib``, at most this many of the ``.bib``'s entries stand for its references."""
 
 
 @dataclass(frozen=True)
@@ -92,6 +97,7 @@ class Limits:
     max_macro_output_chars: int = MAX_MACRO_OUTPUT_CHARS
     max_bib_bytes: int = MAX_BIB_BYTES
     max_bib_entries: int = MAX_BIB_ENTRIES
+    max_references: int = MAX_REFERENCES
 
 
 DEFAULT_LIMITS = Limits()

@@ -188,6 +188,21 @@ def test_bibliography_parsing_is_linear(tmp_path):
     assert large < FAST and large < 12 * small + 0.5, (small, large)
 
 
+def test_a_bbl_with_too_many_references_is_refused(tmp_path):
+    items = "".join(f"\\bibitem{{k{n}}} A. Author. A radiance field. In CVPR, 2020.\n" for n in range(2_001))
+    paper = latex_folder(tmp_path / "paper", "\\cite{k1}", {"main.bbl": items})
+    refused(paper, PaperLimitError, "main.bbl", "more than 2,000 references")
+
+
+@pytest.mark.parametrize("text", ["@a{" * 300_000, "\\bibitem[" * 200_000, "\\bibitem{" * 200_000])
+def test_unclosed_bibliography_shapes_are_linear(text):
+    from nerfify_ns.paper.bibtex import parse_bbl
+
+    start = time.perf_counter()
+    assert list(bib_entries(text)) == [] and parse_bbl(text) == []
+    assert time.perf_counter() - start < FAST
+
+
 def test_an_unclosed_bibliography_value_ends_the_parse(tmp_path):
     text = "@article{a, title={never closed\n" + "@article{b, title={x}}\n" * 50_000
     start = time.perf_counter()
