@@ -124,6 +124,10 @@ class _Eval:
             if s.name in self.ranges:
                 return Val(np.asarray(self.ranges[s.name], dtype=np.float64), ())
         key = s.key
+        looped = [lab for lab in s.subscripts + ((s.superscript,) if s.superscript else ()) if lab in self.ranges]
+        if looped:
+            raise CompileError(f"{self.where}: '{key}' is indexed by the range variable '{looped[0]}': not "
+                               "evaluated (bind the sum, e.g. a spherical-harmonics basis, instead)")
         if key not in self.values:
             named = named_sizes(self.sizes)
             if key in named and s.index is None:

@@ -54,8 +54,8 @@ class Symbol:
     ``subscripts`` are labels that are part of the name (``W_1``, ``h_\\Delta``, ``t_n``); a subscript that
     is a sample index (bound by a sum, product or integral, or free on the left-hand side) is moved to
     ``index`` by ``resolve``. ``args`` holds the point a field is evaluated at (``C(\\mathbf{r})``,
-    ``T(t)``, ``\\mathbf{c}(\\mathbf{r}(t), \\mathbf{d})``): recorded, not part of the name. Decorations:
-    hat, bar, tilde, dot, cal, bb, frak, prime.
+    ``T(t)``, ``\\mathbf{c}(\\mathbf{r}(t), \\mathbf{d})``; parameters after a ';' are dropped): recorded,
+    not part of the name. Decorations: hat, bar, tilde, dot, cal, bb, frak, prime.
     """
 
     name: str
@@ -232,7 +232,7 @@ class Conventions:
     ``\\delta``): an integral of T sigma X dt becomes sum_i T_i (1 - exp(-sigma_i delta_i)) X_i.
     """
 
-    index_letters: tuple[str, ...] = ("i", "j")
+    index_letters: tuple[str, ...] = ("i", "j", "k")
     sample_counts: tuple[str, ...] = ("N", "N_s", "N_c", "N_f", "N_samples")
     ray_params: tuple[str, ...] = ("t", "s")
     ray_sets: tuple[str, ...] = ("R",)

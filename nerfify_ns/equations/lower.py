@@ -197,6 +197,11 @@ class _Lower:
         if is_bound_variable(s) and s.name in self.loop_vars:
             return _C(f"float({self.loop_vars[s.name]})", _ATOM, _T((), ()), False)
         key = s.key
+        looped = [lab for lab in s.subscripts + ((s.superscript,) if s.superscript else ()) if lab in self.loop_vars]
+        if looped:
+            raise LoweringError(f"{self.where}: '{safe_comment(key, 40)}' is indexed by the range variable "
+                                f"'{safe_comment(looped[0], 20)}': not lowered (bind the sum, e.g. a spherical-"
+                                "harmonics basis, instead)")
         if key not in self.env:
             named = named_sizes(self.sizes)
             if key in named and s.index is None:
@@ -408,30 +413,38 @@ class _Lower:
         finally:
             self.sample_vars.pop()
 
-    def _static_int(self, e: Expr) -> int:
+    def _int_bound(self, e: Expr) -> tuple[str, int | None]:
+        """A range limit as Python int code, and its value when it does not depend on an outer range."""
         if isinstance(e, Number):
-            value = e.value
-        elif isinstance(e, Symbol) and e.key in named_sizes(self.sizes):
+            if e.value != int(e.value):
+                raise LoweringError(f"{self.where}: a range limit that is not an integer")
+            return str(int(e.value)), int(e.value)
+        if isinstance(e, Symbol) and e.key in named_sizes(self.sizes):
             value = named_sizes(self.sizes)[e.key]
-        elif isinstance(e, Neg):
-            value = -self._static_int(e.arg)
-        elif isinstance(e, BinOp) and e.op in "+-*":
-            a, b = self._static_int(e.left), self._static_int(e.right)
-            value = a + b if e.op == "+" else (a - b if e.op == "-" else a * b)
-        else:
-            raise LoweringError(f"{self.where}: a range limit that is not a number or a size ({safe_comment(show(e), 40)})")
-        if value != int(value):
-            raise LoweringError(f"{self.where}: a range limit that is not an integer")
-        return int(value)
+            return str(value), value
+        if isinstance(e, Symbol) and not e.subscripts and e.name in self.loop_vars:
+            return self.loop_vars[e.name], None  # the number of an enclosing range
+        if isinstance(e, Neg):
+            code, value = self._int_bound(e.arg)
+            return f"-{code}" if value is None else str(-value), None if value is None else -value
+        if isinstance(e, BinOp) and e.op in ("+", "-", "*"):
+            (a, va), (b, vb) = self._int_bound(e.left), self._int_bound(e.right)
+            if va is not None and vb is not None:
+                value = va + vb if e.op == "+" else (va - vb if e.op == "-" else va * vb)
+                return str(value), value
+            return f"({a} {e.op} {b})", None
+        raise LoweringError(f"{self.where}: a range limit that is not a number or a size "
+                            f"({safe_comment(show(e), 40)})")
 
     def _range(self, r: Reduce) -> _C:
-        lo, hi = self._static_int(r.lower), self._static_int(r.upper)
-        if hi - lo + 1 > 4096:
+        (lo, lo_value), (hi, hi_value) = self._int_bound(r.lower), self._int_bound(r.upper)
+        if lo_value is not None and hi_value is not None and hi_value - lo_value + 1 > 4096:
             raise LoweringError(f"{self.where}: a range of more than 4096 terms")
+        stop = str(hi_value + 1) if hi_value is not None else f"{hi} + 1"
         acc = self.names.fresh("acc", r.kind)
         loop = self.names.fresh("k", r.index)
         self._emit(f"{acc} = {0.0 if r.kind == 'sum' else 1.0}")
-        self._emit(f"for {loop} in range({lo}, {hi + 1}):")
+        self._emit(f"for {loop} in range({lo}, {stop}):")
         self.loop_vars[r.index] = loop
         self.indent += 1
         try:

@@ -311,8 +311,15 @@ def _top_level_commas(m: Mapped) -> list[Mapped]:
     return [Mapped("".join(out), origin)]
 
 
+_CONNECTIVE = re.compile(r"\s*(?:\\(?:text|mathrm|textrm|mbox)\s*\{\s*(?:with|where|and|for|s\.t\.|since)\s*\}"
+                         r"|(?:with|where|and)(?![A-Za-z]))\s*")
+
+
 def _strip_punctuation(m: Mapped) -> Mapped:
     m = m.strip()
+    lead = _CONNECTIVE.match(m.text)
+    if lead:  # "\\ \text{with} T_k = ...": a connective word before an equation
+        m = m.slice(lead.end(), len(m.text)).strip()
     while m.text and m.text[-1] in ".,;:":
         if m.text.endswith(":="):
             break
@@ -374,6 +381,10 @@ def normalize(latex: str) -> Normalized:
     m = m.sub(r"(?<=[A-Za-z})\]])(\s*)!(?=\s*[\\({\[])", r"\1 ")  # \exp!\big(: a lost \!
     if r"\int" in m.text:  # \sigma(s),ds: the lost thin space before an integral's differential
         m = m.sub(r",(?=\s*d\s*[A-Za-z](?![A-Za-z]))", " ")
+    m = m.sub(r"\.\.\.|\\dots[bcmio]?(?![A-Za-z])", r"\\ldots ")
+    m = m.sub(r"([_^])\s*(?:\{\s*\\(max|min)\s*\}|\\(max|min)(?![A-Za-z]))",
+              lambda x: x.group(1) + r"{\mathrm{" + (x.group(2) or x.group(3)) + "}}")  # \ell_{\max}: a label
+    m = m.sub(r"[.,;]\s*(?=\\end\s*\{|\\\\)", " ")  # a row's or environment's trailing punctuation
     m = _bars(m)
     check_depth(m)
     m = _protect_cases_ampersands(m)

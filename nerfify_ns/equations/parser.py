@@ -56,8 +56,9 @@ def _read_piece(piece: Mapped, latex: str, number: str | None):
         tree = _lark().parse(piece.text)
     except UnexpectedCharacters as err:
         ch = piece.text[err.pos_in_stream] if err.pos_in_stream < len(piece.text) else ""
-        return _failure("unknown character" if not ch.isascii() else "unexpected character", piece,
-                        err.pos_in_stream, ch, latex, number)
+        reason = "unknown character" if not ch.isascii() else (
+            "a factorial (!) is not read" if ch == "!" else "unexpected character")
+        return _failure(reason, piece, err.pos_in_stream, ch, latex, number)
     except UnexpectedEOF:
         return _failure("the equation ends too early (an unclosed group?)", piece, len(piece.text) - 1, "",
                         latex, number)

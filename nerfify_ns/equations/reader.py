@@ -233,8 +233,8 @@ class Reader(Transformer):
 
     def _call(self, symbol: Symbol, paren: _Paren, pos: int):
         items = paren.items
-        if any(sep == ";" for sep in paren.seps):
-            raise ReadError("arguments separated by ';'", paren.pos, ";")
+        if ";" in paren.seps:  # C(r; Theta, t): the point, then the parameters (dropped: not a point)
+            items = items[:paren.seps.index(";") + 1]
         point = len(items) > 1 or _as_point(items[0])
         if symbol.args:
             return None  # C(r)(...) : a product
@@ -254,6 +254,8 @@ class Reader(Transformer):
         return None  # a product: T_i (1 - alpha_i)
 
     def _functions(self, seq):
+        if len(seq) == 1 and isinstance(seq[0][1], _Func) and seq[0][1].power is None:
+            return [[seq[0][0], Symbol(seq[0][1].name), seq[0][2]]]  # \ell_{\max}: a name, not a call
         out: list = []
         for op, value, pos in reversed(seq):
             if isinstance(value, _Func):
@@ -615,8 +617,9 @@ class Reader(Transformer):
         return result
 
     def _index_name(self, var, pos) -> str:
-        if isinstance(var, Symbol) and not var.subscripts and not var.superscript and not var.args:
-            return var.name
+        if (isinstance(var, Symbol) and not var.subscripts and not var.superscript and not var.args
+                and set(var.decorations) <= {"prime"}):
+            return var.name + "'" * len(var.decorations)  # k' is its own index
         raise ReadError("an index that is not a single variable", pos, "_")
 
     def _integral(self, body, sub, sup, pos) -> Integral:

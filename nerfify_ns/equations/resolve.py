@@ -27,7 +27,7 @@ from dataclasses import replace
 from .ir import (Apply, BinOp, Cases, Compare, Concat, Conventions, Equation, Expectation, Expr, Index, Integral,
                  Neg, Norm, Number, Reduce, Symbol, walk)
 
-_INDEX_LABEL = re.compile(r"([A-Za-z])([+-][0-9]{1,2})?")
+_INDEX_LABEL = re.compile(r"([A-Za-z]'*)([+-][0-9]{1,2})?")
 
 
 class ResolveError(Exception):
@@ -92,7 +92,7 @@ class _Resolver:
             elif var and index is None and kind == "ray":
                 continue  # C_r: per ray anyway
             elif var and kind == "range":
-                raise ResolveError(f"indexing by '{var}' over a finite range is not read", s.key)
+                labels.append(label)  # k_l^m: read; evaluating it is refused (a basis the binder supplies)
             elif var and index is None and var in self.c.index_letters and var not in scope:
                 self.found_free.add(var)
                 index = Index(var, int(m.group(2) or 0))
@@ -255,7 +255,9 @@ def resolve(equation: Equation, conventions: Conventions) -> Equation:
     """Fill sample indices, reduction axes and integral quadratures (see the module docstring)."""
     lhs = equation.lhs
     if not isinstance(lhs, Symbol):
-        raise ResolveError("the left side is not a symbol", type(lhs).__name__)
+        from .render import show
+
+        raise ResolveError("the left side is not a symbol", show(lhs)[:40])
     free = _lhs_free(lhs, equation.rhs, conventions)
     resolver = _Resolver(conventions, free)
     scope = {free: "sample"} if free else {}

@@ -156,3 +156,12 @@ def test_compile_equations_reads_lowers_and_checks_a_hole():
     broken = compile_equations(latex[:2] + [(r"\hat{C} = \sum_i T_i \mathcal{F}(\alpha_i + 1)", "6")],
                                PER_SAMPLE, ["hat C"])
     assert not broken.ok and "'hat C' is neither" in broken.reason and "unknown operator" in broken.reason
+
+
+def test_nested_finite_ranges_with_limits_from_the_outer_range():
+    eq = P(r"y = \sum_{\ell=0}^{L}\sum_{m=-\ell}^{\ell} (\ell + m^2) x")
+    report = check_lowering([eq], {"x": ("R",)}, {"L": 3})
+    assert report.ok and "for k_m in range(-k_ell, k_ell + 1):" in report.source
+    want = sum(ell + m * m for ell in range(4) for m in range(-ell, ell + 1))
+    module = build(report.source, "CheckedEquations")
+    assert float(module(torch.ones(1, dtype=torch.float64))[0]) == want

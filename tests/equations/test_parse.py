@@ -211,3 +211,30 @@ def test_parse_expression_reads_a_right_hand_side_alone():
     expr = parse_expression(r"\exp(-\sigma \delta)")
     assert isinstance(expr, Apply) and expr.func == "exp"
     assert isinstance(parse_expression(r"a = b"), ParseFailure)
+
+
+def test_notation_of_gh_nerf_and_mip_nerf():
+    # spherical-harmonics colour head (GH-NeRF Eq. 7): read; evaluating k_l^m is refused with its reason
+    eq = read(r"c(\mathbf{d};\mathbf{k})=\sigma(\sum_{\ell=0}^{\ell_{\max}}\sum_{m=-\ell}^{\ell}k_{\ell}^{m}"
+              r"Y_{\ell}^{m}(\mathbf{d}))")
+    assert show(eq) == "c(d) = sigmoid(sum_{ell=0}^{ell_{max}} (sum_{m=-ell}^{ell} k_{ell}^m Y_{ell}^m(d)))"
+    outer = eq.rhs.args[0]
+    assert (outer.axis, outer.body.axis) == ("range", "range")
+    from nerfify_ns.equations import CompileError, lower
+
+    with pytest.raises(CompileError, match="range variable 'ell'"):
+        lower([eq], {"k_ell^m": ("R",), "Y_ell^m": ("R",)}, ["c"], {"ell_max": 2})
+    # a field's parameters after ';' are not its point; a primed index is its own index; "with" is a word
+    rows = parse_equations(r"\mathbf{C}(\mathbf{r};\Theta,\mathbf{t})=\sum_{k}T_{k}\mathbf{c}_{k} \\ \text{with} "
+                           r"T_{k}=\exp(-\sum_{k'<k}\tau_{k'}\delta_{k'})")
+    assert [show(r) for r in rows] == ["C(r) = sum_k T_k c_k", "T_k = exp(-(sum_{k' < k} tau_{k'} delta_{k'}))"]
+    assert rows[0].free_index is None and rows[1].rhs.args[0].arg.mode == "exclusive"
+
+
+def test_reasons_for_what_is_not_read():
+    assert fails(r"Y = \frac{(\ell-m)!}{(\ell+m)!}").reason == "a factorial (!) is not read"
+    assert "ellipsis" in fails(r"\gamma(x) = [\sin(x), \cos(x), ..., \sin(2^{L-1} x)]").reason
+    assert "unknown operator" in fails(r"y = \Im[z]").reason
+    assert "double superscript" in fails(r"y = x^2^2").reason
+    eq = read(r"f = \begin{cases} a & m < 0, \\ b & m > 0. \end{cases}")  # trailing punctuation in rows
+    assert len(eq.rhs.branches) == 2
