@@ -31,14 +31,21 @@ quadrature. Symbols are keyed as ``Symbol.key``: ``sigma``, ``W_Delta^f``, ``hat
 ``h'_c``; a sample index is not part of the key (``\\sigma_i`` and ``\\sigma_j`` are both ``sigma``), nor
 is the point a field is evaluated at (``C(\\mathbf{r})`` is ``C``).
 
+Persistent state: a symbol that is both an input and defined (BioNeRF's memory
+``\\Psi = \\tanh(W_\\Psi(\\mu + f_\\psi \\otimes \\Psi) + b_\\Psi)``) reads the given (previous) value on the right and
+is returned as the new value; without it as an input, "defined in terms of itself" is an error.
+
 Not supported (each refused with its reason): packed samples (segment sums over ragged rays), shifted
 sample indices in evaluation (``t_{i+1}``: bind the quantity they define, e.g. ``delta``), reductions
-over sets other than samples/rays/integer ranges, max/min over an index, matrix literals, ellipses.
+over sets other than samples/rays/integer ranges, max/min over an index, indexing by a range variable
+(``k_\\ell^m`` in a spherical-harmonics sum: read, but evaluation is refused), matrix literals, ellipses,
+factorials.
 
 Modules, in the order of the pipeline:
     normalize.py   noise of converted papers -> clean LaTeX pieces (columns kept)
     grammar.lark   the grammar (LALR: linear time)
-    parser.py      parse tree -> IR; ParseFailure with reason and column
+    parser.py      parse_equation(s): limits, lark, ParseFailure with reason and column
+    reader.py      parse tree -> IR: the reading rules (calls vs products, labels vs powers, big operators)
     resolve.py     sample indices, what each sum/product runs over, integral quadratures
     ir.py          the IR dataclasses; render.py: the IR as one line of text
     shapes.py      layouts, sizes, parameters, the order equations are evaluated in
