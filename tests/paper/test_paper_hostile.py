@@ -293,9 +293,9 @@ def test_a_latex_source_beyond_the_limit_is_refused(tmp_path):
     refused(paper, PaperLimitError, "a.tex", "more than 488 KB of LaTeX source", limits=Limits(max_latex_chars=500_000))
 
 
-# Pathological shapes of about 400 KB: each is read or refused within FAST seconds (quadratic work would take
+# Pathological shapes of about 250 KB: each is read or refused within FAST seconds (quadratic work would take
 # minutes to hours). The same shapes at the limits' sizes (4 MB of LaTeX, 2 MB of text) run in 1-5 s each.
-N = 60_000
+N = 40_000
 LATEX_SHAPES = {
     "unclosed optional arguments": "\\item[" * N,
     "unclosed citations": "\\cite{" * N,
