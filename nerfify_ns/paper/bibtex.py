@@ -15,7 +15,7 @@ from typing import Iterator, Optional
 from nerfify_ns.paper.document import Reference
 from nerfify_ns.paper.errors import PaperLimitError
 from nerfify_ns.paper.latex_source import SourceTree, read_group
-from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, size_text
+from nerfify_ns.paper.limits import Limits, size_text
 from nerfify_ns.paper.references import ARXIV, DOI, parse_reference
 
 _ENTRY = re.compile(r"@\s*([A-Za-z]{1,40})\s*\{\s*([^,\s@{}]{1,500})\s*,")
