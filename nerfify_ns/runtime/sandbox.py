@@ -41,6 +41,7 @@ control characters escaped (:mod:`nerfify_ns.safetext`).
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import functools
 import os
@@ -400,12 +401,19 @@ def _bwrap_works() -> bool:
 
 
 def _site_paths() -> List[Path]:
-    """Folders our interpreter's ``.pth`` files add (editable installs, a plugin installed with -e)."""
+    """Folders our interpreter's site-packages reach: what ``.pth`` files add (editable installs, a plugin
+    installed with -e) and the folders of packages linked in from elsewhere."""
     import site
 
     found: List[Path] = []
     dirs = [Path(p) for p in site.getsitepackages() if Path(p).is_dir()]
     for d in dirs:
+        for entry in d.iterdir():  # packages linked in from another environment: that environment's folder
+            if entry.is_symlink():
+                try:
+                    found.append(entry.resolve(strict=True).parent)
+                except (OSError, RuntimeError):
+                    pass
         for pth in d.glob("*.pth"):
             try:
                 lines = pth.read_text(errors="replace").splitlines()
@@ -423,14 +431,23 @@ def _site_paths() -> List[Path]:
             for path in re.findall(r"map_module\(\s*'[^']*'\s*,\s*'([^']+)'\s*\)", text):
                 p = Path(path)
                 found.append(p.parent if p.name == "__init__.py" else p)
+        for finder in d.glob("__editable__*_finder.py"):  # setuptools' editable installs: MAPPING = {name: path}
+            try:
+                match = re.search(r"^MAPPING\s*(?::[^=\n]*)?=\s*(\{.*?\})\s*$", finder.read_text(errors="replace"),
+                                  re.MULTILINE)
+                mapping = ast.literal_eval(match.group(1)) if match else {}
+            except (OSError, ValueError, SyntaxError):
+                continue
+            if isinstance(mapping, dict):
+                found += [Path(v) for v in mapping.values() if isinstance(v, str) and v.startswith("/")]
     return found
 
 
-@functools.lru_cache(maxsize=None)
 def code_paths() -> Tuple[Path, ...]:
     """What the sandboxed Python needs to read: the virtual environment, the Python installation it points
     into (the venv's ``python`` may be a link into ``/root/.pyenv``), nerfify-ns itself (a checkout when
-    installed editable) and folders of ``.pth`` files."""
+    installed editable) and folders of ``.pth`` files and editable installs (read at each run: tests install and
+    remove plugins while a process runs)."""
     import nerfify_ns
 
     paths = [Path(sys.prefix), Path(sys.base_prefix), Path(os.path.realpath(sys.executable)).parent.parent,
@@ -482,15 +499,16 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
     if Path("/sys/devices/system/cpu").is_dir():
         binds.append((Path("/sys/devices/system/cpu"), "--ro-bind"))
     if not probe:
-        binds += [(p, "--ro-bind") for p in (*code_paths(), *cache_paths(), *extra_code, *readonly)]
+        binds += [(p, "--ro-bind-try") for p in (*code_paths(), *cache_paths(), *extra_code)]  # may vanish
+        binds += [(p, "--ro-bind") for p in readonly]
         binds.append((workdir, "--bind"))
     # parents first, a writable bind after a read-only one of the same depth; bwrap would make missing
     # parent folders mode 0700 (unreadable to the sandbox's user), so they are made here, 0755
     seen, made, bound = set(), {Path("/tmp"), Path("/dev"), Path("/proc")}, {Path("/usr")}
     for path, flag in sorted(binds, key=lambda b: (_depth(b[0]), b[1] == "--bind")):
-        if (path, flag) in seen:
+        if (path, flag == "--bind") in seen:
             continue
-        seen.add((path, flag))
+        seen.add((path, flag == "--bind"))
         for parent in reversed(path.parents[:-1]):
             if parent not in made and not any(b == parent or b in parent.parents for b in bound):
                 args += ["--perms", "0755", "--dir", str(parent)]

@@ -168,13 +168,17 @@ def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOU
             r.fail(d)
     if not any(e.get("event") == "end" for e in events):
         where = parsing[-1] if parsing else None
-        what = f"parsing {where}" if where else "the static check"
         if result.timed_out:
-            message = f"{what} did not finish within {min(timeout, PARSE_TIMEOUT):.0f} s"
-        else:
-            message = (f"{what} crashed the parser ({_exit_text(result)}): too deeply nested, too large, or "
-                       "beyond the parser's memory limit")
-        r.fail(Diagnosis("static", "syntax", message, where, traceback=result.tail(10)))
+            what = f"parsing {where}" if where else "the static check"
+            r.fail(Diagnosis("static", "syntax", f"{what} did not finish within {min(timeout, PARSE_TIMEOUT):.0f} s",
+                             where, traceback=result.tail(10)))
+        elif where:
+            r.fail(Diagnosis("static", "syntax", f"parsing {where} crashed the parser ({_exit_text(result)}): too "
+                             "deeply nested, too large, or beyond the parser's memory limit", where,
+                             traceback=result.tail(10)))
+        else:  # it never reached the plugin's files: the sandbox or the checker itself failed
+            r.fail(Diagnosis("static", "probe", f"the static check did not start ({_exit_text(result)}):\n"
+                             f"{result.tail(12)}", traceback=result.tail(10)))
         for d in limit_diagnoses("static", result):
             r.fail(d)
     r.details["isolation"] = result.isolation

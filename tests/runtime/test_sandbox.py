@@ -314,3 +314,27 @@ def test_cgroup_v2_layout_on_a_stand_in_hierarchy(tmp_path, monkeypatch):
     shutil.rmtree(folder)
     (own / "cgroup.controllers").write_text("cpu\n")  # no memory controller here: not usable
     assert sb.TreeCgroup._v2("x", Limits()) is None
+
+
+def test_interpreter_environment_is_visible(tmp_path, monkeypatch):
+    """What the interpreter's site-packages reach is readable in the sandbox: editable installs of setuptools
+    (a plugin installed with pip -e) and of hatchling, .pth folders, packages linked in from another venv."""
+    import site
+
+    import nerfify_ns.runtime.sandbox as sb
+
+    sp = tmp_path / "site"
+    sp.mkdir()
+    targets = {name: tmp_path / name for name in ("setuptools_pkg", "hatch_pkg", "pth_dir", "other_venv")}
+    for t in targets.values():
+        t.mkdir()
+    (targets["hatch_pkg"] / "__init__.py").write_text("")
+    (targets["other_venv"] / "torchlike").mkdir()
+    (sp / "__editable___p_0_1_finder.py").write_text(
+        f"import sys\nMAPPING: dict[str, str] = {{'p': '{targets['setuptools_pkg']}'}}\nNAMESPACES = {{}}\n")
+    (sp / "_editable_impl_h.py").write_text(f"F.map_module('h', '{targets['hatch_pkg'] / '__init__.py'}')")
+    (sp / "x.pth").write_text(f"{targets['pth_dir']}\nimport os\n")
+    (sp / "torchlike").symlink_to(targets["other_venv"] / "torchlike")
+    monkeypatch.setattr(site, "getsitepackages", lambda: [str(sp)])
+    assert set(targets.values()) <= set(sb._site_paths())
+
