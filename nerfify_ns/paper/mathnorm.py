@@ -22,6 +22,7 @@ It never guesses mathematics: anything it does not recognise is left as it is.
 from __future__ import annotations
 
 import re
+from functools import lru_cache
 from typing import Iterable, Optional
 
 from nerfify_ns.paper.mathsym import UNICODE_TO_LATEX, to_latex_char
@@ -38,6 +39,8 @@ _SIZE_CMDS = ("displaystyle", "textstyle", "scriptstyle", "scriptscriptstyle", "
               "nolimits", "nonumber", "notag", "allowbreak", "nobreak", "centering", "medmuskip", "relax")
 _THIN_SPACES = re.compile(r"(?<!\\)\\(?:,|;|:|!|>|\s)|\\(?:thinspace|medspace|thickspace|negthinspace)\b|(?<!\\)~")
 _LOST_EVIDENCE = re.compile(r"(?:^|[\s})\w])!\\(?:left|big|Big|bigg|Bigg)\b|(?<![\\\s^_])\*\{|\\(?:exp|log)!")
+MAX_NORMALIZE_CHARS = 20_000
+"""Longer formulas are not normalised (every step here is linear, a few are repeated per nesting level)."""
 _STRAY_STAR = re.compile(r"(?<=[A-Za-z0-9})\]])\*\{")
 
 
@@ -80,31 +83,29 @@ def _arg(s: str, i: int) -> tuple[Optional[str], int]:
     return m.group(0), j + len(m.group(0))
 
 
-def _map_commands(s: str, names: Iterable[str], fn) -> str:
-    """Replace every ``\\name ARG`` (ARG a group or one token) by ``fn(name, ARG)``; inner ones first."""
-    rx = re.compile(r"\\(" + "|".join(sorted(names, key=len, reverse=True)) + r")(?![A-Za-z])\*?")
-    if not rx.search(s):
+def _map_commands(s: str, names: Iterable[str], fn, depth: int = 0) -> str:
+    """Replace every ``\\name ARG`` (ARG a group or one token) by ``fn(name, ARG)``, the argument mapped
+    first (one pass per nesting level; deeper than 64 levels is left as it is)."""
+    rx = _command_rx(tuple(names))
+    if depth > 64 or not rx.search(s):
         return s
-    for _ in range(50):
-        changed = False
-        out, pos = [], 0
-        for m in rx.finditer(s):
-            if m.start() < pos:
-                continue
-            arg, end = _arg(s, m.end())
-            if arg is None:
-                continue
-            if rx.search(arg):  # inner first: this pass leaves the outer one for the next
-                continue
-            out.append(s[pos:m.start()])
-            out.append(fn(m.group(1), arg))
-            pos = end
-            changed = True
-        out.append(s[pos:])
-        s = "".join(out)
-        if not changed:
-            break
-    return s
+    out, pos = [], 0
+    for m in rx.finditer(s):
+        if m.start() < pos:
+            continue
+        arg, end = _arg(s, m.end())
+        if arg is None:
+            continue
+        out.append(s[pos:m.start()])
+        out.append(fn(m.group(1), _map_commands(arg, names, fn, depth + 1)))
+        pos = end
+    out.append(s[pos:])
+    return "".join(out)
+
+
+@lru_cache(maxsize=16)
+def _command_rx(names: tuple) -> re.Pattern:
+    return re.compile(r"\\(" + "|".join(sorted(names, key=len, reverse=True)) + r")(?![A-Za-z])\*?")
 
 
 def _font_declarations(s: str) -> str:
@@ -182,9 +183,13 @@ def _top_level_split(body: str, sep: str) -> list[str]:
 def _unwrap_arrays(s: str) -> str:
     """A ``\\begin{array}`` around the whole formula, or around a single cell anywhere, is a wrapper."""
     rx = re.compile(r"\\begin\{array\}\s*(?:\[[^\]]*\])?\s*\{([^{}]*)\}")
+    budget = 200  # environments examined, in all
     for _ in range(20):
         changed = False
         for m in rx.finditer(s):
+            budget -= 1
+            if budget < 0:
+                break
             end = _env_end(s, m.end(), "array")
             if end is None:
                 continue
@@ -350,6 +355,8 @@ def normalize_latex(latex: str, lost_backslashes: Optional[bool] = None) -> str:
     s = latex or ""
     if not s.strip():
         return ""
+    if len(s) > MAX_NORMALIZE_CHARS:  # hostile or broken input: blanks only (latex_issues says it is too long)
+        return re.sub(r"\s+", " ", s).strip()
     if lost_backslashes is None:
         lost_backslashes = has_lost_backslashes(s)
     s = s.replace("\r", "")
@@ -414,6 +421,8 @@ def latex_issues(latex: str) -> list[str]:
     """What is wrong with a LaTeX formula as written (never judging its mathematics): unbalanced groups,
     unmatched ``\\left``/``\\right`` and environments, commands we do not know, characters without LaTeX."""
     issues: list[str] = []
+    if len(latex) > MAX_NORMALIZE_CHARS:
+        issues.append(f"too long for one equation ({len(latex)} characters): not normalised")
     s = re.sub(r"\\[{}]", "", latex)
     depth = 0
     for c in s:

@@ -41,6 +41,14 @@ from nerfify_ns.paper.mathsym import (
     to_latex_char,
 )
 
+MAX_EQUATION_GLYPHS = 1000
+"""A display region with more glyphs is not read as one equation (the layout passes are quadratic in it)."""
+MAX_EQUATIONS = 2000
+"""At most this many equations per document."""
+MAX_RULES = 120
+"""At most this many drawn rules considered in one equation."""
+TIME_BUDGET_S = 5.0
+"""Equations not reached within this many seconds are listed, unread, with the reason."""
 EQ_NUMBER = re.compile(r"^\(\s*((?:[A-Z]{1,2}\.?\s?)?\d{1,3}(?:\.\d{1,3})?[a-z]?)\s*\)$")
 _BINARY = {"+", "-", r"\pm", r"\mp", r"\times", r"\cdot", r"\odot", r"\otimes", r"\oplus", r"\circ", r"\div",
            r"\cup", r"\cap", r"\setminus", "*", "/", r"\star", r"\bullet", r"\wedge", r"\vee", r"\ominus"}
@@ -1296,6 +1304,7 @@ def _region_ok(r: _Region) -> bool:
 
 def find_equations(pdf, pages: Optional[Iterable[int]] = None) -> list[PdfEquation]:
     """Every display equation of an open pymupdf document (or of ``pages``, 1-based), in reading order."""
+    started = time.perf_counter()
     page_nos = list(pages) if pages is not None else list(range(1, pdf.page_count + 1))
     spans = {p: _raw_spans(pdf[p - 1]) for p in page_nos}
     body_family, body = _body_font(list(spans.values()))
@@ -1342,10 +1351,17 @@ def find_equations(pdf, pages: Optional[Iterable[int]] = None) -> list[PdfEquati
         rules = _page_rules(page, page_box)
         page_eqs = []
         for r in page_regions:
+            if len(found) >= MAX_EQUATIONS:
+                break
             gl = sorted(r.glyphs, key=lambda g: (g.x0, g.base))
             bx = r.bbox
             rr = [ru for ru in rules if bx[0] - 2 <= ru[0] and ru[2] <= bx[2] + 2 and bx[1] - 2 <= ru[1] <= bx[3] + 2]
-            latex, conf, notes = reconstruct(gl, rr)
+            if len(gl) > MAX_EQUATION_GLYPHS or len(rr) > MAX_RULES:
+                latex, conf, notes = "", 0.0, [f"{len(gl)} glyphs, {len(rr)} rules: too many for one equation, not read"]
+            elif time.perf_counter() - started > TIME_BUDGET_S:
+                latex, conf, notes = "", 0.0, [f"not read: the PDF equation reader's {TIME_BUDGET_S:.0f} s budget was spent"]
+            else:
+                latex, conf, notes = reconstruct(gl, rr)
             nums = r.numbers
             eq = PdfEquation(page=p, bbox=[round(v, 2) for v in bx], latex=latex, number=nums[0][0] if nums else "",
                              text=glyph_text(gl), confidence=conf, method="layout", notes=notes, column=r.column,
