@@ -13,6 +13,10 @@ from typing import Dict, List, Optional
 Scalars = Dict[str, Dict[int, float]]
 """tag -> step -> value."""
 
+MAX_EVENT_FILE = 256 << 20
+"""Event files larger than this, and links, are not read: the run (a plugin's, sandboxed) wrote them, and they are
+parsed in our own process."""
+
 LOSS_TAG = "Train Loss"
 RAYS_TAG = "Train Rays / Sec"
 ITER_TIME_TAG = "Train Iter (time)"
@@ -44,6 +48,8 @@ class EventReader:
         from tensorboard.backend.event_processing.event_file_loader import LegacyEventFileLoader
 
         for path in sorted(self.run_dir.glob("events.out.tfevents.*")):
+            if path.is_symlink() or not path.is_file() or path.stat().st_size > MAX_EVENT_FILE:
+                continue
             loader = self._loaders.get(path)
             if loader is None:
                 loader = self._loaders[path] = LegacyEventFileLoader(str(path))
