@@ -13,6 +13,7 @@ from rich.markup import escape
 from rich.syntax import Syntax
 from rich.table import Table
 
+from nerfify_ns.safetext import clean
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.ladder import DIFF_NAME, run_ladder
 from nerfify_ns.verify.report import LadderReport
@@ -22,38 +23,44 @@ STYLE = {"pass": "green", "fail": "red", "skip": "yellow"}
 
 def _rung_table(report: LadderReport) -> Table:
     """One row per rung of the plugin's last round (file contents and messages escaped)."""
-    table = Table(title=f"verification ladder: {escape(report.plugin)}")
+    table = Table(title=f"verification ladder: {_shown(report.plugin)}")
     for col in ("rung", "status", "checks", "seconds", "first failure / notes"):
         table.add_column(col)
     for r in report.rungs:
         first = str(r.failures[0]) if r.failures else "; ".join(r.notes)
         table.add_row(escape(r.name), f"[{STYLE.get(r.status, 'white')}]{escape(r.status)}[/]", str(r.checks),
-                      f"{r.seconds:.1f}", escape(first[:160]))
+                      f"{r.seconds:.1f}", _shown(first, 160))
     return table
 
 
+def _shown(text: object, limit: int = 500) -> str:
+    """Text that may carry the plugin's (file names, identifiers in a fixer's reason) as one line of markup."""
+    return escape(clean(text, limit, newlines=False))
+
+
 def _print_repair(report: LadderReport, out: Path, console: Console) -> None:
-    """The repair: applied patches (--fix) or the proposal on a scratch copy, with its diff."""
+    """The repair: applied patches (--fix) or the proposal on a scratch copy, with its diff (the plugin's own
+    text: control characters shown as escapes, bounded)."""
     for p in report.patches:
-        console.print(f"patched {escape(p['file'])} ({escape(p['fixer'])}): {escape(p['reason'])}  "
-                      f"[dim]{escape(p['diff'])}[/]")
+        console.print(f"patched {_shown(p['file'])} ({_shown(p['fixer'])}): {_shown(p['reason'])}  "
+                      f"[dim]{_shown(p['diff'])}[/]")
     proposal = report.proposal
     if proposal is not None:
         if not proposal.get("patches"):
             console.print(f"[yellow]no deterministic repair[/] for these failures: "
-                          f"{escape(proposal.get('note', ''))}")
+                          f"{_shown(proposal.get('note', ''))}")
         else:
             for p in proposal["patches"]:
-                console.print(f"would patch {escape(p['file'])} ({escape(p['fixer'])}): {escape(p['reason'])}")
+                console.print(f"would patch {_shown(p['file'])} ({_shown(p['fixer'])}): {_shown(p['reason'])}")
             verdict = "[green]passes[/]" if proposal["ok"] else "[red]still fails[/]"
             console.print(f"with this repair (tried on a scratch copy, your files are unchanged) the plugin "
                           f"{verdict} the ladder")
     if report.diff:
-        console.print(Syntax(report.diff, "diff", theme="ansi_dark", word_wrap=True))
+        console.print(Syntax(clean(report.diff, 200_000), "diff", theme="ansi_dark", word_wrap=True))
         what = "applied" if report.repair == "apply" else "proposed"
-        console.print(f"{what} repair: {escape(str(out / DIFF_NAME))}")
+        console.print(f"{what} repair: {_shown(out / DIFF_NAME)}")
         if proposal is not None:
-            console.print(f"apply it with: {escape(proposal['apply'])}")
+            console.print(f"apply it with: {_shown(proposal['apply'])}")
 
 
 def print_report(report: LadderReport, console: Optional[Console] = None, out: Optional[Path] = None) -> None:
@@ -116,6 +123,6 @@ class Verify:
         )
         console = Console()
         print_report(report, console, out)
-        console.print(f"report: {escape(str(Path(out) / 'verify.json'))}")
+        console.print(f"report: {_shown(Path(out) / 'verify.json')}")
         if not report.ok:
             raise SystemExit(1)

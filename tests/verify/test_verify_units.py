@@ -236,3 +236,26 @@ def test_verify_cli_shows_the_section_name(tmp_path):
                        env={"COLUMNS": "300", "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
     assert r.returncode == 2, r.stdout + r.stderr
     assert '[project.entry-points."nerfstudio.method_configs"] in pyproject.toml' in r.stdout + r.stderr
+
+
+def test_verify_console_shows_plugin_text_escaped():
+    """Diagnoses, file names, a fixer's reason and the repair diff carry the plugin's text: the console shows
+    its markup literally and its control characters as escapes, never raw."""
+    import io
+
+    from rich.console import Console
+
+    from nerfify_ns.verify.command import print_report
+
+    report = LadderReport(plugin="/plugins/x\x1b[2J", repair="apply")
+    rung = RungResult("static")
+    rung.fail(Diagnosis("static", "import", "boom \x1b]0;pwned\x07 [bold green]verified[/]" + "A" * 5000,
+                        "config\x1b.py", traceback="\x1b[2J" * 3000))
+    report.rungs = [rung]
+    report.diff = "--- a/f.py\n+++ b/f.py\n-x = '\x1b[2J'\n+x = 1\n"
+    report.patches = [{"file": "f\x1b.py", "fixer": "fix", "reason": "key '\x1b[31m' renamed", "diff": "d.diff"}]
+    out = io.StringIO()
+    print_report(report, Console(file=out, force_terminal=True, color_system=None, width=250))
+    shown = out.getvalue()
+    assert "\x1b" not in shown and "\\x1b" in shown and "[bold green]verified[/]" in shown
+    assert len(rung.failures[0].message) < 2100 and len(rung.failures[0].traceback) < 4100
