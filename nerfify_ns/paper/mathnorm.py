@@ -392,7 +392,7 @@ def normalize_latex(latex: str, lost_backslashes: Optional[bool] = None) -> str:
     s = re.sub(r"\s{2,}", " ", s).strip()
     s = re.sub(r"(?:\s|\\quad|\\,)*[.,;](?:\s|\\quad|\\,)*$", "", s).strip()  # the sentence's punctuation
     s = re.sub(r"(?:\s|\\quad|\\\\)+$", "", s)
-    return s
+    return _strip_braces(s)
 
 
 # ----- checks -------------------------------------------------------------------------------------------

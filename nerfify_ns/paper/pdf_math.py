@@ -36,7 +36,7 @@ from typing import Iterable, Optional
 
 from nerfify_ns.paper.mathnorm import equation_sentence, latex_issues, normalize_latex
 from nerfify_ns.paper.mathsym import (
-    ACCENT_CHARS, BIG_OPERATORS, CLOSE, CMEX, CMMI, CMR, CMSY, FUNCTIONS, LATEX_FUNCTIONS, NAMED_OPERATORS,
+    UNICODE_TO_LATEX, ACCENT_CHARS, BIG_OPERATORS, CLOSE, CMEX, CMMI, CMR, CMSY, FUNCTIONS, LATEX_FUNCTIONS, NAMED_OPERATORS,
     OPEN, PIECES, RELATIONS, cmex_depth, font_family, font_role, is_bold_font, is_italic_text_font, math_alnum,
     to_latex_char,
 )
@@ -1116,6 +1116,10 @@ def reconstruct(glyphs: list[Glyph], rules: list[tuple]) -> tuple[str, float, li
     closes = len(re.findall(r"(?<!\\)[)\]]", latex))
     if opens != closes:
         stats.note(f"unmatched brackets ({opens} open, {closes} closed)", 0.1)
+    # round trip: the letters and digits our LaTeX renders against those of the glyphs read
+    kept = _similarity(_latex_skeleton(latex), _glyph_skeleton(glyphs))
+    if kept < 0.97:
+        stats.note(f"the reading renders {100 * kept:.0f}% of the glyphs' letters and digits", 1.0 - kept)
     share = stats.mapped / max(1, stats.glyphs)
     conf = max(0.05, min(0.9, 0.9 * share - stats.penalty))
     return latex, round(conf, 3), stats.notes
@@ -1177,17 +1181,28 @@ def actual_texts(page) -> list[str]:
 
 def _skeleton(s: str) -> Counter:
     """Letters, digits and Greek of a rendering, as a multiset (order-free comparison)."""
-    s = unicodedata.normalize("NFKC", s)
+    s = unicodedata.normalize("NFKC", s).replace("∆", "Δ").replace("Ω", "Ω")
     return Counter(c for c in s if c.isalnum())
 
 
-def _latex_skeleton(latex: str) -> Counter:
-    from nerfify_ns.paper.mathdup import render
+_COMMAND_CHAR = {v[1:]: k for k, v in UNICODE_TO_LATEX.items() if re.fullmatch(r"\\[A-Za-z]+", v) and len(k) == 1}
 
-    s = re.sub(r"\\(?:label|tag)\{[^{}]*\}", "", latex)
-    s = re.sub(r"\\(?:mathrm|rm|text|operatorname|mathbf|mathcal|mathbb|hat|bar|tilde)\b", "", s)
-    s = re.sub(r"\\(?:left|right|Big|big|bigg|Bigg|small|footnotesize|quad|qquad|displaystyle|frac|sqrt)\b", "", s)
-    return _skeleton(render(s))
+
+def _latex_skeleton(latex: str) -> Counter:
+    """The letters, digits and Greek a LaTeX formula shows (function names spelled out, markup dropped)."""
+    s = re.sub(r"\\(?:label|tag)\s*\{[^{}]*\}|\\(?:begin|end)\s*\{[^{}]*\}(?:\{[^{}]*\})?", "", latex)
+
+    def command(m: re.Match) -> str:
+        name = m.group(1)
+        if name in FUNCTIONS or name in LATEX_FUNCTIONS:
+            return name
+        return _COMMAND_CHAR.get(name, "")
+
+    return _skeleton(re.sub(r"\\([A-Za-z]+)", command, s))
+
+
+def _glyph_skeleton(glyphs: list[Glyph]) -> Counter:
+    return _latex_skeleton(" ".join(g.tex for g in glyphs if g.mapped and g.kind not in ("accent", "ignore")))
 
 
 def _similarity(a: Counter, b: Counter) -> float:
@@ -1400,7 +1415,7 @@ def _match_actual(page_eqs: list[tuple], actual: list[str]) -> None:
     sks = [_latex_skeleton(a) for a in actual]
     pairs = []
     for ei, (eq, gl) in enumerate(page_eqs):
-        sk = _skeleton("".join(g.c for g in gl))
+        sk = _glyph_skeleton(gl)
         for ai, sa in enumerate(sks):
             sim = _similarity(sk, sa)
             if sim >= 0.6:

@@ -102,13 +102,16 @@ def test_seathru_appendix_medium_rendering(seathru):
     assert len(eqs) == 7 and not any(e.number for e in eqs)  # the appendix numbers none of its derivation
     assert {e.section for e in eqs} == {"Derivation of Eqs. (10-11)"}
     embedded = [e for e in eqs if e.method == "actualtext"]  # LaTeX the CVPR kit's axessibility embeds
-    assert len(embedded) == 3 and embedded[0].label == "eq.color_cont_UW" and all(e.confidence > 0.85 for e in embedded)
+    assert [e.label for e in embedded] == ["eq.color_cont_UW", "eq.transmittance_UW", "eq.discretized_color_contrib",
+                                           "eq.color_interval_UW"]
+    assert all(e.confidence > 0.9 for e in embedded)
+    assert embedded[2].latex == r"\hat{C}(\mathbf{r})=\sum_{i} C_i(\mathbf{r})"
     assert embedded[0].latex == (r"C(\mathbf{r})=\int_{t_n}^{t_f}T(t)(\sigma^{\mathrm{obj}}(t)\mathbf{c}^{\mathrm{obj}}(t)"
                                  r"+\sigma^{\mathrm{med}}(t)\mathbf{c}^{\mathrm{med}}(t))dt")
     layout = {e.latex for e in eqs if e.method == "layout"}
     assert (r"T(s_{i})=\exp(-\int_{t_{n}}^{s_{i}}(\sigma^{\mathrm{obj}}(s)+\sigma^{\mathrm{med}}(s))ds) \\ "
             r"=\exp(-\sum_{j=0}^{i-1}(\sigma_{j}^{\mathrm{obj}}+\sigma_{j}^{\mathrm{med}})\delta_{j})") in layout
-    assert r"\hat{C}(\mathbf{r})=\sum_{i}C_{i}(\mathbf{r})" in layout
+    assert all(e.confidence >= 0.75 for e in eqs)
     derivation = next(e for e in eqs if e.latex.startswith(r"\int_{s_{i}}^{s_{i+1}}T(t) \\"))
     assert derivation.latex.count(r" \\ ") == 6  # seven aligned rows
     assert derivation.latex.endswith(r"=T(s_{i})\cdot\frac{1-e^{-(\sigma_{i}^{\mathrm{obj}}+\sigma_{i}^{\mathrm{med}})"
