@@ -230,6 +230,11 @@ def _make_token(ch: str, font: str, size: float, flags: int, bbox, origin, body_
                     tex, mapped = "?", False
     if ch == "√" and role == "symbol":  # CMSY's surd, like CMEX's radicals, hangs below its origin
         g.extra = {"top": 0.06, "depth": 0.96}
+    if role == "extension" and "depth" not in g.extra and fam.startswith(("cmex", "lmmathextension", "txex", "pxex",
+                                                                          "ntxex", "newtxex", "esint")):
+        # a TeX extension glyph given as Unicode (a ToUnicode map): it still hangs below its origin
+        depth = 2.0 if tex in (r"\int", r"\oint", r"\iint") else 1.2
+        g.extra = {**g.extra, "top": 0.06, "depth": depth}
     if isinstance(tex, str) and tex.startswith("ACCENT:"):
         kind, tex = "accent", tex.split(":", 1)[1]
         g.extra = {"accent": tex}

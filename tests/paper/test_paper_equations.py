@@ -193,6 +193,18 @@ def test_tex_font_codes_map_to_latex():
     assert not g.math and g.kind == "text"
 
 
+def test_extension_glyphs_with_unicode_hang_below_their_origin():
+    """pdfTeX with glyphtounicode maps CMEX's sum to U+2211; its origin is still at its top."""
+    def g(c, font, size, x, base):
+        return make_glyph(c, font, size, 0, (x, base - size, x + 0.6 * size, base), (x, base), "times")
+
+    row = 200.0
+    glyphs = [g("C", "CMMI10", 10, 100, row), g("=", "CMR10", 10, 108, row), g("∑", "CMEX10", 10, 118, row - 9.2),
+              g("i", "CMMI7", 7, 121, row + 10.5), g("x", "CMMI10", 10, 134, row), g("(", "CMEX10", 10, 141, row - 7.5),
+              g("y", "CMMI10", 10, 147, row), g(")", "CMEX10", 10, 153, row - 7.5)]
+    assert reconstruct(glyphs, [])[0] == r"C=\sum_{i}x(y)"
+
+
 def test_unmapped_glyphs_lower_the_confidence_and_say_so():
     glyphs = [make_glyph(c, f, 10.0, 0, (x, 0, x + 5, 10), (x, 100), "times")
               for x, (c, f) in zip(range(0, 50, 6), [("x", "CMMI10"), ("=", "CMR10"), ("\x7f", "CMSY10"), ("y", "CMMI10")])]
