@@ -483,7 +483,7 @@ def equation_sentence(before: str, after: str, number: str = "") -> str:
             head = ""  # the equation starts a new sentence
     tail = ""
     after = re.sub(r"\s+", " ", after or "").strip()
-    if after and (re.match(r"[a-z(,;]|where\b|with\b|and\b|in which\b", after) or not head):
+    if after and re.match(r"[a-z(,;]|where\b|with\b|and\b|in which\b", after):
         sents = _sentences(after)
         tail = sents[0] if sents else after
         if not re.match(r"[a-z(,;]", tail) and head:

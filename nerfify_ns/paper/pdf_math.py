@@ -353,11 +353,17 @@ def _raw_spans(page) -> list[tuple]:
         for ln in b["lines"]:
             if abs(ln["dir"][0] - 1) > 0.01:
                 continue
+            prev = None
             for s in ln["spans"]:
-                chars = [(ch["c"], ch["bbox"], ch["origin"]) for ch in s["chars"]
-                         if ch["c"] and ch["c"] != " " and ch["c"] not in _SPACES]
-                if chars:
-                    out.append((s["font"], s["size"], s["flags"], chars))
+                chars = [(ch["c"], ch["bbox"], ch["origin"]) for ch in s["chars"] if ch["c"]]
+                if not chars:
+                    continue
+                key = (s["font"], s["size"], s["flags"])
+                if prev is not None and prev[:3] == key and abs(prev[3][-1][2][1] - chars[0][2][1]) < 0.01:
+                    prev[3].extend(chars)  # the same font on the same baseline: one run (words split by spaces)
+                    continue
+                prev = (*key, chars)
+                out.append(prev)
     return out
 
 
@@ -365,12 +371,32 @@ _SPACES = {"\u00a0", "\u2002", "\u2003", "\u2009", "\u200a", "\u202f", "\u3000",
            "\u2007", "\u2008", "\u205f"}
 
 
+_PROSE = re.compile(r"[A-Za-z0-9\s.,;:'\"’‘“”()\[\]\-–—!?/%&]+")
+
+
 def _glyphs(spans: list[tuple], body_family: str) -> list[Glyph]:
+    """The page's glyphs; a long span of plain words in a text font is one glyph (running text: its letters
+    are never read one by one, and making a glyph per letter would cost most of the time)."""
     out = []
     for font, size, flags, chars in spans:
+        if len(chars) >= 12 and font_role(font) is None:
+            text = "".join(c for c, _, _ in chars)
+            if _PROSE.fullmatch(text) and text.strip():
+                out.append(_span_glyph(text, chars, font, size, flags))
+                continue
         for c, bbox, origin in chars:
-            out.append(make_glyph(c, font, size, flags, bbox, origin, body_family))
+            if c != " " and c not in _SPACES:
+                out.append(make_glyph(c, font, size, flags, bbox, origin, body_family))
     return out
+
+
+def _span_glyph(text: str, chars: list, font: str, size: float, flags: int) -> Glyph:
+    solid = [ch for ch in chars if not ch[0].isspace()]
+    oy = solid[0][2][1]
+    word = re.sub(r"\s+", " ", text).strip()
+    return Glyph(word, r"\text{" + re.sub(r"([{}%$&#_\\])", r"\\\1", word) + "}", "text", font, None, size,
+                 solid[0][1][0], oy - 0.72 * size, solid[-1][1][2], oy + 0.22 * size, oy,
+                 is_bold_font(font, flags), is_italic_text_font(font, flags), True, False, {"span": True})
 
 
 def _body_font(spans_by_page: list[list[tuple]]) -> tuple[str, float]:
@@ -388,16 +414,17 @@ def _columns(glyphs: list[Glyph], width: float, body: float) -> tuple[bool, floa
     """(two-column page?, the gutter's x): few text lines have a glyph across the gutter (only full-width
     ones: title, wide captions), while on a one-column page nearly every line does."""
     text = [g for g in glyphs if g.size >= 0.6 * body and g.size <= 1.3 * body]
-    if len(text) < 200:
+    total = sum(len(g.c) for g in text)
+    if total < 200:
         return False, width / 2
     lines = {round(g.base / 3) for g in text}
     best = None
     for gx in [width / 2 + d for d in (0, -6, 6, -12, 12, -18, 18, -24, 24)]:
         cross = {round(g.base / 3) for g in text if g.x0 < gx + 4 and g.x1 > gx - 4}
         if len(cross) <= 0.25 * len(lines):
-            left_mass = sum(1 for g in text if g.x1 <= gx)
-            right_mass = sum(1 for g in text if g.x0 >= gx)
-            if left_mass > 0.15 * len(text) and right_mass > 0.15 * len(text) and (best is None or len(cross) < best[0]):
+            left_mass = sum(len(g.c) for g in text if g.x1 <= gx)
+            right_mass = sum(len(g.c) for g in text if g.x0 >= gx)
+            if left_mass > 0.15 * total and right_mass > 0.15 * total and (best is None or len(cross) < best[0]):
                 best = (len(cross), gx)
     return (True, best[1]) if best else (False, width / 2)
 
@@ -536,8 +563,14 @@ def _inline_math_is_prose(lines: list[Line], cx0: float, cx1: float, body: float
 
 def _flow_text(line: Line, body: float, height: float) -> bool:
     """Running text (not a footnote, header or page number), for an equation's sentence."""
-    sizes = [g.size for g in line.glyphs] or [body]
-    if not 0.88 * body <= statistics.median(sizes) <= 1.15 * body:  # footnotes, titles
+    sizes = sorted((g.size, len(g.c)) for g in line.glyphs)  # the median size by characters
+    half, acc, median = sum(n for _, n in sizes) / 2, 0, body
+    for size, n in sizes:
+        acc += n
+        if acc >= half:
+            median = size
+            break
+    if not 0.88 * body <= median <= 1.15 * body:  # footnotes, titles
         return False
     return not (line.y1 < 0.07 * height or line.y0 > 0.93 * height)
 
@@ -545,6 +578,12 @@ def _flow_text(line: Line, body: float, height: float) -> bool:
 def _text_words(glyphs: list[Glyph]) -> list[str]:
     words, cur, last = [], [], None
     for g in sorted(glyphs, key=lambda g: g.x0):
+        if len(g.c) > 1:  # a span of running text
+            if cur:
+                words.append("".join(cur))
+            cur, last = [], g
+            words.extend(re.findall(r"[A-Za-z]+", g.c))
+            continue
         is_letter = g.kind == "text"
         if is_letter and cur and last is not None and g.x0 - last.x1 < 0.2 * g.size and abs(g.base - last.base) < 1:
             cur.append(g.c)

@@ -69,7 +69,7 @@ def test_latex_issues_name_what_is_wrong():
 def test_equation_sentence():
     s = equation_sentence("We render rays. The colour is computed as follows:", "where T_i is the transmittance. Next.", "3")
     assert s == "The colour is computed as follows: ⟨Eq. 3⟩ where T_i is the transmittance."
-    assert equation_sentence("A sentence ends.", "Another starts.", "") == "⟨equation⟩ Another starts."
+    assert equation_sentence("A sentence ends.", "Another starts.", "") == "⟨equation⟩"
 
 
 # ------------------------------------------------------------------------------------------- tex / markdown
