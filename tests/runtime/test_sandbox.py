@@ -338,3 +338,33 @@ def test_interpreter_environment_is_visible(tmp_path, monkeypatch):
     monkeypatch.setattr(site, "getsitepackages", lambda: [str(sp)])
     assert set(targets.values()) <= set(sb._site_paths())
 
+
+
+@needs_bwrap
+def test_sandbox_dies_with_us_even_when_we_are_killed(tmp_path):
+    """SIGKILL to the process that started the sandbox (no clean-up of ours runs): bubblewrap dies with its
+    parent and the PID namespace with it; the empty cgroup left behind is removed by the next run."""
+    import signal
+    import subprocess
+
+    marker = f"634.{uuid.uuid4().int % 10**6}"
+    script = (f"import sys\nfrom pathlib import Path\nfrom nerfify_ns.runtime.sandbox import run_sandboxed\n"
+              f"run_sandboxed(['sh', '-c', 'sleep {marker} & sleep {marker}; wait'], Path({str(tmp_path / 'w')!r}),"
+              f" timeout=120)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script])
+    deadline = time.monotonic() + 60
+    while not marker_processes(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert marker_processes(marker), "the sandboxed command did not start"
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 10
+    while marker_processes(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert marker_processes(marker) == []
+    if CGROUP is not None:
+        run_py("print(1)", tmp_path / "next")  # sweeps cgroups of processes that no longer exist
+        own = _own_cgroups()
+        for controller in ("memory", "pids"):
+            folder = Path(f"/sys/fs/cgroup/{controller}") / own.get(controller, "/").lstrip("/")
+            assert not list(folder.glob(f"nerfify-{parent.pid}-*"))
