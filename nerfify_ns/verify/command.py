@@ -67,6 +67,9 @@ def print_report(report: LadderReport, console: Optional[Console] = None, out: O
     """The rung table, the repair (applied or proposed) and the verdict."""
     console = console or Console()
     console.print(_rung_table(report))
+    for note in report.notes:
+        if note.startswith("sandbox:"):  # plugin code ran with less isolation than bubblewrap's
+            console.print(f"[yellow]{_shown(note)}[/]")
     _print_repair(report, Path(out) if out else Path(report.plugin) / ".verify", console)
     console.print("[green]verified[/]" if report.ok else f"[red]{len(report.failures)} failure(s)[/]")
 

@@ -270,3 +270,23 @@ def test_verify_console_shows_plugin_text_escaped():
     shown = out.getvalue()
     assert "\x1b" not in shown and "\\x1b" in shown and "[bold green]verified[/]" in shown
     assert len(rung.failures[0].message) < 2100 and len(rung.failures[0].traceback) < 4100
+
+
+def test_weaker_isolation_is_noted():
+    """A rung that ran under the unshare fallback (or none) gets a note in the report and on the console."""
+    import io
+
+    from rich.console import Console
+
+    from nerfify_ns.verify.command import print_report
+    from nerfify_ns.verify.ladder import _sandbox_notes
+
+    full, weak = RungResult("static"), RungResult("contract")
+    full.details["sandbox"], weak.details["sandbox"] = {"mode": "bwrap"}, {"mode": "unshare"}
+    assert _sandbox_notes([full]) == []
+    (note,) = _sandbox_notes([full, weak])
+    assert "unshare" in note and "weaker than bubblewrap" in note
+    report = LadderReport(plugin="/p", rungs=[full, weak], notes=[note])
+    out = io.StringIO()
+    print_report(report, Console(file=out, width=300))
+    assert "weaker than bubblewrap" in out.getvalue()
