@@ -1,10 +1,13 @@
-"""Done-when of the composer: every reference plan's plugin installs with pip into the project's
-environment and trains with `ns-train <its name> --machine.device-type cpu` for 100 iterations on a
-generated scene with finite losses (Nerfstudio's own trainer, a real subprocess)."""
+"""Done-when of the composer: every reference plan's plugin installs with pip and trains with `ns-train <its
+name> --machine.device-type cpu` for 100 iterations on a generated scene with finite losses (Nerfstudio's own
+trainer, a real subprocess). The plugin is installed into a folder of the test's own on ``PYTHONPATH``, never
+into the shared environment, where a plugin whose files vanish would break every other ``ns-train``.
+CI trains vanilla-nerf's; the others run in the benchmark lane."""
 
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 
@@ -26,18 +29,21 @@ def _pip(*args: str) -> None:
     assert out.returncode == 0, out.stdout[-1500:] + out.stderr[-1500:]
 
 
+CI_CASE = "vanilla-nerf"
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("name", reference_plans())
+@pytest.mark.parametrize("name", [pytest.param(n, marks=[] if n == CI_CASE else [pytest.mark.bench])
+                                  for n in reference_plans()])
 def test_reference_plugin_installs_and_trains_100_iterations(name, tiny_scene, tmp_path):
     plan = prune_plan(load_reference_plan(name), probe_scene(tiny_scene))
     plugin = compose(plan, tmp_path / "plugin", record=False)
-    _pip("install", "--no-deps", "--no-build-isolation", "--no-index", "-q", "-e", str(plugin.out))
-    try:
-        run = ns_train(plugin.method, tiny_scene, tmp_path / "run", iterations=ITERATIONS, timeout=900,
-                       method_args=["--machine.device-type", "cpu", *generated_smoke_args(plan["base"]),
-                                    "--pipeline.datamanager.train-num-rays-per-batch", str(RAYS.get(name, 256))])
-    finally:
-        _pip("uninstall", "-y", "-q", f"nerfify-{plugin.method}")
+    site = tmp_path / "site"
+    _pip("install", "--no-deps", "--no-build-isolation", "--no-index", "-q", "--target", str(site), str(plugin.out))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")]))}
+    run = ns_train(plugin.method, tiny_scene, tmp_path / "run", iterations=ITERATIONS, timeout=900, env=env,
+                   method_args=["--machine.device-type", "cpu", *generated_smoke_args(plan["base"]),
+                                "--pipeline.datamanager.train-num-rays-per-batch", str(RAYS.get(name, 256))])
     assert run.ok, run.log_path.read_text()[-3000:]
     assert run.last_step + 1 >= ITERATIONS
     assert run.losses and all(math.isfinite(v) for v in run.losses.values())

@@ -52,6 +52,7 @@ def test_ci_smoke_train_nerfacto(tiny_scene, tmp_path):
 TEST_BATCH = {"vanilla-nerf": "64", "mipnerf": "64", "instant-ngp": "512"}
 
 
+@pytest.mark.bench  # test_ci_smoke_train_nerfacto is CI's representative
 @pytest.mark.parametrize("method", ["vanilla-nerf", "nerfacto", "instant-ngp", "mipnerf", "tensorf"])
 def test_reference_methods_train_offline_on_cpu(method, tiny_scene, tmp_path):
     """The issue's bar: 20 iterations with --machine.device-type cpu, finite losses, ns-eval metrics."""

@@ -17,9 +17,12 @@ def _rungs(case: dict) -> list:
     return ORDER[: ORDER.index(case["expect"]["rung"]) + 1]
 
 
-@pytest.mark.parametrize(
-    "name", [pytest.param(n, marks=pytest.mark.slow) if load_case(n).get("slow") else n for n in corpus()]
-)
+def _marks(case: dict) -> list:
+    """`slow: true` cases train (the smoke rung); `bench: true` repeats a verdict CI checks elsewhere."""
+    return [getattr(pytest.mark, lane) for lane in ("slow", "bench") if case.get(lane)]
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_marks(load_case(n))) for n in corpus()])
 def test_broken_plugin_is_caught(name, reference_plugins, tiny_scene, tmp_path):
     case = load_case(name)
     outside = tmp_path / "escaped.txt"
