@@ -11,7 +11,8 @@ result (``mode`` and the ``isolation`` tags, which the ladder writes into ``veri
     ``--new-session``). The root is a read-only tmpfs holding only read-only binds of ``/usr`` (and the
     ``/bin``, ``/lib*`` links), an allow-list of ``/etc`` files (no ``shadow``, ``gshadow``, keys or
     ``sudoers``), the Python installation, the virtual environment, the nerfify-ns checkout, the built
-    kernel cache and ``readonly``; ``workdir`` is the one writable bind. ``/proc`` is the sandbox's own
+    kernel cache, what the interpreter's site-packages reach (editable installs, linked packages) and
+    ``readonly``; ``workdir`` is the one writable bind (owned by the sandbox's user while it runs). ``/proc`` is the sandbox's own
     (its PID namespace), ``/dev`` a minimal one (null, zero, random, tty...) that cannot be written,
     ``/tmp`` and ``/dev/shm`` private size-limited tmpfs, ``HOME`` a folder inside ``workdir``. Nothing of
     ``/root``, ``/home``, ``/run``, ``/var`` or ``/sys`` (but ``/sys/devices/system/cpu``) is there. bwrap
@@ -19,7 +20,11 @@ result (``mode`` and the ``isolation`` tags, which the ladder writes into ``veri
     (``nobody``: an unprivileged user on the host, not only inside a user namespace), clears supplementary
     groups, the bounding, inheritable and ambient capability sets, and sets ``no_new_privs`` before it
     executes the command. The command therefore has no capability in any namespace: it cannot mount,
-    ``setns``, write a sysctl, or read a root-only file, and the process-count rlimit binds it.
+    ``setns``, write a sysctl, or read a root-only file, and the process-count rlimit binds it. A seccomp
+    filter (:func:`seccomp_filter`) refuses it a user namespace of its own, where it would regain capabilities
+    over new namespaces. (Why not bwrap's own ``--unshare-user --uid 65534``: run by root, that maps the
+    sandbox's user to the host's root, so the process-count rlimit does not bind it and root-owned files
+    treat it as their owner.)
 ``unshare`` (root, without bubblewrap): the weaker fallback
     ``unshare -n -m``: no network, the root file system remounted read-only but ``workdir``, a fresh
     ``/dev/shm``. The command runs as root with every capability (it can remount, setns, read
