@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from nerfify_ns.grammar import check
+from nerfify_ns.synthesis.registry import resolve_generated
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
@@ -22,10 +23,10 @@ EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
 def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
     env = {**os.environ, "NERFIFY_CACHE": str(tmp_path / "cache")}
     cmd = [str(Path(sys.executable).with_name("ns-nerfify")), str(EXAMPLE), "--data", str(tiny_scene),
-           "--iterations", "20", "--every", "10", "--out", str(tmp_path / "out")]
+           "--iterations", "20", "--every", "10"]
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env, timeout=1800)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    out = tmp_path / "out"
+    out = tmp_path / "nerfify-out" / "gridlite"  # the default folder, under the current directory
     # a quiet console: one line per finished stage, no warnings from other packages (they are in the log)
     assert done.stderr == "" and "Warning" not in done.stdout and "failed" not in done.stdout
     assert [line.split()[1].rstrip(":") for line in done.stdout.splitlines() if line.startswith("done ")] == \
@@ -57,7 +58,7 @@ def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
     assert sections["patches"]["status"] == "not run"
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "http://" not in html and "https://" not in html
-    assert str(tmp_path / "out") in html and ".partial-" not in html
+    assert str(out) in html and ".partial-" not in html
 
-    last = json.loads((tmp_path / "cache" / "generated" / "last.json").read_text())
-    assert last["plugin"] == str(out)  # `ns-train nerfify-generated` now trains this plugin
+    # `ns-train nerfify-generated` run here trains this plugin (the newest under ./nerfify-out), no global state
+    assert resolve_generated(tmp_path)[0] == out and not (tmp_path / "cache" / "generated").exists()
