@@ -60,13 +60,13 @@ def run(plans: int, seed: int, only: Optional[int] = None, keep: Path = RESULTS,
         plan = sampler.sample(method=f"fuzz-{seed}-{index}")
         if (only is not None and index != only) or index < start:
             continue
-        start = time.perf_counter()
+        began = time.perf_counter()
         with tempfile.TemporaryDirectory(prefix="nerfify-fuzz-") as tmp:
             try:
                 found = check_plan(plan, Path(tmp))
             except Exception as exc:  # noqa: BLE001 - composing an accepted plan must not fail at all
                 found = [f"composition failed: {type(exc).__name__}: {exc}"]
-        seconds.append(time.perf_counter() - start)
+        seconds.append(time.perf_counter() - began)
         status = "ok" if not found else "FAIL"
         print(f"seed {seed} plan {index}: {status} ({seconds[-1]:.1f} s)" + (f": {found[0][:300]}" if found else ""),
               flush=True)
@@ -74,8 +74,8 @@ def run(plans: int, seed: int, only: Optional[int] = None, keep: Path = RESULTS,
             (keep / f"seed{seed}-plan{index}.yaml").write_text(plan.dump())
             failures.append({"seed": seed, "index": index, "failures": found})
     coverage = sampler.coverage.report(load_grammar())
-    summary = {"seed": seed, "first": start if only is None else only, "plans": len(seconds), "failed": len(failures), "failures": failures,
-               "median_seconds": sorted(seconds)[len(seconds) // 2] if seconds else None, "coverage": coverage}
+    summary = {"seed": seed, "first": start if only is None else only, "plans": len(seconds),
+               "failed": len(failures), "failures": failures, "median_seconds": sorted(seconds)[len(seconds) // 2] if seconds else None, "coverage": coverage}
     (keep / f"summary-seed{seed}-from{summary['first']}.json").write_text(json.dumps(summary, indent=2))
     print(f"{len(seconds) - len(failures)} of {len(seconds)} plans compose and pass static + contract; coverage: "
           f"{coverage['terminals_sampled']}/{coverage['terminals_total']} terminals, "

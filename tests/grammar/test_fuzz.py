@@ -67,3 +67,14 @@ def test_one_proposal_network_for_every_round(tmp_path):
     plan = load_reference_plan("nerfacto")
     plan["model"]["sampler"]["proposal"].update(use_same_network=True, network_max_res=[64])
     assert check_plan(plan, tmp_path) == []
+
+
+def test_the_benchmark_checks_every_plan_of_its_slice(monkeypatch, tmp_path):
+    """`--start` splits a seed's plans between processes: each plan of the slice is checked once (a timing
+    variable once shadowed the slice's start, and every plan after the first was skipped)."""
+    from nerfify_ns.bench import grammar_fuzz
+
+    checked = []
+    monkeypatch.setattr(grammar_fuzz, "check_plan", lambda plan, work: checked.append(plan["method"]) or [])
+    summary = grammar_fuzz.run(5, SEED, keep=tmp_path, start=2)
+    assert checked == [f"fuzz-{SEED}-{i}" for i in (2, 3, 4)] and summary["plans"] == 3
