@@ -463,7 +463,9 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
     if ctx.used("model.sampler.proposal") and "proposal_net_args_list" in fields:
         p = ctx.params("model.sampler.proposal")
         out.append(KW("num_proposal_iterations", py(len(p["samples_per_ray"])), "model.sampler.proposal.samples_per_ray"))
-    if ctx.used("model.sampler.proposal") and ctx.params("model.sampler.proposal")["network"] == "hash":
+    if ctx.used("model.sampler.proposal"):
+        # Also for k-planes proposal networks, which replace the base's: Nerfacto builds its own first, one per
+        # round or exactly one with use_same_proposal_network (it asserts a one-entry list then).
         p = ctx.params("model.sampler.proposal")
         nets = [{"hidden_dim": p["network_hidden_dim"], "log2_hashmap_size": p["network_log2_hashmap_size"],
                  "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False} for r in proposal_resolutions(p)]

@@ -62,9 +62,12 @@ def test_proposal_resolutions_for_no_network_are_rejected():
 
 
 @pytest.mark.slow
-def test_one_proposal_network_for_every_round(tmp_path):
-    """`use_same_network` builds one network that every round queries, as Nerfacto does."""
-    plan = load_reference_plan("nerfacto")
+@pytest.mark.parametrize("reference", ["nerfacto", "kplanes-static"])
+def test_one_proposal_network_for_every_round(reference, tmp_path):
+    """`use_same_network` builds one network that every round queries, as Nerfacto does; with k-planes
+    proposal networks too (found by the fuzzer, seed 0 plan 152: Nerfacto asserted a one-entry
+    proposal_net_args_list before the k-planes networks replaced its own)."""
+    plan = load_reference_plan(reference)
     plan["model"]["sampler"]["proposal"].update(use_same_network=True, network_max_res=[64])
     assert check_plan(plan, tmp_path) == []
 
