@@ -294,6 +294,7 @@ def mlp_field(ctx: Context) -> dict:
         "rgb": {**rgb, "custom": rgb_ctor},
         "rgb_in_dim": rgb_in,
         "keeps_density": ctx.used("model.regularizers.density_sparsity") or _custom_regularizers(ctx),
+        "shares_samples": _renderer_needs_samples(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
 
@@ -311,6 +312,13 @@ def custom_field(ctx: Context) -> dict:
 def custom_modules(ctx: Context) -> List[str]:
     """The modules of the plugin's components package that custom entries of the plan name."""
     return sorted({ctx.params(path)["module"] for path, term in ctx.derivation.used.items() if term == CUSTOM})
+
+
+def _renderer_needs_samples(ctx: Context) -> bool:
+    """Whether the plan's renderer is a custom component that reads the field's samples and densities (one the
+    equation compiler wrote, with ``bind_samples``): the field then shares them."""
+    entry = ctx.plan.get("model.renderer.custom")
+    return isinstance(entry, dict) and entry.get("source") == "compiler"
 
 
 def _custom_regularizers(ctx: Context) -> List[str]:
@@ -341,6 +349,7 @@ def tensorial_field(ctx: Context) -> dict:
         **{k: head[k] for k in ("appearance_dim", "num_layers", "layer_width", "feature_frequencies",
                                 "direction_frequencies")},
         "keeps_density": ctx.used("model.regularizers.density_sparsity") or _custom_regularizers(ctx),
+        "shares_samples": _renderer_needs_samples(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
 
@@ -411,6 +420,7 @@ def model_context(ctx: Context) -> dict:
     if proposal:
         imports += proposal["imports"]
     return {
+        "renderer_samples": bool(custom_renderer) and _renderer_needs_samples(ctx),
         "cls": f"{ctx.names.prefix}Model",
         "config_cls": f"{ctx.names.prefix}ModelConfig",
         "imports": sorted(set(imports)),
@@ -444,7 +454,7 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
     out: List[KW] = []
     model = ctx.plan.get("model")
     mlp = (model["field"].get("MLPField") or {})
-    if "background_color" in fields:
+    if "background_color" in fields and not ctx.custom("model.renderer"):  # a custom renderer: the base's default
         out.append(KW("background_color", py(ctx.params("model.renderer")["background"]), "model.renderer.background"))
     if "disable_scene_contraction" in fields:
         out.append(KW("disable_scene_contraction", py("spatial_distortion" not in mlp),

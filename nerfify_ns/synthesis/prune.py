@@ -64,6 +64,8 @@ class _Pruner:
     def set(self, rule: dict, spec: dict) -> None:
         parent, key = self.plan.parent(spec["path"])
         node = parent.get(key) if parent else None
+        if isinstance(node, dict) and "custom" in node:
+            return  # a component of the plugin (a compiled novel part) stands at the slot: not the terminal's params
         if isinstance(node, dict) and node.get(spec["param"]) != spec["value"]:
             before = node.get(spec["param"], self.grammar.terminals[key].params[spec["param"]].default)
             node[spec["param"]] = spec["value"]

@@ -89,6 +89,8 @@ def _density_head(module, inputs, env):
 def _renderer(module, inputs, env):
     ray_samples, densities = inputs["ray_samples"]
     inputs["densities"] = densities
+    if hasattr(module, "bind_samples"):  # a renderer that reads the samples (the equation compiler's)
+        module.bind_samples(ray_samples, densities)
     return {"rgb": module(rgb=inputs["rgb"], weights=ray_samples.get_weights(densities))}
 
 
@@ -158,7 +160,8 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
               Contract(RAYS, {"ray_samples": T("[R, K, 2]")}, free=("K",)), _sampler, RAY_CASES,
               duties=({"requires_base": ["vanilla-nerf", "mipnerf", "tensorf"]},)),
     Interface("Renderer", "a subclass of nerfstudio's RGBRenderer (background blending): __init__(background_color, "
-              "...); forward(rgb=[R, S, 3], weights=[R, S, 1]) -> rgb [R, 3]",
+              "...); forward(rgb=[R, S, 3], weights=[R, S, 1]) -> rgb [R, 3]; optionally bind_samples(ray_samples, "
+              "densities [R, S, 1]), called with the field's samples before forward",
               ("background_color",),
               Contract({"ray_samples": T("[R, S]", "samples", role="samples"),
                         "rgb": T("[R, S, 3]", range=(0.0, 1.0), grad=True)},

@@ -129,6 +129,10 @@ class Adapter:
         for net in w.networks:
             out.append(f"# {safe_comment(net.key, 40)}: a network of {self.network_input} ({safe_comment(net.evidence, 100)})")
             out.append(f"self.{net.attr} = {_net_ctor(net, in_dim)}")
+            if net.activation == "softplus" and self.production == "Renderer":
+                out.append(f"# a new non-negative coefficient starts near zero (softplus(-3) = 0.05): the part starts "
+                           f"close to the base's rendering and learns how far it departs")
+                out.append(f"nn.init.constant_(self.{net.attr}.layers[-1].bias, -3.0)")
         return out
 
     def lines_states(self, w: Wiring) -> list[str]:
@@ -149,6 +153,8 @@ class Adapter:
                 code = f"self.{net.attr}({net_input})"
                 if net.out_width is None:
                     code += "[..., 0]"
+                if self.batch_per_sample:
+                    code = f"{code}.to(weights)"
                 if net.per_sample:
                     code = f"_along_samples({code}, n_samples)"
                 out.append(f"{f.ident} = {code}  # {safe_comment(f.key, 40)}")
@@ -159,7 +165,7 @@ class Adapter:
     def lines_call(self, w: Wiring) -> list[str]:
         args = ", ".join(f.ident for f in w.feeds)
         targets = ", ".join(ident for _, ident, _ in w.outputs)
-        lines = [f"{targets}{',' if len(w.outputs) == 1 else ''} = self.equations({args})"]
+        lines = [f"{targets} = self.equations({args})"]  # one output: a tensor; several: a tuple
         for st, ident in w.states:
             lines += ["if self.training:", f"    _write_state(self.{st.attr}, {ident})"]
         return lines
@@ -309,7 +315,8 @@ class RendererAdapter(Adapter):
                "n_samples = weights.shape[1]"]
         if w.networks:
             fwd += ["directions = ray_samples.frustums.directions[:, 0, :]",
-                    "encoded = self.direction_encoding(directions).to(weights)"]
+                    "dtype = next(self.parameters()).dtype",
+                    "encoded = self.direction_encoding(directions).to(dtype)"]
         fwd += self.lines_feeds(w, "encoded") + self.lines_call(w)
         (key, ident, width), = w.outputs[: len(w.outputs) - len(w.states)]
         fwd += [f"rgb = {ident}", "if not self.training:", "    rgb = torch.clamp(rgb, 0.0, 1.0)", "return rgb"]
@@ -340,7 +347,8 @@ class RGBLossAdapter(Adapter):
         init = ["super().__init__()", f"self.equations = {w.eq_cls}()"]
         fwd = self.lines_feeds(w, "pred") + self.lines_call(w)
         (key, ident, width), = w.outputs
-        fwd += [f"return torch.mean({ident})" if w.loss_mean else f"return {ident}"]
+        fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"
+                if w.loss_mean else f"return {ident}"]
         lines = [f"class {w.cls}(nn.Module):",
                  '    """Photometric loss compiled from the paper\'s equations: forward(pred [R, 3], target [R, 3]) -> '
                  'scalar."""', "", "    def __init__(self) -> None:"]

@@ -943,8 +943,15 @@ def _implement_one(work: _Hole) -> HoleResult:
     except CompositionError as err:
         res.reason = f"the generated component does not parse (a compiler bug): {err}"
         return res
+    problem = _selfcheck(source, cls, res.production, wiring.params)
+    if problem:
+        res.reason = f"the generated component failed its own contract check (a compiler bug): {problem}"
+        res.checks["component"] = problem
+        return res
+    res.checks["component"] = "passed: built and run on the interface's example inputs (nominal case), outputs " \
+                              "against the contract, gradients finite"
     res.source = source
-    numbers = [f"Eq. {e.number}" for e in att.equations if e.number]
+    numbers = sorted((f"Eq. {e.number}" for e in att.equations if e.number), key=_number_key)
     unnumbered = sum(1 for e in att.equations if not e.number and e is not att.composite)
     implements = numbers + ([f"{unnumbered} unnumbered equation(s) of {res.section}"] if unnumbered else [])
     res.component = {"module": module, "class": cls, "params": wiring.params, "implements": implements,
@@ -982,6 +989,32 @@ def _implement_one(work: _Hole) -> HoleResult:
         head += "; not needed by its outputs: " + ", ".join(f"({e['number'] or e.get('key')})" for e in not_needed)
     res.reason = head + ("; " + "; ".join(reasons) if reasons else "")
     return res
+
+
+def _number_key(text: str) -> tuple:
+    digits = re.findall(r"\d+", text)
+    return (int(digits[0]) if digits else 1 << 30, text)
+
+
+def _selfcheck(source: str, cls: str, production: str, params: dict) -> str:
+    """The component built and run once on its interface's example inputs (nominal case), as the contract rung
+    will: '' when it holds, else the problems. Our own generated code, run in this process."""
+    from nerfify_ns.registry import default_registry
+    from nerfify_ns.verify.components import check_component, interface_arguments
+
+    interface = default_registry().interfaces[production]
+    namespace: dict = {"__name__": "nerfify_compiled_component"}
+    try:
+        exec(compile(source, f"<compiled {cls}>", "exec"), namespace)  # noqa: S102 - our generated source
+    except Exception as err:  # noqa: BLE001 - a compiler bug, reported
+        return f"does not import: {type(err).__name__}: {err}"
+    klass = namespace[cls]
+
+    def build(_params, env):
+        return klass(**interface_arguments(interface, env), **(params or {}))
+
+    result = check_component(interface.contract_for(params or {}), build, interface.call, dict(params or {}), "nominal")
+    return "" if result.status == "pass" else "; ".join(result.problems)[:400]
 
 
 def _record_equation(it: Item, attempt_items: list) -> dict:
