@@ -81,3 +81,14 @@ def test_the_benchmark_checks_every_plan_of_its_slice(monkeypatch, tmp_path):
     monkeypatch.setattr(grammar_fuzz, "check_plan", lambda plan, work: checked.append(plan["method"]) or [])
     summary = grammar_fuzz.run(5, SEED, keep=tmp_path, start=2)
     assert checked == [f"fuzz-{SEED}-{i}" for i in (2, 3, 4)] and summary["plans"] == 3
+
+
+def test_near_plane_after_the_far_plane_is_rejected():
+    """Found by the fuzzer (seed 0, plan 155): near 0.90 beyond far 0.53 left every ray without samples and the
+    field failed on an empty batch. The grammar now refuses such bounds."""
+    plan = load_reference_plan("nerfacto")
+    plan["model"]["bounds"] = {"near_plane": 0.9, "far_plane": 0.5}
+    errors = check(plan, load_grammar())
+    assert any(e.rule == "param_constraint" and "near_plane" in e.message for e in errors), errors
+    plan["model"]["bounds"] = {"near_plane": 0.05, "far_plane": 0.5}
+    assert check(plan, load_grammar()) == []

@@ -226,6 +226,9 @@ PACKED_BACKGROUND = Constraint(
     "a 'last_sample' background needs samples padded per ray; instant-ngp's packed samples have no last one",
     lambda p, plan: not (p["background"] == "last_sample" and plan.get("base") == "instant-ngp"))
 """Nerfstudio's RGBRenderer raises NotImplementedError for 'last_sample' with packed samples."""
+NEAR_BEFORE_FAR = Constraint("the near plane lies before the far plane: near_plane < far_plane",
+                             lambda p, plan: p["near_plane"] < p["far_plane"])
+"""Otherwise every ray is empty: no sample, no colour, and a field given zero samples (found by the fuzzer)."""
 
 TERMINALS = [
     TerminalDef(
@@ -289,7 +292,7 @@ TERMINALS = [
         harness=Harness(build=lambda p, env: None, call=_call_near_far, cases=RAY_CASES),
         config={"nerfacto": {"near_plane": "near_plane", "far_plane": "far_plane"},
                 "instant-ngp": {"near_plane": "near_plane", "far_plane": "far_plane"}},
-        duties=({"requires_base": ["nerfacto", "instant-ngp"]},)),
+        duties=({"requires_base": ["nerfacto", "instant-ngp"]},), constraints=(NEAR_BEFORE_FAR,)),
     TerminalDef(
         "so3xr3", "CameraOptimizer", None, "Camera pose refinement, rotation on SO(3) and translation in R^3 (Nerfacto).",
         "nerfstudio.cameras.camera_optimizers.CameraOptimizer", card="camera_optimizer", param_groups=("camera_opt",),
