@@ -172,6 +172,9 @@ class Paper:
     """Replace an existing output folder."""
     lpips_weights: Optional[Path] = None
     """AlexNet weights for LPIPS (else $NERFIFY_LPIPS_WEIGHTS, the torch hub cache, or LPIPS is null)."""
+    equations: Optional[Path] = None
+    """A run's equations.yaml with your corrections (an equation's LaTeX, a symbol's binding, a size): the holes
+    you edited are recompiled, the others reused."""
 
     def main(self) -> None:
         budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
@@ -182,7 +185,8 @@ class Paper:
         with ConsoleProgress() as progress:
             result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
                                until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
-                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress)
+                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress,
+                               equations=self.equations)
         _print_plan(result)
         if result.out is not None:
             _conclude(result.outcome, result.out)
@@ -214,9 +218,16 @@ def _print_plan(result) -> None:
         for path, line in sorted((result.plan.get("evidence") or {}).items()):
             table.add_row(_plain(path), _plain(str(line)))
         CONSOLE.print(table)
+    implementation = getattr(result, "implementation", None)
+    if implementation is not None and implementation.records:
+        CONSOLE.print(f"[bold]equations[/bold]: {_plain(implementation.headline())}", highlight=False)
     for hole in derived.holes:
-        text = f"{hole['production']} ({hole['slot']}): not implemented; {hole.get('stands_in', '')}"
-        CONSOLE.print(f"[bold red]hole[/bold red] {_plain(text)}", highlight=False)
+        status = hole.get("status", "not implemented")
+        text = f"{hole['production']} ({hole['slot']}): {status}; {hole.get('stands_in', '')}"
+        if status != "implemented" and hole.get("reason"):
+            text += f" (why: {hole['reason']})"
+        colour = "bold red" if status == "not implemented" else "bold yellow" if status != "implemented" else "bold green"
+        CONSOLE.print(f"[{colour}]hole[/{colour}] {_plain(text)}", highlight=False)
     if result.out is None:
         CONSOLE.print(yaml.safe_dump(dict(result.plan), sort_keys=False, width=110), highlight=False, markup=False)
 

@@ -38,6 +38,9 @@ from nerfify_ns.plan import Plan
 from nerfify_ns.runlog import run_log
 from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.compose import plugin_sources, write_plugin
+from nerfify_ns.synthesis.novel import Implementation, implement_holes
+from nerfify_ns.synthesis.novel.implement import revert
+from nerfify_ns.synthesis.novel.records import read_corrections, write_records
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.scene_probe import probe_scene
@@ -56,6 +59,8 @@ class PaperResult:
     outcome: Outcome
     summary: Optional[dict] = None
     """The evaluation's summary (eval/summary.json) when training ran."""
+    implementation: Optional[Implementation] = None
+    """What the equation compiler made of the paper's novel parts (equations.yaml)."""
 
 
 @dataclass
@@ -81,12 +86,16 @@ def run_paper(
     overwrite: bool = False,
     progress: Progress = Progress(),
     kb: Optional[KnowledgeBase] = None,
+    equations: Optional[Path] = None,
 ) -> PaperResult:
-    """Paper -> plan with evidence -> (unless dry_run) the stages of :func:`_build`, up to ``until``.
-    ``kb``: the knowledge base every stage reads (default: the package's), one object for the whole run."""
+    """Paper -> plan with evidence -> the paper's novel parts compiled from its equations -> (unless dry_run) the
+    stages of :func:`_build`, up to ``until``. ``kb``: the knowledge base every stage reads (default: the
+    package's), one object for the whole run. ``equations``: a person's corrected equations.yaml (its edited holes
+    are recompiled, the others reused)."""
     outcome = Outcome("paper", until, progress)
     dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
     check_count("--patch-rounds", patch_rounds, 0)
+    corrections, reuse = read_corrections(equations) if equations is not None else ({}, {})
     if out is not None and not dry_run:
         check_target(Path(out), overwrite)  # before the paper is read: a bad --out costs nothing
     kb = KnowledgeBase.of(kb)
@@ -96,17 +105,41 @@ def run_paper(
         detections = detect_techniques(doc, kb)
         graph = build_citation_graph(doc, detections, kb=kb)
         derived = derive_plan(doc, detections, graph, kb=kb)
+        stage.note("compiling the paper's novel parts from its equations")
+        implementation = implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
+        derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
         stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
-                         f"{len(derived.holes)} hole(s)")
+                         f"{len(derived.holes)} hole(s); {implementation.headline()}")
     if dry_run:
-        return PaperResult(None, doc, derived, graph, derived.plan, outcome)
+        return PaperResult(None, doc, derived, graph, derived.plan, outcome, implementation=implementation)
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
+        write_records(staging, implementation, doc)
         plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
-                               outcome)
+                               outcome, implementation.sources, _fallback(implementation, staging, doc))
         _rewrite_saved_paths(staging, final)
-    return PaperResult(final, doc, derived, graph, plan, outcome, summary)
+    return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
+
+
+def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Callable:
+    """When the ladder fails on compiled components, the plan without them (the base's parts stand in, the
+    records say which rung and why) and their sources; None when no compiled component is to blame."""
+    def fallback(ladder) -> Optional[Tuple[dict, Dict[str, str]]]:
+        compiled = [r for r in implementation.records if r.source and r.status != "not implemented"]
+        if not compiled:
+            return None
+        failures = ladder.failures or []
+        named = [r.id for r in compiled if any(r.component.get("class", "") in f"{f.message} {f.where()}"
+                                               for f in failures)]
+        first = failures[0] if failures else None
+        why = f"the ladder's {first.rung} rung failed ({first.rule}: {first.message[:300]})" if first else \
+            "the ladder failed"
+        blamed = named or [r.id for r in compiled]  # a plugin-level failure (smoke): every compiled part
+        plan = revert(implementation, blamed, why)
+        write_records(folder, implementation, doc)
+        return plan, implementation.sources
+    return fallback
 
 
 def run_compose(
@@ -139,11 +172,13 @@ def run_compose(
 
 
 def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
-           patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None
-           ) -> Tuple[dict, Optional[dict]]:
+           patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None,
+           fallback: Optional[Callable] = None) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
-    the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered)."""
+    the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
+    when the ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and
+    its sources): the plugin is regenerated from it and the ladder run again, once."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
@@ -156,10 +191,18 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
                            total=smoke_iterations(plan["base"], budget.smoke_iterations),
                            failures=(NerfifyError,)) as stage:
-            ladder = run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
-                                smoke_iterations=budget.smoke_iterations, timeout=budget.timeout,
-                                on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
-                                                           "verification ladder: judging the smoke run"))
+            def ladder_run():
+                return run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
+                                  smoke_iterations=budget.smoke_iterations, timeout=budget.timeout,
+                                  on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
+                                                             "verification ladder: judging the smoke run"))
+            ladder = ladder_run()
+            retry = fallback(ladder) if fallback is not None and not ladder.ok else None
+            if retry is not None:  # the compiled parts failed: the base's parts stand in, the ladder runs again
+                stage.note("verification ladder: again, the base's parts standing in for the compiled ones")
+                plan, sources = _plan_for_scene(retry[0], folder, data, scene, keep_all, budget, stage)[0], retry[1]
+                _regenerate(plan, folder, sources)
+                ladder = ladder_run()
             (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
             _judge_ladder(ladder, stage)
     summary = None
@@ -197,6 +240,15 @@ def _plan_for_scene(plan: dict, folder: Path, data: Optional[Dataset], scene: st
     stage.summary = (f"{plan['method']} (base {plan['base']}), {data.format} dataset, "
                      f"{len(plan.get('pruned') or [])} pruning(s), {len(plan.get('holes') or [])} hole(s)")
     return plan, data
+
+
+def _regenerate(plan: dict, folder: Path, sources: Optional[Dict[str, str]]) -> None:
+    """The plugin written again from ``plan`` into ``folder`` (its earlier files removed first)."""
+    meta = folder / "nerfify.json"
+    if meta.is_file():
+        for name in json.loads(meta.read_text()).get("files", []):
+            (folder / name).unlink(missing_ok=True)
+    write_plugin(plan, folder, sources=sources)
 
 
 def _read_data(data: Optional[Path]) -> Optional[Dataset]:

@@ -132,6 +132,7 @@ class HoleResult:
     hash: str = ""
     source: str = ""
     seconds: float = 0.0
+    replaced: Any = None
 
     def to_dict(self) -> dict:
         out = {"id": self.id, "slot": self.slot, "production": self.production, "section": self.section,
@@ -664,11 +665,12 @@ def _encoding_width(terminal: str, params: dict) -> Optional[int]:
         return None
 
 
-def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None, cache: Optional[dict] = None,
-                    kb: Any = None) -> Implementation:
-    """Compile every hole of ``plan`` from ``doc``'s equations (see the module docstring). ``corrections``: a
-    person's equations.yaml (read by ``records.load_corrections``); ``cache``: content hash -> earlier result
-    (a hole whose inputs did not change is not recompiled)."""
+def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None, reuse: Optional[dict] = None,
+                    cache: Optional[dict] = None, kb: Any = None) -> Implementation:
+    """Compile every hole of ``plan`` from ``doc``'s equations (see the module docstring). ``corrections``: the
+    holes a person edited in equations.yaml, ``reuse``: hole id -> the earlier result of a hole not edited (both
+    from ``records.read_corrections``; a reused hole is not recompiled); ``cache``: content digest -> result,
+    kept by the caller across calls (a benchmark, a test)."""
     start = time.perf_counter()
     plan = Plan.of(copy.deepcopy(dict(plan)))
     notation = Notation.load()
@@ -700,7 +702,11 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
         work._basis = {}
         work._concat_used = set()
         digest = _digest(merged, local_items, corr, context)
-        if cache is not None and digest in cache:
+        if reuse and hid in reuse and reuse[hid].production == merged["production"]:
+            result = copy.deepcopy(reuse[hid])
+            result.notes = [n for n in result.notes if not n.startswith("not recompiled")] + [
+                "not recompiled: equations.yaml leaves this part as it was (its hash matches)"]
+        elif cache is not None and digest in cache:
             result = copy.deepcopy(cache[digest])
             result.notes = list(result.notes) + ["not recompiled: its equations, bindings and sizes did not change"]
         else:
@@ -715,10 +721,12 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             sources[module] = result.source
             entry = {k: result.component[k] for k in ("module", "class", "params", "implements", "source",
                                                       "evidence")}
+            result.replaced = copy.deepcopy(plan.get(slot))
             _place(plan, slot, entry)
             taken_slots.add(slot)
         for h in group:
             h = dict(h)
+            h["stands_in_base"] = h.get("stands_in", "")
             h["status"] = result.status
             h["reason"] = result.reason
             h["compiled"] = result.component.get("module", "") if result.status != NOT_IMPLEMENTED else ""
@@ -788,9 +796,26 @@ def _digest(hole: dict, items: list[Item], corr: dict, context: dict) -> str:
 
 def _place(plan: Plan, slot: str, entry: dict) -> None:
     """The compiled component at the hole's slot, through the production's `custom` alternative."""
-    current = plan.get(slot)
-    if isinstance(current, dict) and "custom" not in current and slot.endswith(("losses.rgb",)) or True:
-        plan.set(slot, {"custom": entry})
+    plan.set(slot, {"custom": entry})
+
+
+def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> Plan:
+    """The plan with the compiled components of ``hole_ids`` taken out again (the base's parts stand in), their
+    records and holes saying why (a ladder rung failed on them)."""
+    plan = implementation.plan
+    for r in implementation.records:
+        if r.id not in hole_ids or r.status == NOT_IMPLEMENTED:
+            continue
+        plan.set(r.slot, copy.deepcopy(r.replaced))
+        implementation.sources.pop(r.component.get("module", ""), None)
+        r.status = NOT_IMPLEMENTED
+        r.reason = f"compiled, but {reason}; the base's part stands in"
+        r.checks["ladder"] = reason
+        for h in plan.get("holes") or []:
+            if h.get("slot") == r.slot:
+                h["status"], h["reason"], h["compiled"] = NOT_IMPLEMENTED, r.reason, ""
+                h["stands_in"] = h.get("stands_in_base", h.get("stands_in", ""))
+    return plan
 
 
 def _record_equation(it: Item, used: set, attempt_items: list) -> dict:

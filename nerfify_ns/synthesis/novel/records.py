@@ -1,0 +1,126 @@
+"""``equations.yaml``: what the compiler made of each novel part, in a form a person corrects and reruns.
+
+    write_records(folder, implementation, doc)        # equations.yaml + equations/<hole>.py in the run folder
+    corrections, cache = read_corrections(path)       # ns-nerfify PAPER --equations path/equations.yaml
+
+Each hole's record holds the equations as read (LaTeX a person may fix: a subscript, an operator), the bindings
+(what each symbol is: ``as: input|network|parameter|constant`` and its ``role``), the sizes (``shape``), the
+status and the reason, and ``hash``: the digest of those editable parts as written. On a rerun, a hole whose
+editable parts still match its hash was not edited: its component is taken from ``equations/<hole>.py`` next to
+the file (not recompiled); an edited hole is recompiled with the person's LaTeX, bindings and sizes.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.synthesis.novel.implement import HoleResult, Implementation
+
+FILE = "equations.yaml"
+FOLDER = "equations"
+MAX_BYTES = 4 << 20
+
+
+class EquationsFileError(NerfifyError):
+    """An equations.yaml that cannot be read (bad input: one line, nothing written)."""
+
+
+def editable(record: dict) -> dict:
+    """The parts of a hole's record a person edits."""
+    return {"equations": [{"number": e.get("number", ""), "key": e.get("key", ""), "latex": e.get("latex", "")}
+                          for e in record.get("equations") or [] if isinstance(e, dict)],
+            "bindings": record.get("bindings") or {}, "sizes": record.get("sizes") or {}}
+
+
+def editable_hash(record: dict) -> str:
+    data = json.dumps(editable(record), sort_keys=True, default=str)
+    return hashlib.sha256(data.encode()).hexdigest()[:16]
+
+
+def to_yaml(implementation: Implementation, doc: Any = None) -> str:
+    title = (getattr(doc, "title", "") or "").strip()
+    holes = []
+    for r in implementation.records:
+        data = r.to_dict()
+        data["hash"] = editable_hash(data)
+        holes.append(data)
+    body = {"paper": title, "summary": implementation.headline(), "equations": implementation.counts,
+            "seconds": round(implementation.seconds, 3), "holes": holes}
+    head = ("# The paper's novel parts as the equation compiler read them (nerfify-ns). Correct a hole's equations\n"
+            "# (latex), bindings (as: input|network|parameter|constant, role) or sizes (shape) and rerun:\n"
+            "#   ns-nerfify PAPER --equations equations.yaml\n"
+            "# Holes you do not edit are not recompiled (their hash still matches).\n")
+    return head + yaml.safe_dump(body, sort_keys=False, width=110, allow_unicode=True)
+
+
+def write_records(folder: Path, implementation: Implementation, doc: Any = None) -> Path:
+    """equations.yaml and the compiled components (equations/<hole id>.py) in ``folder``."""
+    folder = Path(folder)
+    path = folder / FILE
+    path.write_text(to_yaml(implementation, doc))
+    sources = folder / FOLDER
+    for r in implementation.records:
+        if r.source:
+            sources.mkdir(exist_ok=True)
+            (sources / f"{r.id}.py").write_text(r.source)
+    return path
+
+
+def read_corrections(path: Path) -> tuple[dict, dict]:
+    """(corrections, cache) from a person's equations.yaml: corrections holds the edited holes (by id); cache the
+    unedited holes' earlier results (by hole id), with their component source when it lies next to the file."""
+    path = Path(path)
+    try:
+        if path.stat().st_size > MAX_BYTES:
+            raise EquationsFileError(f"--equations {path}: larger than {MAX_BYTES >> 20} MB")
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise EquationsFileError(f"--equations {path}: cannot read it ({str(exc).splitlines()[0][:160]})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("holes"), list):
+        raise EquationsFileError(f"--equations {path}: not an equations.yaml (a mapping with a list of holes)")
+    edited, kept = [], {}
+    for hole in data["holes"]:
+        if not isinstance(hole, dict) or not isinstance(hole.get("id"), str):
+            raise EquationsFileError(f"--equations {path}: every hole needs an id")
+        for key in ("equations",):
+            if hole.get(key) is not None and not isinstance(hole[key], list):
+                raise EquationsFileError(f"--equations {path}: hole {hole['id']}: {key} must be a list")
+        for key in ("bindings", "sizes"):
+            if hole.get(key) is not None and not isinstance(hole[key], dict):
+                raise EquationsFileError(f"--equations {path}: hole {hole['id']}: {key} must be a mapping")
+        if hole.get("hash") and editable_hash(hole) == hole["hash"]:
+            source_file = path.parent / FOLDER / f"{hole['id']}.py"
+            result = HoleResult(id=hole["id"], slot=str(hole.get("slot", "")),
+                                production=str(hole.get("production", "")), section=str(hole.get("section", "")),
+                                status=str(hole.get("status", "")), reason=str(hole.get("reason", "")),
+                                equations=hole.get("equations") or [], bindings=hole.get("bindings") or {},
+                                sizes=hole.get("sizes") or {}, state=hole.get("state") or {},
+                                notes=list(hole.get("notes") or []), component=hole.get("component") or {},
+                                checks=hole.get("checks") or {}, hash=hole["hash"])
+            if result.component and source_file.is_file():
+                result.source = source_file.read_text()
+                kept[hole["id"]] = result
+            elif not result.component:
+                kept[hole["id"]] = result
+        else:
+            edited.append(copy.deepcopy(hole))
+    return {"holes": edited}, kept
+
+
+def load_records(folder: Path) -> Optional[dict]:
+    """A run folder's equations.yaml (for the report), None when there is none."""
+    path = Path(folder) / FILE
+    if not path.is_file():
+        return None
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):
+        return None
+    return data if isinstance(data, dict) else None
