@@ -115,7 +115,7 @@ def run_paper(
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
-        write_records(staging, implementation, doc)
+        write_records(staging, implementation, doc, images=True)
         plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
                                outcome, implementation.sources, _fallback(implementation, staging, doc))
         _rewrite_saved_paths(staging, final)

@@ -283,6 +283,68 @@ class _Builder:
             data["holes"] = NOT_RUN
         self.add("components", "Components implemented and holes", blocks, data)
 
+    # ---------------------------------------------------------------- novel parts (the equation compiler)
+    def novel_parts(self) -> None:
+        """equations.yaml: per hole, implemented / partly / not implemented with the reason, the equations as read
+        (rendered, beside the PDF region they came from), bindings, sizes, state, the generated code, the checks."""
+        records, err = _read_yaml(self.run / "equations.yaml")
+        blocks = error(err)
+        if not isinstance(records, dict) or not isinstance(records.get("holes"), list):
+            self.add("equations", "Novel parts from the paper's equations",
+                     blocks + [not_run("equation compiler (equations.yaml)")], {"status": NOT_RUN})
+            return
+        holes = [h for h in records["holes"] if isinstance(h, dict)]
+        summary = str(records.get("summary") or "")
+        counts = records.get("equations") if isinstance(records.get("equations"), dict) else {}
+        blocks.append(text_block(summary, "headline"))
+        if counts:
+            blocks.append(text_block(f"numbered equations found {counts.get('numbered', 0)}, read "
+                                     f"{counts.get('read', 0)}; displayed equations {counts.get('displayed', 0)}; "
+                                     f"compiler time {records.get('seconds', '?')} s", "muted"))
+        blocks.append(table([{"part": h.get("id"), "production": h.get("production"), "slot": h.get("slot"),
+                              "status": h.get("status"), "reason": h.get("reason")} for h in holes]))
+        for h in holes:
+            blocks.append(heading(f"{h.get('production')} at {h.get('slot')}: {h.get('status')}"))
+            blocks.append(text_block(str(h.get("reason") or "")))
+            rows = []
+            for e in h.get("equations") or []:
+                if not isinstance(e, dict):
+                    continue
+                rows.append({"eq.": e.get("number") or e.get("key"), "as read": e.get("reading"),
+                             "status": e.get("status"), "where": e.get("where")})
+                for name, caption in (("image", "as read (rendered)"), ("crop", "in the paper (PDF crop)")):
+                    if e.get(name):
+                        blocks.append(figure(self.run / "equations" / str(e[name]),
+                                             f"({e.get('number') or e.get('key')}) {caption}", self.images))
+            if rows:
+                blocks.append(table(rows))
+            bindings = h.get("bindings") or {}
+            if bindings:
+                blocks.append(table([{"symbol": k, "as": (v or {}).get("as"), "role": (v or {}).get("role"),
+                                      "from": (v or {}).get("source"), "evidence": (v or {}).get("evidence")}
+                                     for k, v in bindings.items() if isinstance(v, dict)]))
+            sizes = h.get("sizes") or {}
+            if sizes:
+                blocks.append(table([{"symbol": k, "shape": (v or {}).get("shape"), "from": (v or {}).get("source"),
+                                      "evidence": (v or {}).get("evidence")} for k, v in sizes.items()
+                                     if isinstance(v, dict)]))
+            for key, st in (h.get("state") or {}).items():
+                blocks.append(text_block(f"persistent state {key}: {st.get('rows')} rows, starts at "
+                                         f"{st.get('initial')}; {st.get('note')}"))
+            for note in h.get("notes") or []:
+                blocks.append(text_block(str(note), "muted"))
+            checks = h.get("checks") or {}
+            if checks:
+                blocks.append(kv_table({k: v for k, v in checks.items() if k != "check_sizes"}))
+            source = self.run / "equations" / f"{h.get('id')}.py"
+            if source.is_file():
+                blocks.append(folded(f"generated code: equations/{source.name}", source.read_text(errors="replace")))
+        n = len(holes)
+        self.add("equations", "Novel parts from the paper's equations", blocks,
+                 {"status": "ok", "summary": summary, "holes": n, "counts": counts,
+                  "implemented": sum(h.get("status") == "implemented" for h in holes),
+                  "partly": sum(h.get("status") == "partly implemented" for h in holes)})
+
     # ---------------------------------------------------------------- verification
     def verification(self) -> None:
         report, err = _read_json(self.run / "verify.json")
@@ -449,7 +511,8 @@ def parse_markdown_tables(text: str) -> List[dict]:
 
 
 SECTIONS: Sequence[Callable[[_Builder], None]] = (
-    _Builder.paper_and_plan, _Builder.citations, _Builder.components, _Builder.verification, _Builder.metrics,
+    _Builder.paper_and_plan, _Builder.citations, _Builder.components, _Builder.novel_parts, _Builder.verification,
+    _Builder.metrics,
     _Builder.curve, _Builder.error_maps, _Builder.consistency, _Builder.patches,
 )
 
@@ -461,9 +524,12 @@ def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
     """The run's outcome from ``run.json`` (written by the pipeline): the stages that ran, the one that failed
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
     outcome, err = _read_json(run_dir / "run.json")
+    novel = sections.get("equations") or {}
+    novel_line = f"Novel parts: {novel['summary']}. " if novel.get("summary") else ""
     if isinstance(outcome, dict) and isinstance(outcome.get("stages"), list):
         stages = [s for s in outcome["stages"] if isinstance(s, dict)]
-        return {"known": True, "ok": bool(outcome.get("ok")), "headline": str(outcome.get("headline") or ""),
+        return {"known": True, "ok": bool(outcome.get("ok")),
+                "headline": novel_line + str(outcome.get("headline") or ""),
                 "until": outcome.get("until"), "command": outcome.get("command"), "failed": outcome.get("failed"),
                 "stages": [{k: s.get(k) for k in ("name", "status", "seconds", "summary", "reason")} for s in stages]}
     present = [k for k, v in sections.items() if v.get("status") != NOT_RUN]

@@ -33,7 +33,7 @@ class EquationsFileError(NerfifyError):
 
 
 def editable(record: dict) -> dict:
-    """The parts of a hole's record a person edits."""
+    """The parts of a hole's record a person edits (images and statuses are not)."""
     return {"equations": [{"number": e.get("number", ""), "key": e.get("key", ""), "latex": e.get("latex", "")}
                           for e in record.get("equations") or [] if isinstance(e, dict)],
             "bindings": record.get("bindings") or {}, "sizes": record.get("sizes") or {}}
@@ -60,9 +60,47 @@ def to_yaml(implementation: Implementation, doc: Any = None) -> str:
     return head + yaml.safe_dump(body, sort_keys=False, width=110, allow_unicode=True)
 
 
-def write_records(folder: Path, implementation: Implementation, doc: Any = None) -> Path:
-    """equations.yaml and the compiled components (equations/<hole id>.py) in ``folder``."""
+def render_images(folder: Path, implementation: Implementation, doc: Any = None) -> None:
+    """Each hole's equations as read, rendered (matplotlib mathtext), and the PDF region each came from, under
+    equations/<hole id>/; the records name the files (``image``, ``crop``). A rendering failure is said in the
+    record, never hidden."""
+    from nerfify_ns.paper.eqcheck import crop_png, render_latex_png
+
+    pdf = None
+    source = Path(str(getattr(doc, "source", "") or ""))
+    if source.suffix.lower() == ".pdf" and source.is_file():
+        try:
+            import pymupdf
+
+            pdf = pymupdf.open(str(source))
+        except Exception:  # noqa: BLE001 - no crops, said per equation
+            pdf = None
+    try:
+        for r in implementation.records:
+            sub = Path(folder) / FOLDER / r.id
+            for k, e in enumerate(r.equations[:40]):
+                sub.mkdir(parents=True, exist_ok=True)
+                ok, err, _, _ = render_latex_png(e.get("latex", ""), sub / f"eq{k}.png")
+                e["image"] = f"{r.id}/eq{k}.png"
+                if not ok and err:
+                    e["render_error"] = err[:300]
+                if pdf is not None and e.get("page") and e.get("bbox"):
+                    try:
+                        crop_png(pdf, int(e["page"]), e["bbox"], sub / f"crop{k}.png")
+                        e["crop"] = f"{r.id}/crop{k}.png"
+                    except Exception as exc:  # noqa: BLE001 - said in the record
+                        e["crop_error"] = str(exc)[:200]
+    finally:
+        if pdf is not None:
+            pdf.close()
+
+
+def write_records(folder: Path, implementation: Implementation, doc: Any = None, images: bool = False) -> Path:
+    """equations.yaml and the compiled components (equations/<hole id>.py) in ``folder``; ``images``: the
+    equations rendered and cropped too (render_images)."""
     folder = Path(folder)
+    if images:
+        render_images(folder, implementation, doc)
     path = folder / FILE
     path.write_text(to_yaml(implementation, doc))
     sources = folder / FOLDER
