@@ -390,6 +390,18 @@ class _Hole:
                 role = self.notation.roles.get(d.role) if d else None
                 if role is None or role.kind != "basis":
                     continue
+                indices = {expr.index, expr.body.index}
+                for part in (coef, basis):  # a basis expansion: both factors carry both indices of the sums
+                    missing = sorted(indices - (set(part.subscripts) | {part.superscript}))
+                    if missing:
+                        raise _Unbound(f"({eq.number or '?'}) in the sum over {', '.join(sorted(indices))} of "
+                                       f"{safe_comment(coef.key, 30)} times {safe_comment(basis.key, 30)} "
+                                       f"({role.doc}), '{safe_comment(part.key, 30)}' does not carry the sum's index "
+                                       f"'{safe_comment(missing[0], 10)}' (a wrong subscript or superscript?)")
+                c = self.role_of(coef)
+                if not (self.words.names(coef) or (c is not None and c.source in ("paper", "card", "correction"))):
+                    raise _Unbound(f"({eq.number or '?'}) the coefficients '{safe_comment(coef.key, 30)}' of the "
+                                   f"{role.doc} are neither named by the paper nor by a card's notation")
                 sym = Symbol("basis", (coef.name, basis.name))
                 self._basis[sym.key] = (basis, coef, d)
                 notes.append(f"({eq.number or '?'}) the sum over l and m of {safe_comment(coef.key, 20)} times "
@@ -447,6 +459,11 @@ class _Hole:
                     "evidence": d.evidence() if d else "equations.yaml", "matrix": matrix}
         if how == "network":
             return self._network(key, sym, d, corrected)
+        stated = self.words.constants.get(_loose(sym))
+        if stated is not None and role not in self.provisions:
+            value, quote, where2 = stated
+            return {"as": "constant", "role": role if kind == "constant" else "constant", "source": "paper",
+                    "evidence": f"{where2}: \"{_short(quote)}\"", "value": value}
         if role in self.provisions and role not in self._provision_used:
             self._provision_used[role] = key
             return self._input(role, d.source, d.evidence())
@@ -465,15 +482,15 @@ class _Hole:
             return self._network(key, sym, d, corrected)
         if role in self.provisions:
             what = (f"a second {role} ('{safe_comment(self._provision_used[role], 30)}' already reads the interface's "
-                    f"{role}) and the paper's text does not name it")
+                    f"{role}) that the paper's text does not name")
         elif d is not None:
-            what = f"{'the paper' if d.source == 'paper' else 'the ' + d.source} reads it as {role}"
+            what = f"a {role} ({'the paper' if d.source == 'paper' else 'the ' + d.source + ' notation'}) that the " \
+                   f"{self.adapter.production} interface does not give"
         else:
-            what = "the paper does not define or name it"
-        gives = ", ".join(sorted(self.provisions)) or "nothing"
-        raise _Unbound(f"'{name}' in {where} is not bound: {what}; the {self.adapter.production} interface gives "
-                       f"{gives}; it is not a learned parameter, a standard basis, persistent state or a network the "
-                       "paper names (correct it in equations.yaml: bindings)")
+            what = "a symbol the paper neither defines nor names"
+        said = self.words.first_sentence(sym)
+        paper = f"; the paper: \"{_short(said[0], 140)}\" ({said[1]})" if said else ""
+        raise _Unbound(f"'{name}' ({where}): {what}{paper}")
 
     def _network(self, key, sym, d, corrected) -> dict:
         if not self.adapter.network_input:
@@ -934,7 +951,10 @@ def _implement_one(work: _Hole) -> HoleResult:
     considered = list(own)
     if chosen is None:
         res.equations = [_record_equation(it, []) for it in considered]
-        res.reason = "no form of the part compiled: " + " | ".join(failures[:4])
+        gives = ", ".join(sorted(work.provisions)) or "nothing"
+        res.reason = ("no form of the part compiled: " + " || ".join(_dedupe(failures)[:4]) +
+                      f" [the {res.production} interface gives: {gives}; bind a symbol or fix an equation in "
+                      "equations.yaml]")
         return res
     att, bindings, small = chosen
     res.notes += att.dropped
@@ -1014,6 +1034,18 @@ def _implement_one(work: _Hole) -> HoleResult:
         head += "; not needed by its outputs: " + ", ".join(f"({e['number'] or e.get('key')})" for e in not_needed)
     res.reason = head + ("; " + "; ".join(reasons) if reasons else "")
     return res
+
+
+def _dedupe(failures: list[str]) -> list[str]:
+    """Failures of alternative forms, each symbol's reason once (later forms repeat earlier ones)."""
+    seen, out = set(), []
+    for f in failures:
+        label, _, rest = f.partition(": ")
+        parts = [p for p in rest.split(" | ") if p not in seen]
+        seen.update(parts)
+        if parts:
+            out.append(f"{label}: " + " | ".join(parts))
+    return out
 
 
 def _number_key(text: str) -> tuple:

@@ -205,6 +205,7 @@ class PaperWords:
     shapes: dict = field(default_factory=dict)        # loose key -> StatedShape
     letters: dict = field(default_factory=dict)       # letter -> (value, quote, where): "h = 256"
     activations: dict = field(default_factory=dict)   # loose key -> (function, quote, where): "c^med via sigmoid"
+    constants: dict = field(default_factory=dict)     # loose key -> (value, quote, where): "$\lambda=0.1$"
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
     sentences: list = field(default_factory=list)     # (text, where, section)
@@ -263,6 +264,14 @@ class PaperWords:
             for x in ms:
                 if clause_start <= x.start and x.end <= m.start():
                     self.activations.setdefault(x.loose, (m.group(1).lower(), text, where))
+        # "$\lambda=0.1$, $\alpha=0.01$": a symbol's value stated in the text
+        for m in _INLINE_MATH.finditer(text):
+            for part in re.split(r",\s*(?=\\?[A-Za-z])", m.group(1)):
+                c = re.fullmatch(r"\s*(\\?[A-Za-z]+(?:_\{?[A-Za-z0-9]+\}?)?)\s*=\s*([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)\s*", part)
+                if c:
+                    expr = parse_expression(c.group(1))
+                    if isinstance(expr, Symbol):
+                        self.constants.setdefault(symbol_loose_key(expr), (float(c.group(2)), text, where))
         # "concatenated with the camera 3D coordinates"
         for m in re.finditer(r"concatenat\w*\s+with\s+(?:the\s+)?([^.;,]{3,80})", text, re.I):
             role = notation.phrase_role(m.group(1))
@@ -294,6 +303,17 @@ class PaperWords:
             self._text = "\n".join(text for text, _, _ in self.sentences)
         return any(re.search(rf"(?<![A-Za-z{_GREEK_CHARS}]){re.escape(form)}(?![A-Za-z{_GREEK_CHARS}])", self._text)
                    for form in surface_forms(sym))
+
+    def first_sentence(self, sym: Symbol) -> Optional[tuple]:
+        """The first sentence that names ``sym`` (text, where), None when none does."""
+        key = symbol_loose_key(sym)
+        forms = surface_forms(sym)
+        latex = _latex_pattern(sym)
+        for text, where, _ in self.sentences:
+            if any(m.loose == key for m in mentions(text)) or any(f in text for f in forms) or \
+                    (latex is not None and latex.search(text)):
+                return text, where
+        return None
 
     def shape_of(self, sym: Symbol) -> Optional[tuple]:
         """The paper's stated shape of ``sym`` with its letters resolved: ((rows, evidence), (width, evidence))."""
@@ -333,6 +353,16 @@ def surface_forms(sym: Symbol) -> list[str]:
         forms.add(base + "".join(order))
         forms.add(base + " " + " ".join(order))
     return sorted(forms)
+
+
+def _latex_pattern(sym: Symbol) -> Optional[re.Pattern]:
+    """``P_{\\text{deform}}`` and its spellings in LaTeX a sentence holds (for a symbol with a word script)."""
+    scripts = [x for x in list(sym.subscripts) + [sym.superscript or ""] if x and len(x) > 1 and x.isalpha()]
+    if not scripts or not sym.name.isalpha() or len(sym.name) > 1:
+        return None
+    word = re.escape(scripts[0])
+    return re.compile(rf"(?<![A-Za-z]){re.escape(sym.name)}\s*[_^]\s*\{{?\s*(?:\\(?:text|mathrm|rm|operatorname)\s*"
+                      rf"\{{)?\s*{word}(?![A-Za-z])")
 
 
 def _where_of(loc: Any, section: str = "") -> str:
