@@ -483,6 +483,9 @@ class _Hole:
         if role in self.provisions:
             what = (f"a second {role} ('{safe_comment(self._provision_used[role], 30)}' already reads the interface's "
                     f"{role}) that the paper's text does not name")
+        elif d is not None and networkish and self.adapter.network_input:
+            what = (f"a {role} ({d.source} notation) that the paper's text never names (a symbol becomes a network's "
+                    "output only when the paper names it)")
         elif d is not None:
             what = f"a {role} ({'the paper' if d.source == 'paper' else 'the ' + d.source + ' notation'}) that the " \
                    f"{self.adapter.production} interface does not give"
@@ -548,13 +551,19 @@ class _Hole:
                 w.known(key, ())
             else:
                 w.vector(key)
+        corrected = {}
         for key, shape in (self.corr.get("sizes") or {}).items():  # sizes a person set
             value = shape.get("shape") if isinstance(shape, dict) else shape
             if key in w.shapes and isinstance(value, list) and len(value) == len(w.shapes[key]) and \
                     all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 16 for v in value):
+                corrected[key] = value
+                evidence[key] = {"source": "correction", "evidence": "equations.yaml"}
+        for key, value in corrected.items():
+            # at the check's small sizes a learned matrix's corrected size only fills what the rest leaves open
+            # (scaled sizes would not add up), applied after the first pass below
+            if not (small and bindings.get(key, {}).get("as") == "parameter"):
                 for var, v in zip(w.shapes[key], value):
                     w.set(var, stated(v))
-                evidence[key] = {"source": "correction", "evidence": "equations.yaml"}
         for key in att.outputs:  # an output's role fixes its width (a colour has 3 channels)
             sym = next((eq.lhs for eq in att.equations if eq.defines == key), None)
             d = self.role_of(sym) if isinstance(sym, Symbol) else None
@@ -574,6 +583,12 @@ class _Hole:
                     b["rows"], b["rows_evidence"] = rows, f"{rw}: \"{_short(rq)}\""
                     evidence[key] = {"source": "paper", "evidence": f"{ww}: \"{_short(wq)}\""}
         w.run(att.equations)
+        if small:
+            for key, value in corrected.items():
+                if bindings.get(key, {}).get("as") == "parameter":
+                    for i in w.open(key):
+                        w.set(w.shapes[key][i], stated(value[i]))
+                    w.run(att.equations)
         paper_width = self.words.widths[0] if self.words.widths else None
         for key, b in bindings.items():  # a hidden embedding: the paper's width
             if b["as"] == "network" and b["role"] == "hidden" and w.open(key) and paper_width:

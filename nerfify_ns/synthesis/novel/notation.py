@@ -280,11 +280,12 @@ class PaperWords:
         # "Psi in R^{z x h}" (text layer: "Ψ ∈Rz×h"; LaTeX: \Psi \in \mathbb{R}^{z \times h})
         for m in re.finditer(r"(\S{1,12})\s*(?:∈|\\in)\s*(?:R|ℜ|\\mathbb\{R\}|\\mathbb R)\s*\^?\{?\s*([A-Za-z0-9]{1,6})\s*"
                              r"(?:×|\\times)\s*([A-Za-z0-9]{1,6})\s*\}?", text):
-            ms2 = mentions(m.group(1))
-            if ms2:
-                self.shapes[ms2[-1].loose] = StatedShape((m.group(2), m.group(3)), text, where)
+            expr = parse_expression(m.group(1).lstrip("$"))
+            keys = [symbol_loose_key(expr)] if isinstance(expr, Symbol) else [x.loose for x in mentions(m.group(1))]
+            if keys:
+                self.shapes[keys[-1]] = StatedShape((m.group(2), m.group(3)), text, where)
         # "z = 8, 192 is the number of ...", "h = 256 hidden neurons"
-        for m in re.finditer(r"(?<![A-Za-z])([A-Za-z])\s*=\s*(\d{1,3}(?:,\s?\d{3})+|\d+)(?![\d.])", text):
+        for m in re.finditer(r"(?<![A-Za-z])([A-Za-z])\s*=\s*(\d{1,3}(?:,\s?\d{3})+|\d+)(?!\d|\.\d)", text):
             value = int(re.sub(r"[,\s]", "", m.group(2)))
             self.letters.setdefault(m.group(1), (value, text, where))
         for m in re.finditer(r"(\d{1,5})\s+(?:hidden\s+)?(?:units|neurons|channels)\b", text):
