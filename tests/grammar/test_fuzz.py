@@ -17,7 +17,7 @@ SEED = 0
 def test_sampled_plans_are_derivations_covering_the_grammar():
     g = load_grammar()
     sampler = PlanSampler(g, seed=SEED)
-    plans = [sampler.sample() for _ in range(600)]
+    plans = [sampler.sample() for _ in range(1500)]
     assert all(check(plan, g) == [] for plan in plans)
     missing = sampler.coverage.missing(g)
     assert missing == {"terminals": [], "edges": []}, f"seed {SEED}: {missing}"

@@ -72,7 +72,7 @@ VALID: Dict[str, dict] = {
     "no scheduler, defaults only": mutate("vanilla-nerf", lambda p: (
         p.update(trainer={}, datamanager={}), p["optimizers"]["fields"].pop("scheduler", None))),
     "L1 loss, triplane": mutate("kplanes-static", lambda p: (
-        p["model"]["losses"].update(rgb={"l1": {}}),
+        p["model"]["losses"].update(rgb={"l1": {}}), p["model"].pop("regularizers"),  # plane_tv reads k-planes
         field(p).update(pos_encoding={"triplane": {"resolution": 64, "num_components": 16}}))),
     "no regulariser set at all": mutate("kplanes-static", lambda p: p["model"].pop("regularizers")),
     "integral float for an int": mutate("nerfacto", lambda p: p["trainer"].update(max_num_iterations=100.0)),

@@ -8,7 +8,7 @@ from typing import Any, Dict, List, Literal
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import DIRECTION_CASES, POINT_CASES
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 
 NERF_ENCODING = ("NeRFEncoding(in_dim=3, num_frequencies={{ p.num_frequencies }}, min_freq_exp={{ p.min_freq_exp }}, "
                  "max_freq_exp={{ p.max_freq_exp }}, include_input={{ p.include_input }})")
@@ -106,6 +106,11 @@ POSITIONS_RAW = T("[N, 3]", grad=True, role="positions", doc="sample positions i
 POSITIONS_UNIT = T("[N, 3]", range=(0.0, 1.0), grad=True, role="positions", doc="positions normalised to the box")
 POSITIONS_SIGNED = T("[N, 3]", range=(-1.0, 1.0), grad=True, role="positions", doc="positions in [-1, 1]")
 
+TIMES_NEED_PADDED_SAMPLES = Constraint(
+    "a space-time encoding reads each sample's ray time; instant-ngp's packed samples carry none",
+    lambda p, plan: plan.get("base") != "instant-ngp")
+"""Found by the fuzzer (seed 0 plans 10, 21): every training step failed for want of times."""
+
 POSITION_TERMINALS = [
     TerminalDef(
         "positional", "PosEncoding", Positional,
@@ -157,7 +162,7 @@ POSITION_TERMINALS = [
                        "reduce={{ p.reduce | tojson }}, time_resolution={{ p.time_resolution }})",
                   component="kplanes", traits={"domain": "signed_unit", "times": True}),
         harness=Harness(call=_call_times, cases=POINT_CASES, small=SMALL),
-        duties=({"requires_scene": {"timestamps": True}},)),
+        duties=({"requires_scene": {"timestamps": True}},), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
     TerminalDef(
         "triplane", "PosEncoding", Triplane,
         "Single-resolution triplane features summed over the three planes (EG3D-style triplane).",
