@@ -1037,18 +1037,31 @@ def _implement_one(work: _Hole) -> HoleResult:
     res.notes += wiring.notes
     unread = [e for e in res.equations if e["status"].startswith("not read")]
     not_needed = [e for e in res.equations if e["status"] == "not needed by the component's outputs"]
-    res.status = PARTLY if (failures or unread) else IMPLEMENTED
+    touched = set(bindings) | {eq.defines for eq in att.equations}
+    missed = [e for e in unread if _defines_text(e["latex"]) in touched]  # an unread definition the part uses
+    res.status = PARTLY if (failures or missed) else IMPLEMENTED
     reasons = []
     if failures:
         reasons.append("later forms not compiled: " + " | ".join(failures[:3]))
     if unread:
-        reasons.append("equations not read: " + "; ".join(
+        reasons.append(("equations not read: " if missed else "equations not read (the outputs compiled without "
+                        "them): ") + "; ".join(
             f"({e['number'] or e.get('key')}) {e['status'][len('not read: '):]}" for e in unread[:4]))
     head = f"compiled from {', '.join(implements) or 'the composite output'}"
     if not_needed:
         head += "; not needed by its outputs: " + ", ".join(f"({e['number'] or e.get('key')})" for e in not_needed)
     res.reason = head + ("; " + "; ".join(reasons) if reasons else "")
     return res
+
+
+def _defines_text(latex: str) -> Optional[str]:
+    """The key of the symbol an equation's left side names, read from its LaTeX alone (for an equation the reader
+    refused: a derivation step whose left side is an integral names none)."""
+    from nerfify_ns.equations import parse_expression
+
+    lhs = re.split(r"(?<![<>!\\])=", latex, maxsplit=1)[0] if "=" in latex else ""
+    expr = parse_expression(lhs) if lhs.strip() else None
+    return expr.key if isinstance(expr, Symbol) else None
 
 
 def _dedupe(failures: list[str]) -> list[str]:
