@@ -313,9 +313,15 @@ class TreeCgroup:
                 pass
         return sorted(pids)
 
-    def kill(self, grace: float = 5.0) -> int:
-        """SIGKILL every task left in the cgroup until none is; how many there were at first."""
+    def kill(self, grace: float = 5.0, settle: float = 2.0) -> int:
+        """SIGKILL every task left in the cgroup until none is; how many were still running after ``settle``
+        seconds (tasks already killed with their process group, or exiting, leave the cgroup within it: a
+        process freeing a large address space takes a while, and counting it would be a false alarm)."""
         first = self.tasks()
+        deadline = time.monotonic() + settle
+        while first and time.monotonic() < deadline:
+            time.sleep(0.02)
+            first = self.tasks()
         if not first:
             return 0
         if self.version == 2 and (self.dirs["memory"] / "cgroup.kill").exists():
