@@ -1003,7 +1003,13 @@ def _implement_one(work: _Hole) -> HoleResult:
     except CompositionError as err:
         res.reason = f"the generated component does not parse (a compiler bug): {err}"
         return res
-    problem = _selfcheck(source, cls, res.production, wiring.params)
+    try:  # the component itself, built at the check's small sizes, on its interface's example inputs
+        small_lowered = _lower(att, bindings, small, f"{cls}Equations", check=False).lowered
+        small_wiring = _wiring(work, att, copy.deepcopy(bindings), small_lowered, small, cls, small=True)
+        problem = _selfcheck(component_source(work.adapter, small_wiring, small_lowered.source, work.context), cls,
+                             res.production, small_wiring.params)
+    except (CompileError, WidthError, AttributeError) as err:
+        problem = f"{type(err).__name__}: {err}"
     if problem:
         res.reason = f"the generated component failed its own contract check (a compiler bug): {problem}"
         res.checks["component"] = problem
@@ -1130,7 +1136,8 @@ def _class_name(hid: str) -> str:
     return "".join(part.capitalize() for part in re.split(r"[^a-zA-Z0-9]+", hid) if part) + "FromEquations"
 
 
-def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, cls: str) -> Wiring:
+def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, cls: str,
+            small: bool = False) -> Wiring:
     names = Names()
     w = Wiring(cls=cls, eq_cls=f"{cls}Equations")
     layers = work.words.layers[0] if work.words.layers else None
@@ -1178,16 +1185,21 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
             w.feeds.append(Feed(key, local, f"{float(b['value'])!r}"))
         else:
             w.feeds.append(Feed(key, local, b["code"]))
+    if small:  # the self-check's variant: small networks and state
+        for net in w.networks:
+            net.width, net.layers = min(net.width, 8), min(net.layers, 2)
+        w.states = [(StateSpec(st.key, st.attr, min(st.rows, 16), st.width), o) for st, o in w.states]
     for key, ident in lowered.outputs:
         w.outputs.append((key, names.get("o", key), sized.widths.get(key)))
     w.states = [(st, next(o for k, o, _ in w.outputs if k == st.key)) for st, _ in w.states]
     production = work.adapter.production
     if production == "Backbone":
         widths_now = [sized.widths.get(k) or 1 for k in att.outputs]
-        other = _sizes(work, att, bindings, FULL_RUNTIME + 1, small=False)
+        runtime = SMALL_RUNTIME if small else FULL_RUNTIME
+        other = _sizes(work, att, bindings, runtime + 1, small=small)
         widths_next = [other.widths.get(k) or 1 for k in att.outputs]
         per_in = sum(widths_next) - sum(widths_now)
-        fixed = sum(widths_now) - per_in * FULL_RUNTIME
+        fixed = sum(widths_now) - per_in * runtime
         w.out_dim = f"{fixed} + {per_in} * self.in_dim" if per_in else f"{fixed}"
     if production == "RGBHead":
         w.params = {"dir_dim": int(work.context.get("dir_dim") or 0)}

@@ -24,6 +24,25 @@ from nerfify_ns.equations.shapes import is_bound_variable
 from nerfify_ns.errors import NerfifyError
 
 
+def _in_dependency_order(equations: list[Equation]) -> list[Equation]:
+    """Each equation after those defining what it reads (the paper's order otherwise; a cycle keeps its order)."""
+    from nerfify_ns.equations.shapes import uses
+
+    defined = {eq.defines for eq in equations}
+    done: set = set()
+    pending, out = list(equations), []
+    while pending:
+        for eq in pending:
+            if {k for k in uses(eq) if k in defined and k != eq.defines} <= done:
+                break
+        else:
+            eq = pending[0]
+        pending.remove(eq)
+        out.append(eq)
+        done.add(eq.defines)
+    return out
+
+
 class WidthError(NerfifyError):
     """Widths that contradict each other (the message names the equation and the two widths)."""
 
@@ -123,8 +142,11 @@ class Widths:
         return [i for i, w in enumerate(self.shapes.get(key, ())) if self.resolve(w) is None]
 
     # --------------------------------------------------------------- the walk
-    def run(self, equations: list[Equation], rounds: int = 4) -> None:
-        for _ in range(rounds):
+    def run(self, equations: list[Equation], rounds: Optional[int] = None) -> None:
+        """Propagate widths through ``equations`` until nothing changes (each round may settle one more link of a
+        chain, whatever order the equations come in)."""
+        equations = _in_dependency_order(equations)
+        for _ in range(rounds or len(equations) + 2):
             before = (dict(self.fixed), {k: self.find(Var(k)) for k in self.parent})
             for eq in equations:
                 self.where = f"equation {eq.number}" if eq.number else f"the equation of '{eq.defines}'"
@@ -132,7 +154,7 @@ class Widths:
                 key = eq.defines
                 if key is None:
                     continue
-                if key in self.shapes:
+                if key in self.shapes and (self.shapes[key] or not rhs):
                     self._same(self.shapes[key], rhs)
                 else:
                     self.shapes[key] = rhs
