@@ -967,7 +967,9 @@ def _implement_one(work: _Hole) -> HoleResult:
     if chosen is None:
         res.equations = [_record_equation(it, []) for it in considered]
         gives = ", ".join(sorted(work.provisions)) or "nothing"
-        res.reason = ("no form of the part compiled: " + " || ".join(_dedupe(failures)[:4]) +
+        unread = [f"({it.number or '@' + str(it.position)}) {f}" for it in own for f in it.failures()]
+        res.reason = (("equations not read: " + "; ".join(unread) + "; so " if unread else "") +
+                      "no form of the part compiled: " + " || ".join(_dedupe(failures)[:4]) +
                       f" [the {res.production} interface gives: {gives}; bind a symbol or fix an equation in "
                       "equations.yaml]")
         return res

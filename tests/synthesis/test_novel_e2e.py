@@ -1,0 +1,119 @@
+"""The equation compiler inside ``ns-nerfify PAPER``: the run folder's equations.yaml, --equations reruns, the
+report; one representative paper through every rung in CI (slow); the shared papers through every rung and a
+training run whose loss falls (bench lane: minutes each on a CPU)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nerfify_ns.budget import Budget
+from nerfify_ns.pipeline import run_compose, run_paper
+from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, implement_holes
+from nerfify_ns.synthesis.novel.records import EquationsFileError
+
+from novel_papers import GATENERF
+
+PAPERS = Path(__file__).resolve().parents[2].parent / "shared" / "papers"
+SMALL = Budget(iterations=20, every=20, cpu_presets=True,
+               train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
+               scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
+
+
+@pytest.fixture()
+def gatenerf(tmp_path) -> Path:
+    path = tmp_path / "gatenerf.md"
+    path.write_text(GATENERF)
+    return path
+
+
+def test_the_run_folder_records_and_a_corrupted_equation_leaves_the_base_part(gatenerf, tmp_path):
+    """--until plan: equations.yaml and the rendered equations are written; a person's corrupted equation (an
+    unknown operator) is reported with its reason, the run finishes with the base's backbone; fixing it compiles it."""
+    first = run_paper(gatenerf, tmp_path / "first", until="plan", budget=SMALL)
+    assert first.outcome.failed is None
+    records = yaml.safe_load((first.out / "equations.yaml").read_text())
+    (hole,) = records["holes"]
+    assert hole["status"] == IMPLEMENTED and (first.out / "equations" / "backbone.py").is_file()
+    assert hole["equations"][0]["image"] == "backbone/eq0.png" and (first.out / "equations" / "backbone" / "eq0.png").is_file()
+    assert yaml.safe_load((first.out / "plan.yaml").read_text())["model"]["field"]["MLPField"]["backbone"]["custom"]
+    report = json.loads((first.out / "report.json").read_text())
+    assert report["outcome"]["headline"].startswith("Novel parts: 1 of 1 novel part(s)")
+    assert report["sections"]["equations"]["implemented"] == 1
+
+    good = hole["equations"][1]["latex"]
+    hole["equations"][1]["latex"] = good.replace(r"\tanh(", r"\mathcal{F}(")
+    corrected = tmp_path / "equations.yaml"
+    corrected.write_text(yaml.safe_dump(records, sort_keys=False))
+    broken = run_paper(gatenerf, tmp_path / "broken", until="plan", budget=SMALL, equations=corrected)
+    assert broken.outcome.failed is None
+    (hole_b,) = yaml.safe_load((broken.out / "equations.yaml").read_text())["holes"]
+    assert hole_b["status"] == NOT_IMPLEMENTED and "unknown operator" in hole_b["reason"]
+    assert "custom" not in yaml.safe_load((broken.out / "plan.yaml").read_text())["model"]["field"]["MLPField"][
+        "backbone"]  # the base's part stands in
+
+    records = yaml.safe_load((broken.out / "equations.yaml").read_text())
+    records["holes"][0]["equations"][1]["latex"] = good
+    corrected.write_text(yaml.safe_dump(records, sort_keys=False))
+    fixed = run_paper(gatenerf, tmp_path / "fixed", until="plan", budget=SMALL, equations=corrected)
+    (hole_f,) = yaml.safe_load((fixed.out / "equations.yaml").read_text())["holes"]
+    assert hole_f["status"] == IMPLEMENTED
+
+
+def test_a_bad_equations_file_writes_nothing(gatenerf, tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("- not: a mapping\n")
+    with pytest.raises(EquationsFileError):
+        run_paper(gatenerf, tmp_path / "out", until="plan", equations=bad)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_paper_never_seen_passes_every_rung(gatenerf, tmp_path):
+    """GateNeRF's compiled backbone (gates and a memory) in the plugin: static, contract, stability and smoke."""
+    result = run_paper(gatenerf, tmp_path / "run", until="verify", budget=SMALL)
+    assert result.outcome.failed is None, result.outcome.failed
+    ladder = json.loads((result.out / "verify.json").read_text())
+    assert ladder["ok"] and [r["name"] for r in ladder["rungs"]] == ["static", "contract", "stability", "smoke"]
+    cases = [c for r in ladder["rungs"] for c in (r.get("details") or {}).get("cases", [])]
+    assert any(str(c.get("component", "")).startswith("custom BackboneFromEquations") and c["status"] == "pass"
+               for c in cases)
+
+
+# ------------------------------------------------------------------------------------------ bench lane
+def _loss_fell(out: Path) -> tuple[bool, str]:
+    from nerfify_ns.runtime.events import losses, read_scalars
+
+    runs = [p.parent for p in (out / "eval" / "train").rglob("events.out.tfevents*")]
+    assert runs, "no training events"
+    values = [v for _, v in sorted(losses(read_scalars(runs[0])).items())]
+    k = max(1, len(values) // 5)
+    first, last = sum(values[:k]) / k, sum(values[-k:]) / k
+    ok = all(math.isfinite(v) for v in values) and last < first
+    return ok, f"{len(values)} losses, mean of the first 20% {first:.4f}, of the last 20% {last:.4f}"
+
+
+@pytest.mark.bench
+@pytest.mark.parametrize("paper", ["bionerf/bionerf.pdf", "gh_nerf/gh_nerf.pdf", "seathru_nerf/seathru_condensed.md",
+                                   "seathru_nerf/seathru_nerf_appendix.pdf"])
+def test_shared_papers_compiled_parts_pass_every_rung_and_train(paper, tmp_path):
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = PAPERS / paper
+    if not path.is_file():
+        pytest.skip(f"real paper {path} not present (../shared/papers is outside the project and never committed)")
+    doc = ingest(path)
+    implementation = implement_holes(doc, plan_from_paper(doc).plan)
+    assert implementation.sources and all(r.status != NOT_IMPLEMENTED for r in implementation.records)
+    budget = Budget(iterations=200, every=200, cpu_presets=True, timeout=3600,
+                    train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
+                    scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
+    result = run_compose(implementation.plan, tmp_path / "run", sources=implementation.sources, budget=budget)
+    assert result.outcome.failed is None, result.outcome.failed
+    ok, what = _loss_fell(result.out)
+    assert ok, what
