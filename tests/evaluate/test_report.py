@@ -20,8 +20,8 @@ NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "none"}
 HOSTILE = '<script>alert("x")</script> & <img src=http://example.com/x.png>'
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-SECTIONS = ["paper", "citations", "components", "verification", "stability", "metrics", "curve", "error_maps",
-            "consistency", "patches"]
+SECTIONS = ["paper", "citations", "components", "equations", "verification", "stability", "metrics", "curve",
+            "error_maps", "consistency", "patches"]
 
 
 # ------------------------------------------------------------------------------ fast
