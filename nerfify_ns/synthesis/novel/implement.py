@@ -1090,24 +1090,37 @@ def _number_key(text: str) -> tuple:
 
 
 def _selfcheck(source: str, cls: str, production: str, params: dict) -> str:
-    """The component built and run once on its interface's example inputs (nominal case), as the contract rung
-    will: '' when it holds, else the problems. Our own generated code, run in this process."""
+    """The component built and run once on its interface's example inputs (the registry's, nominal case), as the
+    contract rung will: outputs against the contract, a backward pass with finite gradients. '' when it holds,
+    else the problems. Our own generated code, run in this process (the ladder runs the plugin sandboxed)."""
+    import torch
+
     from nerfify_ns.registry import default_registry
-    from nerfify_ns.verify.components import check_component, interface_arguments
+    from nerfify_ns.registry.contract import check_outputs
+    from nerfify_ns.registry.examples import example_inputs
 
     interface = default_registry().interfaces[production]
     namespace: dict = {"__name__": "nerfify_compiled_component"}
     try:
         exec(compile(source, f"<compiled {cls}>", "exec"), namespace)  # noqa: S102 - our generated source
-    except Exception as err:  # noqa: BLE001 - a compiler bug, reported
-        return f"does not import: {type(err).__name__}: {err}"
-    klass = namespace[cls]
-
-    def build(_params, env):
-        return klass(**interface_arguments(interface, env), **(params or {}))
-
-    result = check_component(interface.contract_for(params or {}), build, interface.call, dict(params or {}), "nominal")
-    return "" if result.status == "pass" else "; ".join(result.problems)[:400]
+        torch.manual_seed(0)
+        contract = interface.contract_for(params or {})
+        env = contract.environment(params or {}, {}, {"case": "nominal"})
+        known = {"in_dim": int(env["in_dim"]), "out_dim": None, "background_color": "white"}
+        module = namespace[cls](**{k: known[k] for k in interface.ctor if k in known}, **(params or {}))
+        if hasattr(module, "get_out_dim"):
+            env["out_dim"] = int(module.get_out_dim())
+        inputs = example_inputs(contract, env, "nominal")
+        outputs = interface.call(module, inputs, env)
+        problems = list(check_outputs(contract, outputs, env))
+        total = sum(v.float().sum() for v in outputs.values() if isinstance(v, torch.Tensor) and v.requires_grad)
+        if isinstance(total, torch.Tensor):
+            total.backward()
+            problems += [f"gradient of {n} not finite" for n, p in module.named_parameters()
+                         if p.grad is not None and not torch.isfinite(p.grad).all()]
+    except Exception as err:  # noqa: BLE001 - a compiler bug, reported with the component
+        return f"raised {type(err).__name__}: {str(err).splitlines()[0][:200] if str(err) else ''}"
+    return "; ".join(problems)[:400]
 
 
 def _record_equation(it: Item, attempt_items: list) -> dict:
