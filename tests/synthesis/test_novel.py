@@ -236,3 +236,27 @@ def test_hostile_symbols_never_reach_the_code(tmp_path):
         code = "\n".join(line.split("#", 1)[0] for line in source.splitlines())
         assert "__import__" not in code and "system" not in code and '\\"' not in code
         compile(source, "<hostile>", "exec")
+
+
+def test_a_ladder_failure_on_a_compiled_part_brings_back_the_base_part(gatenerf, tmp_path):
+    """The pipeline's fallback: the ladder names the compiled class -> the plan without it, the record says why."""
+    import copy
+
+    from nerfify_ns.pipeline import _fallback
+
+    doc, derived = gatenerf
+    result = implement_holes(doc, derived.plan)
+
+    class Failure:
+        rung, rule, message = "stability", "stiff-case", "custom BackboneFromEquations (Backbone), case values_1e8: x"
+
+        def where(self):
+            return "-"
+
+    plan, sources = _fallback(result, tmp_path, doc)(type("Ladder", (), {"failures": [Failure()], "ok": False})())
+    assert plan.get("model.field.MLPField.backbone") == derived.plan.get("model.field.MLPField.backbone")
+    assert not sources and result.records[0].status == NOT_IMPLEMENTED
+    assert "stability rung failed" in result.records[0].reason and "base's part stands in" in result.records[0].reason
+    saved = yaml.safe_load((tmp_path / "equations.yaml").read_text())
+    assert saved["holes"][0]["status"] == NOT_IMPLEMENTED and plan["holes"][0]["status"] == NOT_IMPLEMENTED
+    assert copy.deepcopy(plan["holes"][0]["stands_in"]).startswith("mlp")
