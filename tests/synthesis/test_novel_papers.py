@@ -67,6 +67,7 @@ def test_bionerf_filters_and_memory_are_the_backbone():
     assert b["W_Psi"]["source"] == "paper" and "memory weight matrix" in b["W_Psi"]["evidence"]
     assert record.sizes["W_psi^f"]["shape"] == [256, 512] and record.sizes["W_Psi"]["shape"] == [256, 256]
     assert any("viewing direction is concatenated by the field" in n for n in record.notes)
+    assert any("dot product" in n and "element-wise" in n for n in record.notes)  # words vs shapes, shapes win
 
 
 def test_bionerf_equations_against_a_reference_written_by_hand():

@@ -1042,7 +1042,7 @@ def _implement_one(work: _Hole) -> HoleResult:
         res.notes.append("the rendered colour is the sum over the samples of the per-sample contributions "
                          f"({', '.join(safe_comment(e.defines, 30) for e in att.roots)}), as NeRF's "
                          "C(r) = sum_i C_i(r)")
-    res.notes += wiring.notes
+    res.notes += wiring.notes + _operator_discrepancies(work, att, full)
     unread = [e for e in res.equations if e["status"].startswith("not read")]
     not_needed = [e for e in res.equations if e["status"] == "not needed by the component's outputs"]
     touched = set(bindings) | {eq.defines for eq in att.equations}
@@ -1060,6 +1060,27 @@ def _implement_one(work: _Hole) -> HoleResult:
         head += "; not needed by its outputs: " + ", ".join(f"({e['number'] or e.get('key')})" for e in not_needed)
     res.reason = head + ("; " + "; ".join(reasons) if reasons else "")
     return res
+
+
+def _operator_discrepancies(work: _Hole, att: _Attempt, sized: _Sized) -> list[str]:
+    """Where the paper's words for an operator disagree with the shapes ("⊗ represents the dot product" between two
+    vectors of one width, which the equations can only use element-wise): the shapes are followed, and said."""
+    element_wise = [n for eq in att.equations for n in walk(eq.rhs) if isinstance(n, BinOp) and n.op == "odot"]
+    notes = []
+    for op, called, quote, where in work.words.operators:
+        if called in ("dot", "inner", "scalar", "matrix", "outer", "kronecker") and element_wise:
+            example = element_wise[0]
+            try:
+                width = sized.solver.shape(example.left)
+            except Exception:  # noqa: BLE001 - a note only
+                width = ()
+            w = sized.solver.resolve(width[0]) if width else None
+            notes.append(f"the paper calls {op} a {called} product ({where}: \"{_short(quote, 120)}\"), but the "
+                         f"shapes ({show(example.left)} and {show(example.right)}, {w or 'one'} feature(s) each, whose "
+                         "result is combined element-wise with vectors of that width) allow only an element-wise "
+                         "product: compiled element-wise, following the shapes")
+            break
+    return notes
 
 
 def _defines_text(latex: str) -> Optional[str]:
@@ -1216,6 +1237,13 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
         per_in = sum(widths_next) - sum(widths_now)
         fixed = sum(widths_now) - per_in * runtime
         w.out_dim = f"{fixed} + {per_in} * self.in_dim" if per_in else f"{fixed}"
+    if production == "Backbone" and len(att.outputs) > 1:
+        w.notes.append(f"the Backbone interface has one output: the part's outputs ({', '.join(att.outputs)}) are "
+                       "concatenated into it; the field's density head reads all of it, and its colour head reads it "
+                       "with the encoded direction")
+    if production == "Renderer":
+        w.notes.append("the base's background blending is not applied: the paper's rendering equation has no "
+                       "background term (its own terms explain the whole ray)")
     if production == "RGBHead":
         w.params = {"dir_dim": int(work.context.get("dir_dim") or 0)}
     if production == "RGBLoss":

@@ -206,6 +206,7 @@ class PaperWords:
     letters: dict = field(default_factory=dict)       # letter -> (value, quote, where): "h = 256"
     activations: dict = field(default_factory=dict)   # loose key -> (function, quote, where): "c^med via sigmoid"
     constants: dict = field(default_factory=dict)     # loose key -> (value, quote, where): "$\lambda=0.1$"
+    operators: list = field(default_factory=list)     # (operator, what the paper calls it, quote, where)
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
     sentences: list = field(default_factory=list)     # (text, where, section)
@@ -272,6 +273,10 @@ class PaperWords:
                     expr = parse_expression(c.group(1))
                     if isinstance(expr, Symbol):
                         self.constants.setdefault(symbol_loose_key(expr), (float(c.group(2)), text, where))
+        # "where ⊗ represents the dot product": what the paper calls an operator (checked against the shapes)
+        for m in re.finditer(r"(⊗|⊙|∘|\\otimes|\\odot|\\circ)\s*\$?\s*(?:represents|denotes|is)\s+(?:the\s+|a\s+|an\s+)?"
+                             r"(dot|inner|scalar|element-?wise|hadamard|outer|kronecker|matrix)\s+product", text, re.I):
+            self.operators.append((m.group(1), m.group(2).lower(), text, where))
         # "concatenated with the camera 3D coordinates"
         for m in re.finditer(r"concatenat\w*\s+with\s+(?:the\s+)?([^.;,]{3,80})", text, re.I):
             role = notation.phrase_role(m.group(1))
