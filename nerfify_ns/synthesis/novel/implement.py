@@ -1020,12 +1020,15 @@ def _implement_one(work: _Hole) -> HoleResult:
                               "against the contract, gradients finite"
     res.source = source
     numbers = sorted((f"Eq. {e.number}" for e in att.equations if e.number), key=_number_key)
-    unnumbered = sum(1 for e in att.equations if not e.number and e is not att.composite)
-    implements = numbers + ([f"{unnumbered} unnumbered equation(s) of {res.section}"] if unnumbered else [])
+    unnumbered: dict[str, int] = {}
+    for e, it in zip(att.equations, att.items):
+        if not e.number and e is not att.composite and it is not None:
+            unnumbered[it.section] = unnumbered.get(it.section, 0) + 1
+    implements = numbers + [f"{n} unnumbered equation(s) of {section}" for section, n in unnumbered.items()]
     res.component = {"module": module, "class": cls, "params": wiring.params, "implements": implements,
                      "source": "compiler",
-                     "evidence": _short(f"{res.section}: " + "; ".join(show(e) for e in att.equations
-                                                                       if e is not att.composite), 300)}
+                     "evidence": _short(f"{', '.join(dict.fromkeys(it.section for it in att.items if it))}: "
+                                        + "; ".join(show(e) for e in att.equations if e is not att.composite), 300)}
     res.bindings = {k: _plain_binding(b) for k, b in bindings.items()}
     res.sizes = {k: {"shape": list(v.shape), **full.evidence.get(k, {"source": "equations",
                                                                        "evidence": "fixed by the equations, the "
