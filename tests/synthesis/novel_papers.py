@@ -44,3 +44,23 @@ GATENERF = _GATENERF.replace("{networks}", "each is an MLP of 2 layers with 32 h
 GATENERF_NO_WIDTH = _GATENERF.replace("{networks}", "each is a small MLP").replace(
     "{memory}", "the memory starts empty")
 """The same paper stating no width: a learned matrix's size is open."""
+
+PROJNERF = r"""# ProjNeRF: Projected Features for Radiance Fields
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does.
+
+## 3 Method
+
+### 3.1 Projected features
+
+The position is projected and gated:
+
+$$\mathbf{h}_1 = \mathrm{ReLU}(\mathbf{W}_1 \mathbf{x} + \mathbf{b}_1) \tag{1}$$
+
+$$\mathbf{h}_2 = \mathbf{h}_1 \odot \sigma(\mathbf{W}_2 \mathbf{h}_1 + \mathbf{b}_2) \tag{2}$$
+
+where $\mathbf{W}_1$, $\mathbf{W}_2$ are weight matrices and the hidden features have 64 hidden units.
+"""
+"""A learned matrix applied to the backbone's own input, whose width is known only when the plugin is built."""

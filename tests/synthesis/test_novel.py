@@ -260,3 +260,20 @@ def test_a_ladder_failure_on_a_compiled_part_brings_back_the_base_part(gatenerf,
     saved = yaml.safe_load((tmp_path / "equations.yaml").read_text())
     assert saved["holes"][0]["status"] == NOT_IMPLEMENTED and plan["holes"][0]["status"] == NOT_IMPLEMENTED
     assert copy.deepcopy(plan["holes"][0]["stands_in"]).startswith("mlp")
+
+
+def test_a_matrix_on_the_interfaces_input_takes_its_width_when_built(tmp_path):
+    import torch
+
+    from novel_papers import PROJNERF
+
+    paper = tmp_path / "projnerf.md"
+    paper.write_text(PROJNERF)
+    doc = ingest(paper)
+    result = implement_holes(doc, plan_from_paper(doc).plan)
+    record, cls = _component(result, "backbone")
+    assert record.status == IMPLEMENTED, record.reason
+    assert record.bindings["x"]["as"] == "input" and "nn.Parameter(torch.empty(64, in_dim))" in record.source
+    for in_dim in (13, 63):
+        module = cls(in_dim=in_dim)
+        assert module.equations.p_w_1.shape == (64, in_dim) and module(torch.randn(3, in_dim)).shape == (3, 64)

@@ -95,6 +95,7 @@ class Wiring:
     out_dim: str = ""                                  # get_out_dim's expression (backbone)
     loss_mean: bool = False                            # the paper's loss is per ray: its mean
     notes: list = field(default_factory=list)
+    equations_args: str = ""                           # the equations module's constructor arguments (in_dim)
 
 
 ACTIVATIONS = {"sigmoid": "nn.Sigmoid()", "softplus": "nn.Softplus()", "relu": "nn.ReLU()", "tanh": "nn.Tanh()",
@@ -116,6 +117,7 @@ class Adapter:
     output_mode = "role"   # role | sinks
     base = "nn.Module"
     imports: tuple = ("from nerfstudio.field_components.mlp import MLP",)
+    runtime_width = ""     # the width, at build time, of the interface's input of width RUNTIME (code)
 
     def provisions(self, context: dict) -> dict:
         return {}
@@ -206,6 +208,7 @@ def _indent(lines: list[str], n: int) -> list[str]:
 
 class BackboneAdapter(Adapter):
     production = "Backbone"
+    runtime_width = "in_dim=in_dim"
     network_input = "the encoded position (the backbone's input)"
     output_mode = "sinks"
     output_roles = ("hidden",)
@@ -216,7 +219,7 @@ class BackboneAdapter(Adapter):
                                                               "the position, given to the backbone as its encoding")}
 
     def source(self, w: Wiring, context: dict) -> str:
-        init = ["super().__init__()", "self.in_dim = in_dim", f"self.equations = {w.eq_cls}()"]
+        init = ["super().__init__()", "self.in_dim = in_dim", f"self.equations = {w.eq_cls}({w.equations_args})"]
         init += self.lines_networks(w, "in_dim") + self.lines_states(w)
         init += ["self.project = nn.Linear(self._own_dim(), out_dim) if out_dim is not None else None"]
         fwd = ["lead = features.shape[:-1]", "x = features.reshape(-1, features.shape[-1])"]
@@ -239,6 +242,7 @@ class BackboneAdapter(Adapter):
 
 class RGBHeadAdapter(Adapter):
     production = "RGBHead"
+    runtime_width = "in_dim=max(in_dim - dir_dim, 0)"
     network_input = "the geometry features (the colour head's input after the encoded direction)"
     output_roles = ("colour",)
 
@@ -256,7 +260,7 @@ class RGBHeadAdapter(Adapter):
         return "max(in_dim - dir_dim, 0)"
 
     def source(self, w: Wiring, context: dict) -> str:
-        init = ["super().__init__()", "self.dir_dim = dir_dim", f"self.equations = {w.eq_cls}()"]
+        init = ["super().__init__()", "self.dir_dim = dir_dim", f"self.equations = {w.eq_cls}({w.equations_args})"]
         init += self.lines_networks(w, "max(in_dim - dir_dim, 0)") + self.lines_states(w)
         fwd = ["lead = features.shape[:-1]", "x = features.reshape(-1, features.shape[-1])",
                "geometry = x[:, self.dir_dim :]"]

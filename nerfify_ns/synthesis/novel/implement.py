@@ -51,8 +51,9 @@ from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords
 from nerfify_ns.synthesis.novel.widths import WidthError, Widths
 
 IMPLEMENTED, PARTLY, NOT_IMPLEMENTED = "implemented", "partly implemented", "not implemented"
-SMALL_RUNTIME = 5     # the width of a runtime input in the checks
-FULL_RUNTIME = 7      # ... and in the lowering (no parameter may depend on it)
+SMALL_RUNTIME = 5          # the width of a runtime input (the interface's in_dim) in the checks
+FULL_RUNTIME = 999_983     # ... in the component's source: a sentinel the constructor's in_dim replaces
+SMALL_SENTINEL = 999_979   # ... in the self-check's small component
 MAX_ROOTS = 8
 
 
@@ -873,6 +874,7 @@ class _Sized:
     widths: dict          # key -> int or None (inputs, networks, state, basis, outputs)
     evidence: dict
     solver: Any
+    runtime: int = 0
 
 
 def _sizes(work: _Hole, att: _Attempt, bindings: dict, runtime: int, small: bool) -> _Sized:
@@ -887,7 +889,7 @@ def _sizes(work: _Hole, att: _Attempt, bindings: dict, runtime: int, small: bool
     for key in att.outputs:
         value = solver.value(key)
         widths[key] = value[0] if value else None
-    return _Sized(params, widths, evidence, solver)
+    return _Sized(params, widths, evidence, solver, runtime)
 
 
 def _inputs(att: _Attempt, bindings: dict, sized: _Sized) -> dict:
@@ -989,10 +991,8 @@ def _implement_one(work: _Hole) -> HoleResult:
         full_lowered = _lower(att, bindings, full, f"{cls}Equations", check=False)
         if full_lowered.lowered is None:
             raise CompileError(f"lowering at the paper's sizes: {full_lowered.reason}")
-        if any(FULL_RUNTIME in spec.shape for spec in full.params.values()):
-            raise CompileError("a learned matrix multiplies an input whose width is known only when the plugin is "
-                               "built (the interface's input): not supported")
         wiring = _wiring(work, att, bindings, full_lowered.lowered, full, cls)
+        equations_source = _runtime_width(full_lowered.lowered.source, FULL_RUNTIME, wiring, work.adapter)
     except (CompileError, WidthError) as err:
         res.reason = str(err)
         return res
@@ -1000,15 +1000,17 @@ def _implement_one(work: _Hole) -> HoleResult:
 
     module = f"components.{res.id}_equations"
     try:
-        source = _format_python(component_source(work.adapter, wiring, full_lowered.lowered.source, work.context),
+        source = _format_python(component_source(work.adapter, wiring, equations_source, work.context),
                                 module.replace(".", "/") + ".py")
     except CompositionError as err:
         res.reason = f"the generated component does not parse (a compiler bug): {err}"
         return res
     try:  # the component itself, built at the check's small sizes, on its interface's example inputs
-        small_lowered = _lower(att, bindings, small, f"{cls}Equations", check=False).lowered
-        small_wiring = _wiring(work, att, copy.deepcopy(bindings), small_lowered, small, cls, small=True)
-        problem = _selfcheck(component_source(work.adapter, small_wiring, small_lowered.source, work.context), cls,
+        small_rt = _sizes(work, att, bindings, SMALL_SENTINEL, small=True)
+        small_lowered = _lower(att, bindings, small_rt, f"{cls}Equations", check=False).lowered
+        small_wiring = _wiring(work, att, copy.deepcopy(bindings), small_lowered, small_rt, cls, small=True)
+        small_source = _runtime_width(small_lowered.source, SMALL_SENTINEL, small_wiring, work.adapter)
+        problem = _selfcheck(component_source(work.adapter, small_wiring, small_source, work.context), cls,
                              res.production, small_wiring.params)
     except (CompileError, WidthError, AttributeError) as err:
         problem = f"{type(err).__name__}: {err}"
@@ -1063,6 +1065,22 @@ def _implement_one(work: _Hole) -> HoleResult:
         head += "; not needed by its outputs: " + ", ".join(f"({e['number'] or e.get('key')})" for e in not_needed)
     res.reason = head + ("; " + "; ".join(reasons) if reasons else "")
     return res
+
+
+def _runtime_width(source: str, sentinel: int, wiring: Wiring, adapter: Adapter) -> str:
+    """A learned matrix that multiplies the interface's input has that input's width, known when the plugin is
+    built (``in_dim``): the sentinel width it was lowered with becomes the constructor's ``in_dim``."""
+    pattern = re.compile(rf"(?<![\d.]){sentinel}(?![\d.])")
+    if not pattern.search(source):
+        return source
+    if not adapter.runtime_width:
+        raise CompileError(f"a learned matrix multiplies an input of the {adapter.production} interface whose width "
+                           "is known only when the plugin is built")
+    source = pattern.sub("in_dim", source)
+    source = source.replace("    def __init__(self):\n        super().__init__()",
+                            "    def __init__(self, in_dim):\n        super().__init__()", 1)
+    wiring.equations_args = adapter.runtime_width
+    return source
 
 
 def _operator_discrepancies(work: _Hole, att: _Attempt, sized: _Sized) -> list[str]:
@@ -1234,7 +1252,7 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
     production = work.adapter.production
     if production == "Backbone":
         widths_now = [sized.widths.get(k) or 1 for k in att.outputs]
-        runtime = SMALL_RUNTIME if small else FULL_RUNTIME
+        runtime = sized.runtime
         other = _sizes(work, att, bindings, runtime + 1, small=small)
         widths_next = [other.widths.get(k) or 1 for k in att.outputs]
         per_in = sum(widths_next) - sum(widths_now)
