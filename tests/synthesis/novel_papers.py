@@ -64,3 +64,21 @@ $$\mathbf{h}_2 = \mathbf{h}_1 \odot \sigma(\mathbf{W}_2 \mathbf{h}_1 + \mathbf{b
 where $\mathbf{W}_1$, $\mathbf{W}_2$ are weight matrices and the hidden features have 64 hidden units.
 """
 """A learned matrix applied to the backbone's own input, whose width is known only when the plugin is built."""
+
+SPARSEFIELD = r"""# SparseField: Sparse Radiance Fields with a Cauchy Prior
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does.
+
+## 3 Method
+
+### 3.2 Sparsity regularization
+
+We penalise density everywhere with a Cauchy prior on the densities along each ray:
+
+$$\mathcal{L}_{s} = \lambda \sum_{i} \log\left(1 + \frac{\sigma_i^2}{c}\right) \tag{3}$$
+
+where $\lambda = 0.01$ and $c = 0.5$.
+"""
+"""A loss on the field's densities (a regulariser), its constants stated in the text."""

@@ -362,7 +362,34 @@ class RGBLossAdapter(Adapter):
         return "\n".join(lines) + "\n"
 
 
-ADAPTERS = {a.production: a for a in (BackboneAdapter(), RGBHeadAdapter(), RendererAdapter(), RGBLossAdapter())}
+class RegularizerAdapter(Adapter):
+    production = "Regularizers"
+    batch_per_sample = False
+    network_input = ""
+    output_roles = ("loss",)
+    imports = ()
+
+    def provisions(self, context: dict) -> dict:
+        return {"density": Provision("density", True, None, "densities[..., 0]",
+                                     "the field's density at every sample (its last evaluation)")}
+
+    def source(self, w: Wiring, context: dict) -> str:
+        init = ["super().__init__()", f"self.equations = {w.eq_cls}({w.equations_args})"]
+        fwd = ["densities = densities.reshape(densities.shape[0], -1, 1) if densities.dim() != 3 else densities"]
+        fwd += self.lines_feeds(w, "densities") + self.lines_call(w)
+        (key, ident, width), = w.outputs
+        fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"]
+        lines = [f"class {w.cls}(nn.Module):",
+                 '    """Regulariser compiled from the paper\'s equations: forward(densities [R, S, 1]) -> scalar."""',
+                 "", "    def __init__(self) -> None:"]
+        lines += _indent(init, 2)
+        lines += ["", "    def forward(self, densities: torch.Tensor) -> torch.Tensor:"]
+        lines += _indent(fwd, 2)
+        return "\n".join(lines) + "\n"
+
+
+ADAPTERS = {a.production: a for a in (BackboneAdapter(), RGBHeadAdapter(), RendererAdapter(), RGBLossAdapter(),
+                                      RegularizerAdapter())}
 """The productions the compiler can place a component in (others are reported as not implemented, with why)."""
 
 

@@ -335,6 +335,12 @@ class _Hole:
         for eq in equations:  # persistent state: a symbol its own definition reads
             if eq.defines in uses(eq):
                 bindings[eq.defines] = self._state(eq)
+        for key, b in bindings.items():  # a constant the text states: an equation of the part (key = value)
+            if b["as"] == "constant":
+                sym = free[key][0]
+                lhs = Symbol(sym.name, sym.subscripts, sym.superscript, sym.decorations)
+                equations.insert(0, Equation(lhs, Number(float(b["value"])), None, "=", "", (), None))
+                items.insert(0, None)
         outputs = [composite.defines] if composite is not None else [eq.defines for eq in roots]
         return _Attempt(equations, outputs, items, composite, notes, list(roots)), bindings
 
@@ -744,6 +750,7 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             result.notes = list(result.notes) + ["not recompiled: its equations, bindings and sizes did not change"]
         else:
             result = _implement_one(work)
+            result = _try_alternative(result, merged, local_items, words, notation, plan, context, corr, cards)
             result.hash = digest
             if cache is not None:
                 cache[digest] = copy.deepcopy(result)
@@ -754,8 +761,8 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             sources[module] = result.source
             entry = {k: result.component[k] for k in ("module", "class", "params", "implements", "source",
                                                       "evidence")}
-            result.replaced = copy.deepcopy(plan.get(slot))
-            _place(plan, slot, entry)
+            result.replaced = copy.deepcopy(plan.get(result.slot))
+            _place(plan, result.slot, entry, result.production, hid)
             taken_slots.add(slot)
         for h in group:
             h = dict(h)
@@ -827,9 +834,50 @@ def _digest(hole: dict, items: list[Item], corr: dict, context: dict) -> str:
     return hashlib.sha256(data.encode()).hexdigest()[:16]
 
 
-def _place(plan: Plan, slot: str, entry: dict) -> None:
-    """The compiled component at the hole's slot, through the production's `custom` alternative."""
-    plan.set(slot, {"custom": entry})
+ALTERNATIVES = {"RGBLoss": ("Regularizers",), "Regularizers": ("RGBLoss",)}
+"""Productions that return the same kind of thing (a loss): a part the derivation filed under one whose interface
+does not give what its equations read is tried in the other (a loss on the field's densities is a regulariser)."""
+
+
+def _slot_of(production: str) -> Optional[str]:
+    from nerfify_ns.grammar import load_grammar
+
+    return next((path for path, symbol in load_grammar().symbol_paths() if symbol == production), None)
+
+
+def _try_alternative(result: HoleResult, hole: dict, items, words, notation, plan, context, corr, cards) -> HoleResult:
+    if result.status != NOT_IMPLEMENTED or hole["production"] not in ALTERNATIVES or result.component:
+        return result
+    for production in ALTERNATIVES[hole["production"]]:
+        slot = _slot_of(production)
+        if slot is None or production not in ADAPTERS:
+            continue
+        other = dict(hole, production=production, slot=slot)
+        work = _Hole(other, items, words, notation, plan, context, corr, cards)
+        work._basis, work._concat_used = {}, set()
+        alt = _implement_one(work)
+        if alt.status != NOT_IMPLEMENTED:
+            alt.id, alt.notes = result.id, alt.notes + [
+                f"placed as {production} at {slot}: the derivation filed the part under {hole['production']}, whose "
+                f"interface does not give what its equations read ({_short(result.reason, 200)})"]
+            return alt
+    return result
+
+
+SET_PRODUCTIONS = ("Regularizers",)
+"""Productions whose slot is a set: the component joins it as a member (``custom_<hole>``)."""
+
+
+def _member(slot: str, production: str, hid: str) -> str:
+    return f"{slot}.custom_{hid}" if production in SET_PRODUCTIONS else slot
+
+
+def _place(plan: Plan, slot: str, entry: dict, production: str = "", hid: str = "") -> None:
+    """The compiled component at the hole's slot, through the production's `custom` alternative (a set's member)."""
+    if production in SET_PRODUCTIONS:
+        plan.set(_member(slot, production, hid), entry)
+    else:
+        plan.set(slot, {"custom": entry})
 
 
 def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> Plan:
@@ -839,7 +887,10 @@ def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> 
     for r in implementation.records:
         if r.id not in hole_ids or r.status == NOT_IMPLEMENTED:
             continue
-        plan.set(r.slot, copy.deepcopy(r.replaced))
+        if r.production in SET_PRODUCTIONS:
+            plan.delete(_member(r.slot, r.production, r.id))
+        else:
+            plan.set(r.slot, copy.deepcopy(r.replaced))
         implementation.sources.pop(r.component.get("module", ""), None)
         r.status = NOT_IMPLEMENTED
         r.reason = f"compiled, but {reason}; the base's part stands in"
@@ -897,7 +948,7 @@ def _inputs(att: _Attempt, bindings: dict, sized: _Sized) -> dict:
     seq = sample_indexed_keys(att.equations)
     out = {}
     for key, b in bindings.items():
-        if b["as"] == "parameter":
+        if b["as"] in ("parameter", "constant"):
             continue
         per_sample = bool(b.get("per_sample")) or (key in seq and b["as"] == "network")
         width = sized.widths.get(key)
