@@ -110,7 +110,7 @@ def test_shared_papers_compiled_parts_pass_every_rung_and_train(paper, tmp_path)
     doc = ingest(path)
     implementation = implement_holes(doc, plan_from_paper(doc).plan)
     assert implementation.sources and all(r.status != NOT_IMPLEMENTED for r in implementation.records)
-    budget = Budget(iterations=150, every=150, cpu_presets=True, timeout=3600,
+    budget = Budget(iterations=80, every=80, cpu_presets=True, timeout=3600,
                     train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                     scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
     result = run_compose(implementation.plan, tmp_path / "run", sources=implementation.sources, budget=budget)
