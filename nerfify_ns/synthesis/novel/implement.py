@@ -1309,6 +1309,9 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
         per_in = sum(widths_next) - sum(widths_now)
         fixed = sum(widths_now) - per_in * runtime
         w.out_dim = f"{fixed} + {per_in} * self.in_dim" if per_in else f"{fixed}"
+    if len(w.networks) > 1 and not small:
+        w.notes.append(f"one network per symbol ({', '.join(n.key for n in w.networks)}), each of the paper's depth "
+                       "and width: a trunk the paper's architecture may share between them is not read from its text")
     if production == "Backbone" and len(att.outputs) > 1:
         w.notes.append(f"the Backbone interface has one output: the part's outputs ({', '.join(att.outputs)}) are "
                        "concatenated into it; the field's density head reads all of it, and its colour head reads it "
