@@ -70,23 +70,28 @@ def test_cli_unknown_scene_is_one_line(tmp_path):
 
 
 @pytest.mark.slow
-def test_an_evaluation_failure_is_a_failed_stage_with_the_folder_written(tiny_scene, tmp_path):
-    """The ladder passes on a scene without a test split (training needs train and val only); the evaluation
-    cannot score it: the train stage fails with that reason, the report is written, nothing is raised."""
+def test_an_evaluation_failure_is_a_failed_stage_with_the_folder_written(tiny_scene, tmp_path, monkeypatch):
+    """The ladder passes (real, sandboxed); the evaluation then fails (a stand-in raising the error a failed
+    evaluation raises: since the dataset reader refuses a scene without a test split up front, no real input
+    reaches this stage broken): the train stage fails with that reason, the report is written, nothing is
+    raised."""
     import json
-    import shutil
 
     from nerfify_ns.budget import Budget
+    from nerfify_ns.errors import NerfifyError
+    from nerfify_ns.evaluate import run_eval
     from nerfify_ns.pipeline import run_compose
     from nerfify_ns.synthesis.resources import load_reference_plan
 
-    scene = shutil.copytree(tiny_scene, tmp_path / "scene")
-    (scene / "transforms_test.json").unlink()
-    result = run_compose(load_reference_plan("kplanes-static"), tmp_path / "out", data=scene,
+    def failing_evaluation(*args, **kwargs):
+        raise NerfifyError("ns-eval found no frame to score (stand-in)")
+
+    monkeypatch.setattr(run_eval, "evaluate_run", failing_evaluation)
+    result = run_compose(load_reference_plan("kplanes-static"), tmp_path / "out", data=tiny_scene,
                          budget=Budget(iterations=10, every=10, smoke_iterations=20))
     outcome = result.outcome
     assert [r.status for r in outcome.records] == ["ran", "ran", "ran", "failed", "not run"]
-    assert "transforms_test.json" in outcome.failed.reason and result.summary is None
+    assert "no frame to score" in outcome.failed.reason and result.summary is None
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["outcome"]["failed"]["name"] == "train" and report["sections"]["verification"]["status"] == "pass"
     assert (tmp_path / "out" / "nerfify.log").is_file() and (tmp_path / "out" / "plan.yaml").is_file()
