@@ -72,6 +72,20 @@ def test_a_bad_equations_file_writes_nothing(gatenerf, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_the_cli_refuses_a_bad_equations_file_in_one_line(gatenerf, tmp_path):
+    import subprocess
+    import sys
+
+    bad = tmp_path / "equations.yaml"
+    bad.write_text("holes: 3\n")
+    cli = Path(sys.executable).with_name("ns-nerfify")
+    out = subprocess.run([str(cli), str(gatenerf), "--equations", str(bad), "--out", str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 2 and "--equations" in out.stdout + out.stderr and "not an equations.yaml" in \
+        out.stdout + out.stderr
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.slow
 def test_a_paper_never_seen_passes_every_rung(gatenerf, tmp_path):
     """GateNeRF's compiled backbone (gates and a memory) in the plugin: static, contract, stability and smoke."""
