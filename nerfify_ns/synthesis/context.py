@@ -454,8 +454,11 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
     out: List[KW] = []
     model = ctx.plan.get("model")
     mlp = (model["field"].get("MLPField") or {})
-    if "background_color" in fields and not ctx.custom("model.renderer"):  # a custom renderer: the base's default
+    if "background_color" in fields and not ctx.custom("model.renderer"):
         out.append(KW("background_color", py(ctx.params("model.renderer")["background"]), "model.renderer.background"))
+    elif "background_color" in fields and ctx.plan.get("model.renderer.custom.params.background"):
+        out.append(KW("background_color", py(ctx.plan.get("model.renderer.custom.params.background")),
+                      "model.renderer.custom.params.background"))
     if "disable_scene_contraction" in fields:
         out.append(KW("disable_scene_contraction", py("spatial_distortion" not in mlp),
                       "model.field.MLPField.spatial_distortion (absent: disabled)"))

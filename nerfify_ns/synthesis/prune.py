@@ -65,7 +65,14 @@ class _Pruner:
         parent, key = self.plan.parent(spec["path"])
         node = parent.get(key) if parent else None
         if isinstance(node, dict) and "custom" in node:
-            return  # a component of the plugin (a compiled novel part) stands at the slot: not the terminal's params
+            # a component of the plugin stands at the slot: the value goes to its params (a custom renderer takes
+            # the background, the part of the renderer's interface the scene decides)
+            params = node["custom"].setdefault("params", {})
+            if spec["param"] == "background" and params.get("background") != spec["value"]:
+                before = params.get("background")
+                params["background"] = spec["value"]
+                self.record(rule, f"{spec['path']}.custom.params.background", "set", before, spec["value"])
+            return
         if isinstance(node, dict) and node.get(spec["param"]) != spec["value"]:
             before = node.get(spec["param"], self.grammar.terminals[key].params[spec["param"]].default)
             node[spec["param"]] = spec["value"]

@@ -303,8 +303,8 @@ class RendererAdapter(Adapter):
         return "16"
 
     def source(self, w: Wiring, context: dict) -> str:
-        init = ["super().__init__(background_color=background_color)", f"self.equations = {w.eq_cls}()",
-                "self._samples = None"]
+        init = ["super().__init__(background_color=background or background_color)",
+                f"self.equations = {w.eq_cls}({w.equations_args})", "self._samples = None"]
         if w.networks:
             init += ["self.direction_encoding = SHEncoding(levels=4)"]
         init += self.lines_networks(w, "16") + self.lines_states(w)
@@ -327,7 +327,7 @@ class RendererAdapter(Adapter):
         lines = [f"class {w.cls}(RGBRenderer):",
                  '    """Volume rendering compiled from the paper\'s equations: forward(rgb [R, S, 3], weights [R, S, 1]) '
                  '-> rgb [R, 3], with the samples and densities the field binds (bind_samples)."""',
-                 "", "    def __init__(self, background_color='white') -> None:"]
+                 "", "    def __init__(self, background_color='white', background: Optional[str] = None) -> None:"]
         lines += _indent(init, 2)
         lines += ["", "    def bind_samples(self, ray_samples, densities) -> None:",
                   '        """The samples and densities the field was last evaluated at (the field calls this)."""',
