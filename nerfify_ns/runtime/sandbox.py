@@ -293,10 +293,32 @@ class TreeCgroup:
         for entry in entries:
             m = re.fullmatch(rf"{cls.PREFIX}(\d+)-[0-9a-f]+", entry.name)
             if m and not _alive(int(m.group(1))):
+                cls._remove_orphan(entry)
+
+    @staticmethod
+    def _remove_orphan(folder: Path, wait: float = 3.0) -> None:
+        """Remove the cgroup of a run whose owner died: tasks still in it (a tree that is still exiting, or one
+        that outlived its owner) are killed, and the removal is retried for up to ``wait`` seconds."""
+        deadline = time.monotonic() + wait
+        while True:
+            try:
+                folder.rmdir()
+                return
+            except FileNotFoundError:
+                return
+            except OSError:
+                if time.monotonic() > deadline:
+                    return
+            try:
+                left = [int(p) for p in (folder / "cgroup.procs").read_text().split()]
+            except (OSError, ValueError):
+                left = []
+            for pid in left:
                 try:
-                    entry.rmdir()
-                except OSError:
+                    os.kill(pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
                     pass
+            time.sleep(0.05)
 
     def enter(self) -> None:
         """Move the calling process into the cgroup (called in the child before it executes the command)."""

@@ -77,6 +77,13 @@ def _small_parts(run: Path) -> None:
                                         {"id": "instant-ngp"}], "links": [{"source": "target", "target": "instant-ngp",
                                                                            "relation": "uses", "components": ["hash_grid"]}]},
                                         "resolution": {"filled": ["PosEncoding"]}, "uses": []}))
+    (run / "equations.yaml").write_text(yaml.safe_dump({
+        "paper": "A Test Paper", "summary": "0 of 1 novel parts implemented from the paper's equations",
+        "equations": {"numbered": 1, "read": 1, "displayed": 1}, "seconds": 0.1,
+        "holes": [{"id": "prior", "production": "Regularizers", "slot": "model.losses", "status": "not implemented",
+                   "reason": f"no equation names the prior {HOSTILE}",
+                   "equations": [{"number": "1", "reading": "L = \\sum_r |C - C'|^2", "status": "read",
+                                  "where": "Losses"}]}]}, sort_keys=False))
     img = np.full((60, 120, 3), 255, np.uint8)
     img[20:40, 10:30] = (31, 119, 180)
     img[20:40, 90:110] = (255, 127, 14)
