@@ -7,7 +7,7 @@ import signal
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional, Tuple, Union
 
 import rich.markup
 import rich.progress
@@ -16,6 +16,8 @@ from rich.console import Console
 from rich.table import Table
 from typing_extensions import Annotated, Literal
 
+from nerfify_ns.ablations import NAMES as ABLATION_NAMES
+from nerfify_ns.ablations import Ablations
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.report_command import Report
@@ -175,6 +177,9 @@ class Paper:
     equations: Optional[Path] = None
     """A run's equations.yaml with your corrections (an equation's LaTeX, a symbol's binding, a size): the holes
     you edited are recompiled, the others reused."""
+    ablate: Tuple[Literal[ABLATION_NAMES], ...] = ()  # type: ignore[valid-type]
+    """Switch stages off (the benchmark's ablations, docs/bench.md): no-reference-plans, no-citations, no-verify,
+    no-visual-feedback, no-equations, no-agents, one-shot; recorded in run.json."""
 
     def main(self) -> None:
         budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
@@ -186,7 +191,7 @@ class Paper:
             result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
                                until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
                                patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress,
-                               equations=self.equations)
+                               equations=self.equations, ablations=Ablations.of(self.ablate))
         _print_plan(result)
         if result.out is not None:
             _conclude(result.outcome, result.out)

@@ -115,6 +115,8 @@ class Outcome:
     progress: Progress = field(default_factory=Progress)
     records: List[StageRecord] = field(default_factory=list)
     started: str = field(default_factory=lambda: _dt.datetime.now().isoformat(timespec="seconds"))
+    ablations: List[str] = field(default_factory=list)
+    """Stages switched off for this run (``nerfify_ns.ablations`` names), written into run.json."""
 
     def __post_init__(self) -> None:
         stages = STAGES[self.command]
@@ -194,6 +196,7 @@ class Outcome:
             "command": self.command,
             "started": self.started,
             "until": self.until,
+            "ablations": list(self.ablations),
             "ok": self.ok,
             "headline": self.headline(),
             "failed": asdict(self.failed) if self.failed else None,

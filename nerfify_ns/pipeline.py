@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional, Tuple
 
+from nerfify_ns.ablations import FULL, Ablations
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, check_count
 from nerfify_ns.dataset import Dataset, read_dataset
@@ -87,12 +88,14 @@ def run_paper(
     progress: Progress = Progress(),
     kb: Optional[KnowledgeBase] = None,
     equations: Optional[Path] = None,
+    ablations: Ablations = FULL,
 ) -> PaperResult:
     """Paper -> plan with evidence -> the paper's novel parts compiled from its equations -> (unless dry_run) the
     stages of :func:`_build`, up to ``until``. ``kb``: the knowledge base every stage reads (default: the
     package's), one object for the whole run. ``equations``: a person's corrected equations.yaml (its edited holes
-    are recompiled, the others reused)."""
-    outcome = Outcome("paper", until, progress)
+    are recompiled, the others reused). ``ablations``: stages switched off (``nerfify_ns.ablations``), recorded in
+    run.json."""
+    outcome = Outcome("paper", until, progress, ablations=list(ablations.names))
     dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
     check_count("--patch-rounds", patch_rounds, 0)
     corrections, reuse = read_corrections(equations) if equations is not None else ({}, {})
@@ -103,10 +106,11 @@ def run_paper(
         doc = ingest(paper)
         require_nerf_paper(doc)
         detections = detect_techniques(doc, kb)
-        graph = build_citation_graph(doc, detections, kb=kb)
-        derived = derive_plan(doc, detections, graph, kb=kb)
+        graph = build_citation_graph(doc, detections, kb=kb, follow=ablations.citations)
+        derived = derive_plan(doc, detections, graph, kb=kb, reference_plans=ablations.reference_plans)
         stage.note("compiling the paper's novel parts from its equations")
-        implementation = implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
+        implementation = (implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
+                          if ablations.equations else Implementation(Plan.of(derived.plan), sources={}, records=[]))
         derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
         stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
                          f"{len(derived.holes)} hole(s); {implementation.headline()}")
@@ -117,7 +121,7 @@ def run_paper(
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
         plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
-                               outcome, implementation.sources, _fallback(implementation, staging, doc))
+                               outcome, implementation.sources, _fallback(implementation, staging, doc), ablations)
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
 
@@ -173,12 +177,13 @@ def run_compose(
 
 def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
            patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None,
-           fallback: Optional[Callable] = None) -> Tuple[dict, Optional[dict]]:
+           fallback: Optional[Callable] = None, ablations: Ablations = FULL) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
     the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
     when the ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and
-    its sources): the plugin is regenerated from it and the ladder run again, once."""
+    its sources): the plugin is regenerated from it and the ladder run again, once. ``ablations``: the ladder, the
+    patch loop or the file-DAG composition switched off."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
@@ -186,8 +191,12 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         plan, data = _plan_for_scene(plan, folder, data, scene, keep_all, budget, stage)
     if outcome.wants("plugin"):
         with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
-            stage.summary = f"{len(write_plugin(plan, folder, sources=sources).files)} files"
-    if outcome.wants("verify"):
+            written = write_plugin(plan, folder, sources=sources, one_shot=not ablations.dag)
+            stage.summary = f"{len(written.files)} files" + ("" if ablations.dag else " (one shot, no file DAG)")
+    ladder_wanted = outcome.wants("verify")
+    if ladder_wanted and not ablations.verify:
+        outcome.skip("verify", "switched off (ablation no-verify)")
+    elif ladder_wanted:
         with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
                            total=smoke_iterations(plan["base"], budget.smoke_iterations),
                            failures=(NerfifyError,)) as stage:
@@ -214,7 +223,9 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
                                    on_progress=_step_progress(stage, f"training {plan['method']}",
                                                               "rendering and scoring the checkpoints"))
             _judge_evaluation(summary, stage)
-    if not patch_rounds:
+    if not ablations.visual_feedback:
+        outcome.skip("patches", "switched off (ablation no-visual-feedback)")
+    elif not patch_rounds:
         outcome.skip("patches", "not requested (--patch-rounds 0)")
     elif outcome.wants("patches"):
         from nerfify_ns.evaluate.patch_loop import run_patch_loop

@@ -448,19 +448,22 @@ def _plain(obj: Any) -> Any:
 
 
 def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
-                         needed: Optional[Iterable[str]] = None, kb: Optional[KnowledgeBase] = None) -> CitationGraph:
+                         needed: Optional[Iterable[str]] = None, kb: Optional[KnowledgeBase] = None,
+                         follow: bool = True) -> CitationGraph:
     """The target paper's citation graph, resolved for ``needed`` productions (default: a field, a
     sampler, a renderer and a loss; see citation_patterns.yaml).
 
     ``detections`` are ``nerfify_ns.knowledge.detect.Detection`` objects; those used count as the
-    paper's own components (their card's source paper becomes a dependency)."""
+    paper's own components (their card's source paper becomes a dependency). ``follow=False`` (the ablation
+    ``no-citations``): the references and citing sentences are not read and no paper is followed, so only the
+    techniques detected in the paper's own text fill productions."""
     kb = KnowledgeBase.of(kb)
     papers = kb.papers
-    target = match_target(doc, kb)
+    target = match_target(doc, kb) if follow else None
     g = nx.DiGraph()
     g.add_node(TARGET, kind="target", title=getattr(doc, "title", "") or "", known=target.key if target else None,
                registry_builds_on=list(target.builds_on) if target else [])
-    refs = list(getattr(doc, "references", []))
+    refs = list(getattr(doc, "references", [])) if follow else []
     for r in refs:
         p = kb.match_reference(r)
         node = p.key if p else f"ref:{r.key}"
@@ -473,7 +476,7 @@ def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
         g.nodes[node].setdefault("keys", []).append(r.key)
         if not g.has_edge(TARGET, node):
             g.add_edge(TARGET, node, relation="cites", components=[], quotes=[], keys=[r.key], explicit=[])
-    uses = find_citation_uses(doc, kb)
+    uses = find_citation_uses(doc, kb) if follow else []
     strength = {"cites": 0, "follows": 1, "builds_on": 2, "adopts": 3}
     for u in uses:
         for p in u.papers:

@@ -174,9 +174,11 @@ def readme_rows(context: Context, ctx: dict) -> List[dict]:
 
 
 def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
-                 sources: Optional[Mapping[str, str]] = None) -> ComposedPlugin:
+                 sources: Optional[Mapping[str, str]] = None, one_shot: bool = False) -> ComposedPlugin:
     """Validate ``plan`` and render its plugin into the existing, empty ``folder``; ``sources`` holds the
-    code of the plan's custom components (``components.<module>`` -> source)."""
+    code of the plan's custom components (``components.<module>`` -> source). ``one_shot`` (the ablation
+    ``one-shot``): every file rendered in one pass in declaration order, none parsed or formatted as it is
+    written (a broken file is left for the ladder to find), instead of the DAG's topological order."""
     g = grammar or load_grammar()
     derivation = validate(plan, g)
     context = Context(names=Names.of(plan["method"]), plan=plan, derivation=derivation, grammar=g)
@@ -186,10 +188,10 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
     graph = plugin_files(ctx)
     env = _environment()
     written: List[str] = []
-    for name in nx.topological_sort(graph):
+    for name in (list(graph.nodes) if one_shot else nx.topological_sort(graph)):
         f: PluginFile = graph.nodes[name]["file"]
         text = _render(env, f, ctx, plan, sources or {})
-        if name.endswith(".py") and not f.template.startswith("source:"):
+        if name.endswith(".py") and not f.template.startswith("source:") and not one_shot:
             text = _format_python(text, name)
         target = Path(folder) / name
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -198,6 +200,7 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
     repairs = reapply_repairs(plan, Path(folder))  # recorded ladder repairs, reported in README.md
     meta = {"method": ctx["method"], "package": ctx["package"],
             "config": f"{ctx['package']}.config:{ctx['config']['var']}", "files": written,
+            "composition": "one-shot" if one_shot else "file-dag",
             **({"repairs": repairs} if repairs else {})}
     (Path(folder) / "nerfify.json").write_text(json.dumps(meta, indent=2))
     return ComposedPlugin(out=Path(folder).absolute(), method=ctx["method"], package=ctx["package"],

@@ -768,15 +768,19 @@ def _plainify(obj: Any) -> Any:
 
 def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
                 graph: Optional[CitationGraph] = None, grammar: Optional[Grammar] = None,
-                kb: Optional[KnowledgeBase] = None) -> DerivedPlan:
+                kb: Optional[KnowledgeBase] = None, reference_plans: bool = True) -> DerivedPlan:
     """The plan of ``doc`` (see the module docstring) from the knowledge base ``kb`` (default: the
-    package's); ``validate(result.plan)`` accepts it."""
+    package's); ``validate(result.plan)`` accepts it. ``reference_plans=False`` (the ablation
+    ``no-reference-plans``): the base is not chosen among the reference plans (the paper's statement, the best
+    host of its techniques) but is always the knowledge base's plainest one."""
     g = grammar or load_grammar()
     kb = KnowledgeBase.of(kb)
     detections = list(detect_techniques(doc, kb) if detections is None else detections)
     graph = graph if graph is not None else build_citation_graph(doc, detections, kb=kb)
     d = _Deriver(doc, detections, graph, g, kb)
-    decision = d.choose_base()
+    decision = d.choose_base() if reference_plans else BaseDecision(
+        base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
+        "are not consulted)", [], criterion="ablation")
     base = decision.base
     plan = _start(doc, base, kb)
     d.scene(plan)
