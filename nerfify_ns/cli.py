@@ -328,6 +328,49 @@ def _print_compose(result) -> None:
 
 
 @dataclass
+class Bench:
+    """NerfifyBench (docs/bench.md): for every paper, scene and seed of SUITE.yaml, run the pipeline, train the
+    generated plugin and the paper's reference with the same data, batch, iterations and seed, evaluate both with our
+    metrics, score the paper's novelty items (checks in the sandbox, the plan's evidence), and write results.json,
+    tables.md, tables.tex (the paper's Tables 2-5) and plots/. Resumable: a rerun skips finished tasks. A task that
+    fails (a missing paper, a reference that does not load or train, a check that raises) is a row failure in the
+    tables; the rest of the suite still runs (exit 0). Exit 2: a bad suite or option, nothing run."""
+
+    suite: tyro.conf.Positional[Path]
+    """The suite file (YAML; docs/bench.md)."""
+    out: Optional[Path] = None
+    """Run folder (default bench-results/<suite name>); finished tasks in it are not run again."""
+    ablations: str = ""
+    """Comma-separated ablations to run besides the full pipeline (adds the Table 5 layout): no-reference-plans,
+    no-citations, no-verify, no-visual-feedback, no-equations, no-agents, one-shot."""
+    ray: bool = False
+    """Run every task as a Ray task on a local cluster (ray.init()); needs the [ray] extra."""
+    ray_address: Optional[str] = None
+    """Run the tasks on an existing Ray cluster at this address (implies --ray)."""
+
+    def main(self) -> None:
+        from nerfify_ns.ablations import Ablations
+        from nerfify_ns.benchsuite import load_suite
+
+        suite = load_suite(self.suite)
+        ablations = Ablations.parse(self.ablations).names
+        from nerfify_ns.benchsuite.executor import LocalExecutor, RayExecutor
+        from nerfify_ns.benchsuite.run import run_bench
+
+        executor = RayExecutor(self.ray_address) if self.ray or self.ray_address else LocalExecutor()
+        out = self.out or Path("bench-results") / suite.name
+        command = "ns-nerfify bench " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["bench"] else sys.argv[1:])
+        with ConsoleProgress() as progress:
+            result = run_bench(suite, out, ablations=ablations, executor=executor, progress=progress,
+                               command=command)
+        CONSOLE.print(f"{result.ran} task(s) run, {result.skipped} skipped (finished before), "
+                      f"{len(result.failed)} row failure(s)", highlight=False)
+        for line in result.failed:
+            CONSOLE.print(f"[red]row failure[/red] {_plain(line)}", soft_wrap=True, highlight=False)
+        CONSOLE.print(f"outputs: {result.out}  (tables.md, tables.tex, results.json, plots/)", soft_wrap=True)
+
+
+@dataclass
 class GrammarExport:
     """Export the grammar of plans as a JSON Schema and a GBNF grammar (for constrained decoding)."""
 
@@ -424,6 +467,7 @@ Commands = Union[
     Annotated[Paper, tyro.conf.subcommand("paper")],
     Annotated[Compose, tyro.conf.subcommand("compose")],
     Annotated[Verify, tyro.conf.subcommand("verify")],
+    Annotated[Bench, tyro.conf.subcommand("bench")],
     Annotated[Report, tyro.conf.subcommand("report")],
     Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
     Annotated[Demo, tyro.conf.subcommand("demo")],
@@ -433,7 +477,7 @@ Commands = Union[
 ]
 
 
-SUBCOMMANDS = ("paper", "compose", "verify", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
+SUBCOMMANDS = ("paper", "compose", "verify", "bench", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
 
 
 def _plain(text: str) -> str:

@@ -1,0 +1,162 @@
+"""Where the benchmark's tasks run: local processes (default) or Ray tasks, resumably.
+
+Every task is one process, ``python -m nerfify_ns.benchsuite.tasks SUITE KEY FOLDER``, with its numeric libraries'
+threads pinned to the cores it declares (``budget.cpus``). It writes ``FOLDER/result.json`` last, so a task is done
+when that file is there with the paper entry's fingerprint; a killed bench leaves the folder of the task it was
+running without one, and a rerun removes that folder and runs the task again, skipping every finished one.
+
+* :class:`LocalExecutor`: one task at a time (their training wall-clock goes into the tables, so two trainings
+  never share the cores), each process group stopped on SIGINT/SIGTERM like every child of ours.
+* :class:`RayExecutor`: ``ray.init()`` (a local cluster) or ``ray.init(address=...)`` (an existing one); every task
+  is a Ray task declaring ``num_cpus``/``num_gpus`` from its paper's budget. It runs the same process in a
+  temporary folder on its worker and returns the result with the folder as a gzipped tar (checkpoints left out),
+  which is unpacked into the run folder here. Workers must see the suite, its checks and the papers at the same
+  paths (the same checkout and ``../shared`` on every node, or a shared file system). Ray is an optional extra
+  (``pip install nerfify-ns[ray]``, installed by ``scripts/setup.sh --dev``).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import sys
+import tarfile
+import tempfile
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Sequence
+
+from nerfify_ns.benchsuite.tasks import RESULT, Task, thread_env
+from nerfify_ns.errors import NerfifyError
+
+OnDone = Callable[[Task, dict], None]
+SKIP_SUFFIXES = (".ckpt",)
+"""Artefacts not shipped back from a Ray worker (checkpoints: large, and the tables do not read them)."""
+
+
+class ExecutorError(NerfifyError):
+    """An executor that cannot start (Ray not installed, no cluster at the address)."""
+
+
+def task_folder(out: Path, task: Task) -> Path:
+    return Path(out) / "tasks" / task.key
+
+
+def finished(out: Path, task: Task, fingerprint: str) -> Optional[dict]:
+    """The task's result when it finished before with the same paper entry (else None)."""
+    path = task_folder(out, task) / RESULT
+    try:
+        result = json.loads(path.read_text()) if path.is_file() else None
+    except (OSError, ValueError):
+        return None
+    return result if result is not None and result.get("fingerprint") == fingerprint else None
+
+
+def task_command(suite_path: Path, task: Task, folder: Path) -> List[str]:
+    return [sys.executable, "-m", "nerfify_ns.benchsuite.tasks", str(suite_path), task.key, str(folder)]
+
+
+def _fail(task: Task, reason: str) -> dict:
+    return {"status": "failed", "reason": reason, "key": task.key}
+
+
+class LocalExecutor:
+    """Tasks one after another in local processes (see the module docstring)."""
+
+    name = "local"
+
+    def run(self, suite_path: Path, out: Path, tasks: Sequence[Task], needs: Dict[str, tuple], on_done: OnDone,
+            timeout: float = 24 * 3600) -> None:
+        from nerfify_ns.runtime.process import run_process
+
+        for task in tasks:
+            folder = task_folder(out, task)
+            shutil.rmtree(folder, ignore_errors=True)  # an unfinished earlier attempt
+            folder.mkdir(parents=True)
+            env = {**os.environ, **thread_env(needs[task.key][0])}
+            proc = run_process(task_command(suite_path, task, folder), folder / "task.log", cwd=folder,
+                               timeout=timeout, env=env)
+            result_path = folder / RESULT
+            if result_path.is_file():
+                on_done(task, json.loads(result_path.read_text()))
+            else:
+                on_done(task, _fail(task, f"the task process ended without a result (exit {proc.returncode}); "
+                                          f"see {folder / 'task.log'}"))
+
+
+def _ray_task(suite_path: str, key: str, threads: Dict[str, str]) -> tuple:
+    """On a Ray worker: run the task process in a temporary folder; its result and the folder as a tar.gz."""
+    import subprocess
+
+    with tempfile.TemporaryDirectory(prefix="nerfify-bench-") as tmp:
+        folder = Path(tmp) / "task"
+        folder.mkdir()
+        with open(folder / "task.log", "w") as log:
+            code = subprocess.call([sys.executable, "-m", "nerfify_ns.benchsuite.tasks", suite_path, key,
+                                    str(folder)], stdout=log, stderr=subprocess.STDOUT, cwd=folder,
+                                   env={**os.environ, **threads}, start_new_session=True)
+        buffer = io.BytesIO()
+        with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
+            tar.add(folder, arcname=".", filter=lambda info: None if info.name.endswith(SKIP_SUFFIXES)
+                    or info.issym() else info)
+        result = json.loads((folder / RESULT).read_text()) if (folder / RESULT).is_file() else None
+        return code, result, buffer.getvalue()
+
+
+def _unpack(data: bytes, folder: Path) -> None:
+    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as tar:
+        tar.extractall(folder, filter="data")
+
+
+class RayExecutor:
+    """Tasks as Ray tasks (see the module docstring)."""
+
+    name = "ray"
+
+    def __init__(self, address: Optional[str] = None) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise ExecutorError("--ray needs Ray: pip install 'nerfify-ns[ray]' (scripts/setup.sh --dev installs "
+                                "it)") from None
+        self.ray, self.address = ray, address
+
+    def run(self, suite_path: Path, out: Path, tasks: Sequence[Task], needs: Dict[str, tuple], on_done: OnDone,
+            timeout: float = 24 * 3600) -> None:
+        ray = self.ray
+        started_here = not ray.is_initialized()
+        if started_here:
+            try:
+                ray.init(address=self.address, include_dashboard=False, log_to_driver=False,
+                         logging_level="ERROR")
+            except Exception as exc:  # noqa: BLE001 - Ray's own errors: one line
+                where = f" at {self.address}" if self.address else ""
+                raise ExecutorError(f"cannot start or reach the Ray cluster{where}: {exc}") from None
+        try:
+            pending = {}
+            for task in tasks:
+                cpus, gpus = needs[task.key]
+                remote = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=0)(_ray_task)
+                pending[remote.remote(str(suite_path), task.key, thread_env(cpus))] = task
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=timeout)
+                if not done:
+                    for task in pending.values():
+                        on_done(task, _fail(task, "Ray task timed out"))
+                    break
+                ref = done[0]
+                task = pending.pop(ref)
+                folder = task_folder(out, task)
+                shutil.rmtree(folder, ignore_errors=True)
+                folder.mkdir(parents=True)
+                try:
+                    code, result, data = ray.get(ref)
+                    _unpack(data, folder)
+                except Exception as exc:  # noqa: BLE001 - a worker lost or a task that raised: its row
+                    result, code = None, f"Ray: {type(exc).__name__}: {str(exc)[:300]}"
+                on_done(task, result if result is not None else _fail(
+                    task, f"the task ended without a result ({code}); see {folder / 'task.log'}"))
+        finally:
+            if started_here:
+                ray.shutdown()

@@ -1,0 +1,322 @@
+"""The suite file of ``ns-nerfify bench``: papers, scenes, references, reported metrics, novelty items, budgets.
+
+The format is documented in ``docs/bench.md`` (keep the two in step). :func:`load_suite` reads a YAML file into
+typed dataclasses and refuses anything malformed with one :class:`SuiteError` line naming the file, the key's path
+(``papers[2].novelty[0].kind``) and what is expected. Paths are relative to the suite file. What is checked here is
+the file itself; whether a paper's input exists, a reference method is installed or a plan composes is the business
+of the task that uses it (a per-row failure in the tables, the rest of the suite still runs). A novelty check's
+file must exist inside the suite folder (it is part of the suite).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+import yaml
+
+from nerfify_ns.budget import BudgetError, check_count, check_seconds
+from nerfify_ns.errors import NerfifyError
+
+KINDS = ("equation", "loss", "architecture", "sampler", "schedule", "hyperparameter")
+"""The kinds of novelty item (the paper's Table 4)."""
+METRICS = ("psnr", "ssim", "lpips")
+ID = re.compile(r"^[a-z0-9][a-z0-9_.-]{0,63}$")
+MAX_BYTES = 1 << 20
+
+
+class SuiteError(NerfifyError):
+    """A suite file that cannot be used (one line: the file, the key's path, what is wrong and what is expected)."""
+
+
+@dataclass(frozen=True)
+class BenchBudget:
+    """How much each task computes (both sides of a comparison get the same)."""
+
+    iterations: int = 30
+    """Training iterations of the generated plugin and of the reference."""
+    every: int = 15
+    """Checkpoint cadence of the error-against-time curves (each checkpoint is rendered and scored)."""
+    rays: int = 256
+    """Training rays per batch, both sides."""
+    smoke_iterations: Optional[int] = None
+    """Iterations of the ladder's smoke rung (None: the base's own)."""
+    resolution: int = 32
+    """Image size of a procedural scene (pixels)."""
+    n_train: int = 12
+    """Training views of a procedural scene."""
+    n_test: int = 2
+    """Held-out views of a procedural scene (every checkpoint renders them all)."""
+    timeout: float = 1800.0
+    """Time limit of one training or evaluation process, seconds."""
+    patch_rounds: int = 0
+    """Rounds of the visual-feedback patch loop in the full configuration (the ablation no-visual-feedback turns
+    them off)."""
+    check_timeout: float = 300.0
+    """Time limit of one novelty check (sandboxed), seconds."""
+    cpus: float = 1.0
+    """CPU cores a task declares (Ray) and pins its threads to."""
+    gpus: float = 0.0
+    """GPUs a task declares (Ray)."""
+
+    def check(self, where: str) -> None:
+        try:
+            for name in ("iterations", "every", "rays", "resolution", "n_train", "n_test"):
+                check_count(f"{where}.{name}", getattr(self, name))
+            if self.smoke_iterations is not None:
+                check_count(f"{where}.smoke_iterations", self.smoke_iterations)
+            check_count(f"{where}.patch_rounds", self.patch_rounds, 0)
+            check_seconds(f"{where}.timeout", self.timeout)
+            check_seconds(f"{where}.check_timeout", self.check_timeout)
+            check_seconds(f"{where}.cpus", self.cpus)
+            if isinstance(self.gpus, bool) or not isinstance(self.gpus, (int, float)) or self.gpus < 0:
+                raise BudgetError(f"{where}.gpus must be a number >= 0, got {self.gpus!r}")
+        except BudgetError as exc:
+            raise SuiteError(str(exc)) from None
+
+
+@dataclass(frozen=True)
+class Reference:
+    """What the generated plugin is compared against."""
+
+    method: Optional[str] = None
+    """A Nerfstudio built-in method or an installed plugin's method name (trained with ``ns-train``, its method
+    discovery limited to that method's own entry point)."""
+    plan: Optional[Path] = None
+    """A plan YAML (composed and trained as our plugin)."""
+    note: str = ""
+    """Shown under the table (e.g. "the base's built-in: the paper's own code does not install here")."""
+
+    @property
+    def label(self) -> str:
+        return self.method if self.method is not None else f"plan {self.plan.name}"
+
+
+@dataclass(frozen=True)
+class NoveltyItem:
+    """One novel element of a paper, scored C (correct), I (incomplete), M (missing); W from its values."""
+
+    id: str
+    kind: str
+    weight: float
+    where: str
+    """Where in the paper ("Sec. 3.2, Eqs. 1-9"); equation numbers in it link the item to compiled components."""
+    plan: Tuple[str, ...] = ()
+    """Plan paths (``model.sampler.hierarchical``) whose presence, with evidence, shows the item in the plan."""
+    values: Dict[str, Any] = field(default_factory=dict)
+    """The paper's values, plan path -> number (within 10% counts for W), text or list."""
+    check: Optional[Tuple[Path, str]] = None
+    """A reference function (file in the suite folder, function name) run on the generated component."""
+
+    @property
+    def equations(self) -> Tuple[str, ...]:
+        """Equation numbers named in ``where`` ("Eqs. 1-3, 7" -> 1, 2, 3, 7)."""
+        return equation_numbers(self.where)
+
+
+@dataclass(frozen=True)
+class PaperEntry:
+    id: str
+    input: Path
+    scenes: Tuple[str, ...]
+    reference: Reference
+    novelty: Tuple[NoveltyItem, ...]
+    reported: Dict[str, Any] = field(default_factory=dict)
+    budget: BenchBudget = BenchBudget()
+    seeds: Tuple[int, ...] = (0,)
+
+    def fingerprint(self) -> str:
+        """A digest of everything a task of this paper depends on (a changed entry is not taken as done)."""
+        data = json.dumps(asdict(self), sort_keys=True, default=str)
+        files = [self.input, *(i.check[0] for i in self.novelty if i.check), *([self.reference.plan] if
+                                                                                self.reference.plan else [])]
+        digest = hashlib.sha256(data.encode())
+        for f in files:
+            digest.update(Path(f).read_bytes() if Path(f).is_file() else b"-")
+        return digest.hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Suite:
+    name: str
+    path: Path
+    papers: Tuple[PaperEntry, ...]
+    description: str = ""
+
+    @property
+    def folder(self) -> Path:
+        return self.path.parent
+
+    def paper(self, paper_id: str) -> PaperEntry:
+        return next(p for p in self.papers if p.id == paper_id)
+
+    def scene_path(self, scene: str) -> Optional[Path]:
+        """A dataset folder for ``scene`` when it names one (relative to the suite), else None (procedural)."""
+        return resolve_scene(self.folder, scene)
+
+
+def equation_numbers(where: str) -> Tuple[str, ...]:
+    """The equation numbers a "where" names: ``Eq. 7``, ``Eqs. 1-9``, ``Eqs. (3), (4) and 10``, ``Eq. A.2``."""
+    out: List[str] = []
+    for m in re.finditer(r"\bEq(?:uation)?s?\.?\s*((?:\(?[A-Z]?\.?\d+(?:\.\d+)?\)?\s*(?:[-–,]|and|&)?\s*)+)", where):
+        for part in re.finditer(r"\(?([A-Z]?\.?\d+(?:\.\d+)?)\)?(?:\s*[-–]\s*\(?(\d+)\)?)?", m.group(1)):
+            first, last = part.group(1), part.group(2)
+            if last and first.isdigit():
+                out += [str(n) for n in range(int(first), int(last) + 1)]
+            else:
+                out.append(first)
+    return tuple(dict.fromkeys(out))
+
+
+def resolve_scene(folder: Path, scene: str) -> Optional[Path]:
+    if "/" in scene or scene.startswith("."):
+        return (folder / scene).resolve()
+    return None
+
+
+# ------------------------------------------------------------------------------------------ reading
+class _Reader:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def fail(self, where: str, message: str) -> SuiteError:
+        return SuiteError(f"{self.path.name}: {where}: {message}")
+
+    def mapping(self, value: Any, where: str, required: Tuple[str, ...], optional: Tuple[str, ...]) -> dict:
+        if not isinstance(value, dict):
+            raise self.fail(where, f"expected a mapping with keys {', '.join(required + optional)}, got "
+                                   f"{type(value).__name__}")
+        unknown = [k for k in value if k not in required + optional]
+        if unknown:
+            raise self.fail(where, f"unknown key {unknown[0]!r} (allowed: {', '.join(required + optional)})")
+        missing = [k for k in required if k not in value]
+        if missing:
+            raise self.fail(where, f"missing required key {missing[0]!r}")
+        return value
+
+    def text(self, value: Any, where: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(where, f"expected non-empty text, got {value!r}")
+        return value.strip()
+
+    def ident(self, value: Any, where: str) -> str:
+        text = self.text(value, where) if isinstance(value, str) else str(value)
+        if not ID.match(text):
+            raise self.fail(where, f"{text!r} is not an id (lower-case letters, digits, '_', '-', '.'; up to 64)")
+        return text
+
+    def number(self, value: Any, where: str, low: float, high: float) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+            raise self.fail(where, f"expected a number in [{low}, {high}], got {value!r}")
+        return float(value)
+
+    def budget(self, value: Any, where: str, base: BenchBudget) -> BenchBudget:
+        names = tuple(f.name for f in fields(BenchBudget))
+        data = self.mapping(value or {}, where, (), names)
+        budget = replace(base, **data)
+        budget.check(f"{self.path.name}: {where}")
+        return budget
+
+    def seeds(self, value: Any, where: str) -> Tuple[int, ...]:
+        if not isinstance(value, list) or not value or not all(
+                isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2 ** 31 for s in value):
+            raise self.fail(where, f"expected a non-empty list of seeds (whole numbers >= 0), got {value!r}")
+        return tuple(dict.fromkeys(value))
+
+    def reference(self, value: Any, where: str) -> Reference:
+        if isinstance(value, str):
+            return Reference(method=self.text(value, where))
+        data = self.mapping(value, where, (), ("method", "plan", "note"))
+        if ("method" in data) == ("plan" in data):
+            raise self.fail(where, "give exactly one of 'method' (a Nerfstudio or installed method name) or 'plan'")
+        note = str(data.get("note") or "")
+        if "method" in data:
+            return Reference(method=self.text(data["method"], f"{where}.method"), note=note)
+        return Reference(plan=(self.path.parent / self.text(data["plan"], f"{where}.plan")).resolve(), note=note)
+
+    def check(self, value: Any, where: str) -> Tuple[Path, str]:
+        text = self.text(value, where)
+        file, _, func = text.partition(":")
+        if not file.endswith(".py") or not func.isidentifier():
+            raise self.fail(where, f"{text!r}: expected FILE.py:FUNCTION (a file in the suite folder)")
+        path = (self.path.parent / file).resolve()
+        if not path.is_relative_to(self.path.parent.resolve()):
+            raise self.fail(where, f"{file!r} is outside the suite folder; checks belong to the suite")
+        if not path.is_file():
+            raise self.fail(where, f"check file {file!r} not found next to the suite")
+        return path, func
+
+    def item(self, value: Any, where: str) -> NoveltyItem:
+        data = self.mapping(value, where, ("id", "kind", "weight", "where"), ("plan", "values", "check"))
+        kind = data["kind"]
+        if kind not in KINDS:
+            raise self.fail(f"{where}.kind", f"{kind!r} is not one of {', '.join(KINDS)}")
+        plan = data.get("plan") or []
+        plan = [plan] if isinstance(plan, str) else plan
+        if not isinstance(plan, list) or not all(isinstance(p, str) and p for p in plan):
+            raise self.fail(f"{where}.plan", "expected a plan path or a list of plan paths")
+        values = data.get("values") or {}
+        if not isinstance(values, dict) or not all(isinstance(k, str) for k in values):
+            raise self.fail(f"{where}.values", "expected a mapping plan path -> the paper's value")
+        for key, v in values.items():
+            if not isinstance(v, (int, float, str, list)) or isinstance(v, bool):
+                raise self.fail(f"{where}.values.{key}", f"expected a number, text or list, got {v!r}")
+        return NoveltyItem(id=self.ident(data["id"], f"{where}.id"), kind=kind,
+                           weight=self.number(data["weight"], f"{where}.weight", 0.0, 1.0),
+                           where=self.text(data["where"], f"{where}.where"), plan=tuple(plan), values=dict(values),
+                           check=self.check(data["check"], f"{where}.check") if data.get("check") else None)
+
+    def paper(self, value: Any, where: str, budget: BenchBudget, seeds: Tuple[int, ...]) -> PaperEntry:
+        data = self.mapping(value, where, ("id", "input", "scenes", "reference", "novelty"),
+                            ("reported", "budget", "seeds"))
+        pid = self.ident(data["id"], f"{where}.id")
+        scenes = data["scenes"]
+        scenes = [scenes] if isinstance(scenes, str) else scenes
+        if not isinstance(scenes, list) or not scenes:
+            raise self.fail(f"{where}.scenes", "expected a non-empty list of scenes (procedural names or folders)")
+        scenes = [self.text(s, f"{where}.scenes[{k}]") for k, s in enumerate(scenes)]
+        if not isinstance(data["novelty"], list):
+            raise self.fail(f"{where}.novelty", "expected a list of novelty items")
+        items = [self.item(v, f"{where}.novelty[{k}]") for k, v in enumerate(data["novelty"])]
+        ids = [i.id for i in items]
+        if len(set(ids)) != len(ids):
+            raise self.fail(f"{where}.novelty", f"item id {next(i for i in ids if ids.count(i) > 1)!r} repeated")
+        reported = data.get("reported") or {}
+        reported = self.mapping(reported, f"{where}.reported", (), (*METRICS, "dataset", "note"))
+        for m in METRICS:
+            if m in reported and reported[m] is not None:
+                self.number(reported[m], f"{where}.reported.{m}", 0.0, 100.0)
+        return PaperEntry(id=pid, input=(self.path.parent / self.text(data["input"], f"{where}.input")).resolve(),
+                          scenes=tuple(scenes), reference=self.reference(data["reference"], f"{where}.reference"),
+                          novelty=tuple(items), reported=dict(reported),
+                          budget=self.budget(data.get("budget"), f"{where}.budget", budget),
+                          seeds=self.seeds(data["seeds"], f"{where}.seeds") if "seeds" in data else seeds)
+
+
+def load_suite(path: Path) -> Suite:
+    """Read and check the suite at ``path`` (see the module docstring); :class:`SuiteError` names the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise SuiteError(f"suite {path} not found (a YAML file; see docs/bench.md)")
+    if path.stat().st_size > MAX_BYTES:
+        raise SuiteError(f"suite {path} is over {MAX_BYTES >> 20} MB")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise SuiteError(f"{path.name}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    r = _Reader(path.resolve())
+    data = r.mapping(data, "top level", ("papers",), ("name", "description", "budget", "seeds"))
+    budget = r.budget(data.get("budget"), "budget", BenchBudget())
+    seeds = r.seeds(data["seeds"], "seeds") if "seeds" in data else (0,)
+    if not isinstance(data["papers"], list) or not data["papers"]:
+        raise r.fail("papers", "expected a non-empty list of papers")
+    papers = [r.paper(p, f"papers[{k}]", budget, seeds) for k, p in enumerate(data["papers"])]
+    ids = [p.id for p in papers]
+    if len(set(ids)) != len(ids):
+        raise r.fail("papers", f"paper id {next(i for i in ids if ids.count(i) > 1)!r} repeated")
+    return Suite(name=str(data.get("name") or path.stem), path=path.resolve(), papers=tuple(papers),
+                 description=str(data.get("description") or ""))
