@@ -180,10 +180,29 @@ class Paper:
     ablate: Tuple[Literal[ABLATION_NAMES], ...] = ()  # type: ignore[valid-type]
     """Switch stages off (the benchmark's ablations, docs/bench.md): no-reference-plans, no-citations, no-verify,
     no-visual-feedback, no-equations, no-agents, one-shot; recorded in run.json."""
+    llm: Optional[str] = None
+    """Model-backed agents (optional; pip install 'nerfify-ns[llm]'): BACKEND:MODEL with BACKEND openai, anthropic,
+    vllm, ollama, llamacpp or scripted (e.g. openai:gpt-4o-mini). Keys only from the environment
+    ($OPENAI_API_KEY, $ANTHROPIC_API_KEY). Off by default: the deterministic path only."""
+    llm_base_url: Optional[str] = None
+    """The endpoint of an OpenAI-compatible server (vLLM, Ollama's /v1, llama.cpp's server): http://HOST:PORT/v1."""
+    llm_cache: Optional[Path] = None
+    """The response cache (sqlite; default $NERFIFY_LLM_CACHE or ~/.cache/nerfify-ns/llm-cache.sqlite)."""
+    llm_timeout: float = 120.0
+    """Seconds one model request may take."""
+    llm_retries: int = 2
+    """Retries of a failed model request, with doubling backoff."""
+    llm_max_tokens: int = 4096
+    """Tokens one answer may take."""
+    llm_run_tokens: Optional[int] = 200_000
+    """Token budget of the run's model calls (cache hits are free)."""
+    llm_constrained: bool = True
+    """Constrain decoding by the grammar where the backend can (--no-llm-constrained: validate after only)."""
 
     def main(self) -> None:
         budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
                          smoke_iterations=self.smoke_iterations)  # checked before anything heavy is imported
+        agents = _agents(self) if self.llm else None
         from nerfify_ns.pipeline import run_paper
 
         _set_lpips(self.lpips_weights)
@@ -191,10 +210,22 @@ class Paper:
             result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
                                until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
                                patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress,
-                               equations=self.equations, ablations=Ablations.of(self.ablate))
+                               equations=self.equations, ablations=Ablations.of(self.ablate), agents=agents)
+        for line in (agents.warnings if agents is not None else []):
+            CONSOLE.print(f"[yellow]warning[/yellow] {_plain(line)}", soft_wrap=True, highlight=False)
         _print_plan(result)
         if result.out is not None:
             _conclude(result.outcome, result.out)
+
+
+def _agents(paper: "Paper"):
+    """The model-backed agents of ``--llm`` (their SDK imported only now); a bad setting is bad input."""
+    from nerfify_ns.agents import Agents, LLMConfig
+
+    config = LLMConfig.parse(paper.llm, paper.llm_base_url, cache=paper.llm_cache, timeout=paper.llm_timeout,
+                             retries=paper.llm_retries, max_tokens=paper.llm_max_tokens,
+                             run_tokens=paper.llm_run_tokens, constrained=paper.llm_constrained)
+    return Agents.from_config(config)
 
 
 def _conclude(outcome: Outcome, out: Path) -> None:

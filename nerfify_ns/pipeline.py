@@ -20,7 +20,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Tuple
 
 from nerfify_ns.ablations import FULL, Ablations
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
@@ -89,12 +89,17 @@ def run_paper(
     kb: Optional[KnowledgeBase] = None,
     equations: Optional[Path] = None,
     ablations: Ablations = FULL,
+    agents: Optional[Any] = None,
 ) -> PaperResult:
     """Paper -> plan with evidence -> the paper's novel parts compiled from its equations -> (unless dry_run) the
     stages of :func:`_build`, up to ``until``. ``kb``: the knowledge base every stage reads (default: the
     package's), one object for the whole run. ``equations``: a person's corrected equations.yaml (its edited holes
     are recompiled, the others reused). ``ablations``: stages switched off (``nerfify_ns.ablations``), recorded in
-    run.json."""
+    run.json. ``agents``: the model-backed agents (``nerfify_ns.agents.Agents``, built by the CLI for ``--llm``;
+    None, the default: the deterministic path only): the planner's plan merged with the derived one, the coder on
+    the holes the compiler left (not in a dry run), the critic in the patch loop, ``agents.json`` for the report;
+    every model failure is a warning and the deterministic result stands. The ablation no-agents sets it aside."""
+    agents = agents if ablations.agents else None
     outcome = Outcome("paper", until, progress, ablations=list(ablations.names))
     dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
     check_count("--patch-rounds", patch_rounds, 0)
@@ -108,12 +113,19 @@ def run_paper(
         detections = detect_techniques(doc, kb)
         graph = build_citation_graph(doc, detections, kb=kb, follow=ablations.citations)
         derived = derive_plan(doc, detections, graph, kb=kb, reference_plans=ablations.reference_plans)
+        if agents is not None:
+            stage.note("asking the model for a plan (planner agent)")
+            derived.plan = agents.plan(doc, derived)
         stage.note("compiling the paper's novel parts from its equations")
         implementation = (implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
                           if ablations.equations else Implementation(Plan.of(derived.plan), sources={}, records=[]))
+        if agents is not None and not dry_run:
+            stage.note("asking the model for the parts the equations left open (coder agent, sandboxed ladder)")
+            agents.code(implementation)
         derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
         stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
-                         f"{len(derived.holes)} hole(s); {implementation.headline()}")
+                         f"{len(derived.holes)} hole(s); {implementation.headline()}"
+                         + (f"; {agents.summary()}" if agents is not None else ""))
     if dry_run:
         return PaperResult(None, doc, derived, graph, derived.plan, outcome, implementation=implementation)
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
@@ -121,7 +133,8 @@ def run_paper(
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
         plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
-                               outcome, implementation.sources, _fallback(implementation, staging, doc), ablations)
+                               outcome, implementation.sources, _fallback(implementation, staging, doc), ablations,
+                               agents)
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
 
@@ -177,13 +190,15 @@ def run_compose(
 
 def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
            patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None,
-           fallback: Optional[Callable] = None, ablations: Ablations = FULL) -> Tuple[dict, Optional[dict]]:
+           fallback: Optional[Callable] = None, ablations: Ablations = FULL,
+           agents: Optional[Any] = None) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
     the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
     when the ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and
     its sources): the plugin is regenerated from it and the ladder run again, once. ``ablations``: the ladder, the
-    patch loop or the file-DAG composition switched off."""
+    patch loop or the file-DAG composition switched off. ``agents``: the model-backed agents of the run (the patch
+    loop's critic; ``agents.json`` before the report), or None."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
@@ -232,9 +247,12 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
 
         with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
             loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations,
-                                  sources=plugin_sources(folder, plan))
+                                  sources=plugin_sources(folder, plan),
+                                  **({"critic": agents.critic()} if agents is not None else {}))
             stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
                              f"{loop.history.get('stopped')}")
+    if agents is not None:
+        agents.write(folder)
     _report(folder, outcome)
     return plan, summary
 

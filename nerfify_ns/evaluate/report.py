@@ -301,8 +301,12 @@ class _Builder:
             blocks.append(text_block(f"numbered equations found {counts.get('numbered', 0)}, read "
                                      f"{counts.get('read', 0)}; displayed equations {counts.get('displayed', 0)}; "
                                      f"compiler time {records.get('seconds', '?')} s", "muted"))
+        agents, _ = _read_json(self.run / "agents.json")
+        spent = ((agents or {}).get("usage") or {}).get("scopes") or {} if isinstance(agents, dict) else {}
         blocks.append(table([{"part": h.get("id"), "production": h.get("production"), "slot": h.get("slot"),
-                              "status": h.get("status"), "reason": h.get("reason")} for h in holes]))
+                              "status": h.get("status"), "written by": _writer(h),
+                              "model calls / tokens / cost": _spent(spent.get(f"coder:{h.get('id')}")),
+                              "reason": h.get("reason")} for h in holes]))
         for h in holes:
             blocks.append(heading(f"{h.get('production')} at {h.get('slot')}: {h.get('status')}"))
             blocks.append(text_block(str(h.get("reason") or "")))
@@ -344,6 +348,39 @@ class _Builder:
                  {"status": "ok", "summary": summary, "holes": n, "counts": counts,
                   "implemented": sum(h.get("status") == "implemented" for h in holes),
                   "partly": sum(h.get("status") == "partly implemented" for h in holes)})
+
+    # ---------------------------------------------------------------- model-backed agents (--llm)
+    def agents(self) -> None:
+        """agents.json: the endpoint (never a key), calls, cache hits, tokens and cost per stage, warnings, the
+        planner's disagreements with the deterministic plan, the coder's rounds per hole."""
+        data, err = _read_json(self.run / "agents.json")
+        if not isinstance(data, dict):
+            self.add("agents", "Model-backed agents (--llm)", error(err) + [text_block(
+                "not used: the deterministic path only (ns-nerfify PAPER --llm BACKEND:MODEL turns them on)",
+                "muted")], {"status": NOT_RUN})
+            return
+        usage = data.get("usage") or {}
+        blocks = [kv_table({k: v for k, v in (data.get("endpoint") or {}).items()})]
+        rows = [{"stage": name, **{k: _fmt(v) for k, v in (spent or {}).items()}}
+                for name, spent in [("total", usage.get("total")), *(usage.get("stages") or {}).items()]]
+        blocks.append(table(rows))
+        for line in data.get("warnings") or []:
+            blocks.append(text_block(f"warning: {line}"))
+        planner = data.get("planner") or {}
+        if planner.get("disagreements"):
+            blocks.append(heading("planner: disagreements with the deterministic plan"))
+            blocks.append(table([{"path": d.get("path"), "deterministic": d.get("deterministic"),
+                                  "its evidence": d.get("deterministic_evidence"), "model": d.get("model"),
+                                  "model's quote": d.get("model_evidence"), "quote in paper": d.get("quote_found"),
+                                  "kept": d.get("winner")} for d in planner["disagreements"]]))
+        for c in data.get("coder") or []:
+            blocks.append(heading(f"coder: {c.get('hole')} ({c.get('production')}): {c.get('status')}"))
+            blocks.append(text_block(str(c.get("reason") or "")))
+            blocks.append(table([{"round": r.get("round"), "status": r.get("status"), "rungs": r.get("rungs"),
+                                  "diagnosis": r.get("diagnosis")} for r in c.get("rounds") or []]))
+        self.add("agents", "Model-backed agents (--llm)", blocks,
+                 {"status": "ok", "total": usage.get("total"), "stages": usage.get("stages"),
+                  "warnings": data.get("warnings") or []})
 
     # ---------------------------------------------------------------- verification
     def verification(self) -> None:
@@ -492,6 +529,22 @@ def _detection_row(d: dict) -> dict:
             "where": where or None}
 
 
+def _writer(hole: dict) -> str:
+    """Who wrote a hole's code: the equation compiler, a model, a person, or nobody (the base's part)."""
+    if hole.get("status") == "not implemented":
+        return "-"
+    source = (hole.get("component") or {}).get("source") if isinstance(hole.get("component"), dict) else None
+    return {"compiler": "equation compiler", "model": "model", "hand": "a person"}.get(source or "", source or "-")
+
+
+def _spent(spent: Optional[dict]) -> str:
+    if not spent:
+        return "-"
+    cost = spent.get("cost_usd")
+    return (f"{spent.get('calls', 0)} calls ({spent.get('cache_hits', 0)} cached), {spent.get('tokens', 0)} tokens, "
+            + ("cost unknown" if cost is None else f"{cost:.4f} USD"))
+
+
 def parse_markdown_tables(text: str) -> List[dict]:
     """Rows of the first pipe table in a markdown text (backticks stripped from cells)."""
     rows: List[dict] = []
@@ -511,7 +564,8 @@ def parse_markdown_tables(text: str) -> List[dict]:
 
 
 SECTIONS: Sequence[Callable[[_Builder], None]] = (
-    _Builder.paper_and_plan, _Builder.citations, _Builder.components, _Builder.novel_parts, _Builder.verification,
+    _Builder.paper_and_plan, _Builder.citations, _Builder.components, _Builder.novel_parts, _Builder.agents,
+    _Builder.verification,
     _Builder.metrics,
     _Builder.curve, _Builder.error_maps, _Builder.consistency, _Builder.patches,
 )

@@ -395,23 +395,41 @@ class _Emitter:
         value = nt.value
         return self.obj(symbol, [(k, self.symbol(value, join(k), fx), True) for k in nt.keys if k in fx.groups])
 
-    def root(self, fx: _Effects) -> str:
+    def root(self, fx: _Effects, annotations: bool = True) -> str:
         start = self.g.nonterminals[self.g.start]
-        members = [("method", "methodname", True), ("description", "string", False), ("paper", "object", False)]
+        members = [("method", "methodname", True)]
+        members += [("description", "string", False), ("paper", "object", False)] if annotations else []
         for slot in start.slots:
             members.append((slot.name, self.symbol(slot.symbol, slot.name, fx), not slot.optional))
+        if not annotations:  # a model's plan: its evidence (path -> quote), at most EVIDENCE_ITEMS of them
+            return self.obj("plan", members + [("evidence", "evidence-map", False)])
         members += [("evidence", "object", False), ("pruned", "array", False), ("holes", "array", False),
                     ("notes", "array", False)]
         return self.obj("plan", members)
 
 
-def to_gbnf(grammar: Optional[Grammar] = None) -> str:
-    """The GBNF grammar of canonical plan JSON (root rule ``root``)."""
+EVIDENCE_ITEMS = 8
+"""The most evidence entries a model's plan may carry (``to_gbnf(annotations=False)``)."""
+
+
+def to_gbnf(grammar: Optional[Grammar] = None, *, annotations: bool = True, max_string: Optional[int] = None) -> str:
+    """The GBNF grammar of canonical plan JSON (root rule ``root``). For a model's decoding
+    (``nerfify_ns.agents.planner``): ``annotations=False`` keeps only ``method``, the derivation and an
+    ``evidence`` map of at most :data:`EVIDENCE_ITEMS` path -> quote entries; ``max_string`` bounds every string
+    (and a number's digits), so a small model cannot ramble past ``max_tokens`` inside one."""
     g = grammar or load_grammar()
     emitter = _Emitter(g)
-    variants = sorted({emitter.root(fx) for fx in _contexts(g)})
+    variants = sorted({emitter.root(fx, annotations) for fx in _contexts(g)})
     lines = [f"# nerfify plan grammar (grammar_spec.yaml version {g.version}); {len(variants)} duty contexts",
              "root ::= " + " | ".join(variants)]
     lines += [f"{name} ::= {body}" for name, body in emitter.rules.items()]
-    lines.append(_PRELUDE.replace("{RANGE}", "{1,62}"))
+    prelude = _PRELUDE.replace("{RANGE}", "{1,62}")
+    if max_string is not None:
+        prelude = prelude.replace(' )* "\\""\n', f' ){{0,{max_string}}} "\\""\n', 1)
+        prelude = prelude.replace('[1-9] [0-9]*', '[1-9] [0-9]{0,11}').replace('"." [0-9]+', '"." [0-9]{1,12}')
+        prelude = prelude.replace('[eE] [-+]? [0-9]+', '[eE] [-+]? [0-9]{1,3}')
+    if not annotations:
+        prelude += (f'\nevidence-map ::= "{{" ( string ":" string ( "," string ":" string ){{0,{EVIDENCE_ITEMS - 1}}} )? '
+                    '"}"')
+    lines.append(prelude)
     return "\n".join(lines) + "\n"

@@ -1,0 +1,314 @@
+"""One small interface of ours over the model SDKs: ``Provider.complete(Request) -> Response``.
+
+* :class:`OpenAIProvider`: the official ``openai`` SDK, for OpenAI and every OpenAI-compatible server (vLLM,
+  Ollama's ``/v1``, llama.cpp's server, LM Studio) through a base URL.
+* :class:`AnthropicProvider`: the official ``anthropic`` SDK.
+* :class:`ScriptedProvider`: a deterministic model replaying fixed answers (tests, dry runs of the orchestration).
+
+The SDKs are imported only when a provider is built (``pip install nerfify-ns[llm]``); their own retries are off
+(the client retries, bounded, with backoff). How the constraint reaches each backend is a table
+(:data:`SHAPES`, keyed by the capability table's ``structured`` mode), not a chain of conditions. Errors become
+:class:`ProviderError` with a one-line message (the key never appears in one: it is not in the request we
+build, and the SDK's messages do not carry headers).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Union
+
+from nerfify_ns.agents.config import LLMConfig
+from nerfify_ns.agents.errors import LLMSetupError, ProviderError
+
+
+@dataclass
+class Request:
+    """What is sent: messages (``{role, content}``; content a string or a list of ``{type: text|image}`` parts,
+    an image as ``{type: image, png_base64}``), the constraint (JSON Schema and/or GBNF), sampling settings."""
+
+    messages: List[dict]
+    schema: Optional[dict] = None
+    schema_name: str = "answer"
+    grammar: Optional[str] = None
+    max_tokens: int = 1024
+    temperature: float = 0.0
+    seed: Optional[int] = None
+    stage: str = ""
+    """Which agent asks (not sent; the scripted model answers per stage)."""
+
+    def key_data(self, config: LLMConfig) -> dict:
+        """What the response cache is keyed by: backend, model, messages, constraint, parameters."""
+        return {"backend": config.backend, "model": config.model, "messages": self.messages, "schema": self.schema,
+                "grammar": self.grammar, "max_tokens": self.max_tokens, "temperature": self.temperature,
+                "seed": self.seed, "structured": config.info.structured if config.constrained else "none"}
+
+
+@dataclass
+class Response:
+    """What came back: the text (a tool call's input as JSON), why the model stopped, the tokens it cost."""
+
+    text: str
+    finish: str
+    input_tokens: int = 0
+    output_tokens: int = 0
+    model: str = ""
+    cached: bool = False
+
+    def to_row(self) -> dict:
+        return {"text": self.text, "finish": self.finish, "input_tokens": self.input_tokens,
+                "output_tokens": self.output_tokens, "model": self.model}
+
+
+class Provider:
+    """The interface: one request, one response (or a :class:`ProviderError`)."""
+
+    name = "provider"
+
+    def complete(self, request: Request) -> Response:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+# ------------------------------------------------------------------------------------------ shapes
+def _openai_json_schema(req: Request, strict: bool) -> dict:
+    return {"response_format": {"type": "json_schema", "json_schema": {
+        "name": req.schema_name, "schema": req.schema, "strict": strict}}} if req.schema else {}
+
+
+def _vllm(req: Request, strict: bool) -> dict:
+    if req.grammar:
+        return {"extra_body": {"structured_outputs": {"grammar": req.grammar}}}
+    return {"extra_body": {"structured_outputs": {"json": req.schema}}} if req.schema else {}
+
+
+def _ollama(req: Request, strict: bool) -> dict:
+    if not req.schema:
+        return {}
+    return {**_openai_json_schema(req, False), "extra_body": {"format": req.schema}}
+
+
+def _llamacpp_json_schema(req: Request, strict: bool) -> dict:
+    return {"response_format": {"type": "json_object", "schema": req.schema}} if req.schema else {}
+
+
+def _llamacpp_gbnf(req: Request, strict: bool) -> dict:
+    if req.grammar:
+        return {"extra_body": {"grammar": req.grammar}}
+    return _llamacpp_json_schema(req, strict)
+
+
+SHAPES: Dict[str, Callable[[Request, bool], dict]] = {
+    "openai_json_schema": _openai_json_schema,
+    "vllm_structured": _vllm,
+    "ollama_format": _ollama,
+    "llamacpp_json_schema": _llamacpp_json_schema,
+    "llamacpp_gbnf": _llamacpp_gbnf,
+    "none": lambda req, strict: {},
+}
+"""How the constraint is put into an OpenAI-SDK request, per structured mode of the capability table."""
+
+
+def _openai_messages(messages: List[dict]) -> List[dict]:
+    out = []
+    for m in messages:
+        content = m["content"]
+        if isinstance(content, list):
+            content = [{"type": "text", "text": p["text"]} if p["type"] == "text" else
+                       {"type": "image_url", "image_url": {"url": f"data:image/png;base64,{p['png_base64']}"}}
+                       for p in content]
+        out.append({"role": m["role"], "content": content})
+    return out
+
+
+def _first_line(text: Any, limit: int = 200) -> str:
+    line = " ".join(str(text).split())
+    return line[:limit] + ("..." if len(line) > limit else "")
+
+
+def _import(module: str):
+    try:
+        return __import__(module)
+    except ImportError:
+        raise LLMSetupError(f"the '{module}' package is not installed: pip install 'nerfify-ns[llm]'") from None
+
+
+def _status_error(exc: Any, where: str) -> ProviderError:
+    status = getattr(exc, "status_code", None) or getattr(getattr(exc, "response", None), "status_code", None)
+    body = getattr(getattr(exc, "response", None), "text", "") or str(exc)
+    retry = status is None or status >= 500 or status in (408, 409, 429)
+    return ProviderError("http", f"{where} answered HTTP {status}: {_first_line(body, 120)}", retry=retry)
+
+
+class OpenAIProvider(Provider):
+    """The ``openai`` SDK's chat completions, shaped per backend (:data:`SHAPES`)."""
+
+    name = "openai"
+
+    def __init__(self, config: LLMConfig) -> None:
+        openai = _import("openai")
+        self.openai, self.config = openai, config
+        self.client = openai.OpenAI(api_key=config.api_key(), base_url=config.endpoint, timeout=config.timeout,
+                                    max_retries=0)
+        self.where = config.endpoint or "the OpenAI API"
+
+    def complete(self, request: Request) -> Response:
+        info, openai = self.config.info, self.openai
+        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": _openai_messages(request.messages),
+                                  "max_tokens": request.max_tokens, "temperature": request.temperature}
+        if info.seed and request.seed is not None:
+            kwargs["seed"] = request.seed
+        mode = info.structured if self.config.constrained else "none"
+        kwargs.update(SHAPES[mode](request, info.strict_schema))
+        try:
+            raw = self.client.chat.completions.create(**kwargs)
+        except openai.APITimeoutError:
+            raise ProviderError("timeout", f"{self.where} did not answer within {self.config.timeout:g} s",
+                                retry=True) from None
+        except openai.APIConnectionError as exc:
+            raise ProviderError("connection", f"cannot reach {self.where}: {_first_line(exc.__cause__ or exc)}",
+                                retry=True) from None
+        except openai.APIStatusError as exc:
+            raise _status_error(exc, self.where) from None
+        except openai.APIError as exc:  # a body that is not the API's JSON
+            raise ProviderError("not-json", f"{self.where} did not answer with the API's JSON: "
+                                f"{_first_line(exc)}", retry=True) from None
+        choices = getattr(raw, "choices", None)
+        if not choices:  # the SDK hands back a string when the body is not JSON (an HTML page, a proxy's error)
+            raise ProviderError("not-json", f"{self.where} answered with something that is not a chat completion: "
+                                f"{_first_line(raw, 80)!r}", retry=True)
+        choice = choices[0]
+        usage = getattr(raw, "usage", None)
+        return Response(text=choice.message.content or "", finish=str(choice.finish_reason or "stop"),
+                        input_tokens=int(getattr(usage, "prompt_tokens", 0) or 0),
+                        output_tokens=int(getattr(usage, "completion_tokens", 0) or 0),
+                        model=str(getattr(raw, "model", "") or self.config.model))
+
+
+class AnthropicProvider(Provider):
+    """The ``anthropic`` SDK's messages; the schema as a forced tool (its input is the answer)."""
+
+    name = "anthropic"
+    FINISH = {"max_tokens": "length", "end_turn": "stop", "tool_use": "stop", "stop_sequence": "stop",
+              "refusal": "refused"}
+
+    def __init__(self, config: LLMConfig) -> None:
+        anthropic = _import("anthropic")
+        self.anthropic, self.config = anthropic, config
+        self.client = anthropic.Anthropic(api_key=config.api_key(), base_url=config.endpoint,
+                                          timeout=config.timeout, max_retries=0)
+        self.where = config.endpoint or "the Anthropic API"
+
+    @staticmethod
+    def _messages(messages: List[dict]) -> tuple:
+        system = "\n\n".join(m["content"] for m in messages if m["role"] == "system")
+        out = []
+        for m in messages:
+            if m["role"] == "system":
+                continue
+            content = m["content"]
+            if isinstance(content, list):
+                content = [{"type": "text", "text": p["text"]} if p["type"] == "text" else
+                           {"type": "image", "source": {"type": "base64", "media_type": "image/png",
+                                                        "data": p["png_base64"]}} for p in content]
+            out.append({"role": m["role"], "content": content})
+        return system, out
+
+    def complete(self, request: Request) -> Response:
+        anthropic = self.anthropic
+        system, messages = self._messages(request.messages)
+        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": messages,
+                                  "max_tokens": request.max_tokens, "temperature": request.temperature}
+        if system:
+            kwargs["system"] = system
+        if request.schema and self.config.constrained:
+            kwargs["tools"] = [{"name": request.schema_name, "description": "Give the answer.",
+                                "input_schema": request.schema}]
+            kwargs["tool_choice"] = {"type": "tool", "name": request.schema_name}
+        try:
+            raw = self.client.messages.create(**kwargs)
+        except anthropic.APITimeoutError:
+            raise ProviderError("timeout", f"{self.where} did not answer within {self.config.timeout:g} s",
+                                retry=True) from None
+        except anthropic.APIConnectionError as exc:
+            raise ProviderError("connection", f"cannot reach {self.where}: {_first_line(exc.__cause__ or exc)}",
+                                retry=True) from None
+        except anthropic.APIStatusError as exc:
+            raise _status_error(exc, self.where) from None
+        except anthropic.APIError as exc:
+            raise ProviderError("not-json", f"{self.where} did not answer with the API's JSON: "
+                                f"{_first_line(exc)}", retry=True) from None
+        blocks = getattr(raw, "content", None)
+        if blocks is None:
+            raise ProviderError("not-json", f"{self.where} answered with something that is not a message: "
+                                f"{_first_line(raw, 80)!r}", retry=True)
+        tool = next((b for b in blocks if getattr(b, "type", "") == "tool_use"), None)
+        text = json.dumps(tool.input) if tool is not None else "".join(getattr(b, "text", "") for b in blocks)
+        usage = getattr(raw, "usage", None)
+        return Response(text=text, finish=self.FINISH.get(str(raw.stop_reason), str(raw.stop_reason)),
+                        input_tokens=int(getattr(usage, "input_tokens", 0) or 0),
+                        output_tokens=int(getattr(usage, "output_tokens", 0) or 0), model=str(raw.model))
+
+
+# ------------------------------------------------------------------------------------------ scripted
+Answer = Union[str, dict, Callable[[Request], Union[str, dict]]]
+
+
+class ScriptedProvider(Provider):
+    """A model that replays fixed answers, per stage in order (``{"planner": [...], "coder": [...]}``), or one
+    list for every stage. An answer is the text, or ``{text, finish}``, or ``{error: KIND, message}`` (a
+    :class:`ProviderError`), or a function of the request. Tokens are counted as characters / 4. Every request
+    is kept in ``requests`` (what a test asserts was sent)."""
+
+    name = "scripted"
+
+    def __init__(self, answers: Union[List[Answer], Dict[str, List[Answer]]]) -> None:
+        self.answers = answers if isinstance(answers, dict) else {"*": list(answers)}
+        self.used: Dict[str, int] = {}
+        self.requests: List[Request] = []
+
+    @classmethod
+    def from_file(cls, path: Union[str, Path]) -> "ScriptedProvider":
+        import yaml
+
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise LLMSetupError(f"scripted answers {path}: cannot read it ({_first_line(exc, 100)})") from None
+        if not isinstance(data, (list, dict)):
+            raise LLMSetupError(f"scripted answers {path}: expected a list, or a mapping stage -> list")
+        return cls(data)
+
+    def complete(self, request: Request) -> Response:
+        self.requests.append(request)
+        stage = request.stage.split(":", 1)[0]
+        key = stage if stage in self.answers else "*"
+        queue = self.answers.get(key) or []
+        n = self.used.get(key, 0)
+        if n >= len(queue):
+            raise ProviderError("exhausted", f"the scripted model has no answer left for {stage or 'this stage'} "
+                                f"(it had {len(queue)})")
+        self.used[key] = n + 1
+        answer = queue[n]
+        if callable(answer):
+            answer = answer(request)
+        if isinstance(answer, dict) and "error" in answer:
+            raise ProviderError(str(answer["error"]), str(answer.get("message", answer["error"])),
+                                retry=bool(answer.get("retry", False)))
+        if isinstance(answer, dict) and "text" not in answer:
+            answer = {"text": json.dumps(answer)}
+        if isinstance(answer, str):
+            answer = {"text": answer}
+        text = str(answer["text"])
+        prompt = sum(len(str(m["content"])) for m in request.messages)
+        return Response(text=text, finish=str(answer.get("finish", "stop")), input_tokens=prompt // 4 + 1,
+                        output_tokens=len(text) // 4 + 1, model="scripted")
+
+
+def make_provider(config: LLMConfig) -> Provider:
+    """The provider of ``config``'s backend (its SDK imported now, not before)."""
+    factories: Dict[str, Callable[[LLMConfig], Provider]] = {
+        "openai": OpenAIProvider, "anthropic": AnthropicProvider,
+        "scripted": lambda c: ScriptedProvider.from_file(c.model)}
+    return factories[config.info.sdk](config)
