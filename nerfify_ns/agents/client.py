@@ -86,7 +86,7 @@ class Client:
             self.ledger.charge(scope, response.input_tokens, response.output_tokens)
             self.cache.put(key, response, self.config.backend)
             return response
-        tries = f" ({self.config.retries + 1} tries)" if last is not None and last.retry else ""
+        tries = f" ({self.config.retries + 1} tries)" if last is not None and last.retry and self.config.retries else ""
         raise ProviderError(last.kind, f"{last}{tries}", retry=False)
 
     def ask(self, scope: str, messages: List[dict], *, schema: Optional[dict] = None, grammar: Optional[str] = None,

@@ -92,6 +92,14 @@ class LLMConfig:
         info = self.info
         return os.environ.get(info.key_env or "", "") or "not-needed"
 
+    @property
+    def costs_nothing(self) -> bool:
+        """A local backend, or any endpoint on a loopback address: its calls cost no money."""
+        from urllib.parse import urlparse
+
+        host = urlparse(self.endpoint or "").hostname or ""
+        return self.info.local or host == "localhost" or host.startswith("127.") or host == "::1"
+
     def cache_path(self) -> Path:
         return Path(self.cache or os.environ.get("NERFIFY_LLM_CACHE") or DEFAULT_CACHE).expanduser()
 

@@ -34,7 +34,7 @@ class Agents:
         self.config = config
         self.provider = provider or make_provider(config)
         self.cache = cache if cache is not None else ResponseCache(config.cache_path())
-        self.ledger = Ledger(config.model, config.info.local, config.run_tokens, config.stage_tokens, config.run_usd)
+        self.ledger = Ledger(config.model, config.costs_nothing, config.run_tokens, config.stage_tokens, config.run_usd)
         self.client = Client(config, self.provider, self.cache, self.ledger)
         self.context_chars, self.examples = context_chars, examples
         self.warnings: List[str] = []

@@ -1,0 +1,77 @@
+"""A real HTTP server on 127.0.0.1 that speaks (or fails to speak) OpenAI's chat-completions API, for the agents'
+failure-mode tests: the SDK, its HTTP client and our error handling all run for real; only the model is fixed.
+
+Modes: ``ok`` (a chat completion whose content is ``answer``), ``length`` (the same, cut: finish reason
+``length``), ``html`` (200 with an HTML page), ``500`` (an internal server error), ``hang`` (accepts the request
+and answers nothing for ``hang_s`` seconds). Every request is kept (path, headers, JSON body), bounded in count.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from typing import List
+
+
+class FakeEndpoint:
+    MAX_REQUESTS = 200
+
+    def __init__(self, mode: str = "ok", answer: str = "{}", hang_s: float = 5.0) -> None:
+        self.mode, self.answer, self.hang_s = mode, answer, hang_s
+        self.requests: List[dict] = []
+        endpoint = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args):  # quiet
+                pass
+
+            def do_POST(self):  # noqa: N802
+                length = int(self.headers.get("Content-Length") or 0)
+                body = self.rfile.read(length)
+                if len(endpoint.requests) < endpoint.MAX_REQUESTS:
+                    endpoint.requests.append({"path": self.path, "headers": dict(self.headers),
+                                              "json": json.loads(body or b"{}")})
+                endpoint.respond(self)
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.server.daemon_threads = True
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.server.server_address[1]}/v1"
+
+    def _send(self, handler, status: int, body: bytes, ctype: str) -> None:
+        handler.send_response(status)
+        handler.send_header("Content-Type", ctype)
+        handler.send_header("Content-Length", str(len(body)))
+        handler.end_headers()
+        handler.wfile.write(body)
+
+    def respond(self, handler) -> None:
+        if self.mode == "hang":
+            time.sleep(self.hang_s)  # bounded: the server never waits forever
+            return
+        if self.mode == "html":
+            return self._send(handler, 200, b"<!DOCTYPE html><html><body><h1>Welcome to nginx!</h1></body></html>",
+                              "text/html")
+        if self.mode == "500":
+            return self._send(handler, 500, b'{"error": {"message": "internal error", "type": "server_error"}}',
+                              "application/json")
+        finish = "length" if self.mode == "length" else "stop"
+        text = self.answer[:20] if self.mode == "length" else self.answer
+        body = {"id": "chatcmpl-1", "object": "chat.completion", "created": 0, "model": "fake",
+                "choices": [{"index": 0, "message": {"role": "assistant", "content": text},
+                             "finish_reason": finish}],
+                "usage": {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120}}
+        self._send(handler, 200, json.dumps(body).encode(), "application/json")
+
+    def __enter__(self) -> "FakeEndpoint":
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.server.shutdown()
+        self.server.server_close()
