@@ -97,13 +97,25 @@ def _numbers_match(paper: Any, ours: Any) -> bool:
     return str(paper) == str(ours)
 
 
+def before_pruning(plan: dict, path: str) -> Tuple[bool, Any, str]:
+    """The plan's value at ``path`` as derived from the paper: a value the scene's pruning changed (``plan.pruned``:
+    path, from, to, reason) is read as it was before, and the pruning is named."""
+    for record in plan.get("pruned") or []:
+        if record.get("path") == path and "from" in record and record.get("action") != "removed":
+            return True, record["from"], f"pruned for the scene to {record.get('to')!r}: {record.get('reason', '')}"
+    found, value = lookup(plan, path)
+    return found, value, ""
+
+
 def compare_values(plan: dict, values: Dict[str, Any]) -> Tuple[Dict[str, Any], Optional[bool]]:
+    """Per path: the paper's value, the plan's (before the scene's pruning) and whether they match."""
     if not values:
         return {}, None
     rows = {}
     for path, paper in values.items():
-        found, ours = lookup(plan, path)
-        rows[path] = {"paper": paper, "plan": ours if found else None, "match": found and _numbers_match(paper, ours)}
+        found, ours, pruned = before_pruning(plan, path)
+        rows[path] = {"paper": paper, "plan": ours if found else None, "match": found and _numbers_match(paper, ours),
+                      **({"pruned": pruned} if pruned else {})}
     return rows, all(r["match"] for r in rows.values())
 
 
