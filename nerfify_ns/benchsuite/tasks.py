@@ -130,9 +130,9 @@ def _executability(summary: Optional[dict], verify: Optional[dict], ladder_ran: 
 
 
 def _usage(run_dir: Path) -> dict:
-    """Model calls and cost as the run recorded them (``usage.json``, or ``usage`` in run.json); empty when no model
-    agent took part."""
-    data = _json(run_dir / "usage.json") or (_json(run_dir / "run.json") or {}).get("usage") or {}
+    """Model calls and cost as the run recorded them (``agents.json``'s usage ledger, written when model agents took
+    part); empty otherwise."""
+    data = (_json(run_dir / "agents.json") or {}).get("usage") or {}
     total = data.get("total", data) if isinstance(data, dict) else {}
     calls = total.get("calls")
     cost = total.get("cost_usd", total.get("cost"))
