@@ -186,10 +186,13 @@ def code_hole(client: Client, implementation: Any, record: Any, work: Path, *, r
             ladder = run_ladder(folder / "plugin", out_dir=folder / "verify", repair="off", rungs=rungs,
                                 scene=scene, timeout=timeout, smoke_iterations=smoke_iterations)
             diagnosis = "" if ladder.ok else describe_failure(ladder)
+        # the round's folder is no business of the model's (and would make each rerun's feedback differ)
+        diagnosis = diagnosis.replace(str(folder / "plugin"), "<plugin>").replace(str(folder), "<round>")
         seconds = time.perf_counter() - start
         status = {r.name: r.status for r in ladder.rungs} if ladder is not None else {}
         result.rounds.append(CoderRound(k, "pass" if ladder is not None and ladder.ok else "fail", diagnosis,
                                         status, round(seconds, 1)))
+        shutil.rmtree(folder / "plugin", ignore_errors=True)  # the verdict and diagnosis are kept, not the copy
         if ladder is not None and ladder.ok:
             implementation.plan = plan
             implementation.sources[frozen["module"]] = value["code"]
