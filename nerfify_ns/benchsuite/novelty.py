@@ -101,7 +101,7 @@ def before_pruning(plan: dict, path: str) -> Tuple[bool, Any, str]:
     """The plan's value at ``path`` as derived from the paper: a value the scene's pruning changed (``plan.pruned``:
     path, from, to, reason) is read as it was before, and the pruning is named."""
     for record in plan.get("pruned") or []:
-        if record.get("path") == path and "from" in record and record.get("action") != "removed":
+        if record.get("path") == path and "from" in record and record.get("action") not in ("removed", "kept"):
             return True, record["from"], f"pruned for the scene to {record.get('to')!r}: {record.get('reason', '')}"
     found, value = lookup(plan, path)
     return found, value, ""

@@ -261,6 +261,69 @@ def reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
     return (float(np.mean(good)), len(good)) if good else None
 
 
+@dataclass(frozen=True)
+class Observations:
+    """Where the model's 3D points are seen: one row per observation (a 2D point with a 3D point)."""
+
+    image_names: Tuple[str, ...]
+    """Image name by image index."""
+    camera_sizes: Tuple[Tuple[int, int], ...]
+    """(width, height) of each image's camera (the size the 2D points are measured in)."""
+    image: np.ndarray
+    """Image index of each observation."""
+    xy: np.ndarray
+    """``(N, 2)`` pixel coordinates (COLMAP's: the top-left corner of the image at 0, pixel centres at +0.5)."""
+    point: np.ndarray
+    """3D point id of each observation."""
+    points: Dict[int, np.ndarray]
+    """3D point positions by id (world coordinates of the model)."""
+    centres: np.ndarray
+    """``(M, 3)`` camera centres of the images (world coordinates of the model)."""
+
+
+MAX_OBSERVATIONS = 5_000_000
+
+
+def read_observations(folder: Path) -> Optional[Observations]:
+    """The observations of a binary model's triangulated points (``images.bin`` 2D points with a 3D point id,
+    ``points3D.bin`` positions); None when the model is text, has no points, or does not read."""
+    try:
+        cameras = read_cameras_binary(folder / "cameras.bin")
+        r = _Reader(_read_bytes(folder / "images.bin"))
+        names, sizes, image_rows, xy_rows, point_rows, centres = [], [], [], [], [], []
+        for _ in range(r.count(64 + 1 + 8, "images")):
+            image_id, qw, qx, qy, qz, tx, ty, tz, cam_id = r.take("<i7di")
+            rot = qvec_to_rotation(np.array([qw, qx, qy, qz]) / max(np.linalg.norm([qw, qx, qy, qz]), 1e-12))
+            centres.append(-rot.T @ np.array([tx, ty, tz]))
+            name = r.name()
+            n = r.count(24, "2D points")
+            block = np.frombuffer(r.data, dtype=np.dtype([("x", "<f8"), ("y", "<f8"), ("p", "<i8")]), count=n,
+                                  offset=r.pos)
+            r.pos += 24 * n
+            keep = block["p"] >= 0
+            cam = cameras.get(cam_id)
+            names.append(name)
+            sizes.append((cam.width, cam.height) if cam else (0, 0))
+            image_rows.append(np.full(int(keep.sum()), len(names) - 1))
+            xy_rows.append(np.stack([block["x"][keep], block["y"][keep]], 1))
+            point_rows.append(block["p"][keep])
+            if sum(len(p) for p in point_rows) > MAX_OBSERVATIONS:
+                break
+        r = _Reader(_read_bytes(folder / "points3D.bin"))
+        points = {}
+        for _ in range(r.count(51, "3D points")):
+            pid, x, y, z, _r, _g, _b, _err = r.take("<Q3d3Bd")
+            points[pid] = np.array([x, y, z])
+            track = r.count(8, "track entries")
+            r.pos += 8 * track
+    except (ColmapFormatError, OSError):
+        return None
+    if not points or not image_rows:
+        return None
+    return Observations(tuple(names), tuple(sizes), np.concatenate(image_rows), np.concatenate(xy_rows),
+                        np.concatenate(point_rows), points, np.array(centres))
+
+
 def write_model_text(folder: Path, cameras: List[ColmapCamera], images: List[ColmapImage]) -> None:
     """Write ``cameras.txt``, ``images.txt`` and an empty ``points3D.txt`` (tests and conversions)."""
     folder.mkdir(parents=True, exist_ok=True)
