@@ -23,6 +23,8 @@ class Scene:
     """Camera poses are exact (synthetic)."""
     format: Literal["blender", "dnerf", "nerfstudio", "colmap", "llff"] = param("blender")
     """Dataset format the plan is fitted to (detected by nerfify_ns.dataset); it picks the Nerfstudio dataparser."""
+    forward_facing: bool = param(False)
+    """The cameras face one way side by side (LLFF-style), not around the scene (measured from the poses)."""
 
 
 @dataclass
