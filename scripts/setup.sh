@@ -22,7 +22,7 @@ PIP=".venv/bin/python -m pip"
 $PIP install --quiet --upgrade pip
 # torch first and on its own: on this machine pip takes these exact wheels from the local store.
 $PIP install --quiet torch==2.14.1 torchvision==0.29.1
-extra=""; [ "$dev" = 1 ] && extra="[dev,llm,ray]"
+extra=""; [ "$dev" = 1 ] && extra="[dev,llm,ray,scenes]"
 $PIP install --quiet -c constraints.txt -e ".${extra}"
 # The fused CPU hash-grid kernel is compiled here, at setup, never while training; without it the
 # runtime uses its pure-torch hash grid.
