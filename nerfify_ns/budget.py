@@ -1,14 +1,20 @@
 """How much a run computes on the CPU: the scene, the ladder's smoke rung, training and evaluation.
 
 A leaf module (standard library only): the CLI reads the defaults for its ``--help`` without importing the
-pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smoke-iterations``). A budget checks
-its own numbers when it is built (:class:`BudgetError`); the scene settings are checked where the scene is
-rendered (``nerfify_ns.scenes.check_settings``).
+pipeline. Longer runs are one flag away (``--iterations``, ``--every``, ``--smoke-iterations``, ``--budget``). A
+budget checks its own numbers when it is built (:class:`BudgetError`); the scene settings are checked where the
+scene is rendered (``nerfify_ns.scenes.check_settings``).
+
+A wall-clock budget (``seconds``, ``--budget 4m``) bounds the whole run, evaluation included: the stages before
+training take what they take (reading, planning, the verification ladder), and :func:`fit_iterations` turns the
+time left into training iterations from what the ladder's smoke rung measured (seconds per iteration, the
+start-up of a sandboxed Nerfstudio process), leaving room for rendering the checkpoints afterwards.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
@@ -34,14 +40,30 @@ def check_seconds(option: str, value: object) -> None:
         raise BudgetError(f"{option} must be a positive number of seconds, got {value!r}")
 
 
+_DURATION = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*(s|sec|m|min|h)?\s*$", re.IGNORECASE)
+_UNIT_SECONDS = {"s": 1.0, "sec": 1.0, "m": 60.0, "min": 60.0, "h": 3600.0}
+
+
+def parse_duration(text: object) -> float:
+    """Seconds from ``--budget``'s text: ``4m``, ``90s``, ``1.5min``, ``0.5h``, or a bare number of minutes."""
+    match = _DURATION.match(str(text))
+    if match is None:
+        raise BudgetError(f"--budget must be a duration such as 4m, 90s or 0.5h (a bare number is minutes), "
+                          f"got {text!r}")
+    seconds = float(match.group(1)) * _UNIT_SECONDS[(match.group(2) or "m").lower()]
+    check_seconds("--budget", seconds)
+    return seconds
+
+
 @dataclass
 class Budget:
     """The CPU budget of one run."""
 
     iterations: int = 200
     """Training iterations of the evaluation run."""
-    every: int = 50
-    """Checkpoint cadence of the error-against-time curve (each checkpoint is rendered and scored)."""
+    every: Optional[int] = 50
+    """Checkpoint cadence of the error-against-time curve (each checkpoint is rendered and scored); None: the
+    iterations spread over ``checkpoints``."""
     smoke_iterations: Optional[int] = None
     """Iterations of the verification ladder's smoke-training rung (None: the base's own, ``smoke_iterations`` in
     ``runtime/smoke_presets.yaml``)."""
@@ -54,19 +76,93 @@ class Budget:
     of the evaluation's CPU settings."""
     train_args: Tuple[str, ...] = ()
     """ns-train arguments of the evaluation run after those (they win)."""
+    seconds: Optional[float] = None
+    """Wall-clock budget of the whole run, evaluation included (None: ``iterations`` decide). With it,
+    ``iterations`` is an upper bound and the run trains as many as fit (:func:`fit_iterations`), at most the
+    plan's own ``trainer.max_num_iterations``."""
+    checkpoints: int = 3
+    """Checkpoints rendered for the error-against-time curve when ``every`` is None."""
+    scale_schedule: bool = False
+    """Scale the plan's step counts (warm-ups, decay horizons, proposal annealing) to the run when it is shorter
+    than the paper's schedule (``nerfify_ns.synthesis.schedule``); off where fixed schedules are compared."""
 
     def __post_init__(self) -> None:
         """Every number in its range (a budget is built from command-line options: one clear error)."""
         check_count("--iterations", self.iterations)
-        check_count("--every", self.every)
+        if self.every is not None:
+            check_count("--every", self.every)
         if self.smoke_iterations is not None:
             check_count("--smoke-iterations", self.smoke_iterations)
         check_seconds("the time limit", self.timeout)
+        if self.seconds is not None:
+            check_seconds("--budget", self.seconds)
+        check_count("checkpoints", self.checkpoints)
+
+    def cadence(self, iterations: int) -> int:
+        """Iterations between checkpoints of a run of ``iterations``."""
+        return self.every if self.every is not None else max(1, math.ceil(iterations / self.checkpoints))
 
 
-PAPER_BUDGET = Budget()
-"""``ns-nerfify PAPER``: the evaluation run the report is about; the smoke rung as short as the ladder's own tests
-(``--until verify`` on the example paper within a minute)."""
+MIN_ITERATIONS = 10
+"""Fewer training iterations than this are not a run worth evaluating: the budget is too short."""
+RENDER_COST = 0.35
+"""Rendering a ray costs about this fraction of training on it (a forward pass without backward or optimiser
+step; measured on the gridlite plan, README)."""
+POST_SECONDS = 10.0
+"""Error maps, consistency, LPIPS and the report after rendering (64 px scenes; a few seconds)."""
+
+
+@dataclass
+class TimeFit:
+    """How a budget's time left became training iterations."""
+
+    iterations: int
+    every: int
+    seconds_left: float
+    seconds_per_iteration: float
+    startup_seconds: float
+    render_seconds: float
+    """Estimated rendering of every checkpoint (startup excluded)."""
+
+    def describe(self) -> str:
+        return (f"{self.iterations} iterations fit the {self.seconds_left:.0f} s left (measured "
+                f"{self.seconds_per_iteration:.2f} s per iteration, {self.startup_seconds:.0f} s to start each "
+                f"Nerfstudio process, about {self.render_seconds:.0f} s to render the checkpoints)")
+
+
+def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_seconds: float,
+                   rays_per_checkpoint: int, rays_per_iteration: int, budget: "Budget",
+                   most: Optional[int] = None) -> TimeFit:
+    """Training iterations that fit ``seconds_left``: a training process (``startup_seconds`` + iterations), a
+    rendering process (``startup_seconds`` + each checkpoint's ``rays_per_checkpoint`` rays at
+    :data:`RENDER_COST` of a training ray) and :data:`POST_SECONDS`; at most ``most``. Raises
+    :class:`BudgetError` when fewer than :data:`MIN_ITERATIONS` fit."""
+    per_ray = seconds_per_iteration / max(rays_per_iteration, 1)
+    render_one = rays_per_checkpoint * per_ray * RENDER_COST
+    checkpoints = budget.checkpoints
+    if budget.every is not None:  # a fixed cadence: as many checkpoints as the iterations that fit make
+        per_iteration = seconds_per_iteration + render_one / budget.every
+    else:
+        per_iteration = seconds_per_iteration
+    spare = seconds_left - 2 * startup_seconds - (0 if budget.every else checkpoints * render_one) - POST_SECONDS
+    iterations = int(spare // per_iteration) if spare > 0 else 0
+    if most is not None:
+        iterations = min(iterations, most)
+    render = math.ceil(iterations / budget.cadence(max(iterations, 1))) * render_one
+    if iterations < MIN_ITERATIONS:
+        need = 2 * startup_seconds + render + POST_SECONDS + MIN_ITERATIONS * seconds_per_iteration
+        raise BudgetError(f"the budget leaves {max(seconds_left, 0):.0f} s for training and evaluation, and "
+                          f"{MIN_ITERATIONS} iterations with their evaluation need about {need:.0f} s (measured "
+                          f"{seconds_per_iteration:.2f} s per iteration); give a longer --budget")
+    return TimeFit(iterations, budget.cadence(iterations), seconds_left, seconds_per_iteration, startup_seconds,
+                   render)
+
+
+DEFAULT_BUDGET_SECONDS = 240.0
+"""``ns-nerfify PAPER`` without ``--iterations`` or ``--budget``: 4 minutes of wall-clock, everything included."""
+PAPER_BUDGET = Budget(iterations=30000, every=None, seconds=DEFAULT_BUDGET_SECONDS, scale_schedule=True)
+"""``ns-nerfify PAPER``: the evaluation run the report is about, as long as the budget allows (at most the paper's
+30k iterations); the smoke rung as short as the ladder's own tests."""
 COMPOSE_BUDGET = Budget(iterations=30, every=15, cpu_presets=True,
                         train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                         scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})

@@ -18,7 +18,7 @@ from typing_extensions import Annotated, Literal
 
 from nerfify_ns.ablations import NAMES as ABLATION_NAMES
 from nerfify_ns.ablations import Ablations
-from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, parse_duration
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.report_command import Report
 from nerfify_ns.outcome import NOT_RUN, STOPPABLE, Outcome, Progress
@@ -154,10 +154,17 @@ class Paper:
     COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
-    iterations: int = PAPER_BUDGET.iterations
-    """Training iterations for the evaluation run."""
-    every: int = PAPER_BUDGET.every
-    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
+    budget: Optional[str] = None
+    """Wall-clock budget of the whole run, evaluation included: 4m, 90s, 0.5h (a bare number is minutes). Default
+    4 minutes unless --iterations is given. Training gets the iterations that fit the time the earlier stages left
+    (from the smoke rung's measured speed), and a paper's schedule (warm-ups, decay horizons, proposal annealing)
+    is scaled to them."""
+    iterations: Optional[int] = None
+    """Training iterations of the evaluation run. Alone: exactly this many, no time limit; with --budget: at most
+    this many."""
+    every: Optional[int] = None
+    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated. Default:
+    three checkpoints over the run."""
     smoke_iterations: Optional[int] = PAPER_BUDGET.smoke_iterations
     """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
     whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
@@ -200,8 +207,8 @@ class Paper:
     """Constrain decoding by the grammar where the backend can (--no-llm-constrained: validate after only)."""
 
     def main(self) -> None:
-        budget = replace(PAPER_BUDGET, iterations=self.iterations, every=self.every,
-                         smoke_iterations=self.smoke_iterations)  # checked before anything heavy is imported
+        budget = paper_budget(self.budget, self.iterations, self.every,
+                              self.smoke_iterations)  # checked before anything heavy is imported
         agents = _agents(self) if self.llm else None
         from nerfify_ns.pipeline import run_paper
 
@@ -226,6 +233,17 @@ def _agents(paper: "Paper"):
                              retries=paper.llm_retries, max_tokens=paper.llm_max_tokens,
                              run_tokens=paper.llm_run_tokens, constrained=paper.llm_constrained)
     return Agents.from_config(config)
+
+
+def paper_budget(budget: Optional[str], iterations: Optional[int], every: Optional[int],
+                 smoke_iterations: Optional[int]) -> Budget:
+    """The budget of ``ns-nerfify PAPER`` from its options: ``--budget`` (default 4 minutes) unless only
+    ``--iterations`` is given; with both, the budget's iterations are at most ``--iterations``."""
+    seconds = parse_duration(budget) if budget is not None else (
+        PAPER_BUDGET.seconds if iterations is None else None)
+    return replace(PAPER_BUDGET, seconds=seconds, every=every, smoke_iterations=smoke_iterations,
+                   iterations=iterations if iterations is not None else
+                   (PAPER_BUDGET.iterations if seconds is not None else 200))
 
 
 def _conclude(outcome: Outcome, out: Path) -> None:
@@ -295,10 +313,15 @@ class Compose:
     """Procedural scene to render when --data is not given."""
     resolution: int = COMPOSE_BUDGET.scene["resolution"]
     """Image size (pixels) of the rendered scene; the plan is pruned for it (grids, samples)."""
-    iterations: int = COMPOSE_BUDGET.iterations
-    """Training iterations of the evaluation run."""
-    every: int = COMPOSE_BUDGET.every
-    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated."""
+    iterations: Optional[int] = None
+    """Training iterations of the evaluation run (default 30; with --budget: at most this many)."""
+    every: Optional[int] = None
+    """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated (default 15;
+    with --budget, three checkpoints over the run)."""
+    budget: Optional[str] = None
+    """A wall-clock budget of the whole run instead of --iterations' count (4m, 90s; a bare number is minutes):
+    training gets the iterations that fit after the ladder. The plan's schedule is kept as it is (compose compares
+    fixed schedules)."""
     smoke_iterations: Optional[int] = COMPOSE_BUDGET.smoke_iterations
     """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
     whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
@@ -316,7 +339,11 @@ class Compose:
     def main(self) -> None:
         if (self.plan is None) == (self.method is None):
             raise UsageError("give a plan file or --method NAME (one of them)")
-        budget = replace(COMPOSE_BUDGET, iterations=self.iterations, every=self.every,
+        seconds = parse_duration(self.budget) if self.budget is not None else None
+        budget = replace(COMPOSE_BUDGET, seconds=seconds,
+                         iterations=self.iterations if self.iterations is not None else (
+                             10_000_000 if seconds else COMPOSE_BUDGET.iterations),
+                         every=self.every if self.every is not None else (None if seconds else COMPOSE_BUDGET.every),
                          smoke_iterations=self.smoke_iterations,
                          scene={**COMPOSE_BUDGET.scene, "resolution": self.resolution})  # checked here, early
         from nerfify_ns.pipeline import run_compose

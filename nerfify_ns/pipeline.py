@@ -101,6 +101,8 @@ def run_paper(
     every model failure is a warning and the deterministic result stands. The ablation no-agents sets it aside."""
     agents = agents if ablations.agents else None
     outcome = Outcome("paper", until, progress, ablations=list(ablations.names))
+    budget = budget or PAPER_BUDGET
+    deadline = time.perf_counter() + budget.seconds if budget.seconds else None  # --budget bounds the whole run
     dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
     check_count("--patch-rounds", patch_rounds, 0)
     corrections, reuse = read_corrections(equations) if equations is not None else ({}, {})
@@ -132,9 +134,9 @@ def run_paper(
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
-        plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget or PAPER_BUDGET, patch_rounds,
+        plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget, patch_rounds,
                                outcome, implementation.sources, _fallback(implementation, staging, doc), ablations,
-                               agents)
+                               agents, deadline)
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
 
@@ -176,13 +178,15 @@ def run_compose(
     """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
     the code of the plan's custom components (``components.<name>`` -> source)."""
     outcome = Outcome("compose", until, progress)
+    budget = budget or COMPOSE_BUDGET
+    deadline = time.perf_counter() + budget.seconds if budget.seconds else None
     dataset = _read_data(data)  # a bad dataset is bad input: nothing is written
     check_count("--patch-rounds", patch_rounds, 0)
     validate(plan)  # a plan the grammar rejects is bad input: nothing is written
     final = Path(out).absolute()
     with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
-        plan, summary = _build(plan, staging, dataset, scene, keep_all, budget or COMPOSE_BUDGET, patch_rounds,
-                               outcome, sources)
+        plan, summary = _build(plan, staging, dataset, scene, keep_all, budget, patch_rounds, outcome, sources,
+                               deadline=deadline)
         files = _plugin_files(staging)
         _rewrite_saved_paths(staging, final)
     return ComposeResult(final, plan, outcome, files, summary)
@@ -191,14 +195,16 @@ def run_compose(
 def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
            patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None,
            fallback: Optional[Callable] = None, ablations: Ablations = FULL,
-           agents: Optional[Any] = None) -> Tuple[dict, Optional[dict]]:
+           agents: Optional[Any] = None, deadline: Optional[float] = None) -> Tuple[dict, Optional[dict]]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
     the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
     when the ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and
     its sources): the plugin is regenerated from it and the ladder run again, once. ``ablations``: the ladder, the
     patch loop or the file-DAG composition switched off. ``agents``: the model-backed agents of the run (the patch
-    loop's critic; ``agents.json`` before the report), or None."""
+    loop's critic; ``agents.json`` before the report), or None. ``deadline``: the ``time.perf_counter()`` by which
+    the whole run ends (``budget.seconds``): training gets the iterations that fit the time left after the ladder
+    (:func:`_fit_training`)."""
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
@@ -208,6 +214,7 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
             written = write_plugin(plan, folder, sources=sources, one_shot=not ablations.dag)
             stage.summary = f"{len(written.files)} files" + ("" if ablations.dag else " (one shot, no file DAG)")
+    timing: dict = {}  # the smoke rung's measured speed (none when the ladder did not run)
     ladder_wanted = outcome.wants("verify")
     if ladder_wanted and not ablations.verify:
         outcome.skip("verify", "switched off (ablation no-verify)")
@@ -228,15 +235,22 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
                 _regenerate(plan, folder, sources)
                 ladder = ladder_run()
             (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
+            timing = _smoke_timing(ladder)
             _judge_ladder(ladder, stage)
-    summary = None
+    summary, run = None, None
     if outcome.wants("train"):
-        with outcome.stage("train", f"training {plan['method']} for {budget.iterations} iterations, evaluating "
-                           "its checkpoints", total=budget.iterations, failures=(NerfifyError,)) as stage:
-            summary = evaluate_run(folder, data, folder / "eval", iterations=budget.iterations,
-                                   every=budget.every, label=plan["method"], method_args=_train_args(plan, budget),
+        label = "training within the budget" if deadline is not None else f"training for {budget.iterations} iterations"
+        with outcome.stage("train", f"{label}, evaluating its checkpoints", total=budget.iterations,
+                           failures=(NerfifyError,)) as stage:
+            run = _fit_training(plan, folder, budget, data, timing, deadline)
+            stage.advance(0, run.iterations)
+            stage.note(f"training {plan['method']} for {run.iterations} iterations")
+            summary = evaluate_run(folder, data, folder / "eval", iterations=run.iterations, every=run.every,
+                                   label=plan["method"], method_args=[*_train_args(plan, budget), *run.args],
+                                   timeout=run.timeout,
                                    on_progress=_step_progress(stage, f"training {plan['method']}",
                                                               "rendering and scoring the checkpoints"))
+            summary = _record_run(folder, summary, run)
             _judge_evaluation(summary, stage)
     if not ablations.visual_feedback:
         outcome.skip("patches", "switched off (ablation no-visual-feedback)")
@@ -246,7 +260,8 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         from nerfify_ns.evaluate.patch_loop import run_patch_loop
 
         with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
-            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds, iterations=budget.iterations,
+            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds,
+                                  iterations=run.iterations if run is not None else budget.iterations,
                                   sources=plugin_sources(folder, plan),
                                   **({"critic": agents.critic()} if agents is not None else {}))
             stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
@@ -255,6 +270,102 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         agents.write(folder)
     _report(folder, outcome)
     return plan, summary
+
+
+@dataclass
+class TrainingRun:
+    """What the evaluation run trains: iterations, checkpoint cadence, the schedule fitted to it, why."""
+
+    iterations: int
+    every: int
+    args: list
+    """ns-train arguments of the fitted schedule (``nerfify_ns.synthesis.schedule``)."""
+    timeout: float
+    """Hard limit of the training and of the rendering process, seconds."""
+    budget: Optional[dict] = None
+    """How the wall-clock budget became iterations (None without a budget)."""
+    schedule: Optional[dict] = None
+    """The plan's ``schedule`` record when the schedule was scaled."""
+
+
+EVAL_TIMEOUT = 900.0
+"""Time limit of the training and of the rendering process without a budget, seconds."""
+UNMEASURED_ITERATIONS = 200
+"""Iterations of a budgeted run when nothing measured the plugin's speed (the ladder switched off)."""
+
+
+def _smoke_timing(ladder) -> dict:
+    """What the ladder's smoke rung measured of the plugin's speed (``verify.smoke.step_timing``), with its ray
+    batch; empty when the rung did not run."""
+    from nerfify_ns.verify.smoke import SMOKE_ARGS
+
+    smoke = next((r for r in ladder.rungs if r.name == "smoke" and r.status == "pass"), None)
+    if smoke is None or not smoke.details.get("seconds_per_iteration"):
+        return {}
+    return {"seconds_per_iteration": smoke.details["seconds_per_iteration"],
+            "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS)}
+
+
+def _rays(args) -> int:
+    """The training ray batch the last ``--pipeline.datamanager.train-num-rays-per-batch`` of ``args`` sets."""
+    args = list(args)
+    flag = "--pipeline.datamanager.train-num-rays-per-batch"
+    found = [int(args[i + 1]) for i, a in enumerate(args[:-1]) if a == flag]
+    return found[-1] if found else 4096
+
+
+def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timing: dict,
+                  deadline: Optional[float]) -> TrainingRun:
+    """The evaluation run: ``budget.iterations`` without a deadline; with one, as many iterations as fit the time
+    left (the smoke rung's measured speed, scaled to the evaluation's ray batch), at most the plan's own
+    ``trainer.max_num_iterations``. With ``budget.scale_schedule`` a run shorter than the paper's schedule gets it
+    scaled (recorded as the plan's ``schedule``, plan.yaml rewritten). Raises ``BudgetError`` when the budget
+    leaves too little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
+    :data:`UNMEASURED_ITERATIONS`."""
+    from nerfify_ns.budget import fit_iterations
+    from nerfify_ns.runtime.presets import step_time_exponent
+    from nerfify_ns.synthesis.schedule import scale_schedule
+
+    iterations, every, timeout, record = budget.iterations, budget.cadence(budget.iterations), EVAL_TIMEOUT, None
+    most = min(budget.iterations, int((plan.get("trainer") or {}).get("max_num_iterations") or budget.iterations))
+    if deadline is not None and not timing:  # nothing measured (the ladder was switched off): a fixed length
+        iterations = min(UNMEASURED_ITERATIONS, most)
+        every = budget.cadence(iterations)
+        record = {"seconds": budget.seconds, "iterations": iterations, "every": every,
+                  "reason": f"the smoke rung did not run, so nothing measured the plugin's speed: {iterations} "
+                            "iterations, not fitted to the budget"}
+    elif deadline is not None:
+        left = deadline - time.perf_counter()
+        rays = _rays(_train_args(plan, budget))
+        step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** step_time_exponent(plan["base"])
+        h, w = data.image_size
+        fit = fit_iterations(left, step, timing["startup_seconds"], h * w * len(data.eval_frames), rays, budget,
+                             most=most)
+        iterations, every = fit.iterations, fit.every
+        timeout = max(60.0, 1.5 * left)  # a misestimate is cut off, not left running
+        record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
+                  "every": every, "seconds_per_iteration": round(step, 4),
+                  "smoke_seconds_per_iteration": round(timing["seconds_per_iteration"], 4),
+                  "startup_seconds": round(timing["startup_seconds"], 1),
+                  "render_seconds": round(fit.render_seconds, 1), "reason": fit.describe()}
+    schedule = None
+    args: list = []
+    if budget.scale_schedule:
+        fitted = scale_schedule(plan, iterations)
+        if fitted.scaled:
+            schedule, args = fitted.record(), fitted.args
+            plan["schedule"] = schedule
+            (folder / "plan.yaml").write_text(Plan.of(plan).dump())
+    return TrainingRun(iterations, every, args, timeout, record, schedule)
+
+
+def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
+    """The evaluation summary with how its length was chosen (budget, schedule), written back."""
+    from nerfify_ns.evaluate.run_eval import write_json
+
+    summary = {**summary, "budget": run.budget, "schedule": run.schedule}
+    write_json(folder / "eval" / "summary.json", summary)
+    return summary
 
 
 def _plan_for_scene(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool,

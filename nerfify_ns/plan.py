@@ -35,7 +35,7 @@ from nerfify_ns.errors import NerfifyError
 
 DERIVATION_KEYS = ("method", "scene", "base", "trainer", "datamanager", "model", "optimizers")
 """Top-level keys of the derivation (``method`` names it)."""
-ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes", "repairs")
+ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes", "repairs", "schedule")
 """Top-level keys that annotate a plan (not part of the derivation)."""
 
 _MISSING = object()

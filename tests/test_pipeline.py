@@ -95,3 +95,35 @@ def test_an_evaluation_failure_is_a_failed_stage_with_the_folder_written(tiny_sc
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["outcome"]["failed"]["name"] == "train" and report["sections"]["verification"]["status"] == "pass"
     assert (tmp_path / "out" / "nerfify.log").is_file() and (tmp_path / "out" / "plan.yaml").is_file()
+
+
+def test_a_budget_spent_before_training_fails_the_train_stage_in_one_line(tiny_scene, tmp_path, monkeypatch, capsys):
+    """Training that does not happen (the budget is gone once the ladder has passed) is a failed stage: one red
+    line naming the stage and the reason on the console, exit code 1, the folder and its report saying the same.
+    The ladder is a stand-in (a pass with the smoke rung's measured speed), so nothing trains here."""
+    import json
+
+    from nerfify_ns import verify
+    from nerfify_ns.cli import CONSOLE, Compose
+    from nerfify_ns.verify.report import LadderReport, RungResult
+
+    def passing_ladder(plugin_dir, **kwargs):
+        smoke = RungResult("smoke", details={"seconds_per_iteration": 0.5, "startup_seconds": 15.0})
+        return LadderReport(plugin=str(plugin_dir), rungs=[RungResult("static"), smoke])
+
+    monkeypatch.setattr(verify, "run_ladder", passing_ladder)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_:
+        with CONSOLE.capture() as captured:
+            Compose(method="kplanes-static", data=tiny_scene, out=out, budget="1s").main()
+    assert exit_.value.code == 1
+    lines = captured.get().splitlines()
+    failed = [line for line in lines if line.startswith("failed")]
+    assert len(failed) == 1 and failed[0].startswith("failed train: the budget leaves"), lines
+    assert "give a longer --budget" in failed[0]
+    run = json.loads((out / "run.json").read_text())
+    assert run["failed"]["name"] == "train" and "budget" in run["failed"]["reason"]
+    html = (out / "report.html").read_text()
+    top = html[:html.index('<section id="paper">')]
+    assert "train failed: the budget leaves" in top and 'class="headline fail"' in top
+    assert not (out / "eval").exists()

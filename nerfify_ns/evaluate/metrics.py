@@ -10,6 +10,9 @@
   range 1, variances clipped at 0, mean over pixels and channels.
 * LPIPS (Zhang et al. 2018) uses AlexNet with real local weights only
   (:func:`nerfify_ns.runtime.lpips.find_lpips_weights`); without them it is ``None``.
+* Colour spread: the mean over foreground pixels of the standard deviation of a pixel's R, G and B
+  (0 for a grey pixel). A render that has learnt shapes but not colours (the greyish mean colour a
+  short run converges to first) has a spread far below its ground truth's, whatever its PSNR.
 """
 
 from __future__ import annotations
@@ -88,6 +91,23 @@ def mean_psnr(preds: Sequence[ArrayLike], gts: Sequence[ArrayLike]) -> float:
     if len(preds) != len(gts) or not preds:
         raise ValueError("need the same, non-zero number of predictions and ground truths")
     return float(np.mean([psnr(p, g) for p, g in zip(preds, gts)]))
+
+
+def foreground_mask(gt: ArrayLike) -> NDArray[np.bool_]:
+    """The ground truth's foreground: alpha >= 0.5 for RGBA, every pixel otherwise (``(H, W)`` bool)."""
+    img = to_float(gt)
+    if img.ndim == 3 and img.shape[-1] == 4:
+        return img[..., 3] >= 0.5
+    return np.ones(img.shape[:2], dtype=bool)
+
+
+def colour_spread(image: ArrayLike, mask: Optional[ArrayLike] = None) -> Optional[float]:
+    """Mean over the pixels of ``mask`` (all when None) of the standard deviation of R, G, B (RGBA is composited
+    on white first); None for an empty mask."""
+    rgb = as_rgb(image)
+    spread = rgb.std(axis=-1)
+    chosen = spread if mask is None else spread[np.asarray(mask, dtype=bool)]
+    return float(chosen.mean()) if chosen.size else None
 
 
 def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> Array:

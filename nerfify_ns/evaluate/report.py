@@ -594,6 +594,39 @@ def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
             "failed": {"name": failed[0], "reason": "see its section"} if failed else None, "stages": []}
 
 
+def headline_views(run_dir: Path, images: List[str]) -> Tuple[List[Block], Optional[str]]:
+    """What the report opens with: ground truth | render | error of the best and of the worst test view (by PSNR),
+    and one line of the result (PSNR, the foreground's colour spread against the ground truth's, iterations and
+    seconds, the budget). Nothing when the evaluation did not run."""
+    views, _ = _read_json(run_dir / "eval" / "error_maps.json")
+    summary, _ = _read_json(run_dir / "eval" / "summary.json")
+    blocks: List[Block] = []
+    scored = [v for v in views or [] if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), (int, float))]
+    if scored:
+        ranked = sorted(scored, key=lambda v: v["psnr"], reverse=True)
+        for label, v in (("best", ranked[0]), ("worst", ranked[-1]))[: 1 if len(ranked) == 1 else 2]:
+            caption = (f"{label} test view {v.get('view')}: ground truth | render | error, PSNR {_fmt(v['psnr'])} dB, "
+                       f"SSIM {_fmt(v.get('ssim'))}")
+            blocks.append(figure(run_dir / "eval" / Path(v["panel"]).name, caption, images))
+    line = None
+    if isinstance(summary, dict) and summary.get("status") == "ok":
+        diag = summary.get("diagnostics") or {}
+        parts = [f"held-out PSNR {_fmt(summary.get('psnr'))} dB"]
+        if diag.get("colour_spread") is not None and diag.get("colour_spread_gt") is not None:
+            parts.append(f"foreground colour spread {_fmt(diag['colour_spread'])} (ground truth "
+                         f"{_fmt(diag['colour_spread_gt'])})")
+        parts.append(f"{summary.get('iterations_done')} iterations in {_fmt(summary.get('seconds'), 1)} s of training")
+        budget = summary.get("budget") or {}
+        if budget.get("seconds"):
+            parts.append(f"budget {_fmt(budget['seconds'])} s: {budget.get('reason')}")
+        schedule = summary.get("schedule") or {}
+        if schedule.get("factor"):
+            parts.append(f"schedule scaled x{_fmt(schedule['factor'])} from the paper's "
+                         f"{schedule.get('paper_iterations')} iterations")
+        line = "; ".join(parts)
+    return blocks, line
+
+
 # ------------------------------------------------------------------------------------ page
 
 
@@ -627,6 +660,8 @@ def write_report(run_dir: Path) -> Tuple[Path, Path]:
     for section in SECTIONS:
         section(builder)
     outcome = read_outcome(run_dir, builder.data)
+    views, result = headline_views(run_dir, builder.images)
+    outcome.update(views=views, result=result)
     plan, _ = _read_yaml(run_dir / "plan.yaml")
     title = f"nerfify report: {plan.get('method')}" if isinstance(plan, dict) and plan.get("method") \
         else f"nerfify report: {run_dir.name}"
@@ -635,7 +670,7 @@ def write_report(run_dir: Path) -> Tuple[Path, Path]:
     payload = {
         "title": title,
         "run_dir": str(run_dir),
-        "outcome": outcome,
+        "outcome": {**outcome, "views": [v.get("caption") or v.get("text") for v in views]},
         "sections": builder.data,
         "not_run": [k for k, v in builder.data.items() if isinstance(v, dict) and v.get("status") == NOT_RUN],
         "images": builder.images,

@@ -37,7 +37,7 @@ from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.evaluate.consistency import check_consistency, views_from_frames
 from nerfify_ns.evaluate.curve import CurveError, CurveSource, plot_curves, record_curve, train_for_curve
 from nerfify_ns.evaluate.error_maps import analyze_views
-from nerfify_ns.evaluate.metrics import as_rgb, lpips, psnr, ssim, to_float
+from nerfify_ns.evaluate.metrics import as_rgb, colour_spread, foreground_mask, lpips, psnr, ssim, to_float
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook
 
 CPU_ARGS = ("--mixed-precision", "False", "--pipeline.datamanager.train-num-rays-per-batch", "512")
@@ -102,7 +102,8 @@ def _gradient_energy(img: np.ndarray) -> np.ndarray:
 
 def image_diagnostics(pred: np.ndarray, gt_rgba: np.ndarray) -> dict:
     """Where one view's error lies: on the background (GT alpha 0), in high-frequency regions,
-    and how sharp the render is relative to the ground truth."""
+    how sharp the render is relative to the ground truth, and how much colour its foreground has
+    (:func:`~nerfify_ns.evaluate.metrics.colour_spread` of the render and of the ground truth)."""
     gt = as_rgb(gt_rgba)
     p = as_rgb(pred)
     err = np.mean((p - gt) ** 2, axis=-1)
@@ -116,7 +117,10 @@ def image_diagnostics(pred: np.ndarray, gt_rgba: np.ndarray) -> dict:
     foreground = ~background
     interior = ndimage.binary_erosion(foreground, iterations=2)  # texture, not the silhouette
     interior = interior if interior.any() else foreground
+    solid = foreground_mask(gt_rgba)
     return {
+        "colour_spread": colour_spread(p, solid),
+        "colour_spread_gt": colour_spread(gt, solid),
         "background_fraction": float(background.mean()),
         "background_error_share": float(err[background].sum() / total) if total > 0 else 0.0,
         "background_psnr": _finite(psnr(p[background], gt[background])) if background.any() else None,
@@ -239,9 +243,11 @@ def evaluate_run(
     per_view = [image_diagnostics(to_float(p), g) for p, g in zip(preds, gts)]
     diagnostics = {
         key: _mean([v[key] for v in per_view])
-        for key in ("background_fraction", "background_error_share", "background_psnr", "foreground_psnr",
-                    "high_frequency_error_ratio", "sharpness")
+        for key in ("colour_spread", "colour_spread_gt", "background_fraction", "background_error_share",
+                    "background_psnr", "foreground_psnr", "high_frequency_error_ratio", "sharpness")
     }
+    if diagnostics["colour_spread"] is not None and diagnostics["colour_spread_gt"]:
+        diagnostics["colour_spread_ratio"] = diagnostics["colour_spread"] / diagnostics["colour_spread_gt"]
     lpips_values = [lpips(p, as_rgb(g)) for p, g in zip(preds, gts)]
     last = curve.points[-1]
     summary.update(

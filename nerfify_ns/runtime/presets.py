@@ -33,6 +33,18 @@ def smoke_iterations(base: Optional[str], given: Optional[int] = None) -> int:
     return int(smoke_presets().get(base or "", {}).get("smoke_iterations", DEFAULT_SMOKE_ITERATIONS))
 
 
+DEFAULT_STEP_TIME_EXPONENT = 1.0
+"""A base whose preset states none: a training step's time grows in proportion to the ray batch (an upper bound:
+per-step costs that do not grow with the batch, such as the optimiser's update, make it grow less)."""
+
+
+def step_time_exponent(base: Optional[str]) -> float:
+    """How a training step's time grows with the ray batch for a plugin derived from ``base``: time ~ rays ** e
+    (``step_time_exponent`` in the preset, measured; :data:`DEFAULT_STEP_TIME_EXPONENT` otherwise). A budgeted run
+    scales the smoke rung's measured step time to the evaluation's batch with it."""
+    return float(smoke_presets().get(base or "", {}).get("step_time_exponent", DEFAULT_STEP_TIME_EXPONENT))
+
+
 def generated_smoke_args(base: str) -> List[str]:
     """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
     and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:

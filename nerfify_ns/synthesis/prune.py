@@ -37,7 +37,7 @@ class _Pruner:
     def __init__(self, plan: Plan, facts: SceneFacts, grammar: Grammar) -> None:
         self.plan, self.facts, self.grammar = plan, facts, grammar
         self.records: List[dict] = []
-        self.env = {**facts.sizes(), **facts.flags()}
+        self.env = {**facts.sizes(), **facts.flags(), **facts.bounds()}
 
     def reason(self, rule: dict) -> str:
         return rule["reason"].format(evidence=self.facts.evidence, **self.env)
@@ -61,7 +61,16 @@ class _Pruner:
             parent[key] = {spec["to"]: params}
             self.record(rule, spec["path"], "replaced", spec["from"], spec["to"])
 
-    def set(self, rule: dict, spec: dict) -> None:
+    def set(self, rule: dict, spec) -> None:
+        if isinstance(spec, list):  # several parameters of one rule
+            for one in spec:
+                self.set(rule, one)
+            return
+        if "expr" in spec:  # a value from the scene's facts (None: the scene does not fix it, the plan's stays)
+            value = eval(spec["expr"], {"__builtins__": {}, **_FUNCTIONS}, dict(self.env))  # our own YAML
+            if value is None:
+                return
+            spec = {**spec, "value": value}
         parent, key = self.plan.parent(spec["path"])
         node = parent.get(key) if parent else None
         if isinstance(node, dict) and "custom" in node:
@@ -74,7 +83,8 @@ class _Pruner:
                 self.record(rule, f"{spec['path']}.custom.params.background", "set", before, spec["value"])
             return
         if isinstance(node, dict) and node.get(spec["param"]) != spec["value"]:
-            before = node.get(spec["param"], self.grammar.terminals[key].params[spec["param"]].default)
+            terminal = derive(self.plan, self.grammar).used.get(spec["path"], key)  # a slot names its terminal
+            before = node.get(spec["param"], self.grammar.terminals[terminal].params[spec["param"]].default)
             node[spec["param"]] = spec["value"]
             self.record(rule, f"{spec['path']}.{spec['param']}", "set", before, spec["value"])
 

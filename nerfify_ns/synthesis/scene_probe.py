@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 from PIL import Image
@@ -41,10 +41,18 @@ class SceneFacts:
     evidence: Dict[str, str] = field(default_factory=dict)
     format: str = "blender"
     """The dataset format (:data:`nerfify_ns.dataset.formats.FORMATS`)."""
+    near: Optional[float] = None
+    """Near plane of a bounded scene in the run's coordinates (:mod:`~nerfify_ns.synthesis.scene_bounds`)."""
+    far: Optional[float] = None
+    """Far plane of a bounded scene in the run's coordinates."""
 
     def flags(self) -> dict:
         return {k: getattr(self, k) for k in ("bounded", "timestamps", "alpha", "appearance_variation", "exact_poses",
                                               "format")}
+
+    def bounds(self) -> dict:
+        """The near and far planes (None where the scene does not fix them)."""
+        return {"near": self.near, "far": self.far}
 
     def sizes(self) -> dict:
         h, w = self.image_size
@@ -111,6 +119,11 @@ def probe_scene(data: DataLike) -> SceneFacts:
         appearance_variation = not exact_poses
         evidence["appearance_variation"] = ("synthetic renders: fixed lighting" if exact_poses
                                             else "real capture: exposure and lighting may vary")
+    near = far = None
+    if bounded:
+        from nerfify_ns.synthesis.scene_bounds import near_far
+
+        near, far, evidence["bounds"] = near_far(dataset)
     return SceneFacts(bounded=bounded, timestamps=timestamps, alpha=alpha, appearance_variation=appearance_variation,
                       exact_poses=exact_poses, image_size=(int(image.shape[0]), int(image.shape[1])),
-                      num_images=len(frames), evidence=evidence, format=dataset.format)
+                      num_images=len(frames), evidence=evidence, format=dataset.format, near=near, far=far)

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from nerfify_ns.dataset import DataLike, as_dataset
-from nerfify_ns.runtime.events import LOSS_TAG, Scalars, read_scalars
+from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
                                       progress_poll, train_command)
 from nerfify_ns.verify.plugin import PluginInfo
@@ -38,6 +38,8 @@ SMOKE_ARGS = [
     "cpu",
     "--mixed-precision",
     "False",
+    "--logging.max-buffer-size",
+    "1",
 ]
 LEARNING_RATIO = 0.9
 """The photometric loss over the last quarter must be below this fraction of the first quarter's."""
@@ -63,6 +65,19 @@ def photometric(scalars: Scalars) -> Dict[int, float]:
         return scalars.get(LOSS_TAG, {})
     steps = set.intersection(*(set(scalars[t]) for t in tags))
     return {s: sum(scalars[t][s] for t in tags) for s in sorted(steps)}
+
+
+def step_timing(scalars: Scalars, wall_seconds: float) -> Dict[str, Optional[float]]:
+    """What the run measured of its own speed: the median seconds of a training iteration after the first two
+    (the first compiles and warms caches), and the seconds the process spent on anything else (sandbox and
+    Nerfstudio start-up, loading the data, the first iteration). A budgeted run plans its training from these
+    (``nerfify_ns.budget.fit_iterations``). Raw per-step times: the rung logs with a buffer of one step."""
+    times = scalars.get(ITER_TIME_TAG, {})
+    steps = [times[s] for s in sorted(times)]
+    if len(steps) < 3:
+        return {"seconds_per_iteration": None, "startup_seconds": None}
+    return {"seconds_per_iteration": statistics.median(steps[2:]),
+            "startup_seconds": max(0.0, wall_seconds - sum(steps[1:]))}
 
 
 def _head(path: Path, limit: int = 4 << 20) -> str:
@@ -110,7 +125,8 @@ def smoke_rung(
     total = scalars.get(LOSS_TAG, {})
     rgb = photometric(scalars)
     reached = max(total) + 1 if total else 0
-    r.details.update({"iterations": reached, "final_loss": total.get(reached - 1)})
+    r.details.update({"iterations": reached, "final_loss": total.get(reached - 1),
+                      **step_timing(scalars, result.seconds)})
     r.checks = 4
     hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
     if hits:

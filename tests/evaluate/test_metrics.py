@@ -115,3 +115,21 @@ def test_lpips_with_real_weights(monkeypatch):
     noisy = m.lpips(pred, gt)
     assert isinstance(noisy, float) and 0.01 < noisy < 1.0
     assert m.lpips(np.clip(gt + 0.02, 0, 1), gt) < noisy
+
+
+def test_colour_spread_is_the_mean_channel_std_over_the_foreground():
+    grey = np.full((4, 4, 3), 0.4)
+    assert m.colour_spread(grey) == pytest.approx(0.0)
+    red = np.zeros((4, 4, 3))
+    red[..., 0] = 0.9
+    assert m.colour_spread(red) == pytest.approx(np.std([0.9, 0.0, 0.0]))
+    rgba = np.zeros((4, 4, 4))
+    rgba[:2, :, :3] = [0.9, 0.0, 0.0]  # a red foreground on the top half
+    rgba[:2, :, 3] = 1.0
+    mask = m.foreground_mask(rgba)
+    assert mask.sum() == 8 and mask[:2].all()
+    # the transparent half is white once composited: no spread, and outside the mask anyway
+    assert m.colour_spread(rgba, mask) == pytest.approx(np.std([0.9, 0.0, 0.0]))
+    assert m.colour_spread(rgba) == pytest.approx(np.std([0.9, 0.0, 0.0]) / 2)
+    assert m.colour_spread(red, np.zeros((4, 4), bool)) is None
+    assert m.foreground_mask(red).all()  # no alpha: every pixel

@@ -1,0 +1,48 @@
+"""A paper's schedule fitted to a shorter run (warm-ups, decay horizons, proposal annealing), as data."""
+
+import pytest
+
+from nerfify_ns.plan import Plan
+from nerfify_ns.synthesis.resources import load_reference_plan
+from nerfify_ns.synthesis.schedule import scale_schedule
+
+
+def _plan(**trainer):
+    plan = Plan.of(load_reference_plan("nerfacto")).copy()
+    plan["trainer"]["max_num_iterations"] = 30000
+    plan.set("optimizers.fields.scheduler", {"exponential_decay": {"lr_final": 1e-4, "max_steps": 30000,
+                                                                   "warmup_steps": 512}})
+    return plan
+
+
+def test_every_step_count_scales_with_the_run():
+    fit = scale_schedule(_plan(), 300)
+    assert fit.factor == pytest.approx(0.01)
+    changes = {c["path"]: (c["from"], c["to"]) for c in fit.changes}
+    assert changes["optimizers.fields.scheduler.exponential_decay.max_steps"] == (30000, 300)
+    assert changes["optimizers.fields.scheduler.exponential_decay.warmup_steps"] == (512, 5)
+    assert changes["model.sampler.proposal.warmup"][1] == round(changes["model.sampler.proposal.warmup"][0] / 100)
+    assert changes["config:proposal_weights_anneal_max_num_iters"] == (1000, 10)
+    args = fit.args
+    assert args[args.index("--optimizers.fields.scheduler.max-steps") + 1] == "300"
+    assert args[args.index("--optimizers.fields.scheduler.warmup-steps") + 1] == "5"
+    assert args[args.index("--pipeline.model.proposal-warmup") + 1] == str(changes["model.sampler.proposal.warmup"][1])
+    assert args[args.index("--pipeline.model.proposal-weights-anneal-max-num-iters") + 1] == "10"
+    record = fit.record()
+    assert record["paper_iterations"] == 30000 and record["run_iterations"] == 300 and record["ns_train_args"] == args
+
+
+def test_a_run_as_long_as_the_paper_changes_nothing():
+    fit = scale_schedule(_plan(), 30000)
+    assert not fit.scaled and fit.args == [] and fit.factor == 1.0
+
+
+def test_step_lists_stay_increasing_and_as_long():
+    plan = Plan.of(load_reference_plan("tensorf")).copy()
+    plan["trainer"]["max_num_iterations"] = 30000
+    fit = scale_schedule(plan, 60)
+    (upsampling,) = [c for c in fit.changes if c["path"].endswith("upsampling_iters")]
+    before, after = upsampling["from"], upsampling["to"]
+    assert len(after) == len(before) and all(b > a for a, b in zip(after, after[1:]))
+    flag = fit.args.index("--pipeline.model.upsampling-iters")
+    assert fit.args[flag + 1: flag + 1 + len(after)] == [str(v) for v in after]
