@@ -5,7 +5,6 @@ values as derived (before the scene's pruning)."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 import yaml
