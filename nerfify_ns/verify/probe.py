@@ -669,7 +669,7 @@ def main(argv=None) -> int:
     warnings.filterwarnings("ignore")
     from nerfify_ns.runtime import activate
 
-    activate()
+    activate(force=True)  # the probe computes on the CPU whatever the machine has: its torch paths, even with CUDA
     with open(args.events, "a") as events:
         if args.plugin == "-":  # the component suite alone, no plugin
             probe = Probe(events)

@@ -6,6 +6,11 @@ import sys
 import textwrap
 
 import pytest
+import torch
+
+CUDA = torch.cuda.is_available()
+AUTO = {"NERFIFY_RUNTIME": "auto"}
+"""The runtime's default switch (the suite forces the CPU path on a machine with CUDA: tests/conftest.py)."""
 
 PROBE = """
 import json, sys, torch
@@ -34,12 +39,23 @@ def probe(prelude: str = "", env: dict | None = None) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.skipif(CUDA, reason="CUDA is available here: the runtime layer stays off (see the test below)")
 def test_active_without_cuda():
-    state = probe()
+    state = probe(env=AUTO)
     assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers"]
     assert state["lpips"] == "OfflineLPIPS"
     assert state["hash"] == "nerfify_ns.runtime.hashgrid"
     assert state["nerfacc"] is True
+
+
+@pytest.mark.skipif(not CUDA, reason="no CUDA on this machine (the mocked test above covers the switch)")
+def test_changes_nothing_on_a_machine_with_cuda():
+    """The real thing, not a mock: with a GPU, nothing is patched and Nerfstudio's own classes stay."""
+    state = probe(env=AUTO)
+    assert state["applied"] == []
+    assert state["lpips"] == "LearnedPerceptualImagePatchSimilarity"
+    assert state["hash"] == "nerfstudio.field_components.encodings"
+    assert state["nerfacc"] is False
 
 
 def test_changes_nothing_when_cuda_is_available():
@@ -61,7 +77,7 @@ def test_unknown_skip_name_is_an_error(monkeypatch):
 
     monkeypatch.setenv(runtime.ENV_SKIP, "hashgird")
     with pytest.raises(ValueError, match="hashgird"):
-        runtime.activate()
+        runtime.activate(force=True)  # forced: with CUDA present, activate() would not read the names at all
 
 
 def test_entry_point_registers_a_method_specification():
@@ -75,12 +91,14 @@ def test_entry_point_registers_a_method_specification():
     assert spec.config.method_name == "nerfify-generated"
 
 
+@pytest.mark.skipif(CUDA, reason="CUDA is available here: methods keep Nerfstudio's cuda default")
 def test_plain_ns_train_discovers_us_and_defaults_to_cpu():
     code = ("from nerfstudio.configs.method_configs import all_methods;"
             "from nerfify_ns.runtime import active_patches;"
             "print(all_methods['nerfacto'].machine.device_type, 'nerfify-generated' in all_methods,"
             " 'hashgrid' in active_patches())")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         env={**__import__("os").environ, **AUTO})
     assert out.stdout.split() == ["cpu", "True", "True"], out.stderr[-2000:]
 
 
