@@ -448,27 +448,49 @@ class GrammarExport:
 
 @dataclass
 class Scene:
-    """Write a procedural test scene (Blender format, RGBA PNG, exact depth) to OUT."""
+    """Write a test scene to OUT: a procedural one (Blender format, RGBA PNG, exact depth), or a realistic one
+    path-traced by Mitsuba 3 from textured meshes that ship in pybullet (cached under ~/.cache/nerfify/scenes)."""
 
     name: tyro.conf.Positional[str]
-    """Scene name: one of default, scale_1e-3, scale_1e3, thin, hifreq, sparse, translucent, unbounded,
-    dynamic, floaters."""
+    """Procedural: default, scale_1e-3, scale_1e3, thin, hifreq, sparse, translucent, unbounded, dynamic, floaters.
+    Realistic: duck-white (bounded object, Blender), duck-dynamic (D-NeRF), garden-360 (unbounded 360-degree
+    capture, Nerfstudio format, COLMAP poses, per-image exposure and white balance)."""
     out: tyro.conf.Positional[Path]
     """Output folder."""
     resolution: int = 64
     """Image height and width in pixels."""
     n_train: int = 24
-    """Training views."""
+    """Training views (a realistic Nerfstudio capture renders n-train + n-val + n-test views)."""
     n_val: int = 8
     """Validation views."""
     n_test: int = 8
     """Test views."""
     seed: int = 0
-    """Random seed (camera placement)."""
+    """Random seed (camera placement; realistic scenes: also exposure, white balance, samples, COLMAP)."""
     overwrite: bool = False
     """Replace an existing folder."""
+    spp: int = 32
+    """Realistic scenes: path-traced samples per pixel."""
+    poses: Optional[Literal["exact", "colmap"]] = None
+    """Realistic Nerfstudio scenes: the renderer's cameras, or COLMAP's estimate from the images (default: the
+    scene's own, colmap for garden-360)."""
+    sfm_factor: int = 4
+    """Realistic scenes with COLMAP poses: COLMAP sees images this many times larger (downscaled for training)."""
+    format: Optional[Literal["blender", "dnerf", "nerfstudio", "colmap", "llff"]] = None
+    """Realistic scenes: write the scene in this dataset format instead of its own."""
 
     def main(self) -> None:
+        from nerfify_ns.scenes.realistic import RealisticSettings, list_realistic, write_realistic
+
+        if self.name in list_realistic():
+            settings = RealisticSettings(self.name, resolution=self.resolution, n_train=self.n_train,
+                                         n_val=self.n_val, n_test=self.n_test, seed=self.seed, spp=self.spp,
+                                         poses=self.poses, sfm_factor=self.sfm_factor)
+            with CONSOLE.status(f"scene {self.name}") as status:
+                path = write_realistic(settings, self.out, fmt=self.format, overwrite=self.overwrite,
+                                       progress=lambda line: status.update(_plain(line)))
+            CONSOLE.print(f"wrote scene '{self.name}' to {path}")
+            return
         from nerfify_ns.scenes import write_scene
 
         path = write_scene(self.name, self.out, resolution=self.resolution, n_train=self.n_train,

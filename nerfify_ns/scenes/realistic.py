@@ -13,7 +13,7 @@ facts (bounded, alpha, appearance variation, exact poses, timestamps). The datas
 
 Scenes are cached: the folder is content-addressed by everything that decides its bytes (the scene's entry,
 the settings, the renderer's and COLMAP's versions, the meshes' and textures' SHA-256) under
-``$NERFIFY_CACHE/scenes`` (default ``~/.cache/nerfify/scenes``), built in a temporary folder and renamed into
+``$NERFIFY_SCENE_CACHE`` (default ``~/.cache/nerfify/scenes``), built in a temporary folder and renamed into
 place; :func:`write_realistic` copies (or exports to another format) from the cache.
 """
 
@@ -24,6 +24,7 @@ import functools
 import hashlib
 import json
 import math
+import os
 import shutil
 from dataclasses import asdict, dataclass
 from importlib import resources
@@ -45,6 +46,7 @@ REALISTIC_FILE = "realistic.yaml"
 CACHE_VERSION = 1
 """Bumped when the cache layout changes (the renderer's own source files are hashed into every key)."""
 GROUND_TRUTH = "ground_truth.json"
+ENV_SCENE_CACHE = "NERFIFY_SCENE_CACHE"
 POSES = ("exact", "colmap")
 EXPORT_FORMATS = ("blender", "dnerf", "nerfstudio", "colmap", "llff")
 MAX_RESOLUTION = 512
@@ -152,9 +154,10 @@ def cache_key(settings: RealisticSettings) -> str:
 
 
 def scene_cache_dir() -> Path:
+    """``$NERFIFY_SCENE_CACHE``, default ``$NERFIFY_CACHE/scenes`` (``~/.cache/nerfify/scenes``)."""
     from nerfify_ns.runtime.paths import nerfify_cache_dir
 
-    return nerfify_cache_dir() / "scenes"
+    return Path(os.environ.get(ENV_SCENE_CACHE) or nerfify_cache_dir() / "scenes")
 
 
 def cached_realistic(settings: RealisticSettings, progress: Optional[Callable[[str], None]] = None) -> Path:

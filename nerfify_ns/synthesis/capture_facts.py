@@ -2,7 +2,8 @@
 
 * **Camera layout.** Forward-facing (LLFF-style: every optical axis within ``FORWARD_FACING_DEG`` of the mean
   viewing direction, the cameras side by side) or surrounding a common target (360 degrees: the cameras span
-  ``OBJECT_CENTRIC_SPREAD_DEG`` or more around the point closest to every optical axis).
+  ``OBJECT_CENTRIC_SPREAD_DEG`` or more around the point closest to every optical axis, their axes not all
+  within ``FORWARD_FACING_DEG`` of one direction).
 * **Extent.** With a COLMAP model (a COLMAP dataset, or the ``colmap/sparse/0`` that ``ns-process-data`` keeps
   beside ``transforms.json``): the share of triangulated points lying farther from the cameras' centre than
   ``EXTENT_RATIO`` times the cameras' own radius. Content beyond the cameras (walls, the ground running to the
@@ -71,8 +72,8 @@ def camera_layout(poses: np.ndarray) -> Layout:
     dirs = centres - target
     dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-12)
     spread = math.degrees(float(np.arccos(np.clip(dirs @ dirs.T, -1.0, 1.0)).max()))
-    forward_facing = deviation <= FORWARD_FACING_DEG and spread < OBJECT_CENTRIC_SPREAD_DEG
-    surrounding = spread >= OBJECT_CENTRIC_SPREAD_DEG
+    forward_facing = deviation <= FORWARD_FACING_DEG  # (parallel axes meet nowhere: the spread means nothing)
+    surrounding = spread >= OBJECT_CENTRIC_SPREAD_DEG and not forward_facing
     text = (f"cameras span {spread:.0f} deg around a common target, optical axes within {deviation:.0f} deg of "
             f"their mean ({'360-degree' if surrounding else 'forward-facing' if forward_facing else 'partial'})")
     return Layout(forward_facing, surrounding, text)
@@ -169,7 +170,7 @@ def appearance_from_points(dataset: Dataset, obs: Observations) -> Optional[Appe
     if keep.sum() < 30:
         return None
     gains = np.zeros((len(rows), 3))
-    for _ in range(4):  # alternate: points' consensus colour, then each image's gains (medians: robust)
+    for _ in range(8):  # alternate: points' consensus colour, then each image's gains (medians: robust)
         residual = logv - gains[image]
         consensus = np.zeros((len(ids), 3))
         for c in range(3):
@@ -222,13 +223,12 @@ def capture_facts(dataset: Dataset, alpha: bool, exact_poses: bool) -> CaptureFa
         photos = dataset.root / "images"
         n = len([p for p in photos.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")]) if photos.is_dir() else 0
         evidence["registered"] = f"COLMAP registered {len(obs.image_names)} of {max(n, len(obs.image_names))} images"
-    if dataset.format == "llff" or layout.forward_facing:
+    forward_facing = layout.forward_facing
+    if dataset.format == "llff" or forward_facing:
         bounded = False
         evidence["bounded"] = ("LLFF forward-facing capture (poses_bounds.npy): unbounded" if dataset.format == "llff"
                                else f"forward-facing capture ({layout.evidence}): unbounded")
-        forward_facing = True
     else:
-        forward_facing = False
         if alpha or dataset.has_masks:
             bounded = layout.surrounding
             evidence["bounded"] = f"{layout.evidence} and {'transparent background' if alpha else 'masks'}"

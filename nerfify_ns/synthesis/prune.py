@@ -53,6 +53,13 @@ class _Pruner:
             if parent == {} and path.startswith("model.regularizers."):
                 self.plan["model"].pop("regularizers")
 
+    def keep(self, rule: dict, path: str) -> None:
+        """Record that an optional part the scene needs stays (a real capture's contraction, appearance codes,
+        camera optimiser), with the reason."""
+        parent, key = self.plan.parent(path)
+        if parent is not None and key in parent:
+            self.record(rule, path, "kept", parent[key], parent[key])
+
     def replace(self, rule: dict, spec: dict) -> None:
         parent, key = self.plan.parent(spec["path"])
         slot = parent.get(key) if parent else None
@@ -113,7 +120,7 @@ class _Pruner:
         for rule in pruning_rules():
             if any(self.env.get(k) != v for k, v in (rule.get("when") or {}).items()):
                 continue
-            for action in ("remove", "replace", "set", "clamp"):
+            for action in ("remove", "keep", "replace", "set", "clamp"):
                 if action in rule:
                     getattr(self, action)(rule, rule[action])
         self.drop_orphan_optimizers()

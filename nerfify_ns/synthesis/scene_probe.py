@@ -8,7 +8,6 @@ identified it) is a fact too: the plan records it and it picks the Nerfstudio da
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Dict, Optional, Tuple
 
@@ -18,7 +17,6 @@ from PIL import Image
 from nerfify_ns.dataset import DataLike, Dataset, as_dataset
 from nerfify_ns.errors import NerfifyError
 
-OBJECT_CENTRIC_SPREAD_DEG = 120.0
 EXACT_POSE_FORMATS = ("blender", "dnerf")
 """Formats of synthetic renders (exact poses, fixed lighting); the others come from reconstructions."""
 
@@ -41,6 +39,8 @@ class SceneFacts:
     evidence: Dict[str, str] = field(default_factory=dict)
     format: str = "blender"
     """The dataset format (:data:`nerfify_ns.dataset.formats.FORMATS`)."""
+    forward_facing: bool = False
+    """The cameras face one way, side by side (LLFF-style), rather than surrounding the scene."""
     near: Optional[float] = None
     """Near plane of a bounded scene in the run's coordinates (:mod:`~nerfify_ns.synthesis.scene_bounds`)."""
     far: Optional[float] = None
@@ -48,7 +48,7 @@ class SceneFacts:
 
     def flags(self) -> dict:
         return {k: getattr(self, k) for k in ("bounded", "timestamps", "alpha", "appearance_variation", "exact_poses",
-                                              "format")}
+                                              "format", "forward_facing")}
 
     def bounds(self) -> dict:
         """The near and far planes (None where the scene does not fix them)."""
@@ -68,21 +68,6 @@ def _first_image(dataset: Dataset) -> np.ndarray:
         raise SceneProbeError(f"cannot read the first training image {frame.image}: {exc}") from None
 
 
-def _object_centric(poses: np.ndarray) -> Tuple[bool, str]:
-    """Cameras surrounding a common target (an object-centric capture) or not."""
-    poses = np.asarray(poses, dtype=np.float64)[:, :3, :]
-    centres, forward = poses[:, :, 3], -poses[:, :, 2]
-    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
-    # the point closest to every optical axis (least squares)
-    proj = np.eye(3)[None] - forward[:, :, None] * forward[:, None, :]
-    target = np.linalg.lstsq(proj.sum(0), (proj @ centres[:, :, None]).sum(0), rcond=None)[0][:, 0]
-    dirs = centres - target
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    cos = np.clip(dirs @ dirs.T, -1.0, 1.0)
-    spread = math.degrees(float(np.arccos(cos.min())))
-    return spread >= OBJECT_CENTRIC_SPREAD_DEG, f"cameras span {spread:.0f} deg around a common target"
-
-
 def probe_scene(data: DataLike) -> SceneFacts:
     """The facts of the dataset ``data`` (a :class:`~nerfify_ns.dataset.Dataset` or its folder)."""
     dataset = as_dataset(data)
@@ -98,32 +83,33 @@ def probe_scene(data: DataLike) -> SceneFacts:
     timestamps = dataset.has_times
     evidence["timestamps"] = "every frame has a time" if timestamps else "frames have no times"
     exact_poses = dataset.format in EXACT_POSE_FORMATS
+    forward_facing = False
     if meta is not None:
         bounded = bool(meta.get("bounded", True))
         evidence["bounded"] = f"scene.json: bounded={bounded}"
         exact_poses, evidence["exact_poses"] = True, "synthetic scene (scene.json): poses are exact"
         appearance_variation = False
         evidence["appearance_variation"] = "synthetic scene (scene.json): fixed lighting"
-    else:
-        if dataset.format == "llff":
-            bounded, evidence["bounded"] = False, "LLFF forward-facing capture (poses_bounds.npy): unbounded"
-        else:
-            centric, how = _object_centric(dataset.poses(frames))
-            bounded = centric and alpha
-            evidence["bounded"] = f"{how}{' and transparent background' if alpha else ', background present'}"
+    else:  # measured from the cameras, the images and the COLMAP model (nerfify_ns.synthesis.capture_facts)
+        from nerfify_ns.synthesis.capture_facts import capture_facts
+
+        measured = capture_facts(dataset, alpha, exact_poses)
+        bounded, appearance_variation = measured.bounded, measured.appearance_variation
+        forward_facing = measured.forward_facing
+        evidence.update({k: v for k, v in measured.evidence.items() if k != "registered"})
         evidence["exact_poses"] = (f"{dataset.format} format (synthetic renders): poses are exact" if exact_poses
                                    else f"poses from a reconstruction ({dataset.format} format)")
         if dataset.meta.get("reprojection_error"):
             error, points = dataset.meta["reprojection_error"]
             evidence["exact_poses"] += f"; COLMAP mean reprojection error {error:.2f} px over {points} points"
-        appearance_variation = not exact_poses
-        evidence["appearance_variation"] = ("synthetic renders: fixed lighting" if exact_poses
-                                            else "real capture: exposure and lighting may vary")
+        if "registered" in measured.evidence:
+            evidence["exact_poses"] += f"; {measured.evidence['registered']}"
     near = far = None
     if bounded:
         from nerfify_ns.synthesis.scene_bounds import near_far
 
         near, far, evidence["bounds"] = near_far(dataset)
     return SceneFacts(bounded=bounded, timestamps=timestamps, alpha=alpha, appearance_variation=appearance_variation,
-                      exact_poses=exact_poses, image_size=(int(image.shape[0]), int(image.shape[1])),
+                      exact_poses=exact_poses, forward_facing=forward_facing,
+                      image_size=(int(image.shape[0]), int(image.shape[1])),
                       num_images=len(frames), evidence=evidence, format=dataset.format, near=near, far=far)

@@ -27,7 +27,7 @@ def _records(plan):
 def test_bounded_synthetic_scene_prunes_what_it_does_not_need(tmp_path):
     facts = probe_scene(_small("default", tmp_path))
     assert facts.flags() == {"bounded": True, "timestamps": False, "alpha": True, "appearance_variation": False,
-                             "exact_poses": True, "format": "blender"}
+                             "exact_poses": True, "format": "blender", "forward_facing": False}
     plan = prune_plan(load_reference_plan("nerfacto"), facts)
     records = _records(plan)
     field = plan["model"]["field"]["MLPField"]
@@ -48,7 +48,8 @@ def test_unbounded_scene_keeps_contraction(tmp_path):
     assert facts.bounded is False
     plan = prune_plan(load_reference_plan("nerfacto"), facts)
     assert "spatial_distortion" in plan["model"]["field"]["MLPField"]
-    assert "model.field.MLPField.spatial_distortion" not in _records(plan)
+    kept = _records(plan)["model.field.MLPField.spatial_distortion"]  # kept, and the record says why
+    assert kept["action"] == "kept" and kept["reason"].startswith("the scene is unbounded (scene.json")
 
 
 def _dynamic_plan():
@@ -90,8 +91,9 @@ def test_real_capture_without_metadata_is_treated_as_unbounded_with_varying_appe
                                                       "frames": frames}))
     facts = probe_scene(root)
     assert facts.flags() == {"bounded": False, "timestamps": False, "alpha": False, "appearance_variation": True,
-                             "exact_poses": False, "format": "nerfstudio"}
+                             "exact_poses": False, "format": "nerfstudio", "forward_facing": True}
     assert facts.evidence["format"].startswith("nerfstudio: transforms.json")
+    assert facts.evidence["bounded"].startswith("forward-facing capture")
     plan = prune_plan(load_reference_plan("nerfacto"), facts)
     assert "camera_optimizer" in plan["model"] and "spatial_distortion" in plan["model"]["field"]["MLPField"]
     assert plan["scene"]["format"] == "nerfstudio" and plan["datamanager"]["dataparser"] == "nerfstudio"
