@@ -13,7 +13,7 @@ import datetime as _dt
 import platform
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Sequence
 
 from nerfify_ns.ablations import Ablations
 from nerfify_ns.benchsuite.executor import LocalExecutor, finished
