@@ -39,6 +39,21 @@ def _numbers(results: dict) -> dict:
     return out
 
 
+def _two_node_cluster(ray_cluster, attempts: int = 3):
+    """A local Ray cluster of two nodes with one CPU each. Ray gives a node 30 s to register, which a loaded 2-core
+    machine can miss: a failed start is shut down and tried again."""
+    for attempt in range(attempts):
+        cluster = ray_cluster.Cluster()
+        try:
+            cluster.add_node(num_cpus=1)  # the first node is the head
+            cluster.add_node(num_cpus=1)
+            return cluster
+        except Exception:  # noqa: BLE001 - Ray's start-up timeout
+            cluster.shutdown()
+            if attempt == attempts - 1:
+                raise
+
+
 def test_tiny_killed_and_resumed_then_identical_on_ray(tmp_path):
     ray_cluster = pytest.importorskip("ray.cluster_utils")
     out = tmp_path / "local"
@@ -63,8 +78,7 @@ def test_tiny_killed_and_resumed_then_identical_on_ray(tmp_path):
 
     from nerfify_ns.benchsuite.executor import RayExecutor
 
-    cluster = ray_cluster.Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    cluster.add_node(num_cpus=1)
+    cluster = _two_node_cluster(ray_cluster)
     try:
         on_ray = run_bench(suite, tmp_path / "ray", executor=RayExecutor(cluster.address))
     finally:
