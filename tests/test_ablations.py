@@ -136,9 +136,27 @@ def test_one_shot_composition_writes_what_the_file_dag_would_refuse(tmp_path, mo
     assert one.files == dag.files or set(one.files) == set(dag.files)
 
 
-def test_no_agents_is_recorded_on_the_run():
-    """The deterministic pipeline calls no model; the switch is recorded so a run with agents (issue 13) can be told
-    apart, and the stage that would call them is named."""
-    from nerfify_ns.ablations import ablation
+def test_no_agents_sets_the_model_agents_aside():
+    """With agents given (a stand-in for ``nerfify_ns.agents.Agents``), the planner is asked for a plan; with the
+    ablation no-agents it is not, and the dry run's plan is the deterministic one."""
+    from nerfify_ns.pipeline import run_paper
 
-    assert Ablations.parse("no-agents").agents is False and ablation("no-agents").stage == "read"
+    class StandInAgents:
+        warnings: list = []
+
+        def __init__(self):
+            self.calls = []
+
+        def plan(self, doc, derived):
+            self.calls.append("plan")
+            return derived.plan
+
+        def summary(self):
+            return "stand-in"
+
+    agents = StandInAgents()
+    run_paper(GRIDLITE, dry_run=True, agents=agents)
+    assert agents.calls == ["plan"]
+    agents.calls.clear()
+    run_paper(GRIDLITE, dry_run=True, agents=agents, ablations=Ablations.parse("no-agents"))
+    assert agents.calls == []
