@@ -28,7 +28,6 @@ def evaluate_checkpoints(
     config_path: Path, checkpoints: Sequence[Path], save_dir: Optional[Path] = None
 ) -> List[dict]:
     """Per-checkpoint ``{checkpoint, step, psnr, ssim, per_view_psnr, render_seconds}``."""
-    import torch
     from PIL import Image
 
     from nerfify_ns.runtime import activate
@@ -36,7 +35,7 @@ def evaluate_checkpoints(
     activate()
     from nerfstudio.utils.eval_utils import eval_setup
 
-    from nerfify_ns.evaluate.metrics import as_rgb, psnr, ssim
+    from nerfify_ns.evaluate.metrics import as_rgb
 
     _, pipeline, _, _ = eval_setup(
         Path(config_path), test_mode="test", update_config_callback=_serial_datamanager
@@ -47,34 +46,56 @@ def evaluate_checkpoints(
     filenames = [Path(f) for f in outputs_meta.image_filenames]
     gts = [as_rgb(np.asarray(Image.open(f))) for f in filenames]
     results = []
-    for index, checkpoint in enumerate(checkpoints):
-        start = time.perf_counter()
-        state = torch.load(checkpoint, map_location="cpu")
-        pipeline.load_pipeline(state["pipeline"], state["step"])
-        pipeline.eval()
-        last = index == len(checkpoints) - 1
-        psnrs, ssims = [], []
-        for i, gt in enumerate(gts):
-            camera = dataset.cameras[i : i + 1].to(pipeline.device)
-            with torch.no_grad():
-                out = pipeline.model.get_outputs_for_camera(camera)
-            out = fine_outputs(out)
-            rgb = out["rgb"].detach().cpu().numpy().astype(np.float64)
-            psnrs.append(psnr(rgb, gt))
-            ssims.append(ssim(rgb, gt))
-            if save_dir is not None and last:
-                _save_render(Path(save_dir), filenames[i].stem, rgb, out, scale)
-        results.append(
-            {
-                "checkpoint": str(checkpoint),
-                "step": int(state["step"]),
-                "psnr": float(np.mean(psnrs)),
-                "ssim": float(np.mean(ssims)),
-                "per_view_psnr": [float(v) for v in psnrs],
-                "render_seconds": time.perf_counter() - start,
-            }
-        )
+    with _over_white(pipeline.model):
+        for index, checkpoint in enumerate(checkpoints):
+            results.append(_score(pipeline, dataset, gts, filenames, checkpoint, scale,
+                                  save_dir if index == len(checkpoints) - 1 else None))
     return results
+
+
+def _over_white(model):
+    """Renders composited over white, the background the ground truth is composited on (``metrics.as_rgb``),
+    for a model trained over random backgrounds (Nerfstudio renders those over black); a no-op otherwise."""
+    import contextlib
+
+    import torch
+    from nerfstudio.model_components.renderers import background_color_override_context
+
+    renderer = getattr(model, "renderer_rgb", None)
+    if getattr(renderer, "background_color", None) != "random":
+        return contextlib.nullcontext()
+    return background_color_override_context(torch.ones(3))
+
+
+def _score(pipeline, dataset, gts, filenames, checkpoint, scale, save_dir) -> dict:
+    """One checkpoint loaded and scored on every view (renders saved into ``save_dir`` when given)."""
+    import torch
+
+    from nerfify_ns.evaluate.metrics import psnr, ssim
+
+    start = time.perf_counter()
+    state = torch.load(checkpoint, map_location="cpu")
+    pipeline.load_pipeline(state["pipeline"], state["step"])
+    pipeline.eval()
+    psnrs, ssims = [], []
+    for i, gt in enumerate(gts):
+        camera = dataset.cameras[i : i + 1].to(pipeline.device)
+        with torch.no_grad():
+            out = pipeline.model.get_outputs_for_camera(camera)
+        out = fine_outputs(out)
+        rgb = out["rgb"].detach().cpu().numpy().astype(np.float64)
+        psnrs.append(psnr(rgb, gt))
+        ssims.append(ssim(rgb, gt))
+        if save_dir is not None:
+            _save_render(Path(save_dir), filenames[i].stem, rgb, out, scale)
+    return {
+        "checkpoint": str(checkpoint),
+        "step": int(state["step"]),
+        "psnr": float(np.mean(psnrs)),
+        "ssim": float(np.mean(ssims)),
+        "per_view_psnr": [float(v) for v in psnrs],
+        "render_seconds": time.perf_counter() - start,
+    }
 
 
 def fine_outputs(outputs: dict) -> dict:
