@@ -8,14 +8,19 @@ adjustment tolerance 1e-6), then a bundle adjustment that also refines the princ
 that z is up, the ``applied_transform`` recorded) and a ``sparse_pc.ply``. We run the same steps through
 pycolmap (exhaustive matching: a small capture needs no vocabulary tree, which ns-process-data would download)
 and call Nerfstudio's own ``colmap_to_json`` on the result, so the folder is what a user's ns-process-data run
-gives: ``images/``, ``colmap/sparse/0/{cameras,images,points3D}.bin``, ``transforms.json``, ``sparse_pc.ply``.
+gives: ``images/``, ``colmap/sparse/0/{cameras,images,points3D}.bin`` (and COLMAP's log, ``colmap/colmap.log``),
+``transforms.json``, ``sparse_pc.ply``.
 """
 
 from __future__ import annotations
 
+import os
 import shutil
+import sys
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 from .errors import SceneError
 from .pbr import RendererUnavailable
@@ -54,12 +59,25 @@ def estimate_poses(folder: Path, seed: int = 0) -> SfmResult:
     """Run COLMAP on ``folder/images`` and write ``folder/colmap/sparse/0`` and ``folder/transforms.json``
     (Nerfstudio's ``colmap_to_json``). Raises :class:`PoseEstimationError` when fewer than 3 images register."""
     pycolmap = pycolmap_module()
-    level = pycolmap.logging.minloglevel
-    pycolmap.logging.minloglevel = 2  # errors only: the steps' INFO lines would flood the console
-    try:
+    log = folder / "colmap" / "colmap.log"
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with _stderr_to(log):  # COLMAP logs every step to stderr (as ns-process-data's non-verbose runs, kept in a file)
         return _estimate(pycolmap, folder, seed)
-    finally:
-        pycolmap.logging.minloglevel = level
+
+
+@contextmanager
+def _stderr_to(path: Path) -> Iterator[None]:
+    """File descriptor 2 (where COLMAP's C++ logging writes) redirected to ``path`` for the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with open(path, "ab") as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def _estimate(pycolmap, folder: Path, seed: int) -> SfmResult:
