@@ -430,9 +430,13 @@ def _judge_evaluation(summary: dict, stage: Stage) -> None:
         stage.fail(summary.get("reason") or "training failed")
         return
     lpips = summary.get("lpips")
+    diagnostics = summary.get("diagnostics") or {}
+    colour = (f", foreground colour spread {diagnostics['colour_spread']:.3f} (ground truth "
+              f"{diagnostics['colour_spread_gt']:.3f})" if diagnostics.get("colour_spread") is not None
+              and diagnostics.get("colour_spread_gt") is not None else "")
     stage.summary = (f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
                      f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
-                     f"{'unavailable' if lpips is None else f'{lpips:.3f}'}")
+                     f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}")
 
 
 def _report(folder: Path, outcome: Outcome) -> None:
