@@ -3,8 +3,9 @@
 1. **Ask.** The cleaned paper (cut to ``context_chars``), the knowledge-base cards the detections found (the
    deterministic detections, with their quotes) and the reference plans most relevant to the paper (the bases
    the base choice scored highest) as in-context examples. The answer is constrained by the grammar where the
-   backend takes a constraint: our GBNF (``to_gbnf(annotations=False)``: the derivation and an evidence map,
-   strings bounded) for llama.cpp, the grammar's JSON Schema otherwise; then always checked by ``check``
+   backend takes a constraint: our GBNF (``to_gbnf(annotations=False, structure_only=True)``: the derivation's
+   choices with every terminal at its defaults, an evidence map, strings bounded: a short answer a small local
+   model decodes in seconds) for llama.cpp, the grammar's JSON Schema otherwise; then always checked by ``check``
    (the grammar's own rules, duties included), re-asked with the violations within the retry bound.
 2. **Merge.** The decisions of both plans are compared: the base, the alternative at every choice, the
    terminals present (set members, optional slots). Every disagreement is listed with both sides' evidence
@@ -29,6 +30,8 @@ from nerfify_ns.agents.errors import AgentError, InvalidAnswer
 
 MIN_QUOTE = 20
 """The shortest quote (characters) that can back a model's choice."""
+MAX_STRING = 120
+"""The longest string (characters) of a model's plan under our GBNF (a method name, a quote)."""
 
 
 @dataclass
@@ -82,7 +85,7 @@ def planner_constraint(backend_structured: str) -> tuple:
     from nerfify_ns.grammar.json_schema import to_json_schema
 
     if backend_structured == "llamacpp_gbnf":
-        return None, to_gbnf(annotations=False, max_string=120)
+        return None, to_gbnf(annotations=False, max_string=MAX_STRING, structure_only=True)
     if backend_structured == "none":
         return None, None
     return to_json_schema(), None
