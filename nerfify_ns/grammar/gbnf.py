@@ -300,8 +300,11 @@ def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions) -> Optional[_Eff
 
 # ------------------------------------------------------------------------- emission
 class _Emitter:
-    def __init__(self, g: Grammar) -> None:
+    def __init__(self, g: Grammar, structure_only: bool = False) -> None:
         self.g = g
+        self.structure_only = structure_only
+        """A model's plan: terminals without parameters (their defaults; a scene's duty flags stay), no custom
+        components (a planner chooses among known techniques)."""
         self.rules: Dict[str, str] = {}
         self.by_body: Dict[str, str] = {}
 
@@ -356,6 +359,8 @@ class _Emitter:
             elif pname in consts:
                 value = json.dumps(consts[pname])
                 members.append((pname, self.rule(f"{name}-{pname}-{value}", _lit(value)), consts[pname] != param.default))
+            elif self.structure_only:
+                continue
             else:
                 item = None
                 if param.type in ("int_list", "float_list"):
@@ -374,6 +379,7 @@ class _Emitter:
             return self.rule(symbol, " | ".join(_lit(json.dumps(a)) for a in alts))
         if nt.kind == "choice":
             alts = nt.alternatives if chosen == "*" else [chosen]
+            alts = [a for a in alts if not (self.structure_only and a == CUSTOM)] or alts
             options = [self.obj(f"{symbol}-{a}", [(a, self.symbol(a, join(a), fx), True)]) for a in alts]
             return self.rule(symbol, " | ".join(options))
         if nt.kind == "sequence":
@@ -388,7 +394,10 @@ class _Emitter:
             return self.obj(symbol, members)
         if nt.kind == "set":
             members = [(m, self.terminal(m, fx), False) for m in nt.members if join(m) not in fx.forbidden]
-            return self.custom_set(symbol, members, fx) if nt.custom else self.obj(symbol, members)
+            return self.custom_set(symbol, members, fx) if nt.custom and not self.structure_only \
+                else self.obj(symbol, members)
+        if nt.kind == "open" and self.structure_only:
+            return self.terminal(nt.terminal, fx)
         if nt.kind == "open":
             custom = self.obj(f"{symbol}-custom", [(CUSTOM, self.terminal(CUSTOM, fx), True)])
             return self.rule(symbol, f"{custom} | {self.terminal(nt.terminal, fx)}")
@@ -412,13 +421,15 @@ EVIDENCE_ITEMS = 8
 """The most evidence entries a model's plan may carry (``to_gbnf(annotations=False)``)."""
 
 
-def to_gbnf(grammar: Optional[Grammar] = None, *, annotations: bool = True, max_string: Optional[int] = None) -> str:
+def to_gbnf(grammar: Optional[Grammar] = None, *, annotations: bool = True, max_string: Optional[int] = None,
+            structure_only: bool = False) -> str:
     """The GBNF grammar of canonical plan JSON (root rule ``root``). For a model's decoding
     (``nerfify_ns.agents.planner``): ``annotations=False`` keeps only ``method``, the derivation and an
     ``evidence`` map of at most :data:`EVIDENCE_ITEMS` path -> quote entries; ``max_string`` bounds every string
-    (and a number's digits), so a small model cannot ramble past ``max_tokens`` inside one."""
+    (and a number's digits), so a small model cannot ramble past ``max_tokens`` inside one; ``structure_only``:
+    the derivation's choices only (every terminal at its defaults, no custom components), a short answer."""
     g = grammar or load_grammar()
-    emitter = _Emitter(g)
+    emitter = _Emitter(g, structure_only)
     variants = sorted({emitter.root(fx, annotations) for fx in _contexts(g)})
     lines = [f"# nerfify plan grammar (grammar_spec.yaml version {g.version}); {len(variants)} duty contexts",
              "root ::= " + " | ".join(variants)]
