@@ -160,3 +160,32 @@ def test_planner_invalid_model_plan_falls_back_with_one_warning(paper_run):
     assert len(agents.warnings) == 1 and agents.warnings[0].startswith("llm planner: the model's answer was rejected "
                                                                        "after 3 tries: ")
     assert "nerf_samples" in provider.requests[1].messages[-1]["content"]  # the violation went back
+
+
+SMOLLM2_PLAN = (  # decoded by SmolLM2-135M under the planner's GBNF (seed 1, 2026-11-24); validate accepts it
+    '{"method":"nerfacto-ref","scene":{"bounded":false,"timestamps":true},"base":"nerfacto","trainer":{},'
+    '"datamanager":{},"model":{"field":{"MLPField":{"pos_encoding":{"kplanes_time":{}},"dir_encoding":{"sh":{}},'
+    '"backbone":{},"density_head":{"density_split":{}},"rgb_head":{},"spatial_distortion":{"scene_contraction":{}},'
+    '"appearance_embedding":{}}},"sampler":{"proposal":{}},"renderer":{},"losses":{"rgb":{"l2":{}},"interlevel":{},'
+    '"distortion":{}},"camera_optimizer":{"so3xr3":{}},"bounds":{}},"optimizers":{"fields":{"optimizer":{"adam":{}},'
+    '"scheduler":{"exponential_decay":{}}},"proposal_networks":{"optimizer":{"adam":{}},"scheduler":{"multistep":{}}},'
+    '"camera_opt":{"optimizer":{"adam":{}},"scheduler":{"exponential_decay":{}}}},'
+    '"evidence":{"model.field.MLPField.pos_encoding":"Nerfstudio defaults"}}')
+
+
+def test_planner_gbnf_is_structure_only():
+    """The planner's GBNF accepts a plan of choices at their defaults with an evidence map, and refuses
+    parameters, custom components, other annotations and strings past the bound; what it accepts validates."""
+    from nerfify_ns.agents.planner import MAX_STRING, plan_problems, planner_constraint
+    from nerfify_ns.grammar.gbnf_match import GbnfGrammar
+
+    schema, gbnf = planner_constraint("llamacpp_gbnf")
+    assert schema is None
+    g = GbnfGrammar(gbnf)
+    assert g.accepts(SMOLLM2_PLAN) and plan_problems(json.loads(SMOLLM2_PLAN)) == []
+    with_param = SMOLLM2_PLAN.replace('"backbone":{}', '"backbone":{"num_layers":2}')
+    custom = SMOLLM2_PLAN.replace('"rgb_head":{}', '"rgb_head":{"custom":{"module":"components.x","class":"X"}}')
+    notes = SMOLLM2_PLAN[:-1] + ',"notes":[]}'
+    long = SMOLLM2_PLAN.replace("Nerfstudio defaults", "x" * (MAX_STRING + 1))
+    for text in (with_param, custom, notes, long):
+        assert not g.accepts(text)
