@@ -305,7 +305,8 @@ class _Builder:
         spent = ((agents or {}).get("usage") or {}).get("scopes") or {} if isinstance(agents, dict) else {}
         blocks.append(table([{"part": h.get("id"), "production": h.get("production"), "slot": h.get("slot"),
                               "status": h.get("status"), "written by": _writer(h),
-                              "model calls / tokens / cost": _spent(spent.get(f"coder:{h.get('id')}")),
+                              **({"model calls / tokens / cost": _spent(spent.get(f"coder:{h.get('id')}"))}
+                                 if agents is not None else {}),
                               "reason": h.get("reason")} for h in holes]))
         for h in holes:
             blocks.append(heading(f"{h.get('production')} at {h.get('slot')}: {h.get('status')}"))
@@ -354,10 +355,11 @@ class _Builder:
         """agents.json: the endpoint (never a key), calls, cache hits, tokens and cost per stage, warnings, the
         planner's disagreements with the deterministic plan, the coder's rounds per hole."""
         data, err = _read_json(self.run / "agents.json")
+        if data is None and err is None:
+            return  # no --llm: the report is the deterministic path's, without this section
         if not isinstance(data, dict):
-            self.add("agents", "Model-backed agents (--llm)", error(err) + [text_block(
-                "not used: the deterministic path only (ns-nerfify PAPER --llm BACKEND:MODEL turns them on)",
-                "muted")], {"status": NOT_RUN})
+            self.add("agents", "Model-backed agents (--llm)", error(err or "agents.json is not an object"),
+                     {"status": "error"})
             return
         usage = data.get("usage") or {}
         blocks = [kv_table({k: v for k, v in (data.get("endpoint") or {}).items()})]
