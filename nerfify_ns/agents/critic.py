@@ -42,18 +42,18 @@ MAX_IMAGES = 2
 
 
 def summarize(artifacts: Any) -> dict:
-    """A text summary of a run: metrics, the loss curve's ends, the worst regions of each view, consistency."""
+    """A text summary of a run (what a model without images reads): metrics, the loss's first and last values,
+    the image diagnostics, each test view's worst regions (box, area, local PSNR), cross-view consistency."""
     s = artifacts.summary or {}
-    curve = artifacts.curve or []
-    views = []
-    for view in (artifacts.error_maps or [])[:4]:
-        views.append({k: view.get(k) for k in ("view", "psnr", "mean_error", "worst_regions", "high_frequency_error",
-                                               "background_error") if k in view})
-    return {"metrics": {k: s.get(k) for k in ("psnr", "ssim", "lpips", "iterations_done", "status")},
-            "loss": {"first": getattr(curve[0], "loss", None) if curve else None,
-                     "last": getattr(curve[-1], "loss", None) if curve else None},
+    views = [{"view": v.get("view"), "psnr": v.get("psnr"), "ssim": v.get("ssim"),
+              "worst_regions": [{k: r.get(k) for k in ("x0", "y0", "x1", "y1", "area", "local_psnr")}
+                                for r in (v.get("regions") or [])[:3]]}
+             for v in (artifacts.error_maps or [])[:4]]
+    return {"metrics": {k: s.get(k) for k in ("psnr", "ssim", "lpips", "iterations_done", "status", "reason")},
+            "loss": {k: (s.get("losses") or {}).get(k) for k in ("first", "last", "finite")},
+            "diagnostics": s.get("diagnostics") or {},
             "error_maps": views,
-            "consistency": {k: (artifacts.consistency or {}).get(k) for k in ("mean_score", "inconsistent_fraction")}}
+            "consistency": {k: (artifacts.consistency or {}).get(k) for k in ("mean_score",)}}
 
 
 class ModelCritic:

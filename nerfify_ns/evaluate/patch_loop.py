@@ -159,7 +159,9 @@ class RunArtifacts:
 @runtime_checkable
 class Critic(Protocol):
     """Turns a run's artefacts into diagnoses. The default is :class:`DeterministicCritic`; a
-    model- or VLM-backed critic (reading the panels and curve images) implements the same method."""
+    model- or VLM-backed critic (reading the panels and curve images) implements the same method, and may also
+    offer ``propose(plan, findings, artifacts) -> [PlanPatch]``: its own patches, which the loop validates, trains
+    and keeps or rejects exactly like the rule table's (``nerfify_ns.agents.critic``)."""
 
     name: str
 
@@ -616,6 +618,8 @@ class PatchLoop:
                 stopped = "no diagnosis remains"
                 break
             patches = [p for p in propose_patches(best, diagnoses, self.rules, self.dataset)]
+            propose = getattr(self.critic, "propose", None)  # a critic of its own patches (a model's), tried alike
+            patches += list(propose(best, diagnoses, artifacts)) if callable(propose) else []
             candidates: List[Tuple[PlanPatch, dict]] = []
             for patch in patches:
                 try:
