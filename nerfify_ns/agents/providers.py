@@ -217,8 +217,8 @@ class AnthropicProvider(Provider):
     def complete(self, request: Request) -> Response:
         anthropic = self.anthropic
         system, messages = self._messages(request.messages)
-        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": messages,
-                                  "max_tokens": request.max_tokens, "temperature": request.temperature}
+        # no temperature: the SDK's messages API (anthropic 2.x) takes none; its sampling is the model's
+        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": messages, "max_tokens": request.max_tokens}
         if system:
             kwargs["system"] = system
         if request.schema and self.config.constrained:

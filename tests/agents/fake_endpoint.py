@@ -1,7 +1,8 @@
 """A real HTTP server on 127.0.0.1 that speaks (or fails to speak) OpenAI's chat-completions API, for the agents'
 failure-mode tests: the SDK, its HTTP client and our error handling all run for real; only the model is fixed.
 
-Modes: ``ok`` (a chat completion whose content is ``answer``), ``length`` (the same, cut: finish reason
+Modes: ``ok`` (a chat completion whose content is ``answer``; on ``/messages``, Anthropic's message with a
+``tool_use`` block whose input is ``answer``), ``length`` (the same, cut: finish reason
 ``length``), ``html`` (200 with an HTML page), ``500`` (an internal server error), ``hang`` (accepts the request
 and answers nothing for ``hang_s`` seconds). Every request is kept (path, headers, JSON body), bounded in count.
 """
@@ -60,6 +61,12 @@ class FakeEndpoint:
         if self.mode == "500":
             return self._send(handler, 500, b'{"error": {"message": "internal error", "type": "server_error"}}',
                               "application/json")
+        if handler.path.endswith("/messages"):  # Anthropic's messages API: the answer as a forced tool's input
+            body = {"id": "msg_1", "type": "message", "role": "assistant", "model": "fake",
+                    "content": [{"type": "tool_use", "id": "toolu_1", "name": "plan", "input": json.loads(self.answer)}],
+                    "stop_reason": "max_tokens" if self.mode == "length" else "tool_use", "stop_sequence": None,
+                    "usage": {"input_tokens": 100, "output_tokens": 20}}
+            return self._send(handler, 200, json.dumps(body).encode(), "application/json")
         finish = "length" if self.mode == "length" else "stop"
         text = self.answer[:20] if self.mode == "length" else self.answer
         body = {"id": "chatcmpl-1", "object": "chat.completion", "created": 0, "model": "fake",

@@ -131,3 +131,25 @@ def test_bad_llm_settings_are_one_error_line(tmp_path, monkeypatch, capsys):
         lines = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
         assert len(lines) == 1 and lines[0].startswith("error:") and needle in lines[0], lines
     assert list(tmp_path.iterdir()) == []  # nothing written (not even the cache)
+
+
+def test_anthropic_sdk_forced_tool_over_http(tmp_path, deterministic):
+    """The anthropic SDK against the same real server: the schema goes as a forced tool, the tool's input is the
+    answer; its stop reason max_tokens is a cut answer."""
+    pytest.importorskip("anthropic", reason="the [llm] extra is not installed")
+    from nerfify_ns.agents import Agents, LLMConfig
+    from nerfify_ns.pipeline import run_paper
+
+    model_plan = yaml.safe_load((ROOT / "method_configs" / "nerfacto.yaml").read_text())
+    with FakeEndpoint("ok", answer=json.dumps(model_plan)) as endpoint:
+        config = LLMConfig.parse("anthropic:claude-test", endpoint.url, cache=tmp_path / "c.sqlite", timeout=5.0)
+        agents = Agents(config)
+        run_paper(EXAMPLE, dry_run=True, agents=agents)
+    sent = endpoint.requests[0]
+    assert sent["path"].endswith("/messages") and sent["json"]["tool_choice"] == {"type": "tool", "name": "plan"}
+    assert sent["json"]["tools"][0]["input_schema"]["type"] == "object" and sent["json"]["system"]
+    assert agents.planner["used_model"] and not agents.warnings
+    with FakeEndpoint("length", answer=json.dumps(model_plan)) as endpoint:
+        cut = Agents(config.with_(base_url=endpoint.url, cache=None, max_tokens=32))
+        assert run_paper(EXAMPLE, dry_run=True, agents=cut).plan == deterministic
+    assert len(cut.warnings) == 1 and "cut at max_tokens=32" in cut.warnings[0]
