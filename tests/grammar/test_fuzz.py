@@ -49,6 +49,43 @@ def test_density_regulariser_on_a_tensorial_field(tmp_path):
     assert check_plan(plan, tmp_path) == []
 
 
+PLAN_0_21 = """
+scene: {timestamps: false, appearance_variation: false, bounded: false}
+base: instant-ngp
+trainer: {mixed_precision: false}
+datamanager: {train_num_rays_per_batch: 1048576, eval_num_rays_per_batch: 4096}
+model:
+  field:
+    MLPField:
+      pos_encoding: {positional: {num_frequencies: 25, min_freq_exp: 0.0, max_freq_exp: 0.0}}
+      dir_encoding: {sh: {levels: 4}}
+      backbone: {num_layers: 16, layer_width: 46, skip_connections: []}
+      density_head: {density_linear: {activation: relu}}
+      rgb_head: {layer_width: 8}
+      spatial_distortion: {scene_contraction: {order: inf}}
+  sampler: {occupancy_grid: {grid_resolution: 512, grid_levels: 1, cone_angle: 0.0}}
+  renderer: {}
+  losses: {rgb: {l2: {}}}
+optimizers:
+  fields:
+    optimizer: {adam: {eps: 1.0, weight_decay: 0.0}}
+    scheduler: {exponential_decay: {max_steps: 55}}
+method: fuzz-0-21
+"""
+
+
+@pytest.mark.slow
+def test_a_field_of_frequency_encodings_takes_a_batch_with_no_samples(tmp_path):
+    """Found by the fuzzer (seed 0, plan 21): an occupancy grid culled every sample of a batch and Nerfstudio's
+    frequency encoding could not reshape the empty tensor, so a training step failed. The generated fields
+    encode through `_encode`, which gives an empty output of the encoding's width."""
+    import yaml
+
+    from nerfify_ns.plan import Plan
+
+    assert check_plan(Plan(yaml.safe_load(PLAN_0_21)), tmp_path) == []
+
+
 def test_proposal_resolutions_for_no_network_are_rejected():
     """Found by the fuzzer (seed 0, plan 0): four proposal resolutions for two rounds built four networks of
     which two never received a gradient. The grammar now rejects resolutions no network uses."""
