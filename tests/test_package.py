@@ -165,7 +165,7 @@ def test_installed_wheel_composes_and_verifies_a_plugin(installed, tmp_path):
     env = _clean_env(tmp_path)
     cli = installed / "bin" / "ns-nerfify"
     plugin = tmp_path / "plugin"
-    _run([cli, "compose", "--method", "vanilla-nerf", "--no-train", "--out", plugin], cwd=tmp_path, env=env)
+    _run([cli, "compose", "--method", "vanilla-nerf", "--until", "plugin", "--out", plugin], cwd=tmp_path, env=env)
     assert (plugin / "pyproject.toml").is_file() and (plugin / "plan.yaml").is_file()
     assert list(plugin.glob("*/model.py")) and list(plugin.glob("*/field.py"))
     verify_out = tmp_path / "verify"
