@@ -405,6 +405,8 @@ class Bench:
     """Run every task as a Ray task on a local cluster (ray.init()); needs the [ray] extra."""
     ray_address: Optional[str] = None
     """Run the tasks on an existing Ray cluster at this address (implies --ray)."""
+    tables_only: bool = False
+    """Run nothing: write the tables from the tasks finished in --out so far (the others listed as not run)."""
 
     def main(self) -> None:
         from nerfify_ns.ablations import Ablations
@@ -413,11 +415,15 @@ class Bench:
         suite = load_suite(self.suite)
         ablations = Ablations.parse(self.ablations).names
         from nerfify_ns.benchsuite.executor import LocalExecutor, RayExecutor
-        from nerfify_ns.benchsuite.run import run_bench
+        from nerfify_ns.benchsuite.run import run_bench, write_tables
 
-        executor = RayExecutor(self.ray_address) if self.ray or self.ray_address else LocalExecutor()
         out = self.out or Path("bench-results") / suite.name
         command = "ns-nerfify bench " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["bench"] else sys.argv[1:])
+        if self.tables_only:
+            payload = write_tables(suite, out, ablations, "none (--tables-only)", command)
+            CONSOLE.print(f"{len(payload['tasks'])} finished task(s); outputs: {out}", soft_wrap=True)
+            return
+        executor = RayExecutor(self.ray_address) if self.ray or self.ray_address else LocalExecutor()
         with ConsoleProgress() as progress:
             result = run_bench(suite, out, ablations=ablations, executor=executor, progress=progress,
                                command=command)

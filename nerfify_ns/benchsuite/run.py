@@ -13,7 +13,7 @@ import datetime as _dt
 import platform
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Dict, List, Sequence
+from typing import Dict, List, Optional, Sequence
 
 from nerfify_ns.ablations import Ablations
 from nerfify_ns.benchsuite.executor import LocalExecutor, finished
@@ -34,8 +34,6 @@ class BenchResult:
 def run_bench(suite: Suite, out: Path, *, ablations: Sequence[str] = (), executor=None,
               progress: Progress = Progress(), command: str = "") -> BenchResult:
     """Run (or resume) the suite into ``out``; write results.json, tables.md, tables.tex and plots/."""
-    from nerfify_ns.benchsuite.tables import write_outputs
-
     ablations = list(Ablations.of(ablations).names)  # unknown names refused before anything runs
     executor = executor or LocalExecutor()
     out = Path(out).absolute()
@@ -64,8 +62,26 @@ def run_bench(suite: Suite, out: Path, *, ablations: Sequence[str] = (), executo
 
     executor.run(suite.path, out, pending, needs, on_done)
     progress.finish("bench", f"{len(pending)} task(s) run, {skipped} skipped (done before)", 0.0)
+    payload = write_tables(suite, out, ablations, executor.name, command, results)
+    failed = [f"{k}: {r.get('reason', '')}" for k, r in results.items() if r.get("status") != "ok"]
+    return BenchResult(out, payload, len(pending), skipped, failed)
+
+
+def write_tables(suite: Suite, out: Path, ablations: Sequence[str], executor: str, command: str = "",
+                 results: Optional[Dict[str, dict]] = None) -> dict:
+    """results.json, tables.md, tables.tex and plots/ from the tasks' results (default: every task finished in ``out``
+    so far; the others are listed as not run)."""
+    from nerfify_ns.benchsuite.tables import write_outputs
+
+    tasks = tasks_of(suite, list(ablations))
+    if results is None:
+        results = {}
+        for task in tasks:
+            done = finished(out, task, suite.paper(task.paper).fingerprint())
+            if done is not None:
+                results[task.key] = done
     meta = {"suite": suite.name, "suite_file": str(suite.path), "date": _dt.date.today().isoformat(),
-            "command": command, "executor": executor.name, "ablations": ablations,
+            "command": command, "executor": executor, "ablations": list(ablations),
             "machine": f"{platform.machine()}, {platform.system()}, Python {platform.python_version()}",
             "papers": {p.id: {"input": str(p.input), "scenes": list(p.scenes), "seeds": list(p.seeds),
                               "reference": p.reference.label, "reference_note": p.reference.note,
@@ -73,6 +89,4 @@ def run_bench(suite: Suite, out: Path, *, ablations: Sequence[str] = (), executo
                               "novelty": [{"id": i.id, "kind": i.kind, "weight": i.weight, "where": i.where,
                                            "check": bool(i.check)} for i in p.novelty]}
                        for p in suite.papers}}
-    payload = write_outputs(out, meta, [results[t.key] for t in tasks if t.key in results], tasks)
-    failed = [f"{k}: {r.get('reason', '')}" for k, r in results.items() if r.get("status") != "ok"]
-    return BenchResult(out, payload, len(pending), skipped, failed)
+    return write_outputs(Path(out), meta, [results[t.key] for t in tasks if t.key in results], tasks)
