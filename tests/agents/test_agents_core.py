@@ -189,3 +189,17 @@ def test_planner_gbnf_is_structure_only():
     long = SMOLLM2_PLAN.replace("Nerfstudio defaults", "x" * (MAX_STRING + 1))
     for text in (with_param, custom, notes, long):
         assert not g.accepts(text)
+
+
+def test_scripted_answers_file(tmp_path):
+    """``--llm scripted:ANSWERS.yaml``: a replayed model from a file (stage -> answers); a bad file is one line."""
+    from nerfify_ns.agents import Agents
+    from nerfify_ns.agents.errors import LLMSetupError
+
+    answers = tmp_path / "answers.yaml"
+    answers.write_text("planner:\n  - '{\"a\": 1}'\n")
+    agents = Agents(LLMConfig.parse(f"scripted:{answers}", cache=tmp_path / "c.sqlite"))
+    assert agents.client.ask("planner", [{"role": "user", "content": "q"}]).value == {"a": 1}
+    (tmp_path / "bad.yaml").write_text("{unclosed")
+    with pytest.raises(LLMSetupError, match="cannot read it"):
+        Agents(LLMConfig.parse(f"scripted:{tmp_path / 'bad.yaml'}", cache=tmp_path / "c.sqlite"))
