@@ -116,7 +116,7 @@ def planner_messages(doc: Any, derived: Any, *, context_chars: int = 6000, examp
     from nerfify_ns.paper import clean_markdown
 
     paper = clean_markdown(doc)[:context_chars]
-    detections = [{"technique": d.card, "production": d.production, "status": d.status,
+    detections = [{"technique": d.card, "card": d.title, "production": d.production, "status": d.status,
                    "quote": (d.uses[0].quote if d.uses else (d.evidence[0].quote if d.evidence else ""))[:200]}
                   for d in getattr(derived, "detections", []) or [] if d.status != "mentioned_only"]
     refs = _reference_plans(derived, examples)
