@@ -62,3 +62,46 @@ def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
 
     # `ns-train nerfify-generated` run here trains this plugin (the newest under ./nerfify-out), no global state
     assert resolve_generated(tmp_path)[0] == out and not (tmp_path / "cache" / "generated").exists()
+
+
+class GreyRenders(AssertionError):
+    """The renders' foreground carries less than half the ground truth's colour spread."""
+
+
+MINUTE_ITERATIONS = 100
+"""Training iterations of a run of about one minute on this machine idle (gridlite, 512 rays, about 0.35 s a step,
+plus two Nerfstudio start-ups and one rendered checkpoint)."""
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, raises=GreyRenders, reason="issue 14 item 4 is not met yet: after about a minute of training the "
+                   "gridlite renders are still grey (colour spread 0.00-0.09x the ground truth's; 0.33x after 300 "
+                   "iterations); see README 'What the main command gives today'. Strict, and only for grey renders: "
+                   "when it passes, remove this mark")
+def test_the_main_job_renders_colour_not_grey(tmp_path):
+    """The README's main job on a budget of about one minute of training: the renders carry colour (the foreground's
+    colour spread at least half the ground truth's; the grey renders of issue 14 had 0.04x). The ladder is switched
+    off here (its own tests cover it) so the minute goes to
+    training; iterations are fixed (MINUTE_ITERATIONS, about a minute at this machine's idle speed) so the check does
+    not depend on the machine's load."""
+    from dataclasses import replace
+
+    from nerfify_ns.ablations import Ablations
+    from nerfify_ns.budget import PAPER_BUDGET
+    from nerfify_ns.pipeline import run_paper
+
+    budget = replace(PAPER_BUDGET, seconds=None, iterations=MINUTE_ITERATIONS, every=MINUTE_ITERATIONS)
+    result = run_paper(EXAMPLE, tmp_path / "out", budget=budget, ablations=Ablations.of(["no-verify"]))
+    summary = result.summary
+    assert result.outcome.ok and summary["status"] == "ok" and summary["iterations_done"] == MINUTE_ITERATIONS
+    diagnostics = summary["diagnostics"]
+    plan = yaml.safe_load((tmp_path / "out" / "plan.yaml").read_text())
+    assert plan["model"]["bounds"]["far_plane"] < 10  # the bounded scene's planes, not Nerfacto's 1000
+    assert "schedule" not in plan  # gridlite's schedule has no warm-up; its decay keeps the paper's horizon
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert [v.split()[0] for v in report["outcome"]["views"]] == ["best", "worst"]
+    assert "foreground colour spread" in report["outcome"]["result"]
+    assert 0 < diagnostics["colour_spread_gt"] and diagnostics["colour_spread"] is not None
+    if not diagnostics["colour_spread_ratio"] >= 0.5:  # the only failure the xfail mark expects
+        raise GreyRenders(f"colour spread {diagnostics['colour_spread']:.4f} vs ground truth "
+                          f"{diagnostics['colour_spread_gt']:.4f}: {diagnostics['colour_spread_ratio']:.2f}x")
