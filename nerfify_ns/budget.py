@@ -83,7 +83,7 @@ class Budget:
     checkpoints: int = 3
     """Checkpoints rendered for the error-against-time curve when ``every`` is None."""
     scale_schedule: bool = False
-    """Scale the plan's step counts (warm-ups, decay horizons, proposal annealing) to the run when it is shorter
+    """Scale the plan's step counts listed in ``synthesis/schedule.yaml`` (warm-ups, upsampling steps) to the run when it is shorter
     than the paper's schedule (``nerfify_ns.synthesis.schedule``); off where fixed schedules are compared."""
 
     def __post_init__(self) -> None:

@@ -157,7 +157,7 @@ class Paper:
     budget: Optional[str] = None
     """Wall-clock budget of the whole run, evaluation included: 4m, 90s, 0.5h (a bare number is minutes). Default
     4 minutes unless --iterations is given. Training gets the iterations that fit the time the earlier stages left
-    (from the smoke rung's measured speed), and a paper's schedule (warm-ups, decay horizons, proposal annealing)
+    (from the smoke rung's measured speed), and a paper's schedule (its warm-ups and upsampling steps)
     is scaled to them."""
     iterations: Optional[int] = None
     """Training iterations of the evaluation run. Alone: exactly this many, no time limit; with --budget: at most
