@@ -83,8 +83,9 @@ class Budget:
     checkpoints: int = 3
     """Checkpoints rendered for the error-against-time curve when ``every`` is None."""
     scale_schedule: bool = False
-    """Scale the plan's step counts listed in ``synthesis/schedule.yaml`` (warm-ups, upsampling steps) to the run when it is shorter
-    than the paper's schedule (``nerfify_ns.synthesis.schedule``); off where fixed schedules are compared."""
+    """Scale the plan's step counts listed in ``synthesis/schedule.yaml`` (warm-ups, upsampling steps) to the run
+    when it is shorter than the paper's schedule (``nerfify_ns.synthesis.schedule``); off where fixed schedules are
+    compared."""
 
     def __post_init__(self) -> None:
         """Every number in its range (a budget is built from command-line options: one clear error)."""
