@@ -74,6 +74,7 @@ plus two Nerfstudio start-ups and one rendered checkpoint)."""
 
 
 @pytest.mark.slow
+@pytest.mark.bench  # while it is an expected failure it guards nothing in CI; back to CI when item 4 is met
 @pytest.mark.xfail(strict=True, raises=GreyRenders, reason="issue 14 item 4 is not met yet: after about a minute of training the "
                    "gridlite renders are still grey (colour spread 0.00-0.09x the ground truth's; 0.33x after 300 "
                    "iterations); see README 'What the main command gives today'. Strict, and only for grey renders: "
