@@ -148,7 +148,7 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
 
     b = entry.budget
     ablations = Ablations.of([] if task.config == FULL else [task.config])
-    budget = Budget(iterations=b.iterations, every=b.every, smoke_iterations=b.smoke_iterations,
+    budget = Budget(iterations=b.iterations, every=b.every, smoke_iterations=b.smoke_iterations, timeout=b.timeout,
                     train_args=train_args(b, task.seed))
     run_dir = folder / "run"
     result: dict = {"status": "ok", "reason": ""}
@@ -216,7 +216,7 @@ def _reference_plan(entry: PaperEntry, task: Task, data: Path, folder: Path) -> 
     from nerfify_ns.plan import Plan
 
     b = entry.budget
-    budget = Budget(iterations=b.iterations, every=b.every, smoke_iterations=b.smoke_iterations,
+    budget = Budget(iterations=b.iterations, every=b.every, smoke_iterations=b.smoke_iterations, timeout=b.timeout,
                     train_args=train_args(b, task.seed))
     result = run_compose(Plan.load(entry.reference.plan), folder / "compose", data=data, budget=budget,
                          overwrite=True)
