@@ -249,7 +249,9 @@ def _reference_method(entry: PaperEntry, task: Task, data: Path, folder: Path) -
     summary = {"iterations_done": run.last_step + 1, "losses": loss_stats(run.losses),
                "train_log": str(run.log_path)}
     if not run.ok:
-        tail = " | ".join(line.strip() for line in run.log_tail(6).splitlines() if line.strip())[-400:]
+        lines = [line.strip(" │╭╮╰╯─") for line in run.log_tail(200).splitlines()]
+        said = [line for line in lines if any(w in line.lower() for w in ("error", "unrecognized", "invalid"))]
+        tail = " | ".join(line for line in (said[:2] or lines[-6:]) if line)[-400:]
         why = "timed out" if run.timed_out else f"exit code {run.returncode}"
         return {**summary, "status": "failed", "reason": f"ns-train {method}: {why}: {tail}"}
     try:
