@@ -39,14 +39,11 @@ CASES = {
 }
 
 
-def run_paper(case: str, tmp_path: Path) -> tuple:
+def run_paper(case: str, tmp_path: Path, monkeypatch) -> tuple:
     name, settings, export, *_ = CASES[case]
-    env = {**os.environ, "NERFIFY_CACHE": str(tmp_path / "cache"), realistic.ENV_SCENE_CACHE: str(tmp_path / "scenes")}
-    os.environ[realistic.ENV_SCENE_CACHE] = env[realistic.ENV_SCENE_CACHE]
-    try:
-        data = write_realistic(RealisticSettings(name, **settings), tmp_path / "data", fmt=export)
-    finally:
-        os.environ.pop(realistic.ENV_SCENE_CACHE, None)
+    monkeypatch.setenv(realistic.ENV_SCENE_CACHE, str(tmp_path / "scenes"))
+    env = {**os.environ, "NERFIFY_CACHE": str(tmp_path / "cache")}
+    data = write_realistic(RealisticSettings(name, **settings), tmp_path / "data", fmt=export)
     out = tmp_path / "out"
     cmd = [str(CLI), str(EXAMPLE), "--data", str(data), "--iterations", "10", "--every", "10", "--out", str(out)]
     if name == "garden-360":  # a textured capture at 32 px leaves its first plateau later than 20 iterations
@@ -56,9 +53,9 @@ def run_paper(case: str, tmp_path: Path) -> tuple:
     return data, out, done
 
 
-def check_case(case: str, tmp_path: Path) -> dict:
+def check_case(case: str, tmp_path: Path, monkeypatch) -> dict:
     _, _, _, fmt, bounded, kept = CASES[case]
-    data, out, done = run_paper(case, tmp_path)
+    data, out, done = run_paper(case, tmp_path, monkeypatch)
     assert f"{fmt} dataset" in done.stdout  # the plan stage names the format
     plan = yaml.safe_load((out / "plan.yaml").read_text())
     assert plan["scene"]["format"] == fmt and plan["scene"]["bounded"] is bounded
@@ -81,18 +78,18 @@ def check_case(case: str, tmp_path: Path) -> dict:
 
 
 @pytest.mark.slow
-def test_paper_on_a_realistic_object_on_white(tmp_path):
+def test_paper_on_a_realistic_object_on_white(tmp_path, monkeypatch):
     """The one CI case: the bounded textured object on a transparent background (Blender format), whose plan
     loses contraction, appearance codes and the camera optimiser, each with its reason."""
-    plan = check_case("blender", tmp_path)
+    plan = check_case("blender", tmp_path, monkeypatch)
     assert "transparent background" in plan["evidence"]["scene"]
 
 
 @pytest.mark.bench
 @pytest.mark.slow
 @pytest.mark.parametrize("case", [c for c in CASES if c != "blender"])
-def test_paper_on_each_realistic_format(case, tmp_path):
-    plan = check_case(case, tmp_path)
+def test_paper_on_each_realistic_format(case, tmp_path, monkeypatch):
+    plan = check_case(case, tmp_path, monkeypatch)
     if case == "nerfstudio-colmap-poses":  # the real-capture path: measured, not assumed
         evidence = plan["evidence"]["scene"]
         assert "COLMAP points lie beyond" in evidence and "per-image exposure spread" in evidence
