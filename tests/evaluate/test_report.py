@@ -178,8 +178,9 @@ def test_evaluate_run_and_report_open_offline_in_chromium(tiny_scene, tmp_path):
     assert "config.py" in " ".join(sections["components"]["files"]) and sections["components"]["parts"]
     assert sections["error_maps"]["views"] == 2 and len(sections["curve"]["points"]) == 2
     assert sections["paper"]["evidence"][0]["quote"].startswith("we use a hash grid")
-    # 1 citation graph + 1 curve + 2 error panels + 2 consistency masks
-    assert len(report["images"]) == 6
+    # 1 citation graph + 1 curve + 2 error panels + 2 consistency masks; the best and the worst view's panels
+    # again at the top of the report
+    assert len(report["images"]) == 8 and len(set(report["images"])) == 6, report["images"]
 
     text = html_path.read_text()
     assert "&lt;script&gt;" in text and "&lt;img src=http://example.com" in text  # text is escaped
@@ -188,7 +189,7 @@ def test_evaluate_run_and_report_open_offline_in_chromium(tiny_scene, tmp_path):
     assert refs and all(r.startswith(("data:image/", "#")) for r in refs), [r[:40] for r in refs]
     css = "".join(re.findall(r"<style>(.*?)</style>", text, re.S))
     assert css and "url(" not in css and "@import" not in css
-    assert sum(r.startswith("data:image/png;base64,") for r in refs) == 6
+    assert sum(r.startswith("data:image/png;base64,") for r in refs) == 8
 
     if shutil.which("chromium") is None:
         pytest.skip("chromium not installed (apt-get install -y chromium); the report itself was checked")
@@ -200,7 +201,7 @@ def test_evaluate_run_and_report_open_offline_in_chromium(tiny_scene, tmp_path):
     dom = _chromium(["--virtual-time-budget=5000", "--dump-dom", probe.as_uri()], tmp_path)
     match = re.search(r'data-images="([^"]*)"', dom.stdout)
     assert match, dom.stderr[-2000:]
-    assert match.group(1).split(",") == ["true"] * 6
+    assert match.group(1).split(",") == ["true"] * 8
     shot = tmp_path / "report.png"
     _chromium(["--window-size=1200,2400", f"--screenshot={shot}", html_path.as_uri()], tmp_path)
     pixels = np.asarray(Image.open(shot).convert("RGB")).astype(float)
