@@ -19,14 +19,14 @@ from typing import Dict, Iterable
 
 ENV_ONLY = "NERFIFY_METHODS_ONLY"
 GROUP = "nerfstudio.method_configs"
-KEEP = ("nerfify-generated",)
-"""Entry points every isolated process keeps (ours: its import activates the CPU/offline runtime)."""
 SITECUSTOMIZE = "import nerfify_ns.runtime.isolated as _isolated\n_isolated.apply_from_env()\n"
 
 
 def apply(allowed: Iterable[str]) -> None:
     """Make ``importlib.metadata.entry_points(group=GROUP)`` return only the entry points named in ``allowed``."""
-    allowed = set(allowed) | set(KEEP)
+    from nerfify_ns.runtime.launch import GENERATED_METHOD  # ours, always kept: its import activates the runtime
+
+    allowed = set(allowed) | {GENERATED_METHOD}
     original = getattr(metadata.entry_points, "__wrapped__", metadata.entry_points)
 
     def entry_points(**params):
