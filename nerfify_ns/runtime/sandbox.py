@@ -725,9 +725,30 @@ def sandbox_env(workdir: Path, extra: Optional[Mapping[str, str]] = None, mode: 
     return env
 
 
+_PR_SET_PDEATHSIG = 1
+
+
+def _death_signal():
+    """libc's ``prctl`` bound in the parent (the child of a fork must not load libraries), or None off Linux."""
+    try:
+        import ctypes
+
+        return ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+
 def _preexec(group: Optional[TreeCgroup], rlimits: Sequence[Tuple[int, int]]):
-    """Run in the child before it executes the sandbox: stdin from /dev/null, join the cgroup, set rlimits."""
+    """Run in the child before it executes the sandbox: SIGKILL when we die (bubblewrap's --die-with-parent is set
+    only once it runs; a parent killed in between would leave the sandbox orphaned), stdin from /dev/null, join
+    the cgroup, set rlimits."""
+    parent, prctl = os.getpid(), _death_signal()
+
     def apply() -> None:
+        if prctl is not None:
+            prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+            if os.getppid() != parent:  # killed before the death signal was armed
+                os._exit(137)
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)
         os.close(null)

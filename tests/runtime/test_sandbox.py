@@ -352,10 +352,14 @@ def test_sandbox_dies_with_us_even_when_we_are_killed(tmp_path):
               f"run_sandboxed(['sh', '-c', 'sleep {marker} & sleep {marker}; wait'], Path({str(tmp_path / 'w')!r}),"
               f" timeout=120)\n")
     parent = subprocess.Popen([sys.executable, "-c", script])
+
+    def sleeping() -> list:  # the sandboxed command itself (the parent's own command line names the marker too)
+        return [p for p in marker_processes(marker) if p[1].startswith(f"sleep {marker}")]
+
     deadline = time.monotonic() + 60
-    while not marker_processes(marker) and time.monotonic() < deadline:
+    while len(sleeping()) < 2 and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert marker_processes(marker), "the sandboxed command did not start"
+    assert len(sleeping()) == 2, "the sandboxed command did not start"
     parent.send_signal(signal.SIGKILL)
     parent.wait()
     deadline = time.monotonic() + 10
