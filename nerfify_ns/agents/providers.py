@@ -133,6 +133,23 @@ def _import(module: str):
         raise LLMSetupError(f"the '{module}' package is not installed: pip install 'nerfify-ns[llm]'") from None
 
 
+
+def _sdk_call(sdk: Any, create: Callable[..., Any], kwargs: dict, where: str, timeout: float) -> Any:
+    """``create(**kwargs)`` with the SDK's errors as :class:`ProviderError` (the openai and anthropic SDKs name
+    their errors alike): a timeout, no connection, an HTTP status, a body that is not the API's JSON."""
+    try:
+        return create(**kwargs)
+    except sdk.APITimeoutError:
+        raise ProviderError("timeout", f"{where} did not answer within {timeout:g} s", retry=True) from None
+    except sdk.APIConnectionError as exc:
+        raise ProviderError("connection", f"cannot reach {where}: {_first_line(exc.__cause__ or exc)}",
+                            retry=True) from None
+    except sdk.APIStatusError as exc:
+        raise _status_error(exc, where) from None
+    except sdk.APIError as exc:
+        raise ProviderError("not-json", f"{where} did not answer with the API's JSON: {_first_line(exc)}",
+                            retry=True) from None
+
 def _status_error(exc: Any, where: str) -> ProviderError:
     status = getattr(exc, "status_code", None) or getattr(getattr(exc, "response", None), "status_code", None)
     body = getattr(getattr(exc, "response", None), "text", "") or str(exc)
@@ -160,19 +177,7 @@ class OpenAIProvider(Provider):
             kwargs["seed"] = request.seed
         mode = info.structured if self.config.constrained else "none"
         kwargs.update(SHAPES[mode](request, info.strict_schema))
-        try:
-            raw = self.client.chat.completions.create(**kwargs)
-        except openai.APITimeoutError:
-            raise ProviderError("timeout", f"{self.where} did not answer within {self.config.timeout:g} s",
-                                retry=True) from None
-        except openai.APIConnectionError as exc:
-            raise ProviderError("connection", f"cannot reach {self.where}: {_first_line(exc.__cause__ or exc)}",
-                                retry=True) from None
-        except openai.APIStatusError as exc:
-            raise _status_error(exc, self.where) from None
-        except openai.APIError as exc:  # a body that is not the API's JSON
-            raise ProviderError("not-json", f"{self.where} did not answer with the API's JSON: "
-                                f"{_first_line(exc)}", retry=True) from None
+        raw = _sdk_call(openai, self.client.chat.completions.create, kwargs, self.where, self.config.timeout)
         choices = getattr(raw, "choices", None)
         if not choices:  # the SDK hands back a string when the body is not JSON (an HTML page, a proxy's error)
             raise ProviderError("not-json", f"{self.where} answered with something that is not a chat completion: "
@@ -225,19 +230,7 @@ class AnthropicProvider(Provider):
             kwargs["tools"] = [{"name": request.schema_name, "description": "Give the answer.",
                                 "input_schema": request.schema}]
             kwargs["tool_choice"] = {"type": "tool", "name": request.schema_name}
-        try:
-            raw = self.client.messages.create(**kwargs)
-        except anthropic.APITimeoutError:
-            raise ProviderError("timeout", f"{self.where} did not answer within {self.config.timeout:g} s",
-                                retry=True) from None
-        except anthropic.APIConnectionError as exc:
-            raise ProviderError("connection", f"cannot reach {self.where}: {_first_line(exc.__cause__ or exc)}",
-                                retry=True) from None
-        except anthropic.APIStatusError as exc:
-            raise _status_error(exc, self.where) from None
-        except anthropic.APIError as exc:
-            raise ProviderError("not-json", f"{self.where} did not answer with the API's JSON: "
-                                f"{_first_line(exc)}", retry=True) from None
+        raw = _sdk_call(anthropic, self.client.messages.create, kwargs, self.where, self.config.timeout)
         blocks = getattr(raw, "content", None)
         if blocks is None:
             raise ProviderError("not-json", f"{self.where} answered with something that is not a message: "
