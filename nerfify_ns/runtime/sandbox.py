@@ -234,7 +234,7 @@ class TreeCgroup:
             enabled = (parent / "cgroup.subtree_control").read_text().split()
             if not {"memory", "pids"} <= set(enabled):
                 _write(parent / "cgroup.subtree_control", "+memory +pids")
-            cls._sweep(parent)
+            cls._sweep(parent, 2)
             folder = parent / name
             folder.mkdir()
         except OSError:
@@ -262,7 +262,7 @@ class TreeCgroup:
             parent = _under(mount[0], mount[1], own[controller])
             if parent is None:
                 continue
-            cls._sweep(parent)
+            cls._sweep(parent, 1)
             try:
                 (parent / name).mkdir()
             except OSError:
@@ -284,8 +284,9 @@ class TreeCgroup:
         return group
 
     @classmethod
-    def _sweep(cls, parent: Path) -> None:
-        """Remove empty cgroups a run of a process that no longer exists left behind (killed with SIGKILL)."""
+    def _sweep(cls, parent: Path, version: int) -> None:
+        """Remove the cgroups that runs of processes that no longer exist left behind (killed with SIGKILL): tasks
+        still in one (a tree still exiting, or one that outlived its owner) are killed first, as at a run's end."""
         try:
             entries = list(parent.iterdir())
         except OSError:
@@ -293,32 +294,9 @@ class TreeCgroup:
         for entry in entries:
             m = re.fullmatch(rf"{cls.PREFIX}(\d+)-[0-9a-f]+", entry.name)
             if m and not _alive(int(m.group(1))):
-                cls._remove_orphan(entry)
-
-    @staticmethod
-    def _remove_orphan(folder: Path, wait: float = 3.0) -> None:
-        """Remove the cgroup of a run whose owner died: tasks still in it (a tree that is still exiting, or one
-        that outlived its owner) are killed, and the removal is retried for up to ``wait`` seconds."""
-        deadline = time.monotonic() + wait
-        while True:
-            try:
-                folder.rmdir()
-                return
-            except FileNotFoundError:
-                return
-            except OSError:
-                if time.monotonic() > deadline:
-                    return
-            try:
-                left = [int(p) for p in (folder / "cgroup.procs").read_text().split()]
-            except (OSError, ValueError):
-                left = []
-            for pid in left:
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except (ProcessLookupError, PermissionError):
-                    pass
-            time.sleep(0.05)
+                orphan = cls(version, {"memory": entry, "pids": entry})
+                orphan.kill(grace=3.0, settle=0.0)
+                orphan.remove()
 
     def enter(self) -> None:
         """Move the calling process into the cgroup (called in the child before it executes the command)."""
