@@ -24,7 +24,7 @@ from typing import Any, Dict, List, Optional, Set, Tuple
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar.spec import CUSTOM, Grammar, Param
-from nerfify_ns.grammar.validate import Violation, check, expected_param_groups, derive
+from nerfify_ns.grammar.validate import Derivation, Violation, derive, expected_param_groups
 from nerfify_ns.plan import Plan
 
 EDGE_WEIGHTS = (("low", 0.3), ("high", 0.3), ("default", 0.2), ("random", 0.2))
@@ -174,28 +174,32 @@ class PlanSampler:
 
     # ------------------------------------------------------------------ settling the duties
     def settle(self, plan: Plan) -> bool:
-        """Fix the violations one at a time; True when the plan validates."""
+        """Fix the violations one at a time; True when the plan validates (the method name, which settling
+        never edits, is checked against the installed modules once, at the end)."""
         for _ in range(MAX_SETTLE_STEPS):
-            self._groups(plan)
-            violations = check(plan, self.g)
-            if not violations:
-                return True
-            if not self._fix(plan, violations[0]):
+            derivation = derive(plan, self.g, installed=False)
+            if self._groups(plan, derivation):
+                derivation = derive(plan, self.g, installed=False)
+            if not derivation.violations:
+                return not derive(plan, self.g).violations
+            if not self._fix(plan, derivation.violations[0]):
                 return False
         return False
 
-    def _groups(self, plan: Plan) -> None:
-        derivation = derive(plan, self.g)
+    def _groups(self, plan: Plan, derivation: Derivation) -> bool:
+        """Make the plan's optimiser groups the ones its model expects; True when they changed."""
         if derivation.violations and any(v.rule not in ("param_groups",) and v.path.startswith("optimizers")
                                          for v in derivation.violations):
-            return
+            return False
         expected = expected_param_groups(self.g, derivation)
         groups = plan.setdefault("optimizers", {})
-        for name in [k for k in groups if k not in expected]:
+        stale = [k for k in groups if k not in expected]
+        for name in stale:
             groups.pop(name)
-        for name in expected:
-            if name not in groups:
-                groups[name] = self.symbol("OptimizerGroup")
+        new = [name for name in expected if name not in groups]
+        for name in new:
+            groups[name] = self.symbol("OptimizerGroup")
+        return bool(stale or new)
 
     def _fix(self, plan: Plan, v: Violation) -> bool:
         if v.rule == "requires_scene":

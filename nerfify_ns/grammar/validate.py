@@ -318,7 +318,7 @@ def _check_duties(g: Grammar, d: Derivation, plan: dict) -> None:
                    f"optimiser for {group!r}, a parameter group the model does not have")
 
 
-def _check_annotations(d: Derivation, plan: dict) -> dict:
+def _check_annotations(d: Derivation, plan: dict, installed: bool = True) -> dict:
     derivation = {}
     for key, value in plan.items():
         kind = ANNOTATIONS.get(key)
@@ -330,20 +330,22 @@ def _check_annotations(d: Derivation, plan: dict) -> dict:
     if not isinstance(name, str) or not METHOD_NAME.match(name):
         d.fail("method", "Plan", "method_name",
                f"method must be a lower-case name like 'kplanes-static' (a-z, 0-9, '-'), got {name!r}")
-    else:  # a valid project and import name that shadows nothing installed (validate only; not the exports)
+    elif installed:  # a valid project and import name that shadows nothing installed (validate only; not the exports)
         for rule, message in method_name_problems(name):
             d.fail("method", "Plan", rule, message)
     return derivation
 
 
-def derive(plan: Any, grammar: Optional[Grammar] = None) -> Derivation:
-    """Check ``plan`` against the grammar and return what it derives with every violation found."""
+def derive(plan: Any, grammar: Optional[Grammar] = None, *, installed: bool = True) -> Derivation:
+    """Check ``plan`` against the grammar and return what it derives with every violation found.
+    ``installed=False`` leaves out the one check that looks at the Python environment (that the method's
+    name shadows no installed module), for callers that check many edits of one plan and that name once."""
     g = grammar or load_grammar()
     d = Derivation()
     if not isinstance(plan, dict):
         d.fail("", "Plan", "structure", f"a plan is a mapping, got {type(plan).__name__}")
         return d
-    _check_symbol(g, d, g.start, _check_annotations(d, plan), "")
+    _check_symbol(g, d, g.start, _check_annotations(d, plan, installed), "")
     if not d.violations:
         _check_duties(g, d, plan)
     return d

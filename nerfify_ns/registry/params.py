@@ -116,6 +116,12 @@ def param_specs(cls: type) -> Dict[str, ParamSpec]:
             for name, spec in _param_specs(cls).items()}
 
 
+def param_defaults(cls: type) -> Dict[str, Any]:
+    """The defaults of a parameter dataclass, in field order (a fresh copy: callers may edit it)."""
+    return {name: copy.deepcopy(spec.default) if isinstance(spec.default, (list, dict)) else spec.default
+            for name, spec in _param_specs(cls).items()}
+
+
 @functools.lru_cache(maxsize=None)
 def _param_specs(cls: type) -> Dict[str, ParamSpec]:
     hints = typing.get_type_hints(cls)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, Mapping, Optional, Tuple
 
 from nerfify_ns.registry.contract import Contract
-from nerfify_ns.registry.params import ParamSpec, param_specs
+from nerfify_ns.registry.params import ParamSpec, param_defaults, param_specs
 
 Build = Callable[[Dict[str, Any], Dict[str, Any]], Any]
 """(small parameters, contract environment) -> the component (a module or a callable)."""
@@ -98,7 +98,8 @@ class TerminalDef:
         return param_specs(self.params) if self.params is not None else {}
 
     def defaults(self) -> Dict[str, Any]:
-        return {name: p.default for name, p in self.param_specs.items()}
+        """The parameters' defaults (a fresh copy: callers may edit it)."""
+        return param_defaults(self.params) if self.params is not None else {}
 
     def with_defaults(self, given: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
         """The terminal's parameters: the plan's values over the defaults."""
