@@ -89,6 +89,7 @@ def assert_interrupted_cleanly(proc: subprocess.Popen, signum: int, folder: Path
 
 
 @pytest.mark.slow
+@pytest.mark.bench  # the same interrupt path as the main job's SIGTERM test, which CI keeps
 def test_sigint_during_the_sandboxed_smoke_rung_of_compose(tmp_path):
     """Ctrl-C while the verification ladder smoke-trains the plugin in its sandbox (a child in a session of its
     own, which the terminal's SIGINT does not reach): the sandboxed training is stopped, nothing is written."""

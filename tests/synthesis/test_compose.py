@@ -198,8 +198,9 @@ def _unexplained_config_differences(result: dict) -> list:
             and not (k == "pipeline.model.loss_coefficients.l1_reg" and result["regularization"] != "l1")]
 
 
-BENCH_ONLY = {"instant-ngp", "mipnerf"}
-"""Equivalence of these bases is checked in the benchmark lane (and by the parity benchmark); CI keeps the others."""
+BENCH_ONLY = {"instant-ngp", "mipnerf", "tensorf", "kplanes-static"}
+"""Equivalence of these bases is checked in the benchmark lane (and by the parity benchmark); CI keeps nerfacto (hash
+grid and proposal sampler) and vanilla-nerf (MLP field, hierarchical sampling)."""
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=[pytest.mark.bench] if n in BENCH_ONLY else [])
