@@ -351,7 +351,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     schedule = None
     args: list = []
     if budget.scale_schedule:
-        fitted = scale_schedule(plan, iterations)
+        fitted = scale_schedule(plan, iterations, rays=_rays(_train_args(plan, budget)))
         if fitted.scaled:
             schedule, args = fitted.record(), fitted.args
             plan["schedule"] = schedule

@@ -4,7 +4,10 @@ A paper trains for ``trainer.max_num_iterations`` (30k for most); a CPU run on a
 Kept as they are, some of the paper's step counts never play out: a 512-step learning-rate warm-up is still warming
 up when a 60-iteration run ends, and TensoRF's grids are never upsampled. :func:`scale_schedule` scales the
 parameters counted in iterations that ``schedule.yaml`` lists (data) by ``run / paper`` and returns the change as a
-record (the plan's ``schedule`` annotation) and as ns-train arguments for the run. Decay horizons and the proposal
+record (the plan's ``schedule`` annotation) and as ns-train arguments for the run. A run on fewer rays per step than
+the paper's batch (a CPU run takes 512 of 4096) gets the learning rates ``schedule.yaml`` lists scaled with the batch
+(the linear scaling rule): at the paper's rates a small-batch run saturates its colour head within a few dozen
+steps and renders grey. Decay horizons and the proposal
 sampler's update warm-up and weight annealing (Mip-NeRF 360 Sec. 3, Eq. 18) are not listed: scaled, they were
 measured to hurt a short run (``schedule.yaml`` has the figures). The plugin's code keeps the paper's schedule; only
 the budgeted run is fitted. Runs that compare fixed schedules (the parity benchmark, ``compose --method``) do not
@@ -16,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Optional
 
 import yaml
 
@@ -45,6 +48,10 @@ class ScheduleFit:
     skipped: List[str] = field(default_factory=list)
     """Step-valued parameters that could not be passed to ns-train (no config field for the base), with why."""
 
+    batch: Optional[dict] = None
+    """When the run's ray batch is smaller than the paper's: ``paper_rays``, ``run_rays``, ``factor`` (the learning
+    rates' scale) and ``rule``; the scaled learning rates are among ``changes``."""
+
     @property
     def scaled(self) -> bool:
         return bool(self.changes)
@@ -52,10 +59,15 @@ class ScheduleFit:
     def record(self) -> dict:
         """The plan's ``schedule`` annotation."""
         why = (f"the run trains {self.run_iterations} of the paper's {self.paper_iterations} iterations: every "
-               f"step count of the schedule is scaled by {self.factor:.4g} (the plugin's code keeps the paper's)")
+               f"step count of the schedule is scaled by {self.factor:.4g}")
+        if self.batch:
+            why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per step: "
+                    f"every learning rate is scaled by {self.batch['factor']:.4g} ({self.batch['rule']} scaling rule)")
+        why += " (the plugin's code keeps the paper's values)"
         return {"paper_iterations": self.paper_iterations, "run_iterations": self.run_iterations,
-                "factor": round(self.factor, 6), "reason": why, "scaled": self.changes,
-                "ns_train_args": list(self.args), **({"not_scaled": self.skipped} if self.skipped else {})}
+                "factor": round(self.factor, 6), **({"batch": self.batch} if self.batch else {}), "reason": why,
+                "scaled": self.changes, "ns_train_args": list(self.args),
+                **({"not_scaled": self.skipped} if self.skipped else {})}
 
 
 def _scale(value: Any, factor: float, minimum: int) -> Any:
@@ -77,17 +89,52 @@ def _values(value: Any) -> List[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 
-def scale_schedule(plan: dict, iterations: int) -> ScheduleFit:
-    """The schedule of ``plan`` fitted to a run of ``iterations``: nothing when the run is at least as long as
-    the paper's ``trainer.max_num_iterations``."""
-    from nerfify_ns.registry import default_registry
-
+def scale_schedule(plan: dict, iterations: int, rays: Optional[int] = None) -> ScheduleFit:
+    """The schedule of ``plan`` fitted to a run of ``iterations`` on ``rays`` rays per step: its step counts when
+    the run is shorter than the paper's ``trainer.max_num_iterations``, its learning rates when ``rays`` is fewer
+    than the paper's ``datamanager.train_num_rays_per_batch``."""
     plan = Plan.of(plan)
     paper = int(((plan.get("trainer") or {}).get("max_num_iterations")) or 0)
     if paper <= 0 or iterations >= paper:
-        return ScheduleFit(paper or iterations, iterations, 1.0)
-    factor = iterations / paper
-    fit = ScheduleFit(paper, iterations, factor)
+        fit = ScheduleFit(paper or iterations, iterations, 1.0)
+    else:
+        fit = ScheduleFit(paper, iterations, iterations / paper)
+        _scale_steps(plan, fit)
+    if rays:
+        _scale_learning_rates(plan, rays, fit)
+    return fit
+
+
+def _scale_learning_rates(plan: Plan, rays: int, fit: ScheduleFit) -> None:
+    """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step."""
+    paper_rays = int(((plan.get("datamanager") or {}).get("train_num_rays_per_batch")) or 0)
+    rule = step_parameters()["batch"]
+    if paper_rays <= 0 or rays >= paper_rays:
+        return
+    factor = (rays / paper_rays) if rule["rule"] == "linear" else (rays / paper_rays) ** 0.5
+    fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6), "rule": rule["rule"]}
+    grammar = load_grammar()
+    for path, terminal in derive(plan, grammar).used.items():
+        names = rule["learning_rates"].get(terminal) or []
+        if not names or not path.startswith("optimizers."):
+            continue
+        group, part = path.split(".")[1:3]  # optimizers.<group>.<optimizer|scheduler>.<terminal>
+        params = plan.get(path) or {}
+        defaults = grammar.terminals[terminal].params
+        for name in names:
+            before = params.get(name, defaults[name].default if name in defaults else None)
+            if not isinstance(before, (int, float)) or isinstance(before, bool):
+                continue
+            after = float(f"{before * factor:.6g}")
+            fit.changes.append({"path": f"{path}.{name}", "from": before, "to": after})
+            fit.args += [f"--optimizers.{_flag(group)}.{part}.{_flag(name)}", str(after)]
+
+
+def _scale_steps(plan: Plan, fit: ScheduleFit) -> None:
+    """The step counts of ``schedule.yaml``'s ``terminals`` and ``config`` sections scaled by ``fit.factor``."""
+    from nerfify_ns.registry import default_registry
+
+    factor = fit.factor
     spec = step_parameters()
     grammar = load_grammar()
     terminals = default_registry().terminals
@@ -120,4 +167,3 @@ def scale_schedule(plan: dict, iterations: int) -> ScheduleFit:
             if after != default:
                 fit.changes.append({"path": f"config:{name}", "from": default, "to": after})
                 fit.args += [f"--pipeline.model.{_flag(name)}", str(after)]
-    return fit

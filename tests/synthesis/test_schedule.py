@@ -52,3 +52,29 @@ def test_step_lists_stay_increasing_and_as_long():
     assert len(after) == len(before) and all(b > a for a, b in zip(after, after[1:]))
     flag = fit.args.index("--pipeline.model.upsampling-iters")
     assert fit.args[flag + 1: flag + 1 + len(after)] == [str(v) for v in after]
+
+
+def test_a_smaller_ray_batch_scales_every_learning_rate_linearly():
+    plan = _plan()
+    paper_rays = plan["datamanager"]["train_num_rays_per_batch"]
+    fit = scale_schedule(plan, 30000, rays=paper_rays // 8)
+    assert fit.batch == {"paper_rays": paper_rays, "run_rays": paper_rays // 8, "factor": 0.125, "rule": "linear"}
+    changes = {c["path"]: (c["from"], c["to"]) for c in fit.changes}
+    for group, spec in plan["optimizers"].items():
+        ((optimizer, params),) = spec["optimizer"].items()
+        lr = f"optimizers.{group}.optimizer.{optimizer}.lr"
+        assert changes[lr] == (params["lr"], pytest.approx(params["lr"] / 8))
+        flag = f"--optimizers.{group.replace('_', '-')}.optimizer.lr"
+        assert float(fit.args[fit.args.index(flag) + 1]) == pytest.approx(params["lr"] / 8)
+    final = "optimizers.fields.scheduler.exponential_decay.lr_final"
+    assert changes[final] == (1e-4, pytest.approx(1.25e-5))
+    assert f"{paper_rays // 8} of the paper's {paper_rays} rays" in fit.record()["reason"]
+    assert fit.record()["batch"] == fit.batch
+
+
+def test_the_paper_s_batch_or_a_larger_one_keeps_the_learning_rates():
+    plan = _plan()
+    rays = plan["datamanager"]["train_num_rays_per_batch"]
+    for run in (rays, 2 * rays):
+        fit = scale_schedule(plan, 30000, rays=run)
+        assert fit.batch is None and not fit.scaled and fit.args == []
