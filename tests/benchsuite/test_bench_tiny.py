@@ -108,6 +108,7 @@ papers:
 
 
 def test_every_kind_of_row_failure_and_the_rest_runs(tmp_path):
+    tmp_path.chmod(0o755)  # the suite's folder is read by the sandbox's user (pytest makes it 700)
     shutil.copy(ROOT / "examples" / "gridlite_paper.md", tmp_path / "gridlite_paper.md")
     (tmp_path / "checks.py").write_text("def boom(target):\n    return {}['no such key']\n")
     (tmp_path / "suite.yaml").write_text(FAILURES)
