@@ -327,6 +327,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     from nerfify_ns.synthesis.schedule import scale_schedule
 
     iterations, every, timeout, record = budget.iterations, budget.cadence(budget.iterations), EVAL_TIMEOUT, None
+    rays = _rays(_train_args(plan, budget))
     most = min(budget.iterations, int((plan.get("trainer") or {}).get("max_num_iterations") or budget.iterations))
     if deadline is not None and not timing:  # nothing measured (the ladder was switched off): a fixed length
         iterations = min(UNMEASURED_ITERATIONS, most)
@@ -336,7 +337,6 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
                             "iterations, not fitted to the budget"}
     elif deadline is not None:
         left = deadline - time.perf_counter()
-        rays = _rays(_train_args(plan, budget))
         step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** step_time_exponent(plan["base"])
         h, w = data.image_size
         fit = fit_iterations(left, step, timing["startup_seconds"], h * w * len(data.eval_frames), rays, budget,
@@ -351,7 +351,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     schedule = None
     args: list = []
     if budget.scale_schedule:
-        fitted = scale_schedule(plan, iterations, rays=_rays(_train_args(plan, budget)))
+        fitted = scale_schedule(plan, iterations, rays=rays)
         if fitted.scaled:
             schedule, args = fitted.record(), fitted.args
             plan["schedule"] = schedule

@@ -94,35 +94,40 @@ def scale_schedule(plan: dict, iterations: int, rays: Optional[int] = None) -> S
     the run is shorter than the paper's ``trainer.max_num_iterations``, its learning rates when ``rays`` is fewer
     than the paper's ``datamanager.train_num_rays_per_batch``."""
     plan = Plan.of(plan)
+    used = derive(plan, load_grammar()).used
     paper = int(((plan.get("trainer") or {}).get("max_num_iterations")) or 0)
     if paper <= 0 or iterations >= paper:
         fit = ScheduleFit(paper or iterations, iterations, 1.0)
     else:
         fit = ScheduleFit(paper, iterations, iterations / paper)
-        _scale_steps(plan, fit)
+        _scale_steps(plan, used, fit)
     if rays:
-        _scale_learning_rates(plan, rays, fit)
+        _scale_learning_rates(plan, used, rays, fit)
     return fit
 
 
-def _scale_learning_rates(plan: Plan, rays: int, fit: ScheduleFit) -> None:
-    """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step."""
+def _value(plan: Plan, path: str, terminal: str, name: str) -> Any:
+    """A terminal's parameter as the plan gives it, else the terminal's default (None: no such parameter)."""
+    defaults = load_grammar().terminals[terminal].params
+    return (plan.get(path) or {}).get(name, defaults[name].default if name in defaults else None)
+
+
+def _scale_learning_rates(plan: Plan, used: Dict[str, str], rays: int, fit: ScheduleFit) -> None:
+    """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step
+    (``used``: the plan's terminals by path)."""
     paper_rays = int(((plan.get("datamanager") or {}).get("train_num_rays_per_batch")) or 0)
     rule = step_parameters()["batch"]
     if paper_rays <= 0 or rays >= paper_rays:
         return
-    factor = (rays / paper_rays) if rule["rule"] == "linear" else (rays / paper_rays) ** 0.5
+    factor = (rays / paper_rays) ** rule["exponent"]
     fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6), "rule": rule["rule"]}
-    grammar = load_grammar()
-    for path, terminal in derive(plan, grammar).used.items():
+    for path, terminal in used.items():
         names = rule["learning_rates"].get(terminal) or []
         if not names or not path.startswith("optimizers."):
             continue
         group, part = path.split(".")[1:3]  # optimizers.<group>.<optimizer|scheduler>.<terminal>
-        params = plan.get(path) or {}
-        defaults = grammar.terminals[terminal].params
         for name in names:
-            before = params.get(name, defaults[name].default if name in defaults else None)
+            before = _value(plan, path, terminal, name)
             if not isinstance(before, (int, float)) or isinstance(before, bool):
                 continue
             after = float(f"{before * factor:.6g}")
@@ -130,21 +135,20 @@ def _scale_learning_rates(plan: Plan, rays: int, fit: ScheduleFit) -> None:
             fit.args += [f"--optimizers.{_flag(group)}.{part}.{_flag(name)}", str(after)]
 
 
-def _scale_steps(plan: Plan, fit: ScheduleFit) -> None:
-    """The step counts of ``schedule.yaml``'s ``terminals`` and ``config`` sections scaled by ``fit.factor``."""
+def _scale_steps(plan: Plan, used: Dict[str, str], fit: ScheduleFit) -> None:
+    """The step counts of ``schedule.yaml``'s ``terminals`` and ``config`` sections scaled by ``fit.factor``
+    (``used``: the plan's terminals by path)."""
     from nerfify_ns.registry import default_registry
 
     factor = fit.factor
     spec = step_parameters()
-    grammar = load_grammar()
     terminals = default_registry().terminals
     base = plan.get("base")
-    for path, terminal in derive(plan, grammar).used.items():
+    for path, terminal in used.items():
         names = spec["terminals"].get(terminal) or []
         extra = (spec.get("config") or {}).get(terminal) or {}
         if not names and not extra:
             continue
-        params = plan.get(path) or {}
         if path.startswith("optimizers."):  # optimizers.<group>.scheduler.<terminal>
             group = path.split(".")[1]
             flag = lambda name: f"--optimizers.{_flag(group)}.scheduler.{_flag(name)}"  # noqa: E731
@@ -154,9 +158,8 @@ def _scale_steps(plan: Plan, fit: ScheduleFit) -> None:
                 fit.skipped += [f"{path}.{n}: the base {base!r} has no config field for {terminal}" for n in names]
                 continue
             flag = lambda name: f"--pipeline.model.{_flag(fields.get(name, name))}"  # noqa: E731
-        defaults = grammar.terminals[terminal].params
         for name in names:
-            before = params.get(name, defaults[name].default if name in defaults else None)
+            before = _value(plan, path, terminal, name)
             after = _scale(before, factor, 0 if "warmup" in name and before == 0 else 1)
             if before is None or after == before:
                 continue
