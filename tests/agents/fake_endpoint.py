@@ -4,7 +4,9 @@ failure-mode tests: the SDK, its HTTP client and our error handling all run for 
 Modes: ``ok`` (a chat completion whose content is ``answer``; on ``/messages``, Anthropic's message with a
 ``tool_use`` block whose input is ``answer``), ``length`` (the same, cut: finish reason
 ``length``), ``html`` (200 with an HTML page), ``500`` (an internal server error), ``hang`` (accepts the request
-and answers nothing for ``hang_s`` seconds). Every request is kept (path, headers, JSON body), bounded in count.
+and answers nothing for ``hang_s`` seconds). ``sequence`` scripts the requests one by one: a list of
+``(mode, answer)``, the n-th request gets the n-th pair (the last pair repeats). Every request is kept (path,
+headers, JSON body), bounded in count.
 """
 
 from __future__ import annotations
@@ -13,14 +15,16 @@ import json
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import List
+from typing import List, Optional, Sequence, Tuple
 
 
 class FakeEndpoint:
     MAX_REQUESTS = 200
 
-    def __init__(self, mode: str = "ok", answer: str = "{}", hang_s: float = 5.0) -> None:
+    def __init__(self, mode: str = "ok", answer: str = "{}", hang_s: float = 5.0,
+                 sequence: Optional[Sequence[Tuple[str, str]]] = None) -> None:
         self.mode, self.answer, self.hang_s = mode, answer, hang_s
+        self.sequence = list(sequence or [])
         self.requests: List[dict] = []
         endpoint = self
 
@@ -31,10 +35,12 @@ class FakeEndpoint:
             def do_POST(self):  # noqa: N802
                 length = int(self.headers.get("Content-Length") or 0)
                 body = self.rfile.read(length)
-                if len(endpoint.requests) < endpoint.MAX_REQUESTS:
+                index = len(endpoint.requests)
+                if index < endpoint.MAX_REQUESTS:
                     endpoint.requests.append({"path": self.path, "headers": dict(self.headers),
                                               "json": json.loads(body or b"{}")})
-                endpoint.respond(self)
+                endpoint.respond(self, *endpoint.sequence[min(index, len(endpoint.sequence) - 1)]
+                                 if endpoint.sequence else (endpoint.mode, endpoint.answer))
 
         self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
         self.server.daemon_threads = True
@@ -51,24 +57,24 @@ class FakeEndpoint:
         handler.end_headers()
         handler.wfile.write(body)
 
-    def respond(self, handler) -> None:
-        if self.mode == "hang":
+    def respond(self, handler, mode: str, answer: str) -> None:
+        if mode == "hang":
             time.sleep(self.hang_s)  # bounded: the server never waits forever
             return
-        if self.mode == "html":
+        if mode == "html":
             return self._send(handler, 200, b"<!DOCTYPE html><html><body><h1>Welcome to nginx!</h1></body></html>",
                               "text/html")
-        if self.mode == "500":
+        if mode == "500":
             return self._send(handler, 500, b'{"error": {"message": "internal error", "type": "server_error"}}',
                               "application/json")
         if handler.path.endswith("/messages"):  # Anthropic's messages API: the answer as a forced tool's input
             body = {"id": "msg_1", "type": "message", "role": "assistant", "model": "fake",
-                    "content": [{"type": "tool_use", "id": "toolu_1", "name": "plan", "input": json.loads(self.answer)}],
-                    "stop_reason": "max_tokens" if self.mode == "length" else "tool_use", "stop_sequence": None,
+                    "content": [{"type": "tool_use", "id": "toolu_1", "name": "plan", "input": json.loads(answer)}],
+                    "stop_reason": "max_tokens" if mode == "length" else "tool_use", "stop_sequence": None,
                     "usage": {"input_tokens": 100, "output_tokens": 20}}
             return self._send(handler, 200, json.dumps(body).encode(), "application/json")
-        finish = "length" if self.mode == "length" else "stop"
-        text = self.answer[:20] if self.mode == "length" else self.answer
+        finish = "length" if mode == "length" else "stop"
+        text = answer[:20] if mode == "length" else answer
         body = {"id": "chatcmpl-1", "object": "chat.completion", "created": 0, "model": "fake",
                 "choices": [{"index": 0, "message": {"role": "assistant", "content": text},
                              "finish_reason": finish}],

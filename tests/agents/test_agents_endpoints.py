@@ -153,3 +153,44 @@ def test_anthropic_sdk_forced_tool_over_http(tmp_path, deterministic):
         cut = Agents(config.with_(base_url=endpoint.url, cache=None, max_tokens=32))
         assert run_paper(EXAMPLE, dry_run=True, agents=cut).plan == deterministic
     assert len(cut.warnings) == 1 and "cut at max_tokens=32" in cut.warnings[0]
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_from_the_cache(tmp_path):
+    """A crash (SIGKILL of ns-nerfify while the endpoint is still answering its second request) loses only the
+    unanswered request: the first answer was committed to the cache as it arrived. The rerun replays it without a
+    request, asks the second request exactly as the killed run did (the re-ask carrying the first answer's
+    problems), and finishes; the killed run left no output folder behind."""
+    import os
+    import signal
+    import time
+
+    cli = Path(sys.executable).with_name("ns-nerfify")
+    env = {k: v for k, v in os.environ.items() if k != "OPENAI_API_KEY"}
+    env["NERFIFY_LLM_CACHE"] = str(tmp_path / "cache.sqlite")
+    out = tmp_path / "run"
+    args = [str(cli), str(EXAMPLE), "--until", "plan", "--out", str(out), "--llm", "openai:fake",
+            "--llm-timeout", "300", "--llm-retries", "2"]
+    invalid = json.dumps({"base": "nerfacto", "fields": {"not": "a derivation"}})
+    valid = json.dumps(yaml.safe_load((ROOT / "method_configs" / "nerfacto.yaml").read_text()))
+    with FakeEndpoint(sequence=[("ok", invalid), ("hang", "")], hang_s=120) as first:
+        proc = subprocess.Popen([*args, "--llm-base-url", first.url], env=env, cwd=tmp_path, start_new_session=True,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 240
+        while len(first.requests) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert len(first.requests) == 2, (proc.poll(), proc.stdout.read().decode() if proc.poll() is not None else "")
+        os.killpg(proc.pid, signal.SIGKILL)  # a crash: no handler runs, nothing is cleaned up
+        proc.wait(timeout=30)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL and not out.exists()
+    with FakeEndpoint(sequence=[("ok", valid), ("500", "")]) as second:
+        done = subprocess.run([*args, "--llm-base-url", second.url], env=env, cwd=tmp_path, capture_output=True,
+                              text=True, timeout=300)
+    assert done.returncode == 0, done.stdout + done.stderr
+    asked = [r["json"]["messages"] for r in second.requests]  # (the coder's requests, answered 500, follow)
+    assert first.requests[0]["json"]["messages"] not in asked  # the first answer came from the cache
+    resumed = asked[0]
+    assert resumed == first.requests[1]["json"]["messages"] and "rejected" in resumed[-1]["content"]
+    usage = json.loads((out / "agents.json").read_text())["usage"]["stages"]["planner"]
+    assert usage["calls"] == 1 and usage["cache_hits"] == 1
