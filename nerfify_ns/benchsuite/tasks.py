@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import sys
 import time
 import traceback
@@ -228,6 +229,24 @@ def _reference_plan(entry: PaperEntry, task: Task, data: Path, folder: Path) -> 
     return result.summary
 
 
+ERROR_WORDS = ("error", "unrecognized", "invalid")
+
+
+def error_excerpt(log: str, limit: int = 400) -> str:
+    """What a failed command said, in one line: from its first line naming an error (a traceback's last line, a
+    tyro box's "Unrecognized or misplaced options:" and the options under it) the next few non-empty lines, box
+    drawing stripped; else its last lines."""
+    lines = [line.strip(" │╭╮╰╯─┃━") for line in log.splitlines()]
+    lines = [line for line in lines if line]
+    if any(line.startswith("Traceback") for line in lines):
+        raised = [line for line in lines if re.match(r"^[\w.]+(Error|Exception|Interrupt)\b", line)]
+        if raised:
+            return raised[-1][:limit]
+    first = next((i for i, line in enumerate(lines) if any(w in line.lower() for w in ERROR_WORDS)), None)
+    said = lines[first:first + 4] if first is not None else lines[-6:]
+    return " | ".join(said)[:limit]
+
+
 def _reference_method(entry: PaperEntry, task: Task, data: Path, folder: Path) -> dict:
     """``ns-train METHOD`` (method discovery isolated), its checkpoints rendered and scored, LPIPS on the final
     renders."""
@@ -249,11 +268,9 @@ def _reference_method(entry: PaperEntry, task: Task, data: Path, folder: Path) -
     summary = {"iterations_done": run.last_step + 1, "losses": loss_stats(run.losses),
                "train_log": str(run.log_path)}
     if not run.ok:
-        lines = [line.strip(" │╭╮╰╯─") for line in run.log_tail(200).splitlines()]
-        said = [line for line in lines if any(w in line.lower() for w in ("error", "unrecognized", "invalid"))]
-        tail = " | ".join(line for line in (said[:2] or lines[-6:]) if line)[-400:]
         why = "timed out" if run.timed_out else f"exit code {run.returncode}"
-        return {**summary, "status": "failed", "reason": f"ns-train {method}: {why}: {tail}"}
+        return {**summary, "status": "failed",
+                "reason": f"ns-train {method}: {why}: {error_excerpt(run.log_tail(5000))}"}
     try:
         curve = record_curve(run, out, label=f"{method} (reference)", timeout=b.timeout, env=env,
                              save_dir=out / "renders")
