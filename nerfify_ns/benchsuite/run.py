@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import platform
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
@@ -60,8 +61,10 @@ def run_bench(suite: Suite, out: Path, *, ablations: Sequence[str] = (), executo
         progress.note(f"{task.key}: {result.get('status')}" + (f" ({result.get('reason', '')[:80]})"
                                                              if result.get("status") != "ok" else ""))
 
+    start = time.perf_counter()
     executor.run(suite.path, out, pending, needs, on_done)
-    progress.finish("bench", f"{len(pending)} task(s) run, {skipped} skipped (done before)", 0.0)
+    progress.finish("bench", f"{len(pending)} task(s) run, {skipped} skipped (done before)",
+                    time.perf_counter() - start)
     payload = write_tables(suite, out, ablations, executor.name, command, results)
     failed = [f"{k}: {r.get('reason', '')}" for k, r in results.items() if r.get("status") != "ok"]
     return BenchResult(out, payload, len(pending), skipped, failed)
