@@ -56,6 +56,10 @@ class ResponseCache:
                           response.input_tokens, response.output_tokens))
         self._db.commit()
 
+    def __bool__(self) -> bool:
+        """Always true: an empty cache is still the cache to use (``cache or default`` must not drop it)."""
+        return True
+
     def __len__(self) -> int:
         return 0 if self._db is None else self._db.execute("SELECT COUNT(*) FROM responses").fetchone()[0]
 

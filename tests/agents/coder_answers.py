@@ -35,7 +35,7 @@ class BackboneModelPart(nn.Module):
         self.register_buffer("psi", torch.zeros(1, width))                          # the memory, persistent
 
     def get_out_dim(self) -> int:
-        return self.width + self.in_dim
+        return 2 * self.width + self.in_dim
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         h_delta, h_c = self.h_delta(features), self.h_c(features)
@@ -45,10 +45,10 @@ class BackboneModelPart(nn.Module):
         mu = f_mu * torch.tanh(self.gamma(both))
         psi = torch.tanh(self.w_psi(mu + f_psi * self.psi.to(features.dtype)))
         if self.training and psi.shape[0]:
-            self.psi = psi.detach().mean(dim=0, keepdim=True)
-        return torch.cat([psi * f_delta, features], dim=-1)                          # Eq. 8
+            self.psi = psi.detach().reshape(-1, self.width).mean(dim=0, keepdim=True)  # over rays and samples
+        return torch.cat([psi * f_delta, psi * f_c, features], dim=-1)              # Eqs. 8-9
 '''
-SHAPE_MISMATCH = RIGHT.replace("return self.width + self.in_dim", "return self.width")
+SHAPE_MISMATCH = RIGHT.replace("return 2 * self.width + self.in_dim", "return self.width + self.in_dim")
 NAN_FOR_LARGE = RIGHT.replace(
     "        mu = f_mu * torch.tanh(self.gamma(both))",
     "        g = torch.exp(self.gamma(both))\n        mu = f_mu * g / g.sum(dim=-1, keepdim=True)")

@@ -26,7 +26,7 @@ PAPERS = ROOT.parent / "shared" / "papers"
 def scripted(answers, cache=None, rounds=3):
     provider = ScriptedProvider({"coder": answers})
     config = LLMConfig(backend="scripted", model="replay", coder_rounds=rounds)
-    return Agents(config, provider, cache or ResponseCache(None)), provider
+    return Agents(config, provider, cache if cache is not None else ResponseCache(None)), provider
 
 
 @pytest.mark.slow
