@@ -145,13 +145,14 @@ def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_se
         per_iteration = seconds_per_iteration + render_one / budget.every
     else:
         per_iteration = seconds_per_iteration
-    spare = seconds_left - 2 * startup_seconds - (0 if budget.every else checkpoints * render_one) - POST_SECONDS
+    fixed = 2 * startup_seconds + (0 if budget.every else checkpoints * render_one) + POST_SECONDS
+    spare = seconds_left - fixed
     iterations = int(spare // per_iteration) if spare > 0 else 0
     if most is not None:
         iterations = min(iterations, most)
     render = math.ceil(iterations / budget.cadence(max(iterations, 1))) * render_one
     if iterations < MIN_ITERATIONS:
-        need = 2 * startup_seconds + render + POST_SECONDS + MIN_ITERATIONS * seconds_per_iteration
+        need = fixed + MIN_ITERATIONS * per_iteration  # the time left at which MIN_ITERATIONS fit
         raise BudgetError(f"the budget leaves {max(seconds_left, 0):.0f} s for training and evaluation, and "
                           f"{MIN_ITERATIONS} iterations with their evaluation need about {need:.0f} s (measured "
                           f"{seconds_per_iteration:.2f} s per iteration); give a longer --budget")

@@ -54,3 +54,16 @@ def test_a_budget_too_short_says_what_it_needs():
     budget = Budget(iterations=10_000, every=None, seconds=60)
     with pytest.raises(BudgetError, match=f"{MIN_ITERATIONS} iterations .* need about .* longer --budget"):
         fit_iterations(20.0, 0.5, 15.0, 32768, 512, budget)
+
+
+def test_the_time_it_says_it_needs_is_enough():
+    """The stated need counts the checkpoints' rendering as the fit does: a view costly to render (a slow base)
+    can need more than the time left even though ten training steps alone would fit, and one second more than
+    the stated need fits the ten iterations."""
+    budget = Budget(iterations=10_000, every=None, seconds=240, checkpoints=2)
+    args = (2.48, 15.0, 64 * 64 * 8, 512)  # 2.48 s per 512-ray step, eight 64x64 test views per checkpoint
+    with pytest.raises(BudgetError) as raised:
+        fit_iterations(150.0, *args, budget)
+    need = float(raised.value.args[0].split("need about ")[1].split(" s")[0])
+    assert need > 150.0 > 2 * 15.0 + POST_SECONDS + MIN_ITERATIONS * 2.48
+    assert fit_iterations(need + 1.0, *args, budget).iterations >= MIN_ITERATIONS
