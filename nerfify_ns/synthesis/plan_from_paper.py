@@ -792,7 +792,7 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     missing = list(d.res.missing)
     title = (getattr(doc, "title", "") or "").strip()
     plan["description"] = (f"{title or plan['method']}: derived from the paper by nerfify (base {base}; "
-                           f"{len(holes)} part(s) of the paper not implemented).")
+                           f"{len(holes)} part(s) of the paper beyond the base, listed under holes).")
     plan["holes"] = [h.to_dict() for h in holes]
     notes = list(d.notes)
     if missing:
