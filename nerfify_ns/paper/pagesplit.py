@@ -1,0 +1,192 @@
+"""Plain-text extractions of a PDF split by page (``## Page N`` headings): the page markers are locations, not
+sections; the paper's own numbered headings, title, abstract, paragraphs, captions and numbered equations are
+recovered from the running text.
+
+Such a text is what a PDF-to-text tool writes: lines wrapped at the column width, words hyphenated across lines,
+headings on a line of their own ("3.1. Representation") or glued to the end of the previous one ("Research.1.
+Introduction"), equations flattened onto one line ending in their number ("F: (x, d, t) -> (c, sigma), (1)"). A heading
+is only taken when its number follows the previous heading's (2 -> 2.1 -> 2.2 -> 3, A.1 -> A.2), so a line that
+merely starts with a number ("5123. The emptiness voxel ...") is never a section.
+"""
+
+from __future__ import annotations
+
+import re
+import statistics
+from dataclasses import dataclass
+from typing import Optional
+
+from nerfify_ns.paper.builder import CAPTION, Block
+from nerfify_ns.paper.document import Location
+
+PAGE_MARK = re.compile(r"^\s*#{1,3}\s*Page\s+(\d{1,4})\s*$", re.IGNORECASE)
+_RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
+# "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
+_HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)(?P<title>[A-Z][^\n]{1,90})$")
+# a heading glued to the end of the previous line: "...Research.1. Introduction"
+_GLUED = re.compile(r"^(?P<before>.*[a-z.)\]])(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
+                    r"(?: [A-Za-z-]+){0,6})$")
+_NAMED = re.compile(r"^(?P<name>Abstract|References|Acknowledge?ments?)\b[.:]?\s*(?P<rest>.*)$", re.IGNORECASE)
+_EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
+_MATHY = re.compile(r"[=+∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\≈≤≥×·∈→−‖∥⊙⊗]")
+_FUNCTION_WORDS = {"a", "an", "the", "of", "for", "and", "with", "in", "on", "via", "from", "to", "by", "as", "at",
+                   "is", "are", "using", "towards", "through", "into"}
+
+
+def is_page_split(text: str) -> bool:
+    """Whether ``text`` is a flat extraction: at least two ``## Page N`` markers and few other headings, or many
+    lines with no markdown heading at all (a PDF's text saved as ``.md``)."""
+    lines = text.splitlines()
+    pages = sum(1 for line in lines if PAGE_MARK.match(line))
+    others = sum(1 for line in lines if line.startswith("#") and not PAGE_MARK.match(line))
+    return (pages >= 2 and others <= pages) or (others == 0 and pages == 0 and len(lines) >= 100)
+
+
+@dataclass
+class _Line:
+    text: str
+    page: int
+    line: int
+
+
+def _lines(text: str) -> list[_Line]:
+    """Every non-empty line with its page, page markers and rules dropped."""
+    out, page = [], 1
+    for i, raw in enumerate(text.splitlines(), 1):
+        m = PAGE_MARK.match(raw)
+        if m:
+            page = int(m.group(1))
+            continue
+        s = raw.strip()
+        if s and not _RULE.match(s):
+            out.append(_Line(s, page, i))
+    return out
+
+
+def _number_key(num: str) -> tuple:
+    return tuple(int(p) if p.isdigit() else ord(p) - ord("A") + 100 for p in num.split("."))
+
+
+def _follows(previous: Optional[str], num: str) -> bool:
+    """Whether heading number ``num`` can come right after ``previous`` (None: the first heading)."""
+    new = _number_key(num)
+    if previous is None:
+        return new in ((1,), (0,)) or (len(new) == 1 and new[0] <= 2)
+    old = _number_key(previous)
+    if new[0] >= 100 and old[0] < 100:  # the appendix starts: A or A.1
+        return new in ((100,), (100, 1))
+    for depth in range(min(len(old), len(new))):  # same prefix, then one step at the first level that changes
+        if new[:depth] != old[:depth]:
+            return False
+        if depth == len(new) - 1:
+            return old[depth] < new[depth] <= old[depth] + 2  # one heading may have been lost by the extractor
+    return len(new) == len(old) + 1 and new[:len(old)] == old and new[-1] in (1, 2)
+
+
+def _title_like(title: str) -> bool:
+    words = title.rstrip(".").split()
+    if not words or len(words) > 12 or title.endswith((",", ";")) or "=" in title:
+        return False
+    letters = sum(c.isalpha() for c in title)
+    return letters >= 0.6 * len(title.replace(" ", "")) and not re.search(r"\d{3,}", title)
+
+
+def _heading(s: str, previous: Optional[str]) -> Optional[tuple[str, str, str]]:
+    """(text before, number, title) when ``s`` holds the heading that follows ``previous``."""
+    for pattern in (_HEADING, _GLUED):
+        m = pattern.match(s)
+        if m and _title_like(m.group("title")) and _follows(previous, m.group("num")):
+            return (m.groupdict().get("before") or ""), m.group("num"), m.group("title").rstrip(".").strip()
+    return None
+
+
+def _title_lines(lines: list[_Line]) -> tuple[str, int]:
+    """The title (one or more lines at the top of page 1) and how many lines it takes."""
+    if not lines:
+        return "", 0
+    parts = [lines[0].text]
+    i = 1
+    while i < len(lines) and i < 3:
+        words = lines[i].text.split()
+        lowered = [w for w in words if w.lower() in _FUNCTION_WORDS]
+        if re.search(r"\d|,|@|University|Institute", lines[i].text) or not words or not words[0][0].isupper():
+            break
+        if len(words) > 3 and not lowered:
+            break  # a line of names
+        parts.append(lines[i].text)
+        i += 1
+    return " ".join(parts), i
+
+
+def _dehyphenate(lines: list[str]) -> str:
+    text = ""
+    for s in lines:
+        if text.endswith("-") and s[:1].islower():
+            text = text[:-1] + s
+        elif text.endswith("\u00ad"):
+            text = text[:-1] + s
+        else:
+            text = f"{text} {s}" if text else s
+    return re.sub(r"\s+", " ", text).strip()
+
+
+def page_split_blocks(text: str) -> list[Block]:
+    """The blocks of a page-split extraction (see the module docstring), in reading order."""
+    lines = _lines(text)
+    blocks: list[Block] = []
+    title, start = _title_lines(lines)
+    if title:
+        blocks.append(Block("title", title, Location(page=lines[0].page, line=lines[0].line)))
+    widths = [len(x.text) for x in lines if len(x.text) > 20]
+    full = statistics.median(widths) if widths else 60
+    para: list[_Line] = []
+    previous: Optional[str] = None
+    next_equation = 1
+    in_abstract = False
+
+    def flush() -> None:
+        if para:
+            body = _dehyphenate([x.text for x in para])
+            kind = "caption" if CAPTION.match(body) else "para"
+            blocks.append(Block(kind, body, Location(page=para[0].page, line=para[0].line)))
+            para.clear()
+
+    for x in lines[start:]:
+        s = x.text
+        loc = Location(page=x.page, line=x.line)
+        named = _NAMED.match(s)
+        if named and (len(s) < 20 or named.group("name").lower() == "abstract") and previous is None \
+                and named.group("name").lower() == "abstract" and not in_abstract:
+            flush()
+            blocks.append(Block("heading", "Abstract", loc, level=1))
+            in_abstract = True
+            if named.group("rest"):
+                para.append(_Line(named.group("rest"), x.page, x.line))
+            continue
+        if named and named.group("name").lower() != "abstract" and len(s) < 25:
+            flush()
+            blocks.append(Block("heading", named.group("name").title(), loc, level=1))
+            continue
+        head = _heading(s, previous)
+        if head is not None:
+            before, number, heading = head
+            if before:
+                para.append(_Line(before, x.page, x.line))
+            flush()
+            blocks.append(Block("heading", heading, loc, level=number.count(".") + 1, number=number))
+            previous = number
+            continue
+        eq = _EQ_NUM.match(s)
+        if eq and int(eq.group("num")) in (next_equation, next_equation + 1) and _MATHY.search(eq.group("body")) \
+                and len(eq.group("body")) < 240:
+            flush()
+            blocks.append(Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num")))
+            next_equation = int(eq.group("num")) + 1
+            continue
+        if CAPTION.match(s) and para:
+            flush()
+        para.append(x)
+        if s.endswith((".", ":", "?")) and len(s) < 0.75 * full:
+            flush()  # a short line ending a sentence ends its paragraph
+    flush()
+    return blocks
