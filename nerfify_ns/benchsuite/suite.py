@@ -24,6 +24,18 @@ from nerfify_ns.errors import NerfifyError
 
 KINDS = ("equation", "loss", "architecture", "sampler", "schedule", "hyperparameter")
 """The kinds of novelty item (the paper's Table 4)."""
+FAMILIES = ("static", "dynamic", "splatting", "surface", "not-training")
+"""What a paper's method is: a static-scene radiance field, a dynamic one (time, per-frame codes, deformation), explicit
+primitives such as 3D Gaussians, surface reconstruction, or not a view-synthesis training method at all (it uses
+trained fields: registration, robotics, editing)."""
+NEW_PRODUCTIONS = ("FieldWrapper", "PixelSampler", "ScheduleHook", "Primitive")
+"""Productions an item may change besides the grammar's nonterminals (``nerfify_ns/registry/productions.yaml``):
+a wrapper around the field (deformation into a canonical space, time conditioning, per-frame or per-camera codes,
+several fields blended), the datamanager's pixel/ray sampler, a training-schedule callback (curriculum, annealing,
+freezing), and explicit primitives (3D Gaussians: the grammar cannot build them)."""
+NOT_TRAINING = "not-training"
+"""The family whose parts change no production of the grammar (an item of such a paper may have no production)."""
+MAX_PHRASE = 160
 METRICS = ("psnr", "ssim", "lpips")
 ID = re.compile(r"^[a-z0-9][a-z0-9_.-]{0,63}$")
 MAX_BYTES = 1 << 20
@@ -111,6 +123,27 @@ class NoveltyItem:
     """The paper's values, plan path -> number (within 10% counts for W), text or list."""
     check: Optional[Tuple[Path, str]] = None
     """A reference function (file in the suite folder, function name) run on the generated component."""
+    production: str = ""
+    """The grammar production the part changes (``RGBHead``, ``FieldWrapper``, ...; see :data:`NEW_PRODUCTIONS`):
+    where a hole for a novel part is expected. Required in a paper with a family, except a ``not-training`` one (its
+    parts are not parts of a radiance-field method: they are read as contributions, never expected as holes)."""
+    card: Optional[str] = None
+    """The knowledge card (``nerfify_ns/knowledge/cards/<name>.yaml``) of a technique the paper borrows: the part is
+    known, expected in the plan at ``plan`` paths, and never a hole."""
+    known_from: str = ""
+    """Where a part no card covers comes from when it is not the paper's own (``3D-GS [19]``, ``vanilla-nerf's
+    schedule``): not a novel part, so no hole is required for it; a hole for it is not spurious either (nothing in
+    the knowledge base builds it)."""
+    phrases: Tuple[str, ...] = ()
+    """2-4 short distinctive phrases copied from the paper's text about the part (a hole's quoted sentences are
+    matched to the item by them)."""
+
+    @property
+    def novel(self) -> bool:
+        """The paper's own part: no card, not known from elsewhere, and a part rather than a setting (a
+        ``hyperparameter`` item is a value of some part). It is expected as a hole (or a compiled component) at
+        ``production``; one without a production (a ``not-training`` paper's) is a contribution, never a hole."""
+        return self.card is None and not self.known_from and self.kind != "hyperparameter"
 
     @property
     def equations(self) -> Tuple[str, ...]:
@@ -128,6 +161,8 @@ class PaperEntry:
     reported: Dict[str, Any] = field(default_factory=dict)
     budget: BenchBudget = BenchBudget()
     seeds: Tuple[int, ...] = (0,)
+    family: str = ""
+    """One of :data:`FAMILIES` ("" in a suite written before families: then items need no production or phrases)."""
 
     def fingerprint(self) -> str:
         """A digest of everything a task of this paper depends on (a changed entry is not taken as done)."""
@@ -172,6 +207,25 @@ def equation_numbers(where: str) -> Tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
+def productions() -> Tuple[str, ...]:
+    """The productions an item may name: the grammar's nonterminals and :data:`NEW_PRODUCTIONS`."""
+    from importlib import resources
+
+    try:
+        data = yaml.safe_load(resources.files("nerfify_ns.registry").joinpath("productions.yaml").read_text())
+        names = tuple((data or {}).get("nonterminals") or ())
+    except (OSError, yaml.YAMLError, AttributeError):
+        names = ()
+    return tuple(dict.fromkeys((*names, *NEW_PRODUCTIONS)))
+
+
+def card_names() -> Tuple[str, ...]:
+    """The knowledge base's card names (a card's file stem is its name)."""
+    from nerfify_ns.knowledge.cards import CARDS_DIR
+
+    return tuple(sorted(p.stem for p in CARDS_DIR.glob("*.yaml")))
+
+
 def resolve_scene(folder: Path, scene: str) -> Optional[Path]:
     if "/" in scene or scene.startswith("."):
         return (folder / scene).resolve()
@@ -182,6 +236,8 @@ def resolve_scene(folder: Path, scene: str) -> Optional[Path]:
 class _Reader:
     def __init__(self, path: Path) -> None:
         self.path = path
+        self._productions: Optional[Tuple[str, ...]] = None
+        self._cards: Optional[Tuple[str, ...]] = None
 
     def fail(self, where: str, message: str) -> SuiteError:
         return SuiteError(f"{self.path.name}: {where}: {message}")
@@ -250,8 +306,35 @@ class _Reader:
             raise self.fail(where, f"check file {file!r} not found next to the suite")
         return path, func
 
-    def item(self, value: Any, where: str) -> NoveltyItem:
-        data = self.mapping(value, where, ("id", "kind", "weight", "where"), ("plan", "values", "check"))
+    def production(self, value: Any, where: str) -> str:
+        if self._productions is None:
+            self._productions = productions()
+        text = self.text(value, where)
+        if text not in self._productions:
+            raise self.fail(where, f"{text!r} is not a production (one of {', '.join(self._productions)})")
+        return text
+
+    def card(self, value: Any, where: str) -> str:
+        if self._cards is None:
+            self._cards = card_names()
+        text = self.text(value, where)
+        if text not in self._cards:
+            raise self.fail(where, f"{text!r} is not a knowledge card (nerfify_ns/knowledge/cards: "
+                                   f"{', '.join(self._cards)})")
+        return text
+
+    def phrases(self, value: Any, where: str) -> Tuple[str, ...]:
+        if not isinstance(value, list) or not 2 <= len(value) <= 4:
+            raise self.fail(where, f"expected a list of 2-4 phrases from the paper, got {value!r}")
+        out = tuple(self.text(v, f"{where}[{k}]") for k, v in enumerate(value))
+        long = next((p for p in out if len(p) > MAX_PHRASE), None)
+        if long is not None:
+            raise self.fail(where, f"phrase {long[:40]!r}... is over {MAX_PHRASE} characters (a short phrase)")
+        return out
+
+    def item(self, value: Any, where: str, family: str = "") -> NoveltyItem:
+        data = self.mapping(value, where, ("id", "kind", "weight", "where"),
+                            ("plan", "values", "check", "production", "card", "known_from", "phrases"))
         kind = data["kind"]
         if kind not in KINDS:
             raise self.fail(f"{where}.kind", f"{kind!r} is not one of {', '.join(KINDS)}")
@@ -265,15 +348,32 @@ class _Reader:
         for key, v in values.items():
             if not isinstance(v, (int, float, str, list)) or isinstance(v, bool):
                 raise self.fail(f"{where}.values.{key}", f"expected a number, text or list, got {v!r}")
+        if "card" in data and "known_from" in data:
+            raise self.fail(where, "give at most one of 'card' (a knowledge card) or 'known_from' (a part no card "
+                                   "covers)")
+        if family:
+            needed = ("phrases",) if family == NOT_TRAINING else ("production", "phrases")
+            missing = next((k for k in needed if k not in data), None)
+            if missing:
+                raise self.fail(where, f"missing required key {missing!r} (the paper has a family)")
         return NoveltyItem(id=self.ident(data["id"], f"{where}.id"), kind=kind,
                            weight=self.number(data["weight"], f"{where}.weight", 0.0, 1.0),
                            where=self.text(data["where"], f"{where}.where"), plan=tuple(plan), values=dict(values),
-                           check=self.check(data["check"], f"{where}.check") if data.get("check") else None)
+                           check=self.check(data["check"], f"{where}.check") if data.get("check") else None,
+                           production=self.production(data["production"], f"{where}.production")
+                           if "production" in data else "",
+                           card=self.card(data["card"], f"{where}.card") if "card" in data else None,
+                           known_from=self.text(data["known_from"], f"{where}.known_from")
+                           if "known_from" in data else "",
+                           phrases=self.phrases(data["phrases"], f"{where}.phrases") if "phrases" in data else ())
 
     def paper(self, value: Any, where: str, budget: BenchBudget, seeds: Tuple[int, ...]) -> PaperEntry:
         data = self.mapping(value, where, ("id", "input", "scenes", "reference", "novelty"),
-                            ("reported", "budget", "seeds"))
+                            ("reported", "budget", "seeds", "family"))
         pid = self.ident(data["id"], f"{where}.id")
+        family = data.get("family", "")
+        if "family" in data and family not in FAMILIES:
+            raise self.fail(f"{where}.family", f"{family!r} is not one of {', '.join(FAMILIES)}")
         scenes = data["scenes"]
         scenes = [scenes] if isinstance(scenes, str) else scenes
         if not isinstance(scenes, list) or not scenes:
@@ -281,7 +381,7 @@ class _Reader:
         scenes = [self.text(s, f"{where}.scenes[{k}]") for k, s in enumerate(scenes)]
         if not isinstance(data["novelty"], list):
             raise self.fail(f"{where}.novelty", "expected a list of novelty items")
-        items = [self.item(v, f"{where}.novelty[{k}]") for k, v in enumerate(data["novelty"])]
+        items = [self.item(v, f"{where}.novelty[{k}]", family) for k, v in enumerate(data["novelty"])]
         ids = [i.id for i in items]
         if len(set(ids)) != len(ids):
             raise self.fail(f"{where}.novelty", f"item id {next(i for i in ids if ids.count(i) > 1)!r} repeated")
@@ -294,7 +394,8 @@ class _Reader:
                           scenes=tuple(scenes), reference=self.reference(data["reference"], f"{where}.reference"),
                           novelty=tuple(items), reported=dict(reported),
                           budget=self.budget(data.get("budget"), f"{where}.budget", budget),
-                          seeds=self.seeds(data["seeds"], f"{where}.seeds") if "seeds" in data else seeds)
+                          seeds=self.seeds(data["seeds"], f"{where}.seeds") if "seeds" in data else seeds,
+                          family=family)
 
 
 def load_suite(path: Path) -> Suite:
