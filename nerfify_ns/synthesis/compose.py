@@ -64,9 +64,11 @@ def plugin_files(ctx: dict) -> nx.DiGraph:
     component_files = tuple(f.path for f in files)
     field_files = (f"{pkg}/field.py",) if ctx["field_template"] else ()
     files += [PluginFile(f"{pkg}/field.py", ctx["field_template"], component_files)] if field_files else []
+    sampler_files = (f"{pkg}/pixel_sampler.py",) if ctx.get("pixel_sampler") else ()
+    files += [PluginFile(sampler_files[0], "pixel_sampler.py.j2", component_files)] if sampler_files else []
     files += [
         PluginFile(f"{pkg}/model.py", "model.py.j2", (*field_files, *component_files)),
-        PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py",)),
+        PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py", *sampler_files)),
         PluginFile(f"{pkg}/__init__.py", "__init__.py.j2", (f"{pkg}/config.py",)),
         PluginFile("pyproject.toml", "pyproject.toml.j2", (f"{pkg}/config.py",)),
         PluginFile("plan.yaml", "plan"),

@@ -21,7 +21,7 @@ from nerfify_ns.grammar.spec import CUSTOM
 from nerfify_ns.plan import Plan, package_name
 from nerfify_ns.registry import default_registry
 from nerfify_ns.registry.render import py, render
-from nerfify_ns.registry.terminals.heads import ACTIVATIONS
+from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
 from nerfify_ns.synthesis.resources import bases
 
@@ -227,10 +227,21 @@ def mlp_field(ctx: Context) -> dict:
     ctx.part("field.py", "backbone", backbone_path, ctx.grammar.terminals[ctx.derivation.used[backbone_path]].doc)
     backbone = ctx.params(backbone_path) if not custom_bb else {}
     out_dim = str(1 + dh["geo_feat_dim"]) if split else "None"
+    wrappers = field_wrappers(ctx)
+    imports += wrappers["imports"]
+    backbone_in = "self.position_encoding.get_out_dim()" + (" + self.wrapper_dim" if wrappers["conditioners"] else "")
+    branches = bool(backbone.get("branches"))
     if custom_bb:
         imports.append(custom_bb["import"])
-        backbone_ctor = call(custom_bb["cls"], "in_dim=self.position_encoding.get_out_dim()", f"out_dim={out_dim}",
-                             custom_bb["kwargs"])
+        backbone_ctor = call(custom_bb["cls"], f"in_dim={backbone_in}", f"out_dim={out_dim}", custom_bb["kwargs"])
+    elif branches:
+        imports += _imports(ctx, {"imports": ["from .components.mlp_branches import BranchedMLP"],
+                                  "component": "mlp_branches"})
+        backbone_ctor = call("BranchedMLP", f"in_dim={backbone_in}", f"num_layers={backbone['num_layers']}",
+                             f"layer_width={backbone['layer_width']}",
+                             f"skip_connections={py(backbone_skips(backbone)) if backbone_skips(backbone) else None}",
+                             *(f"{k}={backbone[k]}" for k in ("density_layers", "density_width", "color_layers",
+                                                              "color_width")), 'implementation="tcnn"')
     else:
         backbone_ctor = None
 
@@ -263,6 +274,8 @@ def mlp_field(ctx: Context) -> dict:
 
     if custom_dh:
         geo = "self.density_head.get_out_dim()"
+    elif branches:
+        geo = "self.backbone.color_dim"
     else:
         geo = str(dh["geo_feat_dim"]) if split else "self.backbone.get_out_dim()"
     rgb_in = " + ".join(["self.direction_encoding.get_out_dim()", geo] + ([str(appearance["dim"])] if appearance else []))
@@ -271,9 +284,12 @@ def mlp_field(ctx: Context) -> dict:
         rgb_ctor = call(custom_rgb["cls"], f"in_dim={rgb_in}", custom_rgb["kwargs"])
     else:
         rgb_ctor = None
-    skips = backbone.get("skip_connections")
+    skips = list(backbone_skips(backbone)) if backbone else None
     architecture = (f"{backbone['num_layers']} x {backbone['layer_width']} MLP" if backbone
                     else f"{custom_bb['cls']} backbone")
+    if branches:
+        architecture += (f" with a {backbone['density_layers']} x {backbone['density_width']} density branch and a "
+                         f"{backbone['color_layers']} x {backbone['color_width']} colour branch")
     return {
         "cls": f"{ctx.names.prefix}Field",
         "summary": f"Radiance field of the plan: {pe_name} positions, {de_name} directions, "
@@ -286,7 +302,10 @@ def mlp_field(ctx: Context) -> dict:
         "times": pe["times"],
         "distortion": distortion,
         "appearance": appearance,
-        "backbone": {**backbone, "skip_connections": py(skips) if skips else None, "custom": backbone_ctor},
+        "backbone": {**backbone, "skip_connections": py(skips) if skips else None, "custom": backbone_ctor,
+                     "in_dim": backbone_in, "branches": branches},
+        "wrappers": wrappers,
+        "member_cls": f"{ctx.names.prefix}FieldMember" if wrappers["blend"] else f"{ctx.names.prefix}Field",
         "density": {"split": split, "geo_feat_dim": dh.get("geo_feat_dim"), "init_density": dh.get("init_density"),
                     "activation": _activation(dh["activation"]) if dh else None,
                     "custom": call(custom_dh["cls"], "in_dim=self.backbone.get_out_dim()", custom_dh["kwargs"])
@@ -297,6 +316,92 @@ def mlp_field(ctx: Context) -> dict:
         "shares_samples": _renderer_needs_samples(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
+
+
+def field_wrappers(ctx: Context) -> dict:
+    """The plan's field wrappers (``model.field_wrappers``), in the plan's order: conditioners (each built in the
+    field, a ``(name, constructor)``) and at most one blend (the field then is several copies of itself)."""
+    path = "model.field_wrappers"
+    members = ctx.plan.get(path) or {}
+    conditioners: List[dict] = []
+    blend: Optional[dict] = None
+    imports: List[str] = []
+    for name in members:
+        member = f"{path}.{name}"
+        terminal = ctx.derivation.used.get(member)
+        if terminal == CUSTOM:
+            component = custom_component(ctx.params(member), ctx.names.package)
+            imports.append(component["import"])
+            conditioners.append({"name": name, "ctor": call(component["cls"], "num_images=num_images",
+                                                            component["kwargs"])})
+            ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[CUSTOM].doc)
+            continue
+        code = snippet(name)
+        imports += _imports(ctx, code)
+        params = ctx.params(member)
+        ctor = render_snippet(code["ctor"], params, ctx.names.package)
+        ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[name].doc)
+        if code.get("stage") == "blend":
+            blend = {"ctor": ctor, "num_fields": params["num_fields"], "static_first": params["static_first"]}
+        else:
+            conditioners.append({"name": name, "ctor": ctor})
+    if conditioners:
+        imports += _imports(ctx, {"imports": ["from .components.field_wrappers import condition"],
+                                  "component": "field_wrappers"})
+    return {"conditioners": conditioners, "blend": blend, "imports": imports}
+
+
+def schedule_hooks(ctx: Context) -> Tuple[List[dict], List[str]]:
+    """The plan's schedule hooks (``model.schedule_hooks``): constructors, and the imports they need."""
+    path = "model.schedule_hooks"
+    hooks: List[dict] = []
+    imports: List[str] = []
+    for name in ctx.plan.get(path) or {}:
+        member = f"{path}.{name}"
+        if ctx.derivation.used.get(member) == CUSTOM:
+            component = custom_component(ctx.params(member), ctx.names.package)
+            imports.append(component["import"])
+            hooks.append({"name": name, "ctor": call(component["cls"], component["kwargs"])})
+            ctx.part("model.py", "schedule hook", member, ctx.grammar.terminals[CUSTOM].doc)
+            continue
+        code = snippet(name)
+        imports += _imports(ctx, code)
+        hooks.append({"name": name, "ctor": render_snippet(code["ctor"], ctx.params(member), ctx.names.package)})
+        ctx.part("model.py", "schedule hook", member, ctx.grammar.terminals[name].doc)
+    if hooks:
+        imports += _imports(ctx, {"imports": ["from .components.schedule_hooks import training_callbacks",
+                                              "from torch import nn"], "component": "schedule_hooks"})
+    return hooks, imports
+
+
+def pixel_sampler(ctx: Context) -> Optional[dict]:
+    """The training pixel sampler: the plan's map (``pixel_sampler``), or a uniform map where a schedule hook
+    needs the plugin's sampler (an image curriculum) and the plan names none; None for Nerfstudio's own."""
+    needs = any(ctx.grammar.terminals[t].definition is not None
+                and ctx.grammar.terminals[t].definition.code.traits.get("needs_map_sampler")
+                for p, t in ctx.derivation.used.items() if p.startswith("model.schedule_hooks."))
+    if "pixel_sampler" not in ctx.plan and not needs:
+        return None
+    imports = _imports(ctx, {"imports": ["from .components.pixel_samplers import MapPixelSampler, "
+                                         "MapPixelSamplerConfig"], "component": "pixel_samplers"})
+    if "pixel_sampler" not in ctx.plan:
+        imports.append("from .components.pixel_samplers import UniformMap")
+        ctor, path, what = "UniformMap()", "pixel_sampler (absent: uniform, for the curriculum)", "uniform"
+    else:
+        name, _ = one(ctx.plan["pixel_sampler"])
+        path = f"pixel_sampler.{name}"
+        custom = ctx.custom("pixel_sampler")
+        if custom:
+            imports.append(custom["import"])
+            ctor = call(custom["cls"], custom["kwargs"])
+        else:
+            code = snippet(name)
+            imports += _imports(ctx, code)
+            ctor = render_snippet(code["ctor"], ctx.params(path), ctx.names.package)
+        ctx.part("pixel_sampler.py", "pixel sampler", path, ctx.grammar.terminals[name].doc)
+        what = name
+    return {"cls": f"{ctx.names.prefix}PixelSampler", "config_cls": f"{ctx.names.prefix}PixelSamplerConfig",
+            "map": ctor, "imports": sorted(set(imports)), "source": path, "what": what}
 
 
 def custom_field(ctx: Context) -> dict:
@@ -419,7 +524,10 @@ def model_context(ctx: Context) -> dict:
     proposal = _proposal_networks(ctx)
     if proposal:
         imports += proposal["imports"]
+    hooks, hook_imports = schedule_hooks(ctx)
+    imports += hook_imports
     return {
+        "hooks": hooks,
         "renderer_samples": bool(custom_renderer) and _renderer_needs_samples(ctx),
         "cls": f"{ctx.names.prefix}Model",
         "config_cls": f"{ctx.names.prefix}ModelConfig",
@@ -522,14 +630,20 @@ def config_context(ctx: Context, base: dict) -> dict:
     trainer = ctx.params("trainer")
     dm = ctx.params("datamanager")
     dataparser = dataparser_snippet(dm["dataparser"])
+    sampler = pixel_sampler(ctx)
+    datamanager = dict(base["datamanager"])
+    if sampler is not None:  # sampled in this process, where a schedule hook can reach the sampler
+        datamanager = {"module": "nerfstudio.data.datamanagers.base_datamanager", "cls": "VanillaDataManagerConfig"}
     imports = [
         "from nerfstudio.configs.base_config import ViewerConfig",
         "from nerfstudio.engine.trainer import TrainerConfig",
         "from nerfstudio.plugins.types import MethodSpecification",
         f"from {base['pipeline']['module']} import {base['pipeline']['cls']}",
-        f"from {base['datamanager']['module']} import {base['datamanager']['cls']}",
+        f"from {datamanager['module']} import {datamanager['cls']}",
         *dataparser["imports"],
     ]
+    if sampler is not None:
+        imports.append(f"from .pixel_sampler import {sampler['config_cls']}")
     model_kws = _mapped_values(ctx, base_name) + _derived_values(ctx, base_name, fields)
     if any(kw.name == "camera_optimizer" for kw in model_kws):
         imports.append("from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig")
@@ -543,7 +657,10 @@ def config_context(ctx: Context, base: dict) -> dict:
         "var": f"{ctx.names.package}_method",
         "imports": sorted(set(imports)),
         "trainer": [KW(k, py(v), f"trainer.{k}") for k, v in trainer.items()],
-        "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}") for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")],
+        "datamanager_cls": datamanager["cls"],
+        "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}") for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")]
+        + ([KW("pixel_sampler", f"{sampler['config_cls']}()", sampler["source"])] if sampler else []),
+        "pixel_sampler": sampler,
         "dataparser": dataparser["ctor"],
         "model": model_kws,
         "optimizers": groups,
@@ -570,6 +687,7 @@ def build_context(ctx: Context) -> dict:
         "base": base,
         "field": field_ctx,
         "field_template": {"MLPField": "field_mlp.py.j2", "TensorialField": "field_tensorial.py.j2"}.get(field_kind),
+        "pixel_sampler": config["pixel_sampler"],
         "model": model,
         "config": config,
         "components": list(ctx.components),

@@ -124,6 +124,24 @@ def _field(module, inputs, env):
     return {"density": out[FieldHeadNames.DENSITY], "rgb": out[FieldHeadNames.RGB]}
 
 
+def _conditioner(module, inputs, env):
+    from nerfify_ns.registry.terminals.wrappers import _conditioner_call
+
+    return _conditioner_call("positions", "times", "features")(module, inputs, env)
+
+
+def _pixel_map(module, inputs, env):
+    from nerfify_ns.registry.terminals.training import map_call
+
+    return map_call(module, inputs, env)
+
+
+def _hook(module, inputs, env):
+    from nerfify_ns.registry.terminals.training import hook_call
+
+    return hook_call(module, inputs, env)
+
+
 FEATURES = {"features": T("[N, out_dim]", doc="encoded features (width: the component's get_out_dim())")}
 LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
 RAYS = {"ray_bundle": T("[R]", "rays", role="rays")}
@@ -177,6 +195,36 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
               "{DENSITY: [R, S, 1] >= 0, RGB: [R, S, 3] in [0, 1]}", ("aabb", "num_images"),
               Contract(RAYS, {"density": T("[R, S, 1]", range=(0.0, None)),
                               "rgb": T("[R, S, 3]", range=(0.0, 1.0))}), _field, RAY_CASES),
+    Interface("FieldWrapper", "a conditioner of the neural field: __init__(num_images, ...); forward(positions "
+              "[N, 3] (world), times [N, 1], camera_indices [N] long) -> (positions [N, 3], times [N, 1], features "
+              "[N, get_out_dim()]): the position and time the field is queried at (return the inputs to keep "
+              "them) and features appended to the backbone's input (width 0 for none); applied in the plan's "
+              "order, before the field's own encoding", ("num_images",),
+              Contract({"positions": T("[N, 3]", grad=True, role="positions", doc="sample positions (world)"),
+                        "times": T("[N, 1]", range=(0.0, 1.0), grad=True, doc="sample times"),
+                        "camera_indices": T("[N]", "long", role="camera_indices", doc="training image index")},
+                       {"positions": T("[N, 3]", doc="the position the field is queried at"),
+                        "times": T("[N, 1]", doc="the time the field is queried at"),
+                        "features": T("[N, out_dim]", doc="features appended to the backbone's input")},
+                       doc="reads positions, times, camera indices; writes positions, times, backbone features"),
+              _conditioner, ("empty_batch", "points_outside_contraction", "half"), out_dim=True,
+              duties=({"requires_terminal": {"slot": "model.field", "any_of": ["MLPField"]}},)),
+    Interface("PixelSampler", "a per-image pixel map: forward(images [N, H, W, 3] in [0, 1], image_indices [N] long) "
+              "-> weights [N, H, W] >= 0; the plugin's MapPixelSampler draws each batch's pixels in proportion "
+              "(an image whose weights are all 0 is never drawn); computed once per image batch", (),
+              Contract({"images": T("[N, H, W, 3]", range=(0.0, 1.0), doc="the batch's training images"),
+                        "image_indices": T("[N]", "long", role="camera_indices", doc="their training-set indices")},
+                       {"weights": T("[N, H, W]", range=(0.0, None), doc="unnormalised pixel probabilities")},
+                       sizes={"H": 6, "W": 5}, doc="reads the batch's images and indices; writes the pixel map"),
+              _pixel_map, ("zeros", "empty_batch")),
+    Interface("ScheduleHook", "a subclass of components.schedule_hooks.ScheduleHook (the plugin has it): "
+              "forward(steps [N] long) -> values [N] (the value written at each step); write(value, model, "
+              "datamanager) applies one value; check(model) raises when the model lacks what it changes; "
+              "`every` (default 1) iterations between calls, before the training iteration", (),
+              Contract({"steps": T("[N]", "long", role="steps", doc="training steps")},
+                       {"values": T("[N]", doc="the value at each step")},
+                       doc="reads the step; writes what its write() names (a part of the model or the datamanager)"),
+              _hook, ("empty_batch",)),
 ]}
 """The interface of every production that accepts ``custom``."""
 

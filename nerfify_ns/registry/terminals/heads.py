@@ -10,7 +10,8 @@ from nerfify_ns.registry.examples import DENSITY_CASES, DENSITY_OFFSETS
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 
-SMALL = {"layer_width": 32, "num_layers": 3}
+SMALL = {"layer_width": 32, "num_layers": 3, "density_width": 16, "color_width": 16, "density_layers": 2,
+         "color_layers": 2}
 
 ACTIVATIONS: Dict[str, Code] = {
     "softplus": Code(expr="nn.functional.softplus({{ x }})"),
@@ -37,6 +38,19 @@ class Backbone:
     """Units per hidden layer (NeRF: 256)."""
     skip_connections: List[int] = param([4], range=(1, 14), length=(0, 8))
     """Layers that receive the encoded input again (NeRF: a skip at layer 4)."""
+    skip_every_layer: bool = param(False)
+    """The encoded input is fed again to every hidden layer after the first (replaces skip_connections)."""
+    branches: bool = param(False)
+    """Separate density and colour branches after the shared layers: the density head reads one, the colour head
+    the other (each with its own depth and width below)."""
+    density_layers: int = param(1, range=(1, 8))
+    """Layers of the density branch (with branches)."""
+    density_width: int = param(128, range=(8, 1024))
+    """Units per layer of the density branch (with branches)."""
+    color_layers: int = param(1, range=(1, 8))
+    """Layers of the colour branch, whose output are the geometry features of the colour head (with branches)."""
+    color_width: int = param(128, range=(8, 1024))
+    """Units per layer of the colour branch (with branches)."""
 
 
 @dataclass
@@ -77,13 +91,26 @@ class TensorialAppearance:
     """Frequencies of the encoding of the view direction."""
 
 
+def backbone_skips(p) -> tuple:
+    """The layers that receive the encoded input again: every hidden layer after the first
+    (``skip_every_layer``), else ``skip_connections`` (those below the last layer, e.g. at small sizes)."""
+    layers = range(1, p["num_layers"] - 1) if p.get("skip_every_layer") else (p["skip_connections"] or [])
+    return tuple(s for s in layers if s < p["num_layers"] - 1)
+
+
 def _build_backbone(p, env):
     from nerfstudio.field_components.mlp import MLP
     from torch import nn
 
-    skips = tuple(s for s in p["skip_connections"] or [] if s < p["num_layers"] - 1) or None  # at small sizes
+    if p["branches"]:
+        from nerfify_ns.components.mlp_branches import BranchedMLP
+
+        return BranchedMLP(in_dim=int(env["in_dim"]), num_layers=p["num_layers"], layer_width=p["layer_width"],
+                           skip_connections=backbone_skips(p), density_layers=p["density_layers"],
+                           density_width=p["density_width"], color_layers=p["color_layers"],
+                           color_width=p["color_width"])
     return MLP(in_dim=int(env["in_dim"]), num_layers=p["num_layers"], layer_width=p["layer_width"],
-               skip_connections=skips, activation=nn.ReLU(), implementation="torch")
+               skip_connections=backbone_skips(p) or None, activation=nn.ReLU(), implementation="torch")
 
 
 def _build_colour_head(p, env):
@@ -133,6 +160,12 @@ SKIPS_BEFORE_LAST_LAYER = Constraint(
     lambda p, plan: all(s < p["num_layers"] - 1 for s in p["skip_connections"] or []))
 """Nerfstudio's MLP concatenates the input before layer i; its last layer (num_layers - 1) takes no skip."""
 
+BRANCHES_NEED_A_LINEAR_DENSITY_HEAD = Constraint(
+    "separate density and colour branches feed the linear density head (density_linear): density_split reads "
+    "the density from the backbone's first channel and a custom head reads all of it",
+    lambda p, plan: not p["branches"] or "density_linear" in (
+        ((((plan.get("model") or {}).get("field") or {}).get("MLPField") or {}).get("density_head") or {})))
+
 FEATURES_IN = {"features": T("[N, in_dim]", grad=True, doc="encoded positions (a width the harness chooses)")}
 DENSITY_OUT = {"density": T("[N, 1]", range=(0.0, None), doc="sigma >= 0")}
 HIDDEN_IN = T("[N, in_dim]", grad=True, role="pre_density", doc="backbone output")
@@ -141,10 +174,13 @@ TERMINALS = [
     TerminalDef(
         "mlp", "Backbone", Backbone, "The backbone MLP over encoded positions (NeRF: 8 x 256 with a skip at layer 4).",
         "nerfstudio.field_components.mlp.MLP", card="mlp_backbone",
-        contract=Contract(FEATURES_IN, {"hidden": T("[N, layer_width]", doc="hidden features")}),
+        contract=Contract(FEATURES_IN, {"hidden": T("[N, (1 - branches) * layer_width + branches * (density_width "
+                                                     "+ color_width)]",
+                                                     doc="hidden features (with branches: the density branch's, "
+                                                         "then the colour branch's)")}),
         harness=Harness(build=_build_backbone, call=_call("hidden"), cases=("values_1e8", "empty_batch", "half"),
                         small=SMALL),
-        constraints=(SKIPS_BEFORE_LAST_LAYER,)),
+        constraints=(SKIPS_BEFORE_LAST_LAYER, BRANCHES_NEED_A_LINEAR_DENSITY_HEAD)),
     TerminalDef(
         "density_linear", "DensityHead", DensityLinear,
         "A linear density head on the backbone features, then an activation (NeRF).",

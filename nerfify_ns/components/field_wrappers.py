@@ -1,0 +1,267 @@
+"""Wrappers around a radiance field: what dynamic NeRFs add to a static one.
+
+A **conditioner** changes what the field is queried with. Every conditioner has the same interface (the
+FieldWrapper contract of the grammar): ``forward(positions [N, 3], times [N, 1], camera_indices [N])`` returns
+``(positions [N, 3], times [N, 1], features [N, get_out_dim()])``: the position and time the field is queried
+at, and features appended to the input of the field's backbone (width 0 for a conditioner that adds none).
+Positions are world positions (before the field's normalisation or contraction); times are in [0, 1].
+
+- :class:`DeformationField`: a deformation network into a canonical space, Psi_t(x, t) = Delta x, the field
+  queried at x + Delta x, with Psi_t(x, 0) = 0 so the scene at t = 0 is the canonical one (D-NeRF, Pumarola
+  et al. 2021, arXiv 2011.13961, Sec. 4, Eqs. 2-3); its own sinusoidal encodings of x and t; optionally the
+  coarse-to-fine window over the frequencies of x (Nerfies, Park et al. 2021, arXiv 2011.12948, Eqs. 8-9), which
+  a schedule hook may anneal (``window``).
+- :class:`TimeEmbedding`: a learned embedding of continuous time, an MLP on the sinusoidal encoding gamma(t),
+  concatenated to the field's features (the time input of D-NeRF's T-NeRF baseline, Sec. 5, through an MLP).
+- :class:`FrameCodes`: learned time-variant latent codes z_t, one per frame, concatenated to the encoded position
+  (DyNeRF, Li et al. 2022, arXiv 2103.02597, Sec. 3.1, Eq. 2: F(x, d, z_t)); between frames the codes are
+  interpolated linearly (DyNeRF's interpolation of latent codes).
+- :class:`CameraTimeOffset`: one learned time offset per training camera, t + delta_c (for unsynchronised
+  capture; Nerfstudio's camera index is the training image); evaluation cameras use no offset.
+
+A **blend** combines several fields (:class:`BlendedField` around :class:`FieldBlend`): by density,
+sigma = sum_k sigma_k, c = sum_k sigma_k c_k / sigma (the static + transient composition of NeRF-W,
+Martin-Brualla et al. 2021, arXiv 2008.02268, Eq. 10), or by a learned per-sample mixer,
+w = softmax(MLP(gamma(x), t)), sigma = sum_k w_k sigma_k, c = sum_k w_k c_k (the decomposition field of
+NeRFPlayer, Song et al. 2023, arXiv 2210.15947, Sec. 3.1, with K fields).
+
+Imports only torch and nerfstudio: generated plugins import this module.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import torch
+from nerfstudio.cameras.rays import RaySamples
+from nerfstudio.field_components.field_heads import FieldHeadNames
+from nerfstudio.fields.base_field import Field
+from torch import Tensor, nn
+
+__all__ = ["Sinusoids", "DeformationField", "TimeEmbedding", "FrameCodes", "CameraTimeOffset", "FieldBlend",
+           "BlendedField", "condition", "mlp"]
+
+Conditioned = Tuple[Tensor, Tensor, Tensor]
+
+
+class Sinusoids(nn.Module):
+    """gamma(p) = (p, sin(2^k pi p), cos(2^k pi p)) for k < num_frequencies (NeRF Eq. 4), optionally weighted
+    per frequency by the coarse-to-fine window of Nerfies (Eq. 9): w_k(alpha) = (1 - cos(pi clamp(alpha - k,
+    0, 1))) / 2; ``window`` = alpha starts at ``num_frequencies`` (every frequency on). Handles empty batches."""
+
+    def __init__(self, in_dim: int, num_frequencies: int, include_input: bool = True) -> None:
+        super().__init__()
+        self.in_dim, self.num_frequencies, self.include_input = in_dim, num_frequencies, include_input
+        self.register_buffer("freqs", (2.0 ** torch.arange(num_frequencies)) * math.pi, persistent=False)
+        self.register_buffer("window", torch.tensor(float(num_frequencies)))
+
+    def get_out_dim(self) -> int:
+        return self.in_dim * (2 * self.num_frequencies + int(self.include_input))
+
+    def forward(self, x: Tensor) -> Tensor:
+        scaled = x[..., None, :] * self.freqs.to(x)[:, None]  # [..., F, D]
+        weights = 0.5 * (1 - torch.cos(math.pi * (self.window - torch.arange(self.num_frequencies, device=x.device))
+                                       .clamp(0.0, 1.0))).to(x)[:, None]
+        parts = [torch.sin(scaled) * weights, torch.cos(scaled) * weights]
+        out = torch.cat(parts, dim=-2).reshape(*x.shape[:-1], -1)
+        return torch.cat([x, out], dim=-1) if self.include_input else out
+
+
+def mlp(in_dim: int, width: int, layers: int, out_dim: int) -> nn.Sequential:
+    """``layers`` hidden ReLU layers of ``width`` units, then a linear output of ``out_dim``."""
+    modules: List[nn.Module] = []
+    dim = in_dim
+    for _ in range(layers):
+        modules += [nn.Linear(dim, width), nn.ReLU()]
+        dim = width
+    modules.append(nn.Linear(dim, out_dim))
+    return nn.Sequential(*modules)
+
+
+def _float(x: Tensor) -> Tensor:
+    return x if x.dtype in (torch.float32, torch.float64) else x.float()
+
+
+class DeformationField(nn.Module):
+    """D-NeRF's deformation network Psi_t: (gamma(x), gamma(t)) -> Delta x (an MLP of ``num_layers`` x
+    ``layer_width``); the field is queried at the canonical position x + Delta x. With ``zero_at_t0`` the
+    displacement is 0 at t = 0 (D-NeRF Eq. 2: the canonical space is the scene at t = 0). The last layer starts
+    at zero, so training starts from the identity map."""
+
+    def __init__(self, num_layers: int = 8, layer_width: int = 256, position_frequencies: int = 10,
+                 time_frequencies: int = 6, zero_at_t0: bool = True) -> None:
+        super().__init__()
+        self.position_encoding = Sinusoids(3, position_frequencies)
+        self.time_encoding = Sinusoids(1, time_frequencies)
+        self.network = mlp(self.position_encoding.get_out_dim() + self.time_encoding.get_out_dim(), layer_width,
+                           num_layers, 3)
+        nn.init.zeros_(self.network[-1].weight)
+        nn.init.zeros_(self.network[-1].bias)
+        self.zero_at_t0 = zero_at_t0
+
+    @property
+    def window(self) -> Tensor:
+        """The coarse-to-fine window over the frequencies of x (Nerfies' alpha), for schedule hooks."""
+        return self.position_encoding.window
+
+    def get_out_dim(self) -> int:
+        return 0
+
+    def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
+        x, t = _float(positions), _float(times)
+        delta = self.network.to(x.dtype)(torch.cat([self.position_encoding(x), self.time_encoding(t)], dim=-1))
+        if self.zero_at_t0:
+            delta = delta * (t != 0).to(delta)
+        return (x + delta).to(positions.dtype), times, positions.new_zeros(*positions.shape[:-1], 0)
+
+
+class TimeEmbedding(nn.Module):
+    """A learned embedding of continuous time: an MLP (``num_layers`` x ``layer_width``, ``out_dim`` outputs)
+    on the sinusoidal encoding gamma(t) with ``num_frequencies`` frequencies, appended to the field's input."""
+
+    def __init__(self, num_frequencies: int = 6, layer_width: int = 64, num_layers: int = 2, out_dim: int = 16) -> None:
+        super().__init__()
+        self.encoding = Sinusoids(1, num_frequencies)
+        self.network = mlp(self.encoding.get_out_dim(), layer_width, num_layers, out_dim)
+        self.out_dim = out_dim
+
+    def get_out_dim(self) -> int:
+        return self.out_dim
+
+    def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
+        t = _float(times)
+        return positions, times, self.network.to(t.dtype)(self.encoding(t)).to(positions.dtype)
+
+
+class FrameCodes(nn.Module):
+    """DyNeRF's time-variant latent codes: ``num_frames`` learned codes of ``dim`` values over t in [0, 1]
+    (frame k at t = k / (num_frames - 1)), read with linear interpolation and appended to the field's input.
+    Initialised at random, N(0, 0.01^2) (DyNeRF: randomly initialised independently across frames)."""
+
+    def __init__(self, num_frames: int = 64, dim: int = 32) -> None:
+        super().__init__()
+        self.codes = nn.Parameter(torch.randn(num_frames, dim) * 0.01)
+        self.num_frames, self.dim = num_frames, dim
+
+    def get_out_dim(self) -> int:
+        return self.dim
+
+    def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
+        t = _float(times).reshape(-1).clamp(0.0, 1.0) * (self.num_frames - 1)
+        low = t.floor().long().clamp(0, self.num_frames - 1)
+        high = (low + 1).clamp(max=self.num_frames - 1)
+        frac = (t - low.to(t)).unsqueeze(-1)
+        codes = self.codes.to(t.dtype)
+        code = codes[low] * (1 - frac) + codes[high] * frac
+        return positions, times, code.reshape(*positions.shape[:-1], self.dim).to(positions.dtype)
+
+
+class CameraTimeOffset(nn.Module):
+    """One learned time offset per training camera (Nerfstudio's camera index), added to the sample's time:
+    t' = t + delta_c, delta starting at ``init``. Evaluation cameras (``self.training`` off) use no offset:
+    their indices are not the training cameras'."""
+
+    def __init__(self, num_images: int, init: float = 0.0) -> None:
+        super().__init__()
+        self.offsets = nn.Parameter(torch.full((max(int(num_images), 1), 1), float(init)))
+
+    def get_out_dim(self) -> int:
+        return 0
+
+    def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
+        if not self.training:
+            return positions, times, positions.new_zeros(*positions.shape[:-1], 0)
+        index = camera_indices.reshape(-1).long().clamp(0, self.offsets.shape[0] - 1)
+        shifted = times + self.offsets[index].reshape(times.shape).to(times)
+        return positions, shifted, positions.new_zeros(*positions.shape[:-1], 0)
+
+
+def condition(wrappers: Sequence[nn.Module], positions: Tensor, times: Optional[Tensor],
+              camera_indices: Optional[Tensor]) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
+    """Apply the conditioners in order to samples of any leading shape ``[..., 3]``: (positions [..., 3], times
+    [..., 1], the features they add [..., F] or None). Missing times are 0, missing camera indices 0."""
+    shape = positions.shape[:-1]
+    x = positions.reshape(-1, 3)
+    t = times.reshape(-1, 1).to(x) if times is not None else x.new_zeros(x.shape[0], 1)
+    cams = (camera_indices.reshape(-1).long() if camera_indices is not None
+            else torch.zeros(x.shape[0], dtype=torch.long, device=x.device))
+    extras = []
+    for wrapper in wrappers:
+        x, t, extra = wrapper(x, t, cams)
+        if extra.shape[-1]:
+            extras.append(extra)
+    features = torch.cat(extras, dim=-1).reshape(*shape, -1) if extras else None
+    return x.reshape(*shape, 3), t.reshape(*shape, 1), features
+
+
+class FieldBlend(nn.Module):
+    """Blend the outputs of ``num_fields`` fields per sample: ``mode="density"`` (sigma = sum sigma_k, colour
+    weighted by density; where every density is 0 the colour is the mean of the fields') or ``mode="mixer"``
+    (w = softmax of an MLP, ``mixer_layers`` x ``mixer_width``, on (gamma(x), t); sigma = sum w_k sigma_k,
+    c = sum w_k c_k). ``forward(densities [N, K, 1], rgbs [N, K, 3], positions [N, 3], times [N, 1])`` ->
+    ``(density [N, 1], rgb [N, 3])``."""
+
+    def __init__(self, num_fields: int = 2, mode: str = "density", mixer_width: int = 64, mixer_layers: int = 2,
+                 mixer_frequencies: int = 4) -> None:
+        super().__init__()
+        if mode not in ("density", "mixer"):
+            raise ValueError(f"mode must be 'density' or 'mixer', got {mode!r}")
+        self.num_fields, self.mode = num_fields, mode
+        if mode == "mixer":
+            self.encoding = Sinusoids(3, mixer_frequencies)
+            self.mixer = mlp(self.encoding.get_out_dim() + 1, mixer_width, mixer_layers, num_fields)
+
+    def weights(self, positions: Tensor, times: Tensor) -> Tensor:
+        """The mixer's per-sample weights [N, K] (they sum to 1)."""
+        x, t = _float(positions), _float(times)
+        return torch.softmax(self.mixer.to(x.dtype)(torch.cat([self.encoding(x), t], dim=-1)), dim=-1)
+
+    def forward(self, densities: Tensor, rgbs: Tensor, positions: Tensor, times: Tensor) -> Tuple[Tensor, Tensor]:
+        if self.mode == "mixer":
+            w = self.weights(positions, times).unsqueeze(-1).to(densities)  # [N, K, 1]
+            return (w * densities).sum(dim=-2), (w * rgbs).sum(dim=-2).clamp(0.0, 1.0)
+        sigma = _float(densities)
+        total = sigma.sum(dim=-2)
+        eps = 1e-6
+        rgb = ((sigma * _float(rgbs)).sum(dim=-2) + eps * _float(rgbs).mean(dim=-2)) / (total + eps)
+        return total.to(densities.dtype), rgb.clamp(0.0, 1.0).to(rgbs.dtype)
+
+
+class BlendedField(Field):
+    """Several Nerfstudio fields queried at the same samples and blended by :class:`FieldBlend`; a Nerfstudio
+    field itself, so a base model installs it as its own field (its ``density_fn`` serves occupancy grids and
+    proposal samplers). Keeps ``last_density`` (the blended density) for density regularisers."""
+
+    def __init__(self, fields: Sequence[nn.Module], blend: FieldBlend) -> None:
+        super().__init__()
+        if len(fields) != blend.num_fields:
+            raise ValueError(f"{len(fields)} fields for a blend of {blend.num_fields}")
+        self.fields = nn.ModuleList(fields)
+        self.blend = blend
+        self.last_density: Optional[Tensor] = None
+
+    def _blend(self, ray_samples: RaySamples, densities: List[Tensor], rgbs: List[Tensor]) -> Tuple[Tensor, Tensor]:
+        shape = densities[0].shape[:-1]
+        positions = ray_samples.frustums.get_positions().reshape(-1, 3)
+        times = (ray_samples.times.reshape(-1, 1) if ray_samples.times is not None
+                 else positions.new_zeros(positions.shape[0], 1))
+        k = len(densities)
+        density, rgb = self.blend(torch.stack(densities, dim=-2).reshape(-1, k, 1),
+                                  torch.stack(rgbs, dim=-2).reshape(-1, k, 3), positions, times.to(positions))
+        return density.reshape(*shape, 1), rgb.reshape(*shape, 3)
+
+    def forward(self, ray_samples: RaySamples, compute_normals: bool = False) -> Dict[FieldHeadNames, Tensor]:
+        outputs = [f(ray_samples) for f in self.fields]
+        density, rgb = self._blend(ray_samples, [o[FieldHeadNames.DENSITY] for o in outputs],
+                                   [o[FieldHeadNames.RGB] for o in outputs])
+        self.last_density = density
+        return {FieldHeadNames.DENSITY: density, FieldHeadNames.RGB: rgb}
+
+    def get_density(self, ray_samples: RaySamples) -> Tuple[Tensor, None]:
+        densities = [f.get_density(ray_samples)[0] for f in self.fields]
+        zeros = [torch.zeros(*d.shape[:-1], 3, dtype=d.dtype, device=d.device) for d in densities]
+        return self._blend(ray_samples, densities, zeros)[0], None
+
+    def get_outputs(self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None) -> Dict:
+        return {FieldHeadNames.RGB: self.forward(ray_samples)[FieldHeadNames.RGB]}

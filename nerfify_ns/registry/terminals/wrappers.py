@@ -1,0 +1,218 @@
+"""Field wrappers: deformation into a canonical space, time conditioning, per-camera time offsets, and several
+fields blended by density or by a learned mixer (``nerfify_ns/components/field_wrappers.py``).
+
+Every conditioner reads a sample's position, time and camera and writes the position and time the field is
+queried at and features appended to the backbone's input; each terminal's contract names only what it reads and
+writes. A blend reads the densities and colours of K fields at a sample and writes one density and colour.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from nerfify_ns.registry.contract import Contract, T
+from nerfify_ns.registry.examples import POINT_CASES
+from nerfify_ns.registry.params import param
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
+
+COMPONENT = "field_wrappers"
+IMPORT = "from .components.field_wrappers import {}"
+SMALL = {"num_layers": 2, "layer_width": 16, "position_frequencies": 4, "time_frequencies": 2, "num_frequencies": 2,
+         "out_dim": 8, "num_frames": 8, "dim": 8, "mixer_width": 16, "mixer_layers": 1}
+TIMES = {"requires_scene": {"timestamps": True}}
+"""Duty of a wrapper that reads the samples' times: only for scenes whose frames carry times."""
+MLP_FIELD = {"requires_terminal": {"slot": "model.field", "any_of": ["MLPField"]}}
+"""Duty of every wrapper: the generated neural field (MLPField) applies them."""
+
+TIMES_NEED_PADDED_SAMPLES = Constraint(
+    "a wrapper that reads times reads each sample's ray time; instant-ngp's packed samples carry none",
+    lambda p, plan: plan.get("base") != "instant-ngp")
+
+POSITIONS = T("[N, 3]", grad=True, role="positions", doc="sample positions in world space")
+TIMES_IN = T("[N, 1]", range=(0.0, 1.0), grad=True, doc="sample times (the ray's frame time)")
+CAMERAS = T("[N]", "long", role="camera_indices", doc="training camera (image) index of the sample's ray")
+
+
+@dataclass
+class Deformation:
+    num_layers: int = param(8, range=(1, 16))
+    """Hidden layers of the deformation MLP Psi_t (D-NeRF: 8)."""
+    layer_width: int = param(256, range=(8, 1024))
+    """Units per hidden layer of the deformation MLP (D-NeRF: 256)."""
+    position_frequencies: int = param(10, range=(1, 16))
+    """Frequencies of the deformation's own encoding of x (D-NeRF: 10, NeRF's)."""
+    time_frequencies: int = param(6, range=(1, 16))
+    """Frequencies of the deformation's own encoding of t."""
+    zero_at_t0: bool = param(True)
+    """No displacement at t = 0: the canonical space is the scene at the first time (D-NeRF Eq. 2)."""
+
+
+@dataclass
+class TimeEmbedding:
+    num_frequencies: int = param(6, range=(1, 16))
+    """Frequencies of the sinusoidal encoding gamma(t) the embedding MLP reads."""
+    layer_width: int = param(64, range=(4, 1024))
+    """Units per hidden layer of the embedding MLP."""
+    num_layers: int = param(2, range=(0, 8))
+    """Hidden layers of the embedding MLP (0: a linear map of gamma(t))."""
+    out_dim: int = param(16, range=(1, 1024))
+    """Width of the time embedding appended to the field's input."""
+
+
+@dataclass
+class FrameCodes:
+    num_frames: int = param(64, range=(2, 100000))
+    """Number of learned codes over t in [0, 1] (one per frame of the sequence; interpolated between frames)."""
+    dim: int = param(32, range=(1, 4096))
+    """Width D of each latent code z_t (DyNeRF: 1024)."""
+
+
+@dataclass
+class CameraTimeOffset:
+    init: float = param(0.0, range=(-1.0, 1.0))
+    """Initial time offset of every camera (times are in [0, 1])."""
+
+
+@dataclass
+class FieldBlend:
+    num_fields: int = param(2, range=(2, 4))
+    """Number of fields blended (each a copy of the plan's field)."""
+    mode: Literal["density", "mixer"] = param("density")
+    """density: sigma = sum sigma_k, colour weighted by density (NeRF-W); mixer: per-sample softmax weights from
+    an MLP on (gamma(x), t) (NeRFPlayer's decomposition)."""
+    mixer_width: int = param(64, range=(4, 1024))
+    """Units per hidden layer of the mixer MLP (mode mixer)."""
+    mixer_layers: int = param(2, range=(0, 8))
+    """Hidden layers of the mixer MLP (mode mixer)."""
+    static_first: bool = param(True)
+    """The first field ignores the plan's conditioners (a static field beside the time-dependent ones)."""
+
+
+def _conditioner_build(cls: str, *names: str):
+    def build(p, env):
+        from nerfify_ns.components import field_wrappers
+
+        kwargs = {n: p[n] for n in names}
+        if cls == "CameraTimeOffset":
+            kwargs["num_images"] = int(env["cameras"])
+        return getattr(field_wrappers, cls)(**kwargs)
+
+    return build
+
+
+def _conditioner_call(*outputs: str):
+    """Run a conditioner on (positions, times, camera indices) and name the outputs its contract declares."""
+    def call(module, inputs, env):
+        import torch
+
+        x = inputs["positions"]
+        t = inputs.get("times")
+        t = t if t is not None else x.new_zeros(x.shape[0], 1)
+        cams = inputs.get("camera_indices")
+        cams = cams if cams is not None else torch.zeros(x.shape[0], dtype=torch.long)
+        positions, times, features = module.to(x.dtype)(x, t, cams)
+        return {k: v for k, v in (("positions", positions), ("times", times), ("features", features))
+                if k in outputs}
+
+    return call
+
+
+def _blend_build(p, env):
+    from nerfify_ns.components.field_wrappers import FieldBlend as Blend
+
+    return Blend(num_fields=p["num_fields"], mode=p["mode"], mixer_width=p["mixer_width"],
+                 mixer_layers=p["mixer_layers"])
+
+
+def _blend_call(module, inputs, env):
+    density, rgb = module.to(inputs["positions"].dtype)(inputs["densities"], inputs["rgbs"], inputs["positions"],
+                                                        inputs["times"])
+    return {"density": density, "rgb": rgb}
+
+
+def ctor(cls: str, args: str) -> str:
+    return f"{cls}({args})"
+
+
+TERMINALS = [
+    TerminalDef(
+        "deformation", "FieldWrapper", Deformation,
+        "A deformation network Psi_t(gamma(x), gamma(t)) -> Delta x into a canonical space, the field queried at "
+        "x + Delta x (D-NeRF Eqs. 2-3).",
+        "nerfify_ns.components.field_wrappers.DeformationField",
+        contract=Contract({"positions": POSITIONS, "times": TIMES_IN},
+                          {"positions": T("[N, 3]", doc="canonical positions x + Delta x")},
+                          doc="reads positions and times; writes positions"),
+        code=Code((IMPORT.format("DeformationField"),),
+                  ctor=ctor("DeformationField", "num_layers={{ p.num_layers }}, layer_width={{ p.layer_width }}, "
+                            "position_frequencies={{ p.position_frequencies }}, "
+                            "time_frequencies={{ p.time_frequencies }}, zero_at_t0={{ p.zero_at_t0 }}"),
+                  component=COMPONENT, traits={"stage": "condition", "schedulable": ["deformation",
+                                                                                    "deformation.window"]}),
+        harness=Harness(build=_conditioner_build("DeformationField", "num_layers", "layer_width",
+                                                 "position_frequencies", "time_frequencies", "zero_at_t0"),
+                        call=_conditioner_call("positions"), cases=POINT_CASES, small=SMALL),
+        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
+    TerminalDef(
+        "time_embedding", "FieldWrapper", TimeEmbedding,
+        "A learned time embedding, an MLP on gamma(t), appended to the field's input (time conditioning).",
+        "nerfify_ns.components.field_wrappers.TimeEmbedding",
+        contract=Contract({"positions": POSITIONS, "times": TIMES_IN},
+                          {"features": T("[N, out_dim]", doc="time embedding appended to the backbone's input")},
+                          doc="reads times; writes features"),
+        code=Code((IMPORT.format("TimeEmbedding"),),
+                  ctor=ctor("TimeEmbedding", "num_frequencies={{ p.num_frequencies }}, layer_width={{ p.layer_width }}, "
+                            "num_layers={{ p.num_layers }}, out_dim={{ p.out_dim }}"),
+                  component=COMPONENT, traits={"stage": "condition", "schedulable": ["time_embedding"]}),
+        harness=Harness(build=_conditioner_build("TimeEmbedding", "num_frequencies", "layer_width", "num_layers",
+                                                 "out_dim"),
+                        call=_conditioner_call("features"), cases=("empty_batch", "half"), small=SMALL),
+        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
+    TerminalDef(
+        "frame_codes", "FieldWrapper", FrameCodes,
+        "Learned time-variant latent codes z_t, one per frame, interpolated in time and appended to the field's "
+        "input (DyNeRF Eq. 2).",
+        "nerfify_ns.components.field_wrappers.FrameCodes",
+        contract=Contract({"positions": POSITIONS, "times": TIMES_IN},
+                          {"features": T("[N, dim]", doc="the latent code of the sample's time")},
+                          doc="reads times; writes features"),
+        code=Code((IMPORT.format("FrameCodes"),),
+                  ctor=ctor("FrameCodes", "num_frames={{ p.num_frames }}, dim={{ p.dim }}"),
+                  component=COMPONENT, traits={"stage": "condition", "schedulable": ["frame_codes"]}),
+        harness=Harness(build=_conditioner_build("FrameCodes", "num_frames", "dim"),
+                        call=_conditioner_call("features"), cases=("empty_batch", "half"), small=SMALL),
+        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
+    TerminalDef(
+        "camera_time_offset", "FieldWrapper", CameraTimeOffset,
+        "One learned time offset per training camera, t + delta_c (unsynchronised cameras); none at evaluation.",
+        "nerfify_ns.components.field_wrappers.CameraTimeOffset",
+        contract=Contract({"positions": POSITIONS, "times": TIMES_IN, "camera_indices": CAMERAS},
+                          {"times": T("[N, 1]", doc="the sample's time plus its camera's offset")},
+                          doc="reads times and camera indices; writes times"),
+        code=Code((IMPORT.format("CameraTimeOffset"),),
+                  ctor=ctor("CameraTimeOffset", "num_images=num_images, init={{ p.init }}"),
+                  component=COMPONENT, traits={"stage": "condition", "schedulable": ["camera_time_offset"]}),
+        harness=Harness(build=_conditioner_build("CameraTimeOffset", "init"), call=_conditioner_call("times"),
+                        cases=("empty_batch", "half")),
+        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
+    TerminalDef(
+        "field_blend", "FieldWrapper", FieldBlend,
+        "Several copies of the field blended per sample: by density (NeRF-W Eq. 10) or by a learned mixer's "
+        "softmax weights (NeRFPlayer's decomposition).",
+        "nerfify_ns.components.field_wrappers.BlendedField",
+        contract=Contract({"densities": T("[N, num_fields, 1]", range=(0.0, 5.0), grad=True, role="densities",
+                                          doc="each field's density"),
+                           "rgbs": T("[N, num_fields, 3]", range=(0.0, 1.0), grad=True, doc="each field's colour"),
+                           "positions": POSITIONS, "times": TIMES_IN},
+                          {"density": T("[N, 1]", range=(0.0, None), doc="blended density"),
+                           "rgb": T("[N, 3]", range=(0.0, 1.0), doc="blended colour")},
+                          doc="reads the fields' densities and colours (and, mixer, positions and times); writes one "
+                              "density and colour per sample"),
+        code=Code((IMPORT.format("BlendedField"), IMPORT.format("FieldBlend")),
+                  ctor=ctor("FieldBlend", "num_fields={{ p.num_fields }}, mode={{ p.mode | tojson }}, "
+                            "mixer_width={{ p.mixer_width }}, mixer_layers={{ p.mixer_layers }}"),
+                  component=COMPONENT, traits={"stage": "blend", "schedulable": ["blend"]}),
+        harness=Harness(build=_blend_build, call=_blend_call, cases=("zeros", "empty_batch", "half"), small=SMALL),
+        duties=(MLP_FIELD,)),
+]
