@@ -27,9 +27,12 @@ from __future__ import annotations
 import base64
 import csv
 import datetime as _dt
+import io
+import itertools
 import json
 import math
 import re
+from contextvars import ContextVar
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -38,6 +41,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 import jinja2
 import yaml
 
+from nerfify_ns import safeio
 from nerfify_ns.errors import NerfifyError
 
 NOT_RUN = "not run"
@@ -56,34 +60,100 @@ class ReportError(NerfifyError):
 # ------------------------------------------------------------------------------------ reading
 
 
-def _read_json(path: Path) -> Tuple[Any, Optional[str]]:
-    """The JSON in ``path`` (None when absent) and an error text when it does not parse."""
-    if not path.is_file():
-        return None, None
+_ROOT: ContextVar[Optional[Path]] = ContextVar("nerfify_report_root", default=None)
+"""The run folder being reported: every file read must resolve inside it."""
+MAX_YAML_NODES = 200_000
+"""Nodes a run folder's YAML may expand to (ours hold a few thousand)."""
+MAX_SOURCE = 1 << 20
+"""Bytes of a generated component's code shown."""
+MAX_LISTED = 10_000
+"""Files of a plugin folder listed."""
+
+
+def _inside(path: Path) -> Path:
+    """``path`` when it resolves inside the run folder (no absolute path elsewhere, no ``..`` out, no link
+    pointing out); a :class:`ReportError` otherwise: the report never reads nor inlines a file from elsewhere."""
+    root = _ROOT.get()
+    if root is None:
+        return path
     try:
-        return json.loads(path.read_text(errors="replace")), None
-    except ValueError as exc:
-        return None, f"{path.name} is not valid JSON: {exc}"
+        relative: Any = Path(path).relative_to(root)
+    except ValueError:
+        relative = path
+    try:
+        return safeio.inside(root, relative, what="file")
+    except safeio.ReadRefused as exc:
+        raise ReportError(f"{root}: {exc}") from None
+
+
+def _name(path: Path) -> str:
+    root = _ROOT.get()
+    try:
+        return str(Path(path).relative_to(root)) if root is not None else Path(path).name
+    except ValueError:
+        return str(path)
+
+
+def _present(path: Path) -> bool:
+    return path.exists() or path.is_symlink()
+
+
+def _refused(exc: safeio.ReadRefused) -> ReportError:
+    root = _ROOT.get()
+    return ReportError(f"{root}: {exc}" if root is not None else str(exc))
+
+
+def _read_json(path: Path) -> Tuple[Any, Optional[str]]:
+    """The JSON in ``path`` (None when absent) and an error text when it does not parse; a file over a limit
+    (size, depth) or outside the run folder is a :class:`ReportError`."""
+    if not _present(path):
+        return None, None
+    target = _inside(path)
+    try:
+        return safeio.load_json(target, what=_name(path)), None
+    except safeio.NotParsed as exc:
+        return None, str(exc)
+    except safeio.ReadRefused as exc:
+        raise _refused(exc) from None
 
 
 def _read_yaml(path: Path) -> Tuple[Any, Optional[str]]:
-    """The YAML in ``path`` (None when absent) and an error text when it does not parse."""
-    if not path.is_file():
+    """The YAML in ``path`` (None when absent) and an error text when it does not parse; a file over a limit
+    (size, depth, the nodes its aliases expand to) or outside the run folder is a :class:`ReportError`."""
+    if not _present(path):
         return None, None
+    target = _inside(path)
     try:
-        return yaml.safe_load(path.read_text(errors="replace")), None
-    except yaml.YAMLError as exc:
-        return None, f"{path.name} is not valid YAML: {exc}"
+        return safeio.load_yaml(target, what=_name(path), max_nodes=MAX_YAML_NODES), None
+    except safeio.NotParsed as exc:
+        return None, str(exc)
+    except safeio.ReadRefused as exc:
+        raise _refused(exc) from None
+
+
+def _read_text(path: Path, limit: int = safeio.MAX_TEXT) -> Optional[str]:
+    """The text of ``path`` (None when absent), read within ``limit`` bytes, inside the run folder."""
+    if not _present(path):
+        return None
+    target = _inside(path)
+    try:
+        return safeio.read_text(target, limit, what=_name(path))
+    except safeio.ReadRefused as exc:
+        raise _refused(exc) from None
 
 
 def _data_uri(path: Path) -> Optional[str]:
-    """``path`` as a base64 ``data:`` URI when it is a PNG or JPEG image."""
-    if not path.is_file():
+    """``path`` as a base64 ``data:`` URI when it is a PNG or JPEG image inside the run folder, within the image
+    limits of :mod:`nerfify_ns.safeio` (checked from its header; nothing is decoded)."""
+    if not _present(path):
         return None
-    data = path.read_bytes()
-    mime = "image/png" if data[:8] == b"\x89PNG\r\n\x1a\n" else "image/jpeg" if data[:2] == b"\xff\xd8" else None
-    if mime is None:
+    target = _inside(path)
+    try:
+        mime, data = safeio.read_image_bytes(target, what=_name(path))
+    except safeio.NotParsed:
         return None
+    except safeio.ReadRefused as exc:
+        raise _refused(exc) from None
     return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
 
 
@@ -208,8 +278,8 @@ class _Builder:
             data["pruned"] = pruned
         else:
             blocks.append(not_run("plan (plan.yaml)"))
-        if paper_md.is_file():
-            text = paper_md.read_text(errors="replace")
+        text = _read_text(paper_md)
+        if text is not None:
             headings = [line.lstrip("#").strip() for line in text.splitlines() if line.startswith("#")]
             data["paper_md"] = {"characters": len(text), "headings": headings[:50]}
             blocks += [heading("Cleaned paper"),
@@ -259,12 +329,13 @@ class _Builder:
         blocks: List[Block] = []
         data: dict = {"status": "ok" if plugin.is_dir() else NOT_RUN}
         if plugin.is_dir():
-            files = sorted(meta["files"]) if isinstance(meta, dict) else sorted(
-                str(p.relative_to(plugin)) for p in plugin.rglob("*")
+            files = sorted(map(str, meta["files"]))[:MAX_LISTED] if isinstance(meta, dict) else sorted(
+                str(p.relative_to(plugin)) for p in itertools.islice(plugin.rglob("*"), MAX_LISTED)
                 if p.is_file() and "__pycache__" not in p.parts and ".verify" not in p.parts)
             data["files"] = files
             readme = plugin / "README.md"
-            rows = parse_markdown_tables(readme.read_text(errors="replace")) if readme.is_file() else []
+            readme_text = _read_text(readme)
+            rows = parse_markdown_tables(readme_text) if readme_text is not None else []
             data["parts"] = rows
             blocks += [heading("Generated package"), text_block(f"{len(files)} files"), pre("\n".join(files)),
                        heading("Where each part comes from (README)"),
@@ -342,8 +413,9 @@ class _Builder:
             if checks:
                 blocks.append(kv_table({k: v for k, v in checks.items() if k != "check_sizes"}))
             source = self.run / "equations" / f"{h.get('id')}.py"
-            if source.is_file():
-                blocks.append(folded(f"generated code: equations/{source.name}", source.read_text(errors="replace")))
+            code = _read_text(source, MAX_SOURCE)
+            if code is not None:
+                blocks.append(folded(f"generated code: equations/{source.name}", code))
         n = len(holes)
         self.add("equations", "Novel parts from the paper's equations", blocks,
                  {"status": "ok", "summary": summary, "holes": n, "counts": counts,
@@ -444,9 +516,9 @@ class _Builder:
             blocks.append(figure(png, "held-out PSNR against training seconds (evaluation time excluded)",
                                  self.images))
             data["image"] = png.name
-        if csv_path.is_file():
-            with open(csv_path, newline="") as f:
-                rows = list(csv.DictReader(f))
+        text = _read_text(csv_path)
+        if text is not None:
+            rows = list(csv.DictReader(io.StringIO(text, newline="")))
             blocks.append(table(rows))
             data.update(status="ok", points=rows)
         if not blocks:
@@ -622,6 +694,9 @@ def headline_views(run_dir: Path, images: List[str]) -> Tuple[List[Block], Optio
         if budget.get("seconds"):
             parts.append(f"budget {_fmt(budget['seconds'])} s: {budget.get('reason')}")
         schedule = summary.get("schedule") or {}
+        proxy = schedule.get("proxy") or {}
+        if proxy.get("headline"):  # what was trained, when it was not the paper's settings
+            parts.insert(0, str(proxy["headline"]))
         if schedule.get("factor"):
             parts.append(f"schedule scaled x{_fmt(schedule['factor'])} from the paper's "
                          f"{schedule.get('paper_iterations')} iterations")
@@ -648,9 +723,29 @@ def render_html(title: str, run_dir: Path, outcome: dict, sections: List[dict]) 
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    """``text`` into ``path`` through a fresh temporary file (never through a link planted in the folder)."""
+    import os
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _shaped(part: str, build: Callable[[], Any]) -> Any:
+    """``build()``, with a file of the run folder that is not shaped as nerfify-ns writes it (a list where a
+    mapping belongs, a number where a list does) turned into one :class:`ReportError` naming the part."""
+    try:
+        return build()
+    except (AttributeError, TypeError, KeyError, ValueError, IndexError, RecursionError) as exc:
+        raise ReportError(f"{_ROOT.get()}: cannot report its {part.replace('_', ' ')}: a file there is not "
+                          f"shaped as nerfify-ns writes it ({type(exc).__name__}: {str(exc)[:160]})") from None
 
 
 def write_report(run_dir: Path) -> Tuple[Path, Path]:
@@ -658,17 +753,21 @@ def write_report(run_dir: Path) -> Tuple[Path, Path]:
     run_dir = Path(run_dir).absolute()
     if not run_dir.is_dir():
         raise ReportError(f"{run_dir} is not a folder; pass the output folder of 'ns-nerfify PAPER'")
-    builder = _Builder(run_dir)
-    for section in SECTIONS:
-        section(builder)
-    outcome = read_outcome(run_dir, builder.data)
-    views, result = headline_views(run_dir, builder.images)
-    outcome.update(views=views, result=result)
-    plan, _ = _read_yaml(run_dir / "plan.yaml")
+    token = _ROOT.set(run_dir)
+    try:
+        builder = _Builder(run_dir)
+        for section in SECTIONS:
+            _shaped(section.__name__, lambda: section(builder))
+        outcome = _shaped("outcome", lambda: read_outcome(run_dir, builder.data))
+        views, result = _shaped("headline", lambda: headline_views(run_dir, builder.images))
+        outcome.update(views=views, result=result)
+        plan, _ = _read_yaml(run_dir / "plan.yaml")
+    finally:
+        _ROOT.reset(token)
     title = f"nerfify report: {plan.get('method')}" if isinstance(plan, dict) and plan.get("method") \
         else f"nerfify report: {run_dir.name}"
     html_path, json_path = run_dir / "report.html", run_dir / "report.json"
-    _write_atomic(html_path, render_html(title, run_dir, outcome, builder.sections))
+    html = _shaped("page", lambda: render_html(title, run_dir, outcome, builder.sections))
     payload = {
         "title": title,
         "run_dir": str(run_dir),
@@ -677,5 +776,7 @@ def write_report(run_dir: Path) -> Tuple[Path, Path]:
         "not_run": [k for k, v in builder.data.items() if isinstance(v, dict) and v.get("status") == NOT_RUN],
         "images": builder.images,
     }
-    _write_atomic(json_path, json.dumps(payload, indent=2, default=str, ensure_ascii=False) + "\n")
+    text = _shaped("report.json", lambda: json.dumps(payload, indent=2, default=str, ensure_ascii=False) + "\n")
+    _write_atomic(html_path, html)  # both built before either is written: a refusal writes nothing
+    _write_atomic(json_path, text)
     return html_path, json_path

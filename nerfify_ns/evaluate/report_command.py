@@ -10,6 +10,7 @@ import tyro
 from rich.console import Console
 
 from nerfify_ns.evaluate.report import ReportError, write_report
+from nerfify_ns.safetext import clean
 
 
 @dataclass
@@ -34,5 +35,9 @@ class Report:
         html_path, json_path = write_report(self.run_dir)
         if not self.quiet:
             outcome = json.loads(json_path.read_text())["outcome"]
-            Console().print(f"outcome: {outcome['headline']}", highlight=False, markup=False)
-            Console().print(f"report: {html_path}\n        {json_path}")
+            console = Console(width=120)
+            # the headline is the run folder's text: terminal escapes and control characters shown, not obeyed
+            console.print(f"outcome: {clean(outcome['headline'], 1000, newlines=False)}", highlight=False,
+                          markup=False, soft_wrap=True)
+            console.print(f"report: {clean(html_path, newlines=False)}\n        {clean(json_path, newlines=False)}",
+                          highlight=False, markup=False, soft_wrap=True)
