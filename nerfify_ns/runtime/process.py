@@ -164,14 +164,17 @@ def run_process(
     preexec_fn: Optional[Callable[[], None]] = None,
     poll: Optional[Poll] = None,
     poll_seconds: float = 1.0,
+    pass_fds: Sequence[int] = (),
 ) -> ProcessResult:
     """Run ``cmd`` in ``cwd`` with stdout and stderr to ``log_path``; kill its process group after
     ``timeout`` seconds. ``env`` is the whole environment (None: ours); ``preexec_fn`` runs in the child
-    before ``exec`` (resource limits); ``poll`` is called about every ``poll_seconds`` while it runs."""
+    before ``exec`` (resource limits); ``poll`` is called about every ``poll_seconds`` while it runs; ``pass_fds``
+    stay open in the child (a pipe it reports on)."""
     start = time.perf_counter()
     with open(log_path, "w") as log:
         proc = start_group(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=cwd,
-                           env=dict(env) if env is not None else None, preexec_fn=preexec_fn)
+                           env=dict(env) if env is not None else None, preexec_fn=preexec_fn,
+                           pass_fds=tuple(pass_fds))
         try:
             code = _wait(proc, start + timeout, poll, poll_seconds)
         except BaseException:

@@ -64,6 +64,7 @@ from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 from nerfify_ns.runtime.paths import ENV_CACHE, nerfify_cache_dir
 from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
+from nerfify_ns.runtime.seccomp import Installer, Supervisor, kill_filter, notify_filter, notify_supported
 from nerfify_ns.safetext import clean
 
 GiB = 1 << 30
@@ -491,8 +492,9 @@ def _depth(p: Path) -> int:
 
 
 def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Path], limits: Limits,
-                probe: bool = False) -> List[str]:
-    """The bwrap command line up to and including ``setpriv ... --``."""
+                probe: bool = False, supervise: bool = False) -> List[str]:
+    """The bwrap command line up to and including ``setpriv ... --`` (``supervise``: the seccomp filter is
+    installed before bwrap runs, by :func:`run_sandboxed`, not passed to it)."""
     args = [shutil.which("bwrap") or "bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
             "--unshare-cgroup-try", "--hostname", "sandbox", "--die-with-parent", "--new-session",
             "--cap-drop", "ALL", "--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID", "--cap-add", "CAP_SETPCAP",
@@ -529,7 +531,7 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
     if not probe:
         args += ["--chdir", str(workdir)]
     wrapper: List[str] = []
-    bpf = _seccomp_file()
+    bpf = None if supervise else _seccomp_file()
     if bpf is not None:  # bwrap reads the filter from a file descriptor: the shell opens it as fd 3
         wrapper = ["/bin/sh", "-c", 'exec "$@" 3<"$0"', bpf]
         args += ["--seccomp", "3"]
@@ -538,65 +540,17 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
 
 
 # ----------------------------------------------------------------------------------------------- seccomp
-_SECCOMP_ARCH = {  # machine -> (AUDIT_ARCH, unshare, clone, clone3, x32 bit or 0)
-    "x86_64": (0xC000003E, 272, 56, 435, 0x40000000),
-    "aarch64": (0xC00000B7, 97, 220, 435, 0),
-}
-_CLONE_NEWUSER = 0x10000000
-_RET_ALLOW = 0x7FFF0000
-_RET_ERRNO = 0x00050000
-
-
 def seccomp_filter() -> Optional[bytes]:
-    """A classic-BPF seccomp program (``bwrap --seccomp``) refusing new user namespaces (``unshare`` and
-    ``clone`` with CLONE_NEWUSER: EPERM; ``clone3``, whose flags a filter cannot read: ENOSYS, and the C
-    library falls back to ``clone``) and every system call of another ABI (32-bit, x32) than the machine's;
-    None on a machine it does not know. Without it the sandbox's user could still create a user namespace of
-    its own: no capability over anything of the host, but more of the kernel to attack."""
-    import errno
-    import platform
-    import struct
+    """The classic-BPF program for ``bwrap --seccomp`` where calls cannot be supervised
+    (:func:`nerfify_ns.runtime.seccomp.kill_filter`): escape calls kill the process (SIGSYS), new user
+    namespaces and other ABIs are refused; None on a machine it does not know."""
+    return kill_filter()
 
-    spec = _SECCOMP_ARCH.get(platform.machine())
-    if spec is None:
-        return None
-    arch, unshare, clone, clone3, x32 = spec
-    LD, JEQ, JGE, JSET, RET = 0x20, 0x15, 0x35, 0x45, 0x06
-    eperm, enosys = _RET_ERRNO | errno.EPERM, _RET_ERRNO | errno.ENOSYS
-    prog: List[Tuple[int, object, object, int]] = [
-        (LD, 0, 0, 4),                       # arch
-        (JEQ, 1, 0, arch),
-        (RET, 0, 0, eperm),                  # another ABI
-        (LD, 0, 0, 0),                       # syscall number
-    ]
-    if x32:
-        prog += [(JGE, "deny", 0, x32)]
-    prog += [
-        (JEQ, "flags", 0, unshare),
-        (JEQ, "flags", 0, clone),
-        (JEQ, "nosys", 0, clone3),
-        (RET, 0, 0, _RET_ALLOW),
-        ("flags", None, None, 0),
-        (LD, 0, 0, 16),                      # args[0], low 32 bits
-        (JSET, "deny", 0, _CLONE_NEWUSER),
-        (RET, 0, 0, _RET_ALLOW),
-        ("deny", None, None, 0),
-        (RET, 0, 0, eperm),
-        ("nosys", None, None, 0),
-        (RET, 0, 0, enosys),
-    ]
-    labels, code = {}, []
-    for op in prog:
-        if isinstance(op[0], str):
-            labels[op[0]] = len(code)
-        else:
-            code.append(op)
-    out = b""
-    for i, (op, jt, jf, k) in enumerate(code):
-        jt = labels[jt] - i - 1 if isinstance(jt, str) else jt
-        jf = labels[jf] - i - 1 if isinstance(jf, str) else jf
-        out += struct.pack("<HBBI", op, jt, jf, k)
-    return out
+
+def supervised() -> bool:
+    """Whether the sandbox's escape calls, connects and writes are decided and recorded by a supervisor thread
+    of ours (seccomp user notification) rather than only killed by ``bwrap --seccomp``."""
+    return os.environ.get("NERFIFY_SECCOMP", "supervise") != "kill" and notify_supported()
 
 
 @functools.lru_cache(maxsize=None)
@@ -641,6 +595,19 @@ class SandboxResult(ProcessResult):
     usage: Dict[str, int] = field(default_factory=dict)
     """``oom_kills``, ``peak_memory``, ``pids_refused`` (from the cgroup) and ``left_running`` (tasks still in
     the cgroup when the command had ended, killed then)."""
+    attempts: List[Dict[str, object]] = field(default_factory=list)
+    """What the sandboxed code tried that the seccomp supervisor stopped (call, detail, action, pid), recorded
+    in our process; empty without supervision."""
+
+    def attempt_sentences(self) -> List[str]:
+        """One sentence per escape attempt (the call named), or for a process the kill filter stopped."""
+        from nerfify_ns.runtime.seccomp import Attempt
+
+        found = [Attempt(**a).sentence() for a in self.attempts]
+        if not self.attempts and self.mode == "bwrap" and self.returncode == 128 + signal.SIGSYS:
+            found.append("plugin code made a system call the sandbox forbids (only an escape attempt needs it): "
+                         "the seccomp filter killed the process (SIGSYS)")
+        return found
 
     def tail(self, lines: int = 30, max_bytes: int = 64 << 10) -> str:
         """The last ``lines`` lines of the log, read from at most its last ``max_bytes`` bytes, with control
@@ -716,7 +683,8 @@ def _death_signal():
         return None
 
 
-def _preexec(group: Optional[TreeCgroup], rlimits: Sequence[Tuple[int, int]]):
+def _preexec(group: Optional[TreeCgroup], rlimits: Sequence[Tuple[int, int]],
+             installer: Optional[Installer] = None):
     """Run in the child before it executes the sandbox: SIGKILL when we die (bubblewrap's --die-with-parent is set
     only once it runs; a parent killed in between would leave the sandbox orphaned), stdin from /dev/null, join
     the cgroup, set rlimits."""
@@ -734,6 +702,8 @@ def _preexec(group: Optional[TreeCgroup], rlimits: Sequence[Tuple[int, int]]):
             group.enter()
         for which, value in rlimits:
             resource.setrlimit(which, (value, value))
+        if installer is not None:  # last: from here on every escape call of the tree goes to our supervisor
+            installer.install()
 
     return apply
 
@@ -775,11 +745,13 @@ def run_sandboxed(
     readonly: Iterable[Path] = (),
     limits: Optional[Limits] = None,
     mode: Optional[str] = None,
+    pass_fds: Sequence[int] = (),
 ) -> SandboxResult:
     """Run ``cmd`` in the sandbox with its working directory ``workdir`` (created; the only writable place),
     ``readonly`` folders visible, output to ``workdir/log_name``, under ``limits`` (``memory`` overrides
     theirs) and the ``timeout``; ``poll`` is called about every second while it runs. ``mode`` forces an
-    isolation mode (default the strongest available; ``isolate=False`` is ``none``)."""
+    isolation mode (default the strongest available; ``isolate=False`` is ``none``). ``pass_fds`` stay open in
+    the command (a pipe our process reads what it reports from)."""
     limits = limits or Limits()
     if memory:
         limits = dataclasses.replace(limits, memory=memory)
@@ -805,12 +777,17 @@ def run_sandboxed(
     if not pids_cgroup and mode == "bwrap":
         rlimits.append((resource.RLIMIT_NPROC, limits.pids))
     isolation = [mode]
+    supervisor: Optional[Supervisor] = None
     if mode == "bwrap":
-        prefix = _bwrap_args(workdir, readonly, [], limits)
+        supervise = supervised()
+        prefix = _bwrap_args(workdir, readonly, [], limits, supervise=supervise)
         isolation += [f"uid-{SANDBOX_UID}", "no-capabilities", "no-new-privs", "no-network", "read-only-fs",
                       "pid-namespace", "ipc-namespace", "private-tmp"]
-        if _seccomp_file() is not None:
-            isolation.append("seccomp-no-userns")
+        if supervise:
+            supervisor = Supervisor(str(workdir), installer=Installer(notify_filter()))
+            isolation += ["seccomp-no-userns", "seccomp-supervised"]
+        elif _seccomp_file() is not None:
+            isolation += ["seccomp-no-userns", "seccomp-kill"]
     elif mode == "unshare":
         prefix = unshare_prefix(workdir)
         isolation += ["root-with-capabilities", "no-network", "read-only-fs"]
@@ -829,10 +806,16 @@ def run_sandboxed(
     if mode == "bwrap":  # the sandbox's user owns its folder while it runs; bwrap (root, no capability) enters it
         _chown_tree(workdir, SANDBOX_UID, SANDBOX_GID)
         os.chmod(workdir, folder_mode | 0o711)
+    attempts: List[Dict[str, object]] = []
     try:
+        if supervisor is not None:
+            supervisor.start()
         result = run_process([*prefix, *cmd], workdir / log_name, cwd=workdir, timeout=timeout, env=full_env,
-                             preexec_fn=_preexec(group, rlimits), poll=poll)
+                             preexec_fn=_preexec(group, rlimits, supervisor and supervisor.installer), poll=poll,
+                             pass_fds=pass_fds)
     finally:
+        if supervisor is not None:
+            attempts = [a.to_dict() for a in supervisor.stop()]
         if group is not None:
             left = group.kill()
             usage.update(group.usage())
@@ -843,7 +826,7 @@ def run_sandboxed(
             _chown_tree(workdir, *owner)
             os.chmod(workdir, folder_mode)
     base = {f.name: getattr(result, f.name) for f in dataclasses.fields(ProcessResult)}
-    return SandboxResult(**base, isolation=isolation, mode=mode, limits=applied, usage=usage)
+    return SandboxResult(**base, isolation=isolation, mode=mode, limits=applied, usage=usage, attempts=attempts)
 
 
 def python_cmd(module: str, *args: str) -> List[str]:

@@ -82,7 +82,9 @@ def train_step(model, case: str = "nominal", rays: int = 16):
     if case in ("grazing_rays", "missing_rays"):
         bundle.nears = bundle.fars = None  # the model's own collider decides
     n = bundle.origins.shape[0]
-    batch = {"image": torch.rand(n, 3, generator=torch.Generator().manual_seed(5))}
+    from nerfify_ns.registry.examples import RUN_SEED
+
+    batch = {"image": torch.rand(n, 3, generator=torch.Generator().manual_seed(5 + RUN_SEED))}
     outputs = model(bundle)
     metrics = model.get_metrics_dict(outputs, batch)
     losses = model.get_loss_dict(outputs, batch, metrics)

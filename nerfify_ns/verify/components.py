@@ -106,6 +106,76 @@ def check_component(contract: Contract, build, call, params: Dict[str, Any], cas
     return CaseResult(case, "fail" if problems else "pass", problems)
 
 
+def gradient_record(cap, module: Any, inputs: Dict[str, Any], outputs: Dict[str, Any]) -> tuple:
+    """Back-propagate the sum of the finite outputs (with the functions ``cap`` bound before plugin code ran);
+    (parameter name -> summed absolute gradient or None, input name -> summed absolute gradient). The judging
+    happens in the checker (:mod:`nerfify_ns.verify.checker`)."""
+    torch = cap.torch
+    differentiable = [v for v in outputs.values() if isinstance(v, torch.Tensor) and v.requires_grad]
+    if not differentiable:
+        return {}, {}
+    total = sum(cap.sum(cap.to(cap.where(cap.isfinite(v), v, cap.zeros_like(v)), torch.float32))
+                for v in differentiable)
+    cap.backward(total)
+    params = module.named_parameters() if isinstance(module, torch.nn.Module) else []
+    grads = {name: cap.abs_sum(p.grad) for name, p in params if p.requires_grad}
+    input_grads = {}
+    for name, value in inputs.items():
+        for i, tensor in enumerate(_tensors(value)):
+            if tensor.grad is not None:
+                input_grads[f"{name}[{i}]" if i else name] = cap.abs_sum(tensor.grad)
+    return grads, input_grads
+
+
+def record_case(cap, contract: Contract, build, call, params: Dict[str, Any], case: str) -> tuple:
+    """Build, run on the case's example inputs and back-propagate, judging nothing: (header, arrays) for the
+    checker, which holds the contract. Status ``ran``, ``n/a`` (why) or ``raised`` (what)."""
+    torch = cap.torch
+    from nerfify_ns.registry.examples import RUN_SEED
+
+    torch.manual_seed(RUN_SEED)
+    env = contract.environment(params, case_sizes(case), {"case": case})
+    try:
+        module = build(params, env)
+        out_dim = int(module.get_out_dim()) if hasattr(module, "get_out_dim") else None
+        if out_dim is not None:
+            env["out_dim"] = out_dim
+        if case == "half" and isinstance(module, torch.nn.Module):
+            module = module.half()
+        inputs = example_inputs(contract, env, case)
+        outputs = call(module, inputs, env)
+        if not isinstance(outputs, dict):
+            raise TypeError(f"the component returned a {type(outputs).__name__}, not its named outputs")
+        arrays, dtypes, others = {}, {}, {}
+        for name, value in outputs.items():
+            if isinstance(value, torch.Tensor):
+                arrays[str(name)], dtypes[str(name)] = cap.array(value)
+            else:
+                others[str(name)] = type(value).__name__
+        grads, input_grads = gradient_record(cap, module, inputs, outputs)
+    except NotApplicable as exc:
+        return {"status": "n/a", "message": str(exc)}, {}
+    except Exception as exc:  # noqa: BLE001 - component code may fail in any way: that is the finding
+        text = str(exc).splitlines()[0][:200] if str(exc) else ""
+        return {"status": "raised", "message": f"raised {type(exc).__name__}: {text}"}, {}
+    return {"status": "ran", "out_dim": out_dim, "dtypes": dtypes, "others": others, "grads": grads,
+            "input_grads": input_grads}, arrays
+
+
+def record_spec(cap, spec: Dict[str, Any], package: str, case: str) -> tuple:
+    """:func:`record_case` of one component of :func:`nerfify_ns.verify.checker.component_specs`."""
+    if spec["terminal"] == "custom":
+        interface, entry = spec["interface"], spec["entry"]
+
+        def build(params, env):
+            return custom_class(package, entry)(**interface_arguments(interface, env), **(entry.get("params") or {}))
+
+        return record_case(cap, spec["contract"], build, interface.call, spec["params"], case)
+    defn = spec["defn"]
+    return record_case(cap, spec["contract"], _terminal_build(defn), defn.harness.call or _default_call(spec["contract"]),
+                       spec["params"], case)
+
+
 def _terminal_build(defn: TerminalDef):
     if defn.harness.build is not None:
         return defn.harness.build

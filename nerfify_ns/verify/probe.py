@@ -1,10 +1,16 @@
 """The probe: the part of the ladder that executes plugin code, run only as a sandboxed subprocess.
 
     python -m nerfify_ns.verify.probe PLUGIN_DIR EVENTS_JSONL --rungs static,contract,stability [--suite all]
+        [--records FD --seed N]
 
-It writes one JSON object per line (flushed): ``{"rung", "event": "start"|"end"}``, diagnoses
-(``{"event": "diagnosis", ...}``) and stability results (``{"event": "case", ...}``). The parent
-reads them back; a rung that started and never ended was killed (timeout, memory).
+It runs plugin code and judges none of it: with ``--records`` it sends, down a pipe our process holds,
+``{"kind": "event", "rung", "event": "start"|"end"|"diagnosis"}`` and one record per check to make (a
+component on a case, the assembled field, a model step, the parameter groups) carrying the raw values as
+arrays; the checker (:mod:`nerfify_ns.verify.checker`, in our process, which never imports plugin code)
+computes the verdicts. ``--seed`` (drawn by the ladder from ``os.urandom``) moves every example input, so a
+component cannot know them in advance. The same events are also written, one JSON object per line, to
+EVENTS_JSONL for reading by people (never for a verdict). A rung that started and never ended was killed
+(timeout, memory).
 """
 
 from __future__ import annotations
@@ -77,8 +83,9 @@ class Probe:
     """One probe run: the plugin (root folder, package, plan), the events file, the rungs that failed and the
     models built so far (building a Nerfstudio model costs seconds, so one per scene scale is shared)."""
 
-    def __init__(self, events, root: Path = Path("."), package: str = "", plan=None) -> None:
+    def __init__(self, events, root: Path = Path("."), package: str = "", plan=None, pipe=None) -> None:
         self.events = events
+        self.pipe = pipe  # the checker's record pipe (None: the component suite alone, judged here)
         self.root = root
         self.package = package
         self.plan = plan  # the plugin's plan (a nerfify_ns.plan.Plan), None for a hand-written plugin
@@ -89,6 +96,12 @@ class Probe:
     def emit(self, **event) -> None:
         self.events.write(json.dumps(event, default=str) + "\n")
         self.events.flush()
+        if self.pipe is not None:
+            self.pipe.send({"kind": "event", **event})
+
+    def send(self, header: dict, arrays=None) -> None:
+        """One record for the checker."""
+        self.pipe.send(header, arrays)
 
     def plugin_frame(self, tb) -> tuple:
         """(file, line) of the innermost traceback frame inside the plugin folder, else (None, None)."""
@@ -319,6 +332,10 @@ class Probe:
         groups = {k: v for k, v in model.get_param_groups().items()}
         keys = set(spec.config.optimizers)
         file, line = self.optimizers_line(config_module)
+        if self.pipe is not None:  # judged by the checker
+            self.send({"kind": "param_groups", "rung": "static", "groups": {k: len(list(v)) for k, v in groups.items()},
+                       "optimizers": sorted(keys), "file": file, "line": line})
+            return model
         missing, extra = sorted(set(groups) - keys), sorted(keys - set(groups))
         empty = sorted(k for k, v in groups.items() if not list(v))
         if missing or extra:
@@ -373,7 +390,24 @@ class Probe:
                 found.append((path, terminal, *component))
         return found
 
+    def record_components(self, rung: str, cases_of) -> None:
+        """One record per component of the plan and case (``cases_of(spec)``), for the checker."""
+        from nerfify_ns.verify.checker import component_specs
+        from nerfify_ns.verify.components import record_spec
+
+        for spec in component_specs(self.plan):
+            implementation, owner = _owner(spec["terminal"])
+            for case in cases_of(spec):
+                header, arrays = record_spec(self.pipe.cap, spec, self.package, case)
+                self.send({"kind": "component", "rung": rung, "component": spec["name"], "path": spec["path"],
+                           "case": case, "owner": owner, "implementation": implementation, **header}, arrays)
+
     def contract_rung(self, spec, plan: Optional[dict]) -> None:
+        if self.pipe is not None:
+            if plan is not None:
+                self.record_components("contract", lambda s: ["nominal"])
+            self.assembled_contract(spec)
+            return
         if plan is not None:
             for path, terminal, name, _cases, run in self._plan_components():
                 result = run("nominal").to_dict()
@@ -389,8 +423,31 @@ class Probe:
                     )
         self.assembled_contract(spec)
 
+    def model_record(self, model, rung: str, case: str, outputs, losses, require: bool) -> None:
+        """Outputs and losses of a model step as arrays, and the summed absolute gradient of every trainable
+        parameter of an optimiser group (None: no gradient arrived), for the checker."""
+        from nerfify_ns.verify.checker import MODEL_OUTPUTS
+
+        cap = self.pipe.cap
+        arrays = {}
+        for key in MODEL_OUTPUTS:
+            if cap.is_tensor(outputs.get(key)):
+                arrays[f"out:{key}"] = cap.array(outputs[key])[0]
+        for key, value in losses.items():
+            if cap.is_tensor(value):
+                arrays[f"loss:{key}"] = cap.array(value)[0]
+        ids = {id(p) for params in model.get_param_groups().values() for p in params}
+        grads = {name: cap.abs_sum(p.grad) for name, p in model.named_parameters()
+                 if id(p) in ids and p.requires_grad}
+        owners = {name: list(self.owner_line(model, name)) for name, g in grads.items() if g is None} if require else {}
+        self.send({"kind": "model", "rung": rung, "component": "<model>", "case": case, "status": "ran",
+                   "owner": "plugin", "grads": grads, "owners": owners}, arrays)
+
     def assembled_contract(self, spec) -> None:
         import torch
+
+        if self.pipe is not None:
+            return self.assembled_contract_records(spec)
 
         from nerfify_ns.registry.contract import finite_problem
         from nerfify_ns.verify.assembled import field_forward, grad_problems, output_problems, plugin_fields
@@ -473,6 +530,35 @@ class Probe:
                 parameter=names[0],
             )
 
+    def assembled_contract_records(self, spec) -> None:
+        from nerfify_ns.verify.assembled import field_forward, plugin_fields
+
+        model = self.shared_model(spec)
+        cap = self.pipe.cap
+        for name, field in plugin_fields(model, self.package):
+            file, line = self.class_line(type(field))
+            header = {"kind": "field", "rung": "contract", "component": name, "case": "nominal",
+                      "type": type(field).__name__, "radiance": not name.startswith("proposal_networks"),
+                      "file": file, "line": line}
+            try:
+                out = field_forward(field)
+            except Exception as exc:
+                self.send({**header, "status": "raised", "message": f"field {name} ({type(field).__name__}) fails "
+                           f"on a small batch: {type(exc).__name__}: {exc}"[:500]})
+                continue
+            arrays, dtypes = {}, {}
+            for key in ("density", "rgb"):
+                if cap.is_tensor(out.get(key)):
+                    arrays[key], dtypes[key] = cap.array(out[key])
+            self.send({**header, "status": "ran", "dtypes": dtypes}, arrays)
+        try:
+            outputs, losses, total = model_step(model)
+        except Exception as exc:
+            self.diagnose("contract", "model-contract",
+                          f"a training step of the model fails: {type(exc).__name__}: {exc}", exc=exc)
+            return
+        self.model_record(model, "contract", "nominal", outputs, losses, require=True)
+
     def owner_line(self, model, pname: str) -> tuple:
         """File and line of the plugin code that creates the module holding ``pname`` (``self.<attr> = ...``)."""
         parts = pname.split(".")[:-1]
@@ -494,6 +580,12 @@ class Probe:
     def stability_rung(self, spec, plan: Optional[dict], suite: str) -> None:
         """Every component on every stiff case that applies; a failure of a component of ours (or of the
         plugin) gates, one of Nerfstudio's is recorded."""
+        if suite != "all" and self.pipe is not None:
+            if plan is not None:
+                self.record_components("stability", lambda s: ("nominal", *s["cases"]))
+            if spec is not None:
+                self.assembled_stability(spec)
+            return
         if suite == "all":
             from nerfify_ns.verify.components import suite_components
 
@@ -527,6 +619,12 @@ class Probe:
 
     def _emit_model_case(self, case: str, status: str, problems: List[str]) -> None:
         """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
+        if self.pipe is not None:  # a record for the checker: n/a with why, or what was raised
+            if status in ("n/a", "fail", "warn"):
+                self.send({"kind": "model", "rung": "stability", "component": "<model>", "case": case,
+                           "owner": "plugin", "status": "n/a" if status == "n/a" else "raised",
+                           "message": "; ".join(problems)[:500]})
+            return
         self.emit(
             event="case",
             rung="stability",
@@ -542,8 +640,10 @@ class Probe:
 
         from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
 
+        from nerfify_ns.registry.examples import RUN_SEED
+
         for case in MODEL_CASES:
-            torch.manual_seed(0)
+            torch.manual_seed(RUN_SEED)
             problems: List[str] = []
             if case == "half" and not spec.config.mixed_precision:
                 self._emit_model_case(
@@ -563,9 +663,14 @@ class Probe:
                     outputs, losses, _ = model_step(
                         model, "nominal" if case.startswith("density") or case == "half" else case
                     )
-                problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
+                if self.pipe is not None:
+                    self.model_record(model, "stability", case, outputs, losses, require=False)
+                else:
+                    problems = output_problems(outputs, losses) + grad_problems(model, require=False)[0]
                 if restore:
                     restore()
+                if self.pipe is not None:
+                    continue
             except Exception as exc:
                 problems = [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"]
                 file, line = self.plugin_frame(exc.__traceback__)
@@ -575,7 +680,7 @@ class Probe:
             gating = case not in ADVISORY_CASES
             status = ("fail" if gating else "warn") if problems else "pass"
             self._emit_model_case(case, status, problems[:6])
-            if problems and gating:
+            if problems and gating and self.pipe is None:
                 self.diagnose(
                     "stability",
                     "stiff-case",
@@ -665,10 +770,16 @@ def main(argv=None) -> int:
     parser.add_argument("events")
     parser.add_argument("--rungs", default="static,contract,stability")
     parser.add_argument("--suite", default="plan", choices=["plan", "all"])
+    parser.add_argument("--records", type=int, default=None, help="file descriptor of the checker's record pipe")
+    parser.add_argument("--seed", type=int, default=0, help="moves every example input (drawn per run)")
     args = parser.parse_args(argv)
     warnings.filterwarnings("ignore")
+    from nerfify_ns.registry.examples import set_run_seed
     from nerfify_ns.runtime import activate
+    from nerfify_ns.verify.checker import RecordPipe
 
+    set_run_seed(args.seed)
+    pipe = RecordPipe(args.records) if args.records is not None else None  # bound before any plugin code runs
     activate(force=True)  # the probe computes on the CPU whatever the machine has: its torch paths, even with CUDA
     with open(args.events, "a") as events:
         if args.plugin == "-":  # the component suite alone, no plugin
@@ -682,7 +793,7 @@ def main(argv=None) -> int:
 
         info = load_plugin(Path(args.plugin))
         sys.path.insert(0, str(info.root))
-        probe = Probe(events, info.root, info.package, Plan.of(info.plan) if info.plan else None)
+        probe = Probe(events, info.root, info.package, Plan.of(info.plan) if info.plan else None, pipe)
         run_rungs(probe, info, args.rungs.split(","), args.suite)
     return 0
 

@@ -5,11 +5,13 @@ fails the rung that was running, naming it."""
 from __future__ import annotations
 
 import json
+import os
 import signal
 import time
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
+from nerfify_ns.verify.checker import PipeReader, decode, judge
 from nerfify_ns.verify.plugin import PluginInfo, plugin_file
 from nerfify_ns.verify.report import Diagnosis, RungResult, clean_data
 from nerfify_ns.verify.sandbox import Limits, SandboxResult, python_cmd, run_sandboxed
@@ -65,23 +67,32 @@ def run_probe(
     info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan",
     limits: Optional[Limits] = None,
 ) -> Dict[str, RungResult]:
-    """Probe ``rungs`` in one sandboxed process; a rung it never finished is failed (timeout or crash)."""
+    """Probe ``rungs`` in one sandboxed process and judge what it sends with the checker
+    (:mod:`nerfify_ns.verify.checker`, here, in our process); a rung it never finished is failed (timeout or
+    crash). Without a plugin (``info`` None: the component suite, our code only) its own events are the verdict."""
     workdir.mkdir(parents=True, exist_ok=True)
     events_path = workdir / "events.jsonl"
     events_path.unlink(missing_ok=True)
     plugin = str(info.root) if info else "-"
     start = time.perf_counter()
-    result = run_sandboxed(
-        python_cmd(
-            "nerfify_ns.verify.probe", plugin, str(events_path), "--rungs", ",".join(rungs), "--suite", suite
-        ),
-        workdir,
-        timeout=timeout,
-        log_name="probe.log",
-        readonly=[info.root] if info else [],
-        limits=limits,
-    )
-    events = read_probe_events(events_path)
+    reader = PipeReader() if info is not None else None
+    extra = ["--records", str(reader.write_fd), "--seed", str(int.from_bytes(os.urandom(6), "little"))] \
+        if reader else []
+    try:
+        result = run_sandboxed(
+            python_cmd("nerfify_ns.verify.probe", plugin, str(events_path), "--rungs", ",".join(rungs), "--suite",
+                       suite, *extra),
+            workdir,
+            timeout=timeout,
+            log_name="probe.log",
+            readonly=[info.root] if info else [],
+            limits=limits,
+            pass_fds=(reader.write_fd,) if reader else (),
+        )
+    finally:
+        data = reader.finish() if reader else b""
+    records, wire_problems = decode(data) if reader else ([], [])
+    events = [h for h, _ in records if h.get("kind") == "event"] if reader else read_probe_events(events_path)
     rungs_out: Dict[str, RungResult] = {}
     started: Dict[str, float] = {}
     for e in events:
@@ -108,6 +119,8 @@ def run_probe(
                     for k in ("component", "implementation", "owner", "case", "status", "problems", "path")
                 }
             ))
+    if reader is not None:
+        _apply_checker(info, rungs, rungs_out, records, wire_problems, reader.overflow)
     # processes left running: named by the probe itself where it has a PID namespace of its own, else counted
     left_named = any(d.rule == "processes" for r in rungs_out.values() for d in r.failures)
     hits = limit_diagnoses("", result, left_running=not left_named)
@@ -136,6 +149,7 @@ def run_probe(
         r.details.pop("finished", None)
         r.details["isolation"] = result.isolation
         r.details["sandbox"] = sandbox_details(result)
+    hits += [Diagnosis("", "escape-attempt", text) for text in result.attempt_sentences()]
     if hits and rungs_out:  # the limits the tree hit fail the last rung that ran (the one running then)
         last = list(rungs_out.values())[-1]
         for d in hits:
@@ -145,6 +159,36 @@ def run_probe(
     for r in rungs_out.values():
         r.seconds = elapsed / max(len(rungs_out), 1)
     return rungs_out
+
+
+def _apply_checker(info: PluginInfo, rungs: Sequence[str], rungs_out: Dict[str, RungResult], records: list,
+                   wire_problems: List[str], overflow: int) -> None:
+    """The checker's verdicts on the probe's records: its checks counted, its failures added, and a finished
+    rung that delivered nothing to judge failed."""
+    from nerfify_ns.plan import Plan
+
+    finished = [n for n in rungs if n in rungs_out and rungs_out[n].details.get("finished") and rungs_out[n].ok]
+    plan = Plan.of(info.plan) if info.plan else None
+    verdicts = judge(records, plan, rungs, finished)
+    for f in verdicts.findings:
+        r = rungs_out.get(f.rung)
+        if r is None:
+            continue
+        d = Diagnosis(f.rung, f.rule, f.message, f.file, f.line, component=f.component, case=f.case, data=f.data)
+        if d.file is not None and plugin_file(info.root, d.file) is None:
+            d.file, d.line = None, None
+        r.fail(d)
+    for name, r in rungs_out.items():
+        r.checks = verdicts.checks.get(name, 0)
+        r.details["checked_by"] = "checker"
+        if verdicts.cases.get(name):
+            r.details["cases"] = [clean_data(c) for c in verdicts.cases[name]]
+    problems = wire_problems + ([f"the probe sent more than the checker reads ({overflow} bytes dropped)"]
+                                if overflow else [])
+    if problems and rungs_out:
+        last = list(rungs_out.values())[-1]
+        for text in problems:
+            last.fail(Diagnosis(last.name, "forged-record", f"the probe's records are not what it sends: {text}"))
 
 
 def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOUT,
@@ -181,6 +225,8 @@ def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOU
                              f"{result.tail(12)}", traceback=result.tail(10)))
         for d in limit_diagnoses("static", result):
             r.fail(d)
+    for text in result.attempt_sentences():
+        r.fail(Diagnosis("static", "escape-attempt", text))
     r.details["isolation"] = result.isolation
     r.details["sandbox"] = sandbox_details(result)
     r.checks = len(info.python_files) + 1
