@@ -67,8 +67,10 @@ class Budget:
     smoke_iterations: Optional[int] = None
     """Iterations of the verification ladder's smoke-training rung (None: the base's own, ``smoke_iterations`` in
     ``runtime/smoke_presets.yaml``)."""
-    timeout: float = 300.0
-    """Time limit of each sandboxed verification process, seconds."""
+    timeout: Optional[float] = None
+    """Time limit of the ladder's smoke rung, seconds, when the user or a suite gives one (None: with ``seconds``,
+    its share of the time left, :func:`smoke_limit`; without, none). The check rungs (static, contract, stability)
+    take at most :data:`CHECK_SECONDS` each, or the time left of a budget."""
     scene: dict = field(default_factory=dict)
     """Settings of a rendered scene (``write_scene`` keywords: resolution, n_train, n_val, n_test)."""
     cpu_presets: bool = False
@@ -82,6 +84,9 @@ class Budget:
     plan's own ``trainer.max_num_iterations``."""
     checkpoints: int = 3
     """Checkpoints rendered for the error-against-time curve when ``every`` is None."""
+    proxy: bool = False
+    """Train a CPU proxy of the method when the paper's settings do not fit ``seconds`` (fewer samples per ray,
+    rays per step, a smaller scene; ``nerfify_ns.synthesis.proxy``); off where fixed settings are compared."""
     scale_schedule: bool = False
     """Scale the plan's step counts listed in ``synthesis/schedule.yaml`` (warm-ups, upsampling steps) to the run
     when it is shorter than the paper's schedule (``nerfify_ns.synthesis.schedule``); off where fixed schedules are
@@ -94,7 +99,8 @@ class Budget:
             check_count("--every", self.every)
         if self.smoke_iterations is not None:
             check_count("--smoke-iterations", self.smoke_iterations)
-        check_seconds("the time limit", self.timeout)
+        if self.timeout is not None:
+            check_seconds("the time limit", self.timeout)
         if self.seconds is not None:
             check_seconds("--budget", self.seconds)
         check_count("checkpoints", self.checkpoints)
@@ -102,6 +108,72 @@ class Budget:
     def cadence(self, iterations: int) -> int:
         """Iterations between checkpoints of a run of ``iterations``."""
         return self.every if self.every is not None else max(1, math.ceil(iterations / self.checkpoints))
+
+
+CHECK_SECONDS = 300.0
+"""Time limit of each sandboxed check process of the ladder (static, contract, stability: seconds of work; an
+infinite loop in generated code must end) when no budget bounds the run."""
+SMOKE_SHARE = 0.35
+"""The share of a budget's time left, when the ladder starts, that its smoke rung may take: the rest trains and
+evaluates (training and rendering cost several smoke rungs' worth)."""
+
+
+@dataclass(frozen=True)
+class Limit:
+    """A time limit and where it comes from, named in the message when it is reached."""
+
+    seconds: Optional[float]
+    """None: no limit."""
+    source: str
+
+    def describe(self) -> str:
+        return f"the {self.seconds:.0f} s limit of {self.source}" if self.seconds is not None else "no time limit"
+
+    @property
+    def timeout(self) -> float:
+        """For the process runner (infinity: none)."""
+        return math.inf if self.seconds is None else self.seconds
+
+
+GIVEN = "each verification process (the budget's timeout)"
+
+
+def smoke_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+    """The smoke rung's time limit: the budget's ``timeout`` when given; with a wall-clock budget its share of
+    ``seconds_left`` (:data:`SMOKE_SHARE`); otherwise none."""
+    if budget.timeout is not None:
+        return Limit(budget.timeout, GIVEN)
+    if budget.seconds is None or seconds_left is None:
+        return Limit(None, "none")
+    seconds = max(SMOKE_SHARE * seconds_left, 1.0)
+    return Limit(seconds, f"the smoke rung's share of the {_duration(budget.seconds)} budget "
+                          f"({SMOKE_SHARE:.0%} of the {max(seconds_left, 0):.0f} s left when the ladder started)")
+
+
+def check_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+    """Each check process's limit: the time left of a wall-clock budget (at most :data:`CHECK_SECONDS`), else
+    :data:`CHECK_SECONDS`; the budget's ``timeout`` when given."""
+    if budget.timeout is not None:
+        return Limit(budget.timeout, GIVEN)
+    if budget.seconds is not None and seconds_left is not None and seconds_left < CHECK_SECONDS:
+        return Limit(max(seconds_left, 1.0), f"the {_duration(budget.seconds)} budget (the time it had left)")
+    return Limit(CHECK_SECONDS, "a check process of the ladder")
+
+
+def training_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+    """The training's and the rendering's limit: with a wall-clock budget, the time it had left when training
+    started (a misestimate is cut off, not left running); without, none (``--iterations`` alone runs them all)."""
+    if budget.seconds is None or seconds_left is None:
+        return Limit(None, "none")
+    return Limit(max(seconds_left, 1.0), f"the {_duration(budget.seconds)} budget (the time it had left when "
+                                         f"training started)")
+
+
+def _duration(seconds: float) -> str:
+    """``4-minute``, ``90-second``: a budget as the user gave it."""
+    if seconds >= 60 and seconds % 60 == 0:
+        return f"{seconds / 60:.0f}-minute"
+    return f"{seconds:.0f}-second"
 
 
 MIN_ITERATIONS = 10
@@ -163,10 +235,11 @@ def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_se
 DEFAULT_BUDGET_SECONDS = 240.0
 """``ns-nerfify PAPER`` without ``--iterations`` or ``--budget``: 4 minutes of wall-clock, everything included."""
 PAPER_BUDGET = Budget(iterations=30000, every=None, seconds=DEFAULT_BUDGET_SECONDS, scale_schedule=True,
-                      checkpoints=2)
+                      checkpoints=2, proxy=True)
 """``ns-nerfify PAPER``: the evaluation run the report is about, as long as the budget allows (at most the paper's
 30k iterations), two checkpoints rendered (half-way and the end: each costs a third of a training step per pixel of
-every test view); the smoke rung as short as the ladder's own tests."""
+every test view); the smoke rung as short as the ladder's own tests; a CPU proxy of the method when the paper's
+settings do not fit."""
 COMPOSE_BUDGET = Budget(iterations=30, every=15, cpu_presets=True,
                         train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                         scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})

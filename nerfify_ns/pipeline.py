@@ -24,7 +24,7 @@ from typing import Any, Callable, Dict, Optional, Tuple
 
 from nerfify_ns.ablations import FULL, Ablations
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
-from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, check_count
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, Limit, check_count, check_limit, smoke_limit
 from nerfify_ns.dataset import Dataset, read_dataset
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
@@ -44,6 +44,7 @@ from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.records import read_corrections, write_records
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
+from nerfify_ns.synthesis.proxy import smoke_samples
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
 LOG_FILE = "nerfify.log"
@@ -146,7 +147,7 @@ def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Ca
     records say which rung and why) and their sources; None when no compiled component is to blame."""
     def fallback(ladder) -> Optional[Tuple[dict, Dict[str, str]]]:
         compiled = [r for r in implementation.records if r.source and r.status != "not implemented"]
-        if not compiled:
+        if not compiled or _smoke_timed_out(ladder):  # out of time is no failure of the compiled parts
             return None
         failures = ladder.failures or []
         named = [r.id for r in compiled if any(r.component.get("class", "") in f"{f.message} {f.where()}"
@@ -208,6 +209,7 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
     from nerfify_ns.evaluate.run_eval import evaluate_run
     from nerfify_ns.verify import run_ladder
 
+    budget, proxy_scene = _proxy_budget(plan, budget, data)  # a budgeted run's smaller procedural scene
     with outcome.stage("plan", "fitting the plan to the scene") as stage:
         plan, data = _plan_for_scene(plan, folder, data, scene, keep_all, budget, stage)
     if outcome.wants("plugin"):
@@ -222,36 +224,47 @@ def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_a
         with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
                            total=smoke_iterations(plan["base"], budget.smoke_iterations),
                            failures=(NerfifyError,)) as stage:
+            smoke_args, smoke_values = smoke_samples(plan) if budget.proxy and deadline is not None else ([], {})
+
             def ladder_run():
+                left = deadline - time.perf_counter() if deadline is not None else None
                 return run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
-                                  smoke_iterations=budget.smoke_iterations, timeout=budget.timeout,
+                                  smoke_iterations=budget.smoke_iterations,
+                                  timeout=check_limit(budget, left).timeout, smoke_limit=smoke_limit(budget, left),
+                                  smoke_args=smoke_args,
                                   on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
                                                              "verification ladder: judging the smoke run"))
             ladder = ladder_run()
-            retry = fallback(ladder) if fallback is not None and not ladder.ok else None
+            # a smoke rung that ran out of time is no fault of the compiled parts: nothing is reverted
+            retry = fallback(ladder) if fallback is not None and not ladder.ok and not _smoke_timed_out(ladder) \
+                else None
             if retry is not None:  # the compiled parts failed: the base's parts stand in, the ladder runs again
                 stage.note("verification ladder: again, the base's parts standing in for the compiled ones")
                 plan, sources = _plan_for_scene(retry[0], folder, data, scene, keep_all, budget, stage)[0], retry[1]
                 _regenerate(plan, folder, sources)
                 ladder = ladder_run()
+            if _smoke_timed_out(ladder):  # not verified for want of time: kept as it is, training goes on
+                _note_unverified(plan, folder, ladder, budget)
             (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
-            timing = _smoke_timing(ladder)
+            timing = _smoke_timing(ladder, smoke_values)
             _judge_ladder(ladder, stage)
     summary, run = None, None
     if outcome.wants("train"):
         label = "training within the budget" if deadline is not None else f"training for {budget.iterations} iterations"
         with outcome.stage("train", f"{label}, evaluating its checkpoints", total=budget.iterations,
                            failures=(NerfifyError,)) as stage:
-            run = _fit_training(plan, folder, budget, data, timing, deadline)
+            run = _fit_training(plan, folder, budget, data, timing, deadline, proxy_scene)
             stage.advance(0, run.iterations)
+            if run.proxy:
+                stage.note(run.proxy["headline"])
             stage.note(f"training {plan['method']} for {run.iterations} iterations")
             summary = evaluate_run(folder, data, folder / "eval", iterations=run.iterations, every=run.every,
                                    label=plan["method"], method_args=[*_train_args(plan, budget), *run.args],
-                                   timeout=run.timeout,
+                                   timeout=run.limit.timeout, limit=run.limit,
                                    on_progress=_step_progress(stage, f"training {plan['method']}",
                                                               "rendering and scoring the checkpoints"))
             summary = _record_run(folder, summary, run)
-            _judge_evaluation(summary, stage)
+            _judge_evaluation(summary, stage, run)
     if not ablations.visual_feedback:
         outcome.skip("patches", "switched off (ablation no-visual-feedback)")
     elif not patch_rounds:
@@ -280,30 +293,57 @@ class TrainingRun:
     every: int
     args: list
     """ns-train arguments of the fitted schedule (``nerfify_ns.synthesis.schedule``)."""
-    timeout: float
-    """Hard limit of the training and of the rendering process, seconds."""
+    limit: Limit
+    """The training's and the rendering's time limit and where it comes from (none without a budget)."""
     budget: Optional[dict] = None
     """How the wall-clock budget became iterations (None without a budget)."""
     schedule: Optional[dict] = None
     """The plan's ``schedule`` record when the schedule was scaled."""
+    proxy: Optional[dict] = None
+    """The CPU proxy the run trains (``schedule.proxy``), or None: the paper's settings."""
 
 
-EVAL_TIMEOUT = 900.0
-"""Time limit of the training and of the rendering process without a budget, seconds."""
 UNMEASURED_ITERATIONS = 200
 """Iterations of a budgeted run when nothing measured the plugin's speed (the ladder switched off)."""
 
 
-def _smoke_timing(ladder) -> dict:
+def _smoke_timing(ladder, samples: Optional[dict] = None) -> dict:
     """What the ladder's smoke rung measured of the plugin's speed (``verify.smoke.step_timing``), with its ray
-    batch; empty when the rung did not run."""
+    batch and the sample counts it trained with (``samples``, by plan path; none: the plan's); empty when the rung
+    did not run or measured nothing. A rung stopped by its time limit measured its first steps."""
     from nerfify_ns.verify.smoke import SMOKE_ARGS
 
-    smoke = next((r for r in ladder.rungs if r.name == "smoke" and r.status == "pass"), None)
+    smoke = next((r for r in ladder.rungs if r.name == "smoke" and (r.status == "pass" or _timed_out(r))), None)
     if smoke is None or not smoke.details.get("seconds_per_iteration"):
         return {}
     return {"seconds_per_iteration": smoke.details["seconds_per_iteration"],
-            "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS)}
+            "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS),
+            "samples": dict(samples or {})}
+
+
+def _timed_out(rung) -> bool:
+    return rung.status == "fail" and bool(rung.failures) and all(d.rule == "timeout" for d in rung.failures)
+
+
+def _smoke_timed_out(ladder) -> bool:
+    """The ladder failed only because its smoke rung ran out of time (every other rung passed)."""
+    smoke = ladder.rung("smoke")
+    return smoke is not None and _timed_out(smoke) and all(r.ok for r in ladder.rungs if r is not smoke)
+
+
+def _note_unverified(plan: Plan, folder: Path, ladder, budget: Budget) -> None:
+    """A smoke rung stopped by its time limit: the plugin is kept as it is, "not verified: time" with the figures
+    in the plan's notes and in the ladder's report, and how to finish it."""
+    smoke = ladder.rung("smoke")
+    done, wanted = smoke.details.get("iterations", 0), smoke.details.get("iterations_wanted")
+    line = (f"smoke rung not verified: time ({smoke.failures[0].message}); the plugin is kept as it is; finish "
+            f"the rung with a longer --budget{f' or --smoke-iterations {done}' if done >= 3 else ''}")
+    smoke.notes.append(line)
+    plan.notes.append(line)
+    (folder / "plan.yaml").write_text(Plan.of(plan).dump())
+    smoke.details["verdict"] = "not verified: time"
+    if wanted is None:
+        smoke.details["iterations_wanted"] = smoke_iterations(plan["base"], budget.smoke_iterations)
 
 
 def _rays(args) -> int:
@@ -315,48 +355,76 @@ def _rays(args) -> int:
 
 
 def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timing: dict,
-                  deadline: Optional[float]) -> TrainingRun:
-    """The evaluation run: ``budget.iterations`` without a deadline; with one, as many iterations as fit the time
-    left (the smoke rung's measured speed, scaled to the evaluation's ray batch), at most the plan's own
-    ``trainer.max_num_iterations``. With ``budget.scale_schedule`` a run shorter than the paper's schedule gets it
-    scaled (recorded as the plan's ``schedule``, plan.yaml rewritten). Raises ``BudgetError`` when the budget
-    leaves too little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
+                  deadline: Optional[float], proxy_scene: Optional[dict] = None) -> TrainingRun:
+    """The evaluation run: ``budget.iterations`` without a deadline, and no time limit; with one, as many
+    iterations as fit the time left (the smoke rung's measured speed, scaled to the evaluation's ray batch), at most
+    the plan's own ``trainer.max_num_iterations``, and the budget's limit. With ``budget.proxy`` a run that cannot fit
+    the paper's settings trains a CPU proxy (``nerfify_ns.synthesis.proxy``; ``proxy_scene``: the smaller scene it
+    rendered). With ``budget.scale_schedule`` a run shorter than the paper's schedule gets it scaled. Both are
+    recorded as the plan's ``schedule`` (plan.yaml rewritten). Raises ``BudgetError`` when the budget leaves too
+    little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
     :data:`UNMEASURED_ITERATIONS`."""
-    from nerfify_ns.budget import fit_iterations
+    from nerfify_ns.budget import fit_iterations, training_limit
     from nerfify_ns.runtime.presets import step_time_exponent
+    from nerfify_ns.synthesis.proxy import Measured, fit_proxy
     from nerfify_ns.synthesis.schedule import scale_schedule
 
-    iterations, every, timeout, record = budget.iterations, budget.cadence(budget.iterations), EVAL_TIMEOUT, None
+    iterations, every, record, proxy = budget.iterations, budget.cadence(budget.iterations), None, None
+    limit = training_limit(budget, None)
     rays = _rays(_train_args(plan, budget))
+    paper_rays = int((plan.get("datamanager") or {}).get("train_num_rays_per_batch") or 0) or None
+    args: list = []
     most = min(budget.iterations, int((plan.get("trainer") or {}).get("max_num_iterations") or budget.iterations))
     if deadline is not None and not timing:  # nothing measured (the ladder was switched off): a fixed length
         iterations = min(UNMEASURED_ITERATIONS, most)
         every = budget.cadence(iterations)
+        limit = training_limit(budget, deadline - time.perf_counter())
         record = {"seconds": budget.seconds, "iterations": iterations, "every": every,
                   "reason": f"the smoke rung did not run, so nothing measured the plugin's speed: {iterations} "
                             "iterations, not fitted to the budget"}
     elif deadline is not None:
         left = deadline - time.perf_counter()
-        step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** step_time_exponent(plan["base"])
         h, w = data.image_size
-        fit = fit_iterations(left, step, timing["startup_seconds"], h * w * len(data.eval_frames), rays, budget,
-                             most=most)
+        rendered = h * w * len(data.eval_frames)
+        exponent = step_time_exponent(plan["base"])
+        if budget.proxy:
+            measured = Measured(timing["seconds_per_iteration"], timing["startup_seconds"], timing["rays"],
+                                timing.get("samples") or {})
+            fitted_proxy = fit_proxy(plan, measured, seconds_left=left, rays=rays, exponent=exponent,
+                                     rays_per_checkpoint=rendered, train_pixels=h * w * len(data.train_frames),
+                                     budget=budget, most=most, scene=proxy_scene)
+            fit, step = fitted_proxy.time, fitted_proxy.seconds_per_iteration
+            if fitted_proxy.active:
+                proxy, args, rays = fitted_proxy.record(paper_rays), fitted_proxy.args(), fitted_proxy.rays
+        else:
+            step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** exponent
+            fit = fit_iterations(left, step, timing["startup_seconds"], rendered, rays, budget, most=most)
         iterations, every = fit.iterations, fit.every
-        timeout = max(60.0, 1.5 * left)  # a misestimate is cut off, not left running
+        limit = training_limit(budget, left)
         record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
                   "every": every, "seconds_per_iteration": round(step, 4),
                   "smoke_seconds_per_iteration": round(timing["seconds_per_iteration"], 4),
                   "startup_seconds": round(timing["startup_seconds"], 1),
-                  "render_seconds": round(fit.render_seconds, 1), "reason": fit.describe()}
+                  "render_seconds": round(fit.render_seconds, 1), "limit_seconds": round(limit.seconds or 0, 1),
+                  "reason": fit.describe()}
     schedule = None
-    args: list = []
-    if budget.scale_schedule:
-        fitted = scale_schedule(plan, iterations, rays=rays)
-        if fitted.scaled:
-            schedule, args = fitted.record(), fitted.args
+    if budget.scale_schedule or proxy:
+        fitted = scale_schedule(plan, iterations, rays=rays) if budget.scale_schedule else None
+        if proxy or (fitted is not None and fitted.scaled):
+            schedule = {**(fitted.record() if fitted is not None else {}), **({"proxy": proxy} if proxy else {})}
+            args = [*args, *(fitted.args if fitted is not None else [])]
             plan["schedule"] = schedule
             (folder / "plan.yaml").write_text(Plan.of(plan).dump())
-    return TrainingRun(iterations, every, args, timeout, record, schedule)
+    return TrainingRun(iterations, every, args, limit, record, schedule, proxy)
+
+
+def _proxy_budget(plan: dict, budget: Budget, data: Optional[Dataset]) -> Tuple[Budget, Optional[dict]]:
+    """``budget`` with the CPU proxy's smaller procedural scene for the plan's base (``proxy.yaml``), and that
+    scene's record; unchanged for a given dataset or a budget that fits the base's full scene."""
+    from nerfify_ns.synthesis.proxy import proxy_scene, with_scene
+
+    scene = None if data is not None else proxy_scene(plan.get("base"), budget)
+    return with_scene(budget, scene), scene
 
 
 def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
@@ -397,10 +465,15 @@ def _read_data(data: Optional[Path]) -> Optional[Dataset]:
 
 
 def _judge_ladder(ladder, stage: Stage) -> None:
-    """The ladder's verdict on the stage: its first broken rule (rung, rule, where, why), else the rungs."""
-    if ladder.ok:
-        stage.summary = ", ".join(f"{r.name} {r.status}" for r in ladder.rungs) + (
+    """The ladder's verdict on the stage: its first broken rule (rung, rule, where, why), else the rungs. A smoke
+    rung stopped by its time limit is "not verified: time" with its figures, not a failure."""
+    if ladder.ok or _smoke_timed_out(ladder):
+        stage.summary = ", ".join(f"{r.name} {'not verified: time' if _timed_out(r) else r.status}"
+                                  for r in ladder.rungs) + (
             f"; {len(ladder.patches)} repair(s)" if ladder.patches else "")
+        smoke = ladder.rung("smoke")
+        if smoke is not None and _timed_out(smoke):
+            stage.summary += f" ({smoke.notes[-1] if smoke.notes else smoke.failures[0].message})"
         return
     first = ladder.failures[0] if ladder.failures else None
     where = f" ({first.where()})" if first and first.where() != "-" else ""
@@ -424,8 +497,9 @@ def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int]
     return hook
 
 
-def _judge_evaluation(summary: dict, stage: Stage) -> None:
-    """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR."""
+def _judge_evaluation(summary: dict, stage: Stage, run: Optional["TrainingRun"] = None) -> None:
+    """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR (and the
+    CPU proxy the run trained, when it did)."""
     if summary.get("status") != "ok":
         stage.fail(summary.get("reason") or "training failed")
         return
@@ -436,7 +510,8 @@ def _judge_evaluation(summary: dict, stage: Stage) -> None:
               and diagnostics.get("colour_spread_gt") is not None else "")
     stage.summary = (f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
                      f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
-                     f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}")
+                     f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}"
+                     + (f"; {run.proxy['headline']}" if run is not None and run.proxy else ""))
 
 
 def _report(folder: Path, outcome: Outcome) -> None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from pathlib import Path
 from typing import List, Optional, Sequence
 
@@ -32,6 +33,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from nerfify_ns.budget import Limit
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.evaluate.consistency import check_consistency, views_from_frames
@@ -161,7 +163,8 @@ def evaluate_run(
     compare: Sequence[CurveSource] = (),
     compare_labels: Optional[Sequence[str]] = None,
     env: Optional[dict] = None,
-    timeout: float = 900,
+    timeout: Optional[float] = None,
+    limit: Optional[Limit] = None,
     on_progress: Optional[ProgressHook] = None,
 ) -> dict:
     """Train the plugin in ``plugin_dir`` on ``scene`` (a dataset or its folder, any format the dataset reader
@@ -169,9 +172,13 @@ def evaluate_run(
 
     ``method_args`` are ns-train arguments (default: CPU settings, 512 rays per batch); ``seed``
     adds ``--machine.seed``. ``compare`` adds curves (CSV paths, curves or point lists, e.g. the
-    reference method's) to ``curve.png``; ``on_progress(step, total)`` is called while it trains. Returns
-    the summary also written to ``summary.json``.
+    reference method's) to ``curve.png``; ``on_progress(step, total)`` is called while it trains. ``limit``: the
+    time limit of the training and of the rendering process and where it comes from (named in the reason when it
+    is reached); ``timeout``: a limit in seconds without a name; neither: no limit. Returns the summary also
+    written to ``summary.json``.
     """
+    limit = limit or Limit(timeout, "the caller's timeout" if timeout is not None else "none")
+    timeout = limit.timeout
     plugin_dir, out_dir = Path(plugin_dir).resolve(), Path(out_dir).resolve()
     if not (plugin_dir / "nerfify.json").is_file():
         raise RunEvalError(f"{plugin_dir} is not a composed plugin (no nerfify.json)")
@@ -205,7 +212,7 @@ def evaluate_run(
     }
     if not run.ok:
         reason = (
-            "timed out" if run.timed_out
+            f"stopped at {run.last_step + 1} of {iterations} iterations: {limit.describe()}" if run.timed_out
             else f"exit code {run.returncode}" if run.returncode != 0
             else "non-finite training loss" if run.losses
             else "no training loss logged"
@@ -215,12 +222,15 @@ def evaluate_run(
         write_json(out_dir / "summary.json", summary)
         return summary
     renders = out_dir / "renders"
+    started = time.perf_counter()
     try:
         curve = record_curve(run, out_dir, label=label, timeout=timeout, env=run_env, save_dir=renders,
                              sandbox=readable)
     except CurveError as exc:
-        summary.update(status="failed", reason=f"evaluation failed: {exc}", psnr=None, ssim=None, lpips=None,
-                       seconds=None)
+        spent = time.perf_counter() - started
+        why = (f"rendering the checkpoints stopped after {spent:.0f} s: {limit.describe()}"
+               if limit.seconds is not None and spent >= limit.seconds else f"evaluation failed: {exc}")
+        summary.update(status="failed", reason=why, psnr=None, ssim=None, lpips=None, seconds=None)
         write_json(out_dir / "summary.json", summary)
         return summary
     plot_curves(

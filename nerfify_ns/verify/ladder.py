@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Dict, List, Literal, Optional, Sequence, Union
 
+from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import Dataset, as_dataset
 from nerfify_ns.plan import Plan, PlanFileError
 from nerfify_ns.runtime.launch import ProgressHook
@@ -59,6 +60,10 @@ class _Settings:
     on_progress: Optional[ProgressHook] = None
     limits: Optional[Limits] = None
     """The sandbox's limits for the probe and the smoke rung (None: the sandbox's defaults)."""
+    smoke_limit: Optional[Limit] = None
+    """The smoke rung's time limit and where it comes from (None: ``timeout``, as for the check rungs)."""
+    smoke_args: List[str] = field(default_factory=list)
+    """ns-train arguments of the smoke rung (a budgeted run's proxy samples)."""
 
 
 @dataclass
@@ -97,8 +102,10 @@ def _round(plugin_dir: Path, work: Path, st: _Settings) -> List[RungResult]:
     if "smoke" in rungs:
         if all(r.status == "pass" for r in results):
             scene = st.scene or _scene(work)
+            limit = st.smoke_limit or Limit(st.timeout, "each verification process")
             results.append(smoke_rung(info, scene, work / "smoke", iterations=st.smoke_iterations,
-                                      timeout=st.timeout, on_progress=st.on_progress, limits=st.limits))
+                                      timeout=limit.timeout, limit=limit, extra_args=st.smoke_args or None,
+                                      on_progress=st.on_progress, limits=st.limits))
         else:
             results.append(RungResult("smoke", "skip", notes=["an earlier rung failed"]))
     return results
@@ -159,6 +166,8 @@ def run_ladder(
     fixers: Optional[Sequence[Fixer]] = None,
     on_progress: Optional[ProgressHook] = None,
     limits: Optional[Limits] = None,
+    smoke_limit: Optional[Limit] = None,
+    smoke_args: Optional[Sequence[str]] = None,
 ) -> LadderReport:
     """Verify the plugin in ``plugin_dir``; the smoke rung trains on ``scene`` (a dataset, or its folder in any
     format :func:`nerfify_ns.dataset.read_dataset` reads; default a generated 32 px scene). Write
@@ -166,7 +175,9 @@ def run_ladder(
     ``repair``: ``"off"``, ``"propose"`` (repair a scratch copy,
     leave the folder alone) or ``"apply"`` (repair the folder); see the module docstring.
     ``on_progress(step, total)`` is called while the smoke rung trains. ``limits``: the sandbox's limits on each
-    process tree that runs plugin code (memory, processes, open files; default :class:`Limits`)."""
+    process tree that runs plugin code (memory, processes, open files; default :class:`Limits`). ``timeout``: each
+    check process's time limit, seconds; ``smoke_limit``: the smoke rung's (default: ``timeout``), named in its
+    message when reached; ``smoke_args``: ns-train arguments of the smoke rung."""
     plugin_dir = Path(plugin_dir).resolve()
     if scene is not None:
         scene = as_dataset(scene)  # a bad dataset is refused before anything is written
@@ -180,7 +191,8 @@ def run_ladder(
     info = load_plugin(plugin_dir)  # NotAPluginError early
     iterations = smoke_iterations_for((info.plan or {}).get("base"), smoke_iterations)
     st = _Settings([r for r in RUNGS if r in rungs], scene, iterations,
-                   timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress, limits)
+                   timeout, list(default_fixers() if fixers is None else fixers), max_rounds, on_progress, limits,
+                   smoke_limit, list(smoke_args or []))
     report = LadderReport(plugin=str(plugin_dir), repair=mode)
     climb = _climb(plugin_dir, out, st, repair=mode == "apply")
     report.rounds, report.rungs, report.patches = climb.rounds, climb.rounds[-1], climb.patches

@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 from typing import Dict, List, Optional
 
+from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
@@ -96,9 +97,13 @@ def smoke_rung(
     extra_args: Optional[List[str]] = None,
     on_progress: Optional[ProgressHook] = None,
     limits: Optional[Limits] = None,
+    limit: Optional[Limit] = None,
 ) -> RungResult:
     """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` on ``scene`` (a dataset or its folder; the
-    dataset's Nerfstudio dataparser) in the sandbox and judge the run."""
+    dataset's Nerfstudio dataparser) in the sandbox and judge the run. ``limit``: the time limit and where it comes
+    from (named in the message when it is reached; default ``timeout`` seconds)."""
+    limit = limit or Limit(timeout, "the smoke rung")
+    timeout = limit.timeout
     r = RungResult("smoke")
     workdir = Path(workdir).resolve()
     start = time.perf_counter()
@@ -125,8 +130,11 @@ def smoke_rung(
     total = scalars.get(LOSS_TAG, {})
     rgb = photometric(scalars)
     reached = max(total) + 1 if total else 0
-    r.details.update({"iterations": reached, "final_loss": total.get(reached - 1),
+    r.details.update({"iterations": reached, "iterations_wanted": iterations, "final_loss": total.get(reached - 1),
+                      "limit_seconds": limit.seconds, "limit_source": limit.source,
                       **step_timing(scalars, result.seconds)})
+    if limit.seconds is None:
+        r.details["sandbox"]["limits"] = {**r.details["sandbox"]["limits"], "timeout_s": None}  # none, not inf
     r.checks = 4
     hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
     if hits:
@@ -139,8 +147,8 @@ def smoke_rung(
             Diagnosis(
                 "smoke",
                 "timeout",
-                f"training did not finish within {timeout:.0f} s "
-                f"(reached {reached} of {iterations} iterations)",
+                f"stopped at {reached} of {iterations} iterations after {result.seconds:.0f} s: "
+                f"{limit.describe()}",
                 traceback=result.tail(15),
             )
         )

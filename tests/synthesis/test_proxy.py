@@ -1,0 +1,125 @@
+"""The CPU proxy of a paper's method: what it scales (samples per ray, rays per step, the scene, widths last), how far
+(the target of proxy.yaml within the time left), what it records, and where it is never used."""
+
+from dataclasses import replace
+
+import pytest
+
+from nerfify_ns.plan import Plan
+from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, BudgetError
+from nerfify_ns.synthesis.proxy import Measured, fit_proxy, knobs, proxy_scene, proxy_spec, smoke_samples
+from nerfify_ns.synthesis.resources import load_reference_plan
+
+PIXELS = 48 * 48  # one view of the proxy's scene
+
+
+def _nerf_plan():
+    """The vanilla-NeRF reference plan as a paper gives it: 4096 rays, 64 + 128 samples, 8 x 256 MLP."""
+    plan = Plan.of(load_reference_plan("vanilla-nerf"))
+    plan.set("datamanager.train_num_rays_per_batch", 4096)
+    plan.set("model.sampler.hierarchical.num_coarse_samples", 64)
+    plan.set("model.sampler.hierarchical.num_importance_samples", 128)
+    return plan
+
+
+def _fit(plan, left, seconds_per_iteration=0.6, **kw):
+    """A proxy fitted to ``left`` seconds from a smoke rung that trained 128 rays at the proxy's floors."""
+    measured = Measured(seconds_per_iteration, 15.0, 128, smoke_samples(plan)[1])
+    return fit_proxy(plan, measured, seconds_left=left, rays=512, exponent=1.0, rays_per_checkpoint=4 * PIXELS,
+                     train_pixels=24 * PIXELS, budget=PAPER_BUDGET, most=kw.pop("most", 30000), **kw)
+
+
+def test_the_knobs_of_a_vanilla_nerf_plan_in_order():
+    found = knobs(_nerf_plan(), 512)
+    assert [(k.kind, k.path.rsplit(".", 1)[-1]) for k in found] == [
+        ("samples", "num_coarse_samples"), ("samples", "num_importance_samples"),
+        ("rays", "train_num_rays_per_batch"), ("width", "layer_width")]
+    flags = {k.path.rsplit(".", 1)[-1]: k.flag for k in found}
+    assert flags["num_coarse_samples"] == "--pipeline.model.num-coarse-samples"
+    assert flags["layer_width"] is None  # the generated field's width: no ns-train argument, never scaled
+
+
+def test_enough_time_keeps_the_papers_settings():
+    fit = _fit(_nerf_plan(), 1e6)
+    assert not fit.active and fit.args() == [] and fit.reached
+    assert fit.seconds_per_iteration == pytest.approx(0.6 * (2 * 64 + 128) / (2 * 16 + 16) * 4)  # 512 of 128 rays
+
+
+def test_samples_go_first_together_then_rays():
+    plan = _nerf_plan()
+    roomy = _fit(plan, 2000)  # halving the samples is enough
+    assert roomy.active and [k.kind for k in roomy.changed] == ["samples", "samples"]
+    assert roomy.args() == ["--pipeline.model.num-coarse-samples", "32", "--pipeline.model.num-importance-samples",
+                            "64"]  # halved together: the paper's 1:2 ratio kept
+    assert roomy.headline(4096) == ("trained a CPU proxy: 96 instead of 192 samples per ray, 512 instead of 4096 "
+                                    "rays per step")
+    tight = _fit(plan, 400)
+    assert {k.kind for k in tight.changed} == {"samples", "rays"} and tight.rays < 512
+    coarse, fine = (k for k in tight.knobs if k.kind == "samples")
+    assert coarse.value == fine.value == 16  # both at their floors before any ray was taken away
+    assert tight.time.iterations >= proxy_spec()["target"]["iterations"] and tight.reached
+
+
+def test_a_proxy_that_reaches_the_target_is_the_mildest_that_does():
+    plan = _nerf_plan()
+    fit = _fit(plan, 2000)
+    target = proxy_spec()["target"]
+    assert fit.time.iterations >= target["iterations"]
+    assert fit.time.iterations * fit.rays >= target["epochs"] * 24 * PIXELS
+    stronger = _fit(plan, 2000)
+    assert stronger.args() == fit.args()  # deterministic
+    # one step milder (the paper's samples) would not have reached it
+    milder = Measured(0.6, 15.0, 128, smoke_samples(plan)[1])
+    from nerfify_ns.budget import fit_iterations
+
+    step = milder.seconds_per_iteration * (2 * 64 + 128) / (2 * 16 + 16) * 4
+    try:
+        iterations = fit_iterations(2000, step, 15.0, 4 * PIXELS, 512, PAPER_BUDGET, most=30000).iterations
+    except BudgetError:
+        iterations = 0
+    assert iterations < target["iterations"] or iterations * 512 < target["epochs"] * 24 * PIXELS
+
+
+def test_the_record_says_what_was_scaled_and_why():
+    fit = _fit(_nerf_plan(), 400, scene={"resolution": 48, "n_test": 4, "from_resolution": 64, "from_n_test": 8})
+    record = fit.record(4096)
+    assert record["headline"].startswith("trained a CPU proxy: 32 instead of 192 samples per ray, ")
+    assert "a 48 px scene with 4 test views instead of 64 px with 8" in record["headline"]
+    assert {s["path"].rsplit(".", 1)[-1]: (s["paper"], s["proxy"]) for s in record["settings"]}[
+        "num_importance_samples"] == (128, 16)
+    assert record["ns_train_args"] == fit.args() and "the proxy scales samples per ray, rays per step" in \
+        record["reason"]
+    assert record["not_scaled"] == ["model.field.MLPField.backbone.layer_width: no ns-train argument sets it for "
+                                    "this base"]
+
+
+def test_too_little_time_even_for_the_strongest_proxy_is_the_budgets_error():
+    with pytest.raises(BudgetError, match="give a longer --budget"):
+        _fit(_nerf_plan(), 40)
+
+
+def test_the_smoke_rung_measures_at_the_floors():
+    args, values = smoke_samples(_nerf_plan())
+    assert args == ["--pipeline.model.num-coarse-samples", "16", "--pipeline.model.num-importance-samples", "16"]
+    assert set(values.values()) == {16}
+    nerfacto = load_reference_plan("nerfacto")
+    args, values = smoke_samples(nerfacto)
+    assert "--pipeline.model.num-proposal-samples-per-ray" in args and "--pipeline.model.num-nerf-samples-per-ray" \
+        in args
+    assert values["model.sampler.proposal.samples_per_ray"] == [32, 32]
+
+
+def test_the_scene_is_smaller_only_for_a_short_budget_of_a_costly_base():
+    scene = proxy_scene("vanilla-nerf", PAPER_BUDGET)
+    assert scene["resolution"] < scene["from_resolution"] and scene["n_test"] < scene["from_n_test"]
+    below = proxy_spec()["scene"]["vanilla-nerf"]["below"]
+    assert proxy_scene("vanilla-nerf", replace(PAPER_BUDGET, seconds=below)) is None
+    assert proxy_scene("nerfacto", PAPER_BUDGET) is None  # no entry: its own scene
+    given = replace(PAPER_BUDGET, scene={"resolution": 64, "n_test": 8})
+    assert proxy_scene("vanilla-nerf", given) is None  # the user's settings stand
+
+
+def test_fixed_settings_are_never_proxied():
+    """compose --method and the benchmarks compare fixed settings: their budgets never train a proxy."""
+    assert PAPER_BUDGET.proxy and not COMPOSE_BUDGET.proxy and not Budget().proxy
+    assert proxy_scene("vanilla-nerf", replace(COMPOSE_BUDGET, seconds=240)) is None

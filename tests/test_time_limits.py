@@ -1,0 +1,131 @@
+"""No hidden time limits: every limit comes from the budget or the user and is named, with the progress made, when
+it is reached; --iterations alone has none; a smoke rung that runs out of time is "not verified: time", never a
+failure that reverts the paper's compiled parts."""
+
+import math
+from pathlib import Path
+
+import pytest
+
+from nerfify_ns.budget import (CHECK_SECONDS, SMOKE_SHARE, Budget, Limit, check_limit, smoke_limit,
+                               training_limit)
+from nerfify_ns.cli import paper_budget
+from nerfify_ns.verify.report import Diagnosis, LadderReport, RungResult
+
+
+def test_iterations_alone_have_no_time_limit():
+    budget = paper_budget(None, 600, None, None)
+    assert budget.seconds is None
+    for limit in (training_limit(budget, None), smoke_limit(budget, None)):
+        assert limit.seconds is None and limit.timeout == math.inf and limit.describe() == "no time limit"
+    assert check_limit(budget, None).seconds == CHECK_SECONDS  # a check process: seconds of work, named
+
+
+def test_a_budget_derives_each_limit_and_names_it():
+    budget = paper_budget(None, None, None, None)  # the default 4 minutes
+    smoke = smoke_limit(budget, 200.0)
+    assert smoke.seconds == pytest.approx(SMOKE_SHARE * 200.0)
+    assert smoke.describe() == (f"the {SMOKE_SHARE * 200:.0f} s limit of the smoke rung's share of the 4-minute "
+                                f"budget ({SMOKE_SHARE:.0%} of the 200 s left when the ladder started)")
+    train = training_limit(budget, 150.0)
+    assert train.seconds == 150.0 and "4-minute budget" in train.describe()
+    assert check_limit(budget, 100.0).seconds == 100.0  # never more than the budget has left
+    given = Budget(timeout=42.0)
+    assert smoke_limit(given, None).seconds == 42.0 and check_limit(given, None).seconds == 42.0
+    assert smoke_limit(given, None).describe().startswith("the 42 s limit of ")
+
+
+def test_the_evaluation_names_the_limit_and_the_iterations_done(tmp_path, monkeypatch):
+    """A training stopped by its limit says how far it got and whose limit it was (not a bare "timed out")."""
+    from nerfify_ns.evaluate import run_eval
+    from nerfify_ns.runtime.launch import TrainRun
+    from nerfify_ns.scenes import write_scene
+
+    scene = write_scene("default", tmp_path / "scene", resolution=16, n_train=4, n_val=1, n_test=1)
+    plugin = tmp_path / "plugin"
+    plugin.mkdir()
+    (plugin / "nerfify.json").write_text("{}")
+    seen = {}
+
+    def stopped(method, data, out_dir, *, iterations, timeout, **kw):
+        seen["timeout"] = timeout
+        run = TrainRun(method=method, returncode=-9, wall_seconds=12.0, log_path=tmp_path / "train.log",
+                       timed_out=True)
+        run.losses = {s: 0.1 for s in range(241)}
+        (tmp_path / "train.log").write_text("")
+        return run
+
+    monkeypatch.setattr(run_eval, "train_for_curve", stopped)
+    limit = Limit(900.0, "the 15-minute budget (the time it had left when training started)")
+    summary = run_eval.evaluate_run(plugin, scene, tmp_path / "eval", iterations=600, every=200, limit=limit)
+    assert seen["timeout"] == 900.0 and summary["status"] == "failed"
+    assert summary["reason"] == ("stopped at 241 of 600 iterations: the 900 s limit of the 15-minute budget (the "
+                                 "time it had left when training started)")
+    unlimited = run_eval.evaluate_run(plugin, scene, tmp_path / "eval2", iterations=600, every=200)
+    assert seen["timeout"] == math.inf and "no time limit" in unlimited["reason"]
+
+
+def _ladder(smoke: RungResult) -> LadderReport:
+    rungs = [RungResult("static"), RungResult("contract"), RungResult("stability"), smoke]
+    return LadderReport(plugin="/x", rungs=rungs, rounds=[rungs])
+
+
+def _timed_out_smoke() -> RungResult:
+    smoke = RungResult("smoke", details={"iterations": 41, "iterations_wanted": 80})
+    smoke.fail(Diagnosis("smoke", "timeout", "stopped at 41 of 80 iterations after 74 s: the 74 s limit of the "
+                                             "smoke rung's share of the 4-minute budget"))
+    return smoke
+
+
+def test_a_smoke_rung_out_of_time_is_not_verified_and_nothing_is_reverted(tmp_path):
+    from nerfify_ns.pipeline import _fallback, _judge_ladder, _note_unverified, _smoke_timed_out
+    from nerfify_ns.plan import Plan
+    from nerfify_ns.synthesis.novel import Implementation
+    from nerfify_ns.synthesis.resources import load_reference_plan
+
+    ladder = _ladder(_timed_out_smoke())
+    assert not ladder.ok and _smoke_timed_out(ladder)
+
+    class Record:  # a compiled part, as the equation compiler records it
+        id, source, status, component = "hole-0", "compiler", "implemented", {"class": "Memory"}
+
+    implementation = Implementation(Plan.of(load_reference_plan("vanilla-nerf")), sources={}, records=[Record()])
+    assert _fallback(implementation, tmp_path, None)(ladder) is None  # kept: a timeout blames no part
+
+    plan = Plan.of(load_reference_plan("vanilla-nerf"))
+    _note_unverified(plan, tmp_path, ladder, Budget())
+    assert "smoke rung not verified: time (stopped at 41 of 80 iterations" in plan.notes[-1]
+    assert "--budget" in plan.notes[-1] and "--smoke-iterations 41" in plan.notes[-1]
+    assert "not verified: time" in Path(tmp_path / "plan.yaml").read_text()
+
+    class Stage:
+        summary, failed = "", None
+
+        def fail(self, why):
+            self.failed = why
+
+    stage = Stage()
+    _judge_ladder(ladder, stage)
+    assert stage.failed is None and "smoke not verified: time" in stage.summary
+
+
+def test_a_real_failure_still_fails_and_a_timeout_beside_it_does_not_excuse_it():
+    from nerfify_ns.pipeline import _judge_ladder, _smoke_timed_out
+
+    smoke = _timed_out_smoke()
+    broken = _ladder(smoke)
+    broken.rungs[1].fail(Diagnosis("contract", "shape", "density is [R, 2], expected [R, 1]"))
+    assert not _smoke_timed_out(broken)
+    crashed = RungResult("smoke")
+    crashed.fail(Diagnosis("smoke", "exit-code", "ns-train exited with 1"))
+    assert not _smoke_timed_out(_ladder(crashed))
+
+    class Stage:
+        summary, failed = "", None
+
+        def fail(self, why):
+            self.failed = why
+
+    stage = Stage()
+    _judge_ladder(_ladder(crashed), stage)
+    assert stage.failed and "exit-code" in stage.failed
