@@ -35,7 +35,8 @@ from nerfify_ns.errors import NerfifyError
 
 DERIVATION_KEYS = ("method", "scene", "base", "trainer", "datamanager", "model", "optimizers")
 """Top-level keys of the derivation (``method`` names it)."""
-ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes", "repairs", "schedule")
+ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes", "repairs", "schedule", "family",
+                   "contributions")
 """Top-level keys that annotate a plan (not part of the derivation)."""
 
 _MISSING = object()
@@ -72,6 +73,12 @@ class Hole:
     stands_in: str = ""
     section: str = ""
     where: str = ""
+    contribution: str = ""
+    """The part of the paper it comes from (the ledger's part id and heading)."""
+    claim: str = ""
+    """The paper's sentence that claims it (empty when the paper claims it in no sentence)."""
+    why: str = ""
+    """Why it is new (no card's equation matches, a claim no card covers) and why it lands at its production."""
 
     def to_dict(self) -> dict:
         return asdict(self)

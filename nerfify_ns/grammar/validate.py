@@ -20,7 +20,7 @@ from nerfify_ns.plan import method_name_problems
 METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}$")
 ANNOTATIONS: Dict[str, type] = {
     "method": str, "description": str, "paper": dict, "evidence": dict, "pruned": list, "holes": list,
-    "notes": list, "repairs": list, "schedule": dict,
+    "notes": list, "repairs": list, "schedule": dict, "family": dict, "contributions": list,
 }
 IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MODULE = re.compile(r"^components\.[A-Za-z_][A-Za-z0-9_]*$")

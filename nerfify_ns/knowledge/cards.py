@@ -38,6 +38,9 @@ class Equation:
     ref: Optional[str]
     latex: str
     text: str
+    canonical: tuple[str, ...] = ()
+    """Further forms of the equation, written so the equation compiler's parser reads them (a sum written out
+    for one band, the integral's quadrature): what a paper's equation is matched against, by structure."""
 
 
 @dataclass(frozen=True)
@@ -245,7 +248,8 @@ def parse_card(data: Any, path: Path) -> Card:
         terminals=terminals,
         parameters=parameters,
         equation=Equation(ref=None if equation["ref"] is None else str(equation["ref"]),
-                          latex=equation["latex"], text=equation["text"]),
+                          latex=equation["latex"], text=equation["text"],
+                          canonical=_strings(path, equation.get("canonical") or [], "equation.canonical")),
         implementation=data["implementation"],
         signals=Signals(hyperparameters=_strings(path, signals["hyperparameters"], "signals.hyperparameters"),
                         equations=_strings(path, signals["equations"], "signals.equations"),

@@ -25,6 +25,7 @@
 from __future__ import annotations
 
 import ast
+import dataclasses
 import math
 import operator
 import re
@@ -40,7 +41,9 @@ from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniqu
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
 from nerfify_ns.plan import Hole, Plan, free_method_name
+from nerfify_ns.knowledge.family import Family, detect_family
 from nerfify_ns.synthesis.base_choice import BaseDecision, choose_base, exclusive_cards
+from nerfify_ns.synthesis.ledger import Ledger, Part, read_ledger
 from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 
 __all__ = ["DerivedPlan", "Hole", "TerminalSlot", "HyperparameterError", "derive_plan", "plan_from_paper",
@@ -87,6 +90,10 @@ class DerivedPlan:
     detections: list[Detection] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
     base_choice: Optional[BaseDecision] = None
+    family: Optional[Family] = None
+    """What kind of method the paper describes (static, dynamic, splatting, surface, not-training) and why."""
+    ledger: Optional[Ledger] = None
+    """The paper's claims and described parts, each known (a card covers it) or new (a hole)."""
 
     @property
     def close_call(self) -> str:
@@ -99,6 +106,8 @@ class DerivedPlan:
         return {"plan": self.plan.to_dict(), "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
                 "base_choice": self.base_choice.to_dict() if self.base_choice else None,
                 "evidence": self.evidence, "missing": self.missing,
+                "family": self.family.to_dict() if self.family else None,
+                "ledger": self.ledger.to_dict() if self.ledger else None,
                 "detections": [d.to_dict() for d in self.detections]}
 
 
@@ -667,6 +676,38 @@ class _Deriver:
                 holes.append(self._hole(plan, kind, grp))
         return holes
 
+    def contribution_holes(self, plan: Plan, ledger: Ledger) -> list[Hole]:
+        """One hole per new contribution of the ledger, at the production it changes, with the claim it comes from."""
+        holes = []
+        for part in ledger.new:
+            grp = {"equations": [{k: e[k] for k in ("number", "latex", "text", "where")} for e in part.equations],
+                   "text": part.sentences[:6], "section": part.section, "loc": None}
+            hole = self._hole_at(plan, part.production, grp)
+            hole.where = ", ".join(x for x in (f"p.{part.page}" if part.page else (f"l.{part.line}" if part.line else ""),
+                                               f"Sec. {part.section}") if x)
+            hole.contribution = f"{part.id}: {part.heading}"
+            hole.claim = (part.own_claims or part.claims or [""])[0][:400]
+            hole.why = (f"{part.why}; lands at {part.production} (meaning scores "
+                        f"{', '.join(f'{k} {v}' for k, v in part.production_scores.items())})")
+            holes.append(hole)
+        return holes
+
+    def _hole_at(self, plan: Plan, production: str, grp: dict) -> Hole:
+        kind = next((k for k, v in HOLE_SYMBOLS.items() if v == production), None)
+        if kind is not None:
+            return self._hole(plan, kind, grp)
+        paths = [p for p, sym in self.paths if sym == production]
+        slot = paths[0] if paths else ""
+        nt = self.g.nonterminals.get(production)
+        term = self.g.terminals.get(getattr(nt, "terminal", None) or "") if nt is not None else None
+        contract = _plainify(dict(term.contract)) if term is not None and term.contract else \
+            {"doc": getattr(nt, "doc", "") if nt is not None else f"{production}: not a production of the grammar yet"}
+        return Hole(production=production, slot=slot, contract=contract,
+                    text=" ".join(_short(t, 600) for t in grp["text"][:4]),
+                    equations=[{k: _short(str(v), 400) for k, v in eq.items()} for eq in grp["equations"]],
+                    status="not implemented",
+                    stands_in=f"nothing: the base has no {production} (its behaviour without it)", section=grp["section"])
+
     def _eq_context(self, e: Any, paragraphs: list) -> list[str]:
         """The two meaningful paragraphs before an equation (nearest first) and the one after it."""
         order = getattr(e.loc, "order", 0) or 0
@@ -777,15 +818,25 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     kb = KnowledgeBase.of(kb)
     detections = list(detect_techniques(doc, kb) if detections is None else detections)
     graph = graph if graph is not None else build_citation_graph(doc, detections, kb=kb)
+    family = detect_family(doc, kb.rules)
+    ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb))
+    detections = _without_claims(detections, ledger)
     d = _Deriver(doc, detections, graph, g, kb)
     decision = d.choose_base() if reference_plans else BaseDecision(
         base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
         "are not consulted)", [], criterion="ablation")
+    decision = _base_for_family(decision, family, kb)
     base = decision.base
     plan = _start(doc, base, kb)
     d.scene(plan)
+    for flag, value in family.scene.items():  # the family's scene facts (a dynamic paper's timestamps)
+        plan.set(f"scene.{flag}", value)
+        if family.evidence:
+            e = family.evidence[0]
+            d.paper_evidence(f"scene.{flag}", e["quote"], e["section"], e["page"], e["line"], "", "paper",
+                             f"{flag} = {value} (the paper's family: {family.name})")
     d.substitute(plan)
-    holes = d.holes(plan)
+    holes = d.contribution_holes(plan, ledger)
     d.terminal_hyperparameters(plan, {h.slot for h in holes})
     d.trainer(plan)
     _base_evidence(d, plan, g, base)
@@ -801,9 +852,66 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     notes.append(f"base: {decision.reason}")
     plan["notes"] = notes
     plan["evidence"] = {path: _evidence_line(e) for path, e in sorted(d.evidence.items())}
+    plan["family"] = {"name": family.name, "buildable": family.buildable, "why": family.why, "also": family.also,
+                      "evidence": [f"{_where(e['page'], e['line'], e['section'])}: \"{_short(e['quote'])}\""
+                                   for e in family.evidence]}
+    plan["contributions"] = [{"part": p.id, "heading": p.heading, "status": p.status, "why": p.why,
+                              **({"production": p.production} if p.status == "new" else {}),
+                              **({"covered_by": p.covered_by} if p.covered_by else {}),
+                              "claim": _short((p.own_claims or p.claims or [""])[0])}
+                             for p in ledger.parts if p.status in ("new", "known")]
+    if not family.buildable:
+        notes.append(f"family {family.name}: {family.why}; the plan records what was read, nothing is built")
     validate(plan, g)
     return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=decision.reason, evidence=d.evidence,
-                       detections=detections, missing=missing, base_choice=decision)
+                       detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger)
+
+
+def _own_cards(doc: Any, kb: KnowledgeBase) -> set[str]:
+    """Cards of techniques the paper itself introduced (the knowledge base already holds them)."""
+    known = match_target(doc, kb)
+    if known is None:
+        return set()
+    out = set()
+    for name, c in kb.cards.items():
+        same = (known.arxiv and c.paper.arxiv == known.arxiv) or \
+            (c.paper.title and known.title and c.paper.title.strip().lower() == known.title.strip().lower())
+        if same:
+            out.add(name)
+    return out
+
+
+def _without_claims(detections: list[Detection], ledger: Ledger) -> list[Detection]:
+    """Detections whose every use is a sentence stating one of the paper's new contributions are not uses:
+    a sentence describing a contribution is never evidence for a known card."""
+    claims = {s for p in ledger.new for s in (p.own_claims + p.claims)}
+    out = []
+    for det in detections:
+        uses = det.uses
+        if det.used and uses and all(any(e.quote.strip() and e.quote.strip() in c for c in claims) for e in uses):
+            det = dataclasses.replace(det, status="mentioned_only",
+                                      evidence=[dataclasses.replace(e, weight=0.0) for e in det.evidence])
+        out.append(det)
+    return out
+
+
+def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase) -> BaseDecision:
+    """The base must hold the family's scene facts (a dynamic paper stands on a time-capable base): when the chosen
+    one does not, the first reference plan in the knowledge base's order that does, with the reason."""
+    if not family.scene:
+        return decision
+    def fits(name: str) -> bool:
+        scene = load_reference_plan(name).get("scene") or {}
+        return all(scene.get(k) == v for k, v in family.scene.items())
+    if fits(decision.base):
+        return decision
+    other = next((b for b in base_order(kb) if fits(b)), None)
+    if other is None:
+        return decision
+    facts = ", ".join(f"{k} = {v}" for k, v in family.scene.items())
+    return dataclasses.replace(decision, base=other, reason=f"{other}: the paper is a {family.name} one ({facts}); "
+                               f"{decision.base} cannot hold that (it was the best host of the paper's techniques: "
+                               f"{decision.reason})")
 
 
 def _start(doc: Any, base: str, kb: KnowledgeBase) -> Plan:

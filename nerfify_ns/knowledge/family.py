@@ -1,0 +1,153 @@
+"""A paper's family: static scene, dynamic scene, Gaussian splatting, surface reconstruction, or not a
+view-synthesis training method at all, decided from what its title, abstract and method sections describe.
+
+    family = detect_family(doc, kb)      # Family(name='dynamic', buildable=True, scene={'timestamps': True}, ...)
+    family.evidence                      # the sentences that decided it, with their sections
+
+The cues, weights and thresholds are data (``families.yaml``). Each cue counts once per sentence, weighted by where
+the sentence is: the title and abstract say what the paper is about, the method sections what it does; the
+introduction and related work describe other people's methods and count little. The family whose score passes its
+threshold and comes first in ``precedence`` wins; a paper that passes none is ``static``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+from nerfify_ns.knowledge.errors import KnowledgeError
+from nerfify_ns.knowledge.sentences import Rules, sentences
+
+FAMILIES_FILE = Path(__file__).resolve().parent / "families.yaml"
+STATIC = "static"
+
+
+@dataclass(frozen=True)
+class FamilySpec:
+    name: str
+    buildable: bool
+    threshold: float
+    why: str
+    scene: dict
+    cues: tuple[tuple[re.Pattern, float], ...]
+    against: tuple[tuple[re.Pattern, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class FamilyRules:
+    weights: dict
+    precedence: tuple[str, ...]
+    families: dict[str, FamilySpec]
+
+
+@dataclass
+class Family:
+    """What kind of method the paper describes, and why."""
+
+    name: str
+    """static | dynamic | splatting | surface | not-training"""
+    buildable: bool
+    """Whether the grammar of Nerfstudio methods can build it."""
+    why: str = ""
+    """For a family that cannot be built: what cannot be built, in one sentence."""
+    scene: dict = field(default_factory=dict)
+    """Scene facts the family implies (``{"timestamps": True}`` for a dynamic scene)."""
+    scores: dict = field(default_factory=dict)
+    """Every family's score (and its threshold), for the record."""
+    evidence: list = field(default_factory=list)
+    """The sentences that decided it: {quote, section, page, line, cue}."""
+    also: list = field(default_factory=list)
+    """Other families that passed their threshold (a dynamic splatting paper: ["dynamic"])."""
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "buildable": self.buildable, "why": self.why, "scene": dict(self.scene),
+                "also": list(self.also), "scores": dict(self.scores), "evidence": list(self.evidence)}
+
+    def headline(self) -> str:
+        extra = f" (also {', '.join(self.also)})" if self.also else ""
+        return f"{self.name}{extra}"
+
+
+def _patterns(items: Any, where: str) -> tuple[tuple[re.Pattern, float], ...]:
+    out = []
+    for item in items or ():
+        pattern, weight = item
+        out.append((re.compile(pattern, re.IGNORECASE), float(weight)))
+    return tuple(out)
+
+
+def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
+    """The compiled contents of ``families.yaml``."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        families = {}
+        for name, spec in data["families"].items():
+            families[name] = FamilySpec(
+                name=name, buildable=bool(spec["buildable"]), threshold=float(spec["threshold"]),
+                why=str(spec.get("why", "")), scene=dict(spec.get("scene") or {}),
+                cues=_patterns(spec["cues"], name), against=_patterns(spec.get("against"), name))
+        precedence = tuple(data["precedence"])
+        unknown = [p for p in precedence if p not in families]
+        if unknown:
+            raise KeyError(f"precedence names unknown families {unknown}")
+        return FamilyRules(weights=dict(data["weights"]), precedence=precedence, families=families)
+    except (OSError, KeyError, TypeError, ValueError, re.error, yaml.YAMLError) as exc:
+        raise KnowledgeError(f"{path}: cannot read the paper families ({exc}); fix families.yaml") from exc
+
+
+_DEFAULT: Optional[FamilyRules] = None
+
+
+def family_rules() -> FamilyRules:
+    global _DEFAULT
+    if _DEFAULT is None:
+        _DEFAULT = read_family_rules()
+    return _DEFAULT
+
+
+def _score(units: list, cues: tuple, weights: dict, evidence: Optional[list] = None) -> float:
+    """Sum over sentences of each matching cue's weight times the sentence's place weight, sub-linear in the
+    number of sentences per cue (one cue repeated fifty times is not fifty cues)."""
+    total = 0.0
+    for pattern, weight in cues:
+        hits = 0.0
+        for u in units:
+            place = weights.get(u.role, 0.0)
+            if place <= 0 or not pattern.search(u.text):
+                continue
+            hits += place
+            if evidence is not None and place >= 1.0 and len(evidence) < 40:
+                evidence.append((place * weight, u, pattern.pattern))
+        total += weight * math.sqrt(hits) * 2 if hits else 0.0
+    return total
+
+
+def detect_family(doc: Any, rules: Optional[Rules] = None, family: Optional[FamilyRules] = None) -> Family:
+    """The family of ``doc`` (see the module docstring)."""
+    fr = family or family_rules()
+    units = list(sentences(doc, rules))
+    scores: dict[str, float] = {}
+    found: dict[str, list] = {}
+    for name, spec in fr.families.items():
+        ev: list = []
+        score = _score(units, spec.cues, fr.weights, ev)
+        if spec.against:
+            score -= _score(units, spec.against, fr.weights)
+        scores[name] = round(score, 2)
+        found[name] = ev
+    passed = [n for n in fr.precedence if scores.get(n, 0.0) >= fr.families[n].threshold]
+    name = passed[0] if passed else STATIC
+    spec = fr.families.get(name)
+    evidence = []
+    for _w, u, cue in sorted(found.get(name, []), key=lambda e: -e[0])[:3]:
+        evidence.append({"quote": u.text[:300], "section": u.section, "page": u.page, "line": u.line, "cue": cue})
+    record = {n: {"score": s, "threshold": fr.families[n].threshold} for n, s in scores.items()}
+    if spec is None:
+        return Family(STATIC, True, scores=record, evidence=[], also=[])
+    return Family(name, spec.buildable, spec.why if not spec.buildable else "", dict(spec.scene), record, evidence,
+                  also=[p for p in passed[1:]])

@@ -1,0 +1,423 @@
+"""The ledger of a paper's contributions: what it claims as its own, where each claim is described, whether a
+technique card already covers it, and the production of the grammar it changes.
+
+    ledger = read_ledger(doc, kb, base_cards=...)          # Ledger(contributions=[...], parts=[...])
+    [c for c in ledger.contributions if c.status == "new"]   # the paper's novel parts: each becomes one hole
+
+1. **Claims.** Sentences of the title, abstract, introduction and method that state the paper's own contribution
+   ("we propose / introduce / present", "a novel", "we call", "unlike [x], we"), and the items of a contributions
+   list. A claim about the whole paper ("we present X, a method for ...") is kept for the record, not linked.
+2. **Parts.** The method's leaf sections and the run-in paragraph headings inside them ("Hierarchical Training.
+   Rather than ..."): each with its sentences, equations and hyperparameters. Generic headings (overview,
+   preliminaries, implementation details) are parts only when a claim links to them.
+3. **Links.** A claim links to the parts whose heading and text share its content words; a part holding a claim
+   sentence of its own is claimed by it.
+4. **Known or new, by meaning.** A claimed part is *known* when every one of its equations matches a card's by
+   structure (``known.CardEquations``: renaming, commutativity, constant factors), or, without equations, when it
+   names a card and either only borrows it ("we adopt X from [2]") or the card is the target paper's own technique.
+   Otherwise it is *new*. A claim sentence is never evidence for a known card (``claim_sentences``).
+5. **Production.** A new part lands where its heading, claims, text and equations' left-hand sides mean most
+   (``ledger.yaml``'s ``productions``: weighted word stems and symbols), with the scores kept as the reason.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+from nerfify_ns.knowledge.citations import find_spans
+from nerfify_ns.knowledge.sentences import section_roles, split_sentences
+from nerfify_ns.synthesis.known import CardEquations, Match
+
+LEDGER_FILE = Path(__file__).resolve().parent / "ledger.yaml"
+LINK_THRESHOLD = 0.34
+"""A claim links to a part when this share of the claim's content words is found in the part's heading and text
+(heading words count double)."""
+GENERIC_HEADING_WORDS = ("field", "fields", "model", "network", "networks", "method", "representation", "rendering",
+                         "optimisation", "optimization", "training", "loss", "losses", "scene", "scenes", "radiance",
+                         "neural", "overview", "details", "design", "architecture", "sampling", "volume", "efficient")
+"""Heading words too common to link a claim about the whole paper to one part."""
+_STOP = set("""a an the of for and or to in on with by from as at is are was were be been this that these those we our
+it its their which using use used into via each per than then also can may more most such both not only all any
+one two three new novel propose proposed present introduce method approach paper work model based show shows""".split())
+
+
+def _rules() -> dict:
+    data = yaml.safe_load(LEDGER_FILE.read_text(encoding="utf-8"))
+    comp = lambda items: [re.compile(p, re.IGNORECASE) for p in items]  # noqa: E731
+    return {
+        "claim": comp(data["claim"]), "borrow": comp(data["borrow"]),
+        "contributions_intro": re.compile(data["contributions_intro"], re.IGNORECASE),
+        "whole_paper": re.compile(data["whole_paper"]),
+        "first_person": re.compile(data["first_person"], re.IGNORECASE),
+        "generic": re.compile(data["generic_headings"], re.IGNORECASE),
+        "run_in": re.compile(data["run_in"]), "run_in_not": re.compile(data["run_in_not"]),
+        "productions": {name: ([(re.compile(t, re.IGNORECASE), float(w)) for t, w in spec["terms"].items()],
+                               list(spec.get("symbols") or []))
+                        for name, spec in data["productions"].items()},
+    }
+
+
+_RULES: Optional[dict] = None
+
+
+def rules() -> dict:
+    global _RULES
+    if _RULES is None:
+        _RULES = _rules()
+    return _RULES
+
+
+def _words(text: str) -> set[str]:
+    return {w[:6] for w in re.findall(r"[a-z][a-z-]{2,}", text.lower()) if w not in _STOP}
+
+
+@dataclass
+class Claim:
+    text: str
+    source: str
+    """contributions list | abstract | introduction | method | title"""
+    section: str = ""
+    page: Optional[int] = None
+    line: Optional[int] = None
+    whole_paper: bool = False
+    parts: list = field(default_factory=list)
+    """Ids of the parts it links to."""
+
+
+@dataclass
+class Part:
+    """A described part of the method: a leaf section or a run-in paragraph heading."""
+
+    id: str
+    heading: str
+    section: str
+    """The section heading it is in (the part itself for a section)."""
+    sentences: list = field(default_factory=list)
+    equations: list = field(default_factory=list)
+    """{number, latex, text, where, known: card or None, how}"""
+    hyperparameters: list = field(default_factory=list)
+    page: Optional[int] = None
+    line: Optional[int] = None
+    generic: bool = False
+    appendix: bool = False
+    """In an appendix or supplementary section (after the references, or numbered A, B, ...)."""
+    claims: list = field(default_factory=list)
+    """The claims that link to it (their text)."""
+    own_claims: list = field(default_factory=list)
+    """Claim sentences written inside the part."""
+    status: str = ""
+    """new | known | unclaimed"""
+    covered_by: list = field(default_factory=list)
+    why: str = ""
+    production: str = ""
+    production_scores: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["sentences"] = [s[:400] for s in self.sentences[:12]]
+        return d
+
+
+@dataclass
+class Ledger:
+    claims: list[Claim]
+    parts: list[Part]
+
+    @property
+    def contributions(self) -> list[Part]:
+        return [p for p in self.parts if p.status in ("new", "known")]
+
+    @property
+    def new(self) -> list[Part]:
+        return [p for p in self.parts if p.status == "new"]
+
+    def claim_sentences(self) -> set[str]:
+        """Every sentence that states a contribution of the paper (never evidence for a known card)."""
+        out = {c.text for c in self.claims if not c.whole_paper}
+        for p in self.parts:
+            out.update(p.own_claims)
+        return out
+
+    def to_dict(self) -> dict:
+        return {"claims": [asdict(c) for c in self.claims], "parts": [p.to_dict() for p in self.parts]}
+
+
+def _is_claim(sentence: str, r: dict) -> bool:
+    return bool(r["first_person"].search(sentence)) and any(p.search(sentence) for p in r["claim"])
+
+
+_TITLE_WORD = re.compile(r"^(?:[A-Z][\w-]*|of|for|and|the|in|with|via|to|on)$")
+
+
+def _run_in_sentence(sentence: str, r: dict) -> bool:
+    """A sentence that is only a run-in heading ("Ray Importance Sampling.")."""
+    words = sentence.rstrip(". ").split()
+    return (sentence.endswith(".") and 2 <= len(words) <= 7 and all(_TITLE_WORD.match(w) for w in words)
+            and not r["run_in_not"].match(sentence))
+
+
+def _borrows(sentence: str, r: dict) -> bool:
+    return any(p.search(sentence) for p in r["borrow"])
+
+
+def _loc(loc: Any) -> tuple[Optional[int], Optional[int], int]:
+    return getattr(loc, "page", None), getattr(loc, "line", None), getattr(loc, "order", 0) or 0
+
+
+class _Reader:
+    def __init__(self, doc: Any, kb: Any, target_cards: set[str]):
+        self.doc, self.kb, self.r = doc, kb, rules()
+        self.roles = section_roles(doc, kb.rules)
+        self.index = CardEquations.of(kb)
+        self.target_cards = target_cards
+
+    # ------------------------------------------------------------------ claims
+    def claims(self) -> list[Claim]:
+        out: list[Claim] = []
+        r = self.r
+        blocks = [("abstract", "Abstract", None, None, self.doc.abstract or "")]
+        for i, s in enumerate(self.doc.sections):
+            role = self.roles[i]
+            if role in ("ignore", "experiments", "conclusion"):
+                continue
+            source = "introduction" if role == "prior" else "method"
+            for p in s.paragraphs:
+                page, line, _ = _loc(p.loc)
+                blocks.append((source, s.heading, page, line, p.text))
+        listing = 0
+        for source, section, page, line, text in blocks:
+            for sentence in split_sentences(text):
+                if source == "introduction" and r["contributions_intro"].search(sentence):
+                    listing = 6
+                    continue
+                if listing and source == "introduction":
+                    listing -= 1
+                    if len(sentence) > 25:
+                        out.append(Claim(sentence, "contributions list", section, page, line))
+                    continue
+                if source == "introduction" and any(p.search(sentence) for p in self.kb.rules.prior):
+                    continue
+                if _is_claim(sentence, r) and not (_borrows(sentence, r) and not re.search(r"\bnovel|\bnew\b",
+                                                                                             sentence, re.I)):
+                    out.append(Claim(sentence, source, section, page, line))
+            if source != "introduction":
+                listing = 0
+        unique = {c.text: c for c in out}
+        out = list(unique.values())
+        title = (self.doc.title or "").strip()
+        for c in out:
+            c.whole_paper = bool(self.r["whole_paper"].search(c.text)) or (bool(title) and title.split(":")[0] in c.text
+                                                                          and len(title.split(":")[0]) > 3)
+        return out
+
+    # ------------------------------------------------------------------ parts
+    def parts(self) -> list[Part]:
+        sections = self.doc.sections
+        levels = [getattr(s, "level", 1) or 1 for s in sections]
+        parts: list[Part] = []
+        equations = list(getattr(self.doc, "equations", []) or [])
+        hps = list(getattr(self.doc, "hyperparameters", []) or [])
+        after_references = False
+        for i, s in enumerate(sections):
+            if re.match(r"(?:references?|bibliography)$", (getattr(s, "title", "") or "").strip(), re.I):
+                after_references = True
+            if self.roles[i] != "method":
+                continue
+            has_child = i + 1 < len(sections) and levels[i + 1] > levels[i] and self.roles[i + 1] == "method"
+            if has_child:
+                continue  # an introduction to its subsections, which are the parts (its claims link to them)
+            heading = s.heading
+            title = (getattr(s, "title", "") or heading).strip()
+            generic = bool(self.r["generic"].search(title.lower().strip(" .:")))
+            number = getattr(s, "number", "") or ""
+            appendix = after_references or bool(re.search(r"[A-Za-z]", number)) or \
+                bool(re.search(r"\b(?:appendix|supplementa)", title, re.I))
+            page, line, order = _loc(s.loc)
+            current = Part(f"p{len(parts) + 1}", title, heading, page=page, line=line, generic=generic,
+                           appendix=appendix)
+            section_parts = [current]
+            orders = [order]
+            for p in s.paragraphs:
+                m = self.r["run_in"].match(p.text)
+                ppage, pline, porder = _loc(p.loc)
+                if m and not self.r["run_in_not"].match(m.group("title")) and len(m.group("title")) >= 6:
+                    current = Part(f"p{len(parts) + len(section_parts) + 1}", m.group("title"), heading,
+                                   page=ppage, line=pline, appendix=section_parts[0].appendix)
+                    section_parts.append(current)
+                    orders.append(porder)
+                    text = p.text[m.end():]
+                else:
+                    text = p.text
+                for sentence in split_sentences(text):
+                    if _run_in_sentence(sentence, self.r) and current.sentences:
+                        current = Part("", sentence.rstrip(". "), heading, page=ppage, line=pline,
+                                       appendix=section_parts[0].appendix)
+                        section_parts.append(current)
+                        orders.append(porder)
+                        continue
+                    current.sentences.append(sentence)
+            for e in equations:
+                if e.section != heading:
+                    continue
+                _, _, eorder = _loc(e.loc)
+                k = max(j for j in range(len(section_parts)) if j == 0 or orders[j] <= eorder)
+                match = self.index.match(e.latex, e.text)
+                section_parts[k].equations.append({
+                    "number": e.number, "latex": e.latex, "text": e.text,
+                    "where": ", ".join(x for x in (f"p.{e.loc.page}" if getattr(e.loc, "page", None) else "",
+                                                   f"Sec. {heading}") if x),
+                    "known": match.card if match else None, "how": match.how if match else ""})
+            for h in hps:
+                if h.section == heading:
+                    section_parts[-1 if len(section_parts) == 1 else 0].hyperparameters.append(
+                        {"name": h.name, "value": h.value if isinstance(h.value, (int, float, str)) else str(h.value),
+                         "sentence": (h.sentence or "")[:200]})
+            parts.extend(p for p in section_parts if p.sentences or p.equations)
+        for n, p in enumerate(parts, 1):
+            p.id = f"p{n}"
+        return parts
+
+    # ------------------------------------------------------------------ links
+    def link(self, claims: list[Claim], parts: list[Part]) -> None:
+        for p in parts:
+            p.own_claims = [s for s in p.sentences if _is_claim(s, self.r) and not _borrows(s, self.r)
+                            and not self.r["whole_paper"].search(s)]
+        generic = _words(" ".join(GENERIC_HEADING_WORDS))
+        for c in claims:
+            words = _words(c.text)
+            if c.whole_paper:
+                for p in parts:
+                    distinctive = (_words(p.heading) - generic) & words
+                    if distinctive and len(distinctive) >= max(1, len(_words(p.heading) - generic) // 2):
+                        c.parts.append(p.id)
+                        p.claims.append(c.text)
+                continue
+            if len(words) < 2:
+                continue
+            for p in parts:
+                head = _words(p.heading)
+                body = _words(" ".join(p.sentences[:40]))
+                score = (2 * len(words & head) + len(words & body)) / (len(words) + len(head))
+                if score >= LINK_THRESHOLD and (words & head or len(words & body) >= 3):
+                    c.parts.append(p.id)
+                    p.claims.append(c.text)
+
+    # ------------------------------------------------------------------ known or new
+    def judge(self, p: Part) -> None:
+        eqs = p.equations
+        first = [x for x in p.sentences if self.r["first_person"].search(x)]
+        borrowed = [x for x in first if _borrows(x, self.r)]
+        takes = not p.own_claims and first and len(borrowed) * 2 > len(first)
+        unmatched = [e for e in eqs if not e["known"]]
+        if not p.claims and not p.own_claims:
+            if unmatched and not takes and not p.appendix:
+                p.status = "new"
+                p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)}),"
+                         " in the method, not taken from earlier work (the paper claims it in no sentence)")
+            else:
+                p.status, p.why = "unclaimed", "the paper claims nothing of it (a description, not a contribution)"
+            return
+        if not eqs and not p.own_claims and not self._distinctive_link(p):
+            p.status, p.why = "unclaimed", "only general claims link to it (no claim of its own, no equation)"
+            return
+        known = [e["known"] for e in eqs if e["known"]]
+        if eqs and len(known) == len(eqs):
+            p.status, p.covered_by = "known", sorted(set(known))
+            p.why = "every equation of it matches a card's by structure: " + ", ".join(
+                f"Eq. {e['number'] or '?'} = {e['known']} ({e['how']})" for e in eqs)
+            return
+        if takes:
+            p.status = "known"
+            p.why = f"it takes earlier work (\"{borrowed[0][:120]}\") and claims nothing of its own"
+            return
+        named = self._cards_named(p)
+        if not eqs and named:
+            own = [s for s in p.own_claims if re.search(r"\bnovel\b|\bnew\b|\bpropos|\bintroduc|\bwe (?:call|present|design)",
+                                                        s, re.I)]
+            mine = sorted(set(named) & self.target_cards)
+            if mine or not own:
+                p.status, p.covered_by = "known", sorted(set(named))
+                p.why = (f"the card(s) {', '.join(mine)} are this paper's own technique(s), already in the knowledge base"
+                         if mine else f"it uses {', '.join(sorted(set(named)))} (named, no new equation, no claim of "
+                                      "its own)")
+                return
+        p.status = "new"
+        p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
+                 if unmatched else "a part the paper claims, described in prose, that no card covers")
+
+    def _distinctive_link(self, p: Part) -> bool:
+        """Whether a claim shares a word of the part's heading that is not a generic heading word."""
+        head = _words(p.heading) - _words(" ".join(GENERIC_HEADING_WORDS))
+        return any(head & _words(c) for c in p.claims)
+
+    def _cards_named(self, p: Part) -> list[str]:
+        text = " ".join([p.heading, *p.own_claims[:3]])
+        return [name for _, _, (name, _alias) in find_spans(text, self.kb.card_aliases)]
+
+    def production(self, p: Part) -> None:
+        scores = {}
+        heading, claims = p.heading, " ".join(p.claims + p.own_claims)
+        body = " ".join(p.sentences[:30])
+        lhs = " ".join(_lhs_name(e) for e in p.equations)
+        for name, (terms, symbols) in self.r["productions"].items():
+            score = 0.0
+            for pattern, weight in terms:
+                score += weight * (3 * bool(pattern.search(heading)) + 2 * bool(pattern.search(claims))
+                                   + math.sqrt(len(pattern.findall(body))))
+            score += 2.0 * sum(1 for s in symbols if s and re.search(rf"(?:^|\s){re.escape(s)}(?:\s|$)", lhs))
+            scores[name] = round(score, 2)
+        best = max(scores, key=lambda k: scores[k]) if scores else "Backbone"
+        p.production = best if scores.get(best, 0) > 0 else "Backbone"
+        p.production_scores = dict(sorted(scores.items(), key=lambda kv: -kv[1])[:4])
+
+
+def _lhs_name(e: dict) -> str:
+    src = e.get("latex") or e.get("text") or ""
+    lhs = src.split("=", 1)[0] if "=" in src else ""
+    lhs = re.sub(r"\\(?:mathbf|mathcal|hat|bar|tilde|boldsymbol|mathrm)\s*\{?", lambda m: "cal " if "cal" in m.group(0)
+                 else ("hat " if "hat" in m.group(0) else ""), lhs)
+    lhs = re.sub(r"[{}\\()]|_\{?[^ ]*", " ", lhs)
+    return " ".join(lhs.split())
+
+
+def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> Ledger:
+    """The ledger of ``doc`` (see the module docstring). ``target_cards``: cards whose technique the paper itself
+    introduced (the knowledge base already holds them: claiming them is not a hole)."""
+    reader = _Reader(doc, kb, set(target_cards or ()))
+    claims = reader.claims()
+    parts = reader.parts()
+    reader.link(claims, parts)
+    for p in parts:
+        if p.generic and not p.own_claims:
+            p.status, p.why = "unclaimed", "a generic section (details, overview) that claims nothing itself"
+            continue
+        reader.judge(p)
+        if p.status == "new":
+            reader.production(p)
+    _merge(parts)
+    return Ledger(claims, parts)
+
+
+def _merge(parts: list[Part]) -> None:
+    """Adjacent new parts of one section that land on the same production are one contribution."""
+    last: Optional[Part] = None
+    for p in parts:
+        if p.status != "new":
+            last = None if p.status == "new" else last
+            continue
+        if last is not None and last.section == p.section and last.production == p.production:
+            last.heading = f"{last.heading}; {p.heading}"
+            last.sentences += p.sentences
+            last.equations += p.equations
+            last.hyperparameters += p.hyperparameters
+            last.claims += [c for c in p.claims if c not in last.claims]
+            last.own_claims += p.own_claims
+            p.status, p.why = "merged", f"part of {last.id} ({last.heading})"
+            continue
+        last = p
