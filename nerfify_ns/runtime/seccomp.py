@@ -10,8 +10,9 @@ Two programs, both classic BPF assembled here with :mod:`struct` (no dependency)
   sandbox) continue; the same calls of the sandbox's unprivileged user are escape attempts, recorded with
   their name and the process is killed with SIGKILL. A ``connect`` to anything but a unix socket fails with
   ``ENETUNREACH`` and is recorded with its address; an open for writing outside the run folder (and
-  ``/tmp``, ``/dev/shm``, ``/dev/null``) goes on to the kernel, which refuses it (read-only file system), and
-  is recorded with its path. The record lives in our process: what the plugin prints or writes cannot
+  ``/tmp``, ``/dev/shm``, ``/dev/null``) into a folder that exists in the sandbox goes on to the kernel, which
+  refuses it (read-only file system, permissions), and is recorded with its path (a library writing its
+  cache into a folder the sandbox does not have, ``/var/cache``, is not recorded). The record lives in our process: what the plugin prints or writes cannot
   change it.
 * :func:`kill_filter` (the fallback, passed to ``bwrap --seccomp``): the same calls kill the process with
   ``SECCOMP_RET_KILL_PROCESS`` (SIGSYS, which bubblewrap reports as exit 159): the rung fails saying that a
@@ -334,7 +335,7 @@ class Supervisor:
             return
         if name in ("open", "openat", "creat", "openat2"):
             path = self._open_path(pid, name, args)
-            if path is not None and not self._writable(path):
+            if path is not None and not self._writable(path) and self._visible(pid, path):
                 self._record(Attempt(name, f"{path!r}, for writing", "refused", pid))
             self._respond(nid, 0, 0, _FLAG_CONTINUE)  # the read-only file system refuses what is outside
             return
@@ -391,6 +392,13 @@ class Supervisor:
             except OSError:
                 return None
         return os.path.normpath(path)
+
+    @staticmethod
+    def _visible(pid: int, path: str) -> bool:
+        """Whether the folder of ``path`` exists in the sandbox (seen through the process's own root): a write
+        into a folder the sandbox does not have (a library's cache under ``/var``) fails and is no attempt on
+        anything; one into ``/dev``, ``/etc``, ``/usr`` or a bound folder is."""
+        return os.path.lexists(f"/proc/{pid}/root{os.path.dirname(path)}")
 
     def _writable(self, path: str) -> bool:
         return any(path == p or path.startswith(p + "/") for p in (self.workdir, *WRITABLE))

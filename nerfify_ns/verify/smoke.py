@@ -15,10 +15,12 @@ from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (ENV_GENERATED, GENERATED_METHOD, ProgressHook, RunLayout,
                                       progress_poll, train_command)
+from nerfify_ns.verify.checker import PipeReader, decode
 from nerfify_ns.verify.plugin import PluginInfo
+from nerfify_ns.verify.smoke_check import judge_training
 from nerfify_ns.verify.report import Diagnosis, RungResult
 from nerfify_ns.verify.rungs import limit_diagnoses, sandbox_details
-from nerfify_ns.verify.sandbox import Limits, run_sandboxed
+from nerfify_ns.verify.sandbox import Limits, python_cmd, run_sandboxed
 
 SMOKE_ARGS = [
     "--pipeline.datamanager.train-num-rays-per-batch",
@@ -87,6 +89,26 @@ def _head(path: Path, limit: int = 4 << 20) -> str:
         return f.read(limit).decode("utf-8", errors="replace")
 
 
+def recorded(cmd: List[str], fd: int) -> List[str]:
+    """``ns-train ...`` run through :mod:`nerfify_ns.verify.recorder`, which sends every step to ``fd``."""
+    return python_cmd("nerfify_ns.verify.recorder", str(fd), *cmd[1:])
+
+
+def checked_verdict(r: RungResult, records: list, run_dir: Path, iterations: int, result) -> None:
+    """The checker's part of the verdict (:mod:`nerfify_ns.verify.smoke_check`, from the recorded steps and the
+    checkpoint, never from the run's own logs) and the escape attempts the sandbox recorded. The checks on the
+    run's logs that follow can only add failures (a plugin forging its logs cannot pass that way)."""
+    checks, failures, details = judge_training(records, run_dir, iterations)
+    r.checks = checks
+    r.details.update(details)
+    failures = [("escape-attempt", t) for t in result.attempt_sentences()] + failures
+    if not result.timed_out and result.returncode == 0 and not checks:
+        failures.append(("nothing-checked", "nothing checked: the training delivered no step to judge"))
+    for rule, message in failures:
+        if rule != "iterations" or not result.timed_out:  # a timeout says so itself
+            r.fail(Diagnosis("smoke", rule, message, traceback=result.tail(15)))
+
+
 def smoke_rung(
     info: PluginInfo,
     scene: DataLike,
@@ -112,9 +134,13 @@ def smoke_rung(
     cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
                         method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
     env = {ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
-    result = run_sandboxed(cmd, workdir, timeout=timeout, log_name=layout.log_name, env=env,
-                           poll=progress_poll(layout.run_dir, iterations, on_progress),
-                           readonly=[info.root, scene.root], limits=limits)
+    reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
+    try:
+        result = run_sandboxed(recorded(cmd, reader.write_fd), workdir, timeout=timeout, log_name=layout.log_name,
+                               env=env, poll=progress_poll(layout.run_dir, iterations, on_progress),
+                               readonly=[info.root, scene.root], limits=limits, pass_fds=(reader.write_fd,))
+    finally:
+        records = decode(reader.finish())[0]
     r.seconds = time.perf_counter() - start
     r.details.update(
         {
@@ -135,7 +161,7 @@ def smoke_rung(
                       **step_timing(scalars, result.seconds)})
     if limit.seconds is None:
         r.details["sandbox"]["limits"] = {**r.details["sandbox"]["limits"], "timeout_s": None}  # none, not inf
-    r.checks = 4
+    checked_verdict(r, records, layout.run_dir, iterations, result)
     hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
     if hits:
         for d in hits:

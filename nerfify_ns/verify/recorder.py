@@ -1,0 +1,64 @@
+"""The smoke rung's training, recorded for the checker: ``ns-train`` in the sandbox, with every training step's
+rendered colours and the batch's ground truth sent as arrays down a pipe our process holds.
+
+    python -m nerfify_ns.verify.recorder FD ns-train-arguments...
+
+The hook wraps Nerfstudio's ``VanillaPipeline.get_train_loss_dict`` (Nerfstudio's code, not the plugin's) before
+the plugin is imported; the verdict (finite outputs at every step, a photometric error that falls, the steps
+reached, a finite checkpoint) is computed by :func:`nerfify_ns.verify.smoke_check.judge_training` in our process,
+never from the run's tensorboard files, which the plugin's process writes.
+"""
+
+from __future__ import annotations
+
+import sys
+
+
+def install(pipe) -> None:
+    """Record (step, outputs['rgb'], batch['image']) of every training step."""
+    from nerfstudio.pipelines.base_pipeline import VanillaPipeline
+
+    original = VanillaPipeline.get_train_loss_dict
+    cap = pipe.cap
+    last = {}
+
+    def get_train_loss_dict(self, step: int):
+        dm = self.datamanager
+        if "wrapped" not in last or last["wrapped"] is not dm:
+            inner = dm.next_train
+
+            def next_train(step_, _inner=inner):
+                out = _inner(step_)
+                last["batch"] = out
+                return out
+
+            dm.next_train = next_train
+            last["wrapped"] = dm
+        outputs, losses, metrics = original(self, step)
+        arrays = {}
+        batch = last.get("batch")
+        rgb = outputs.get("rgb") if isinstance(outputs, dict) else None
+        if cap.is_tensor(rgb):
+            arrays["rgb"] = cap.array(rgb)[0]
+        if isinstance(batch, tuple) and len(batch) == 2 and isinstance(batch[1], dict) and cap.is_tensor(
+                batch[1].get("image")):
+            arrays["image"] = cap.array(batch[1]["image"])[0]
+        pipe.send({"kind": "step", "rung": "smoke", "step": int(step)}, arrays)
+        return outputs, losses, metrics
+
+    VanillaPipeline.get_train_loss_dict = get_train_loss_dict
+
+
+def main() -> None:
+    from nerfify_ns.verify.checker import RecordPipe
+
+    pipe = RecordPipe(int(sys.argv[1]))  # bound before any plugin code runs
+    install(pipe)
+    sys.argv = ["ns-train", *sys.argv[2:]]
+    from nerfstudio.scripts.train import entrypoint
+
+    entrypoint()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""The smoke rung's verdict from values the trained plugin's process cannot write after the fact: the rendered
+colours of every training step (sent down our pipe by :mod:`nerfify_ns.verify.recorder`) and the tensors of the
+checkpoint it saved (loaded with ``torch.load(weights_only=True)`` here, in our process, which never imports
+plugin code; nothing in it is executed).
+
+* every step's rendered colours are finite (a part that turns non-finite after N calls is caught when N is
+  below the calls of the run: at least one per iteration, so N < iterations);
+* the photometric error recomputed here (mean squared error on the batch's opaque pixels) falls: the last
+  quarter's mean below :data:`LEARNING_RATIO` of the first quarter's;
+* the steps reached, counted from the records;
+* every floating tensor of the checkpoint (model and optimiser state) is finite.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+LEARNING_RATIO = 0.9
+MAX_CHECKPOINT = 2 << 30
+
+
+def step_errors(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]]) -> Tuple[Dict[int, float], List[str]]:
+    """(step -> recomputed photometric error, problems) of the recorded training steps."""
+    errors: Dict[int, float] = {}
+    problems: List[str] = []
+    for header, arrays in records:
+        if header.get("kind") != "step":
+            continue
+        step = header.get("step")
+        if not isinstance(step, int):
+            continue
+        if step in errors:
+            problems.append(f"step {step} was recorded twice (something besides the trainer wrote to the pipe)")
+            continue
+        rgb, image = arrays.get("rgb"), arrays.get("image")
+        if rgb is None or image is None:
+            problems.append(f"step {step}: no rendered colours or ground truth recorded")
+            continue
+        if rgb.ndim != 2 or image.ndim != 2 or rgb.shape[0] != image.shape[0] or rgb.shape[-1] != 3:
+            problems.append(f"step {step}: rendered colours {rgb.shape} do not match the batch {image.shape}")
+            continue
+        if not np.isfinite(rgb).all():
+            problems.append(f"step {step}: {int(rgb.size - np.isfinite(rgb).sum())} of {rgb.size} rendered colour "
+                            "values not finite")
+            errors[step] = float("nan")
+            continue
+        target = image[:, :3].astype(np.float64)
+        mask = image[:, 3] > 0.99 if image.shape[-1] == 4 else np.ones(len(image), bool)
+        if mask.sum() == 0:
+            continue
+        errors[step] = float(((rgb.astype(np.float64) - target) ** 2)[mask].mean())
+    return errors, problems
+
+
+def _numpy_globals() -> list:
+    """The numpy names a checkpoint's plain values need (a scalar rebuilt from its dtype and bytes; no code)."""
+    import importlib
+
+    names = [np.dtype]
+    for module in ("numpy.core.multiarray", "numpy._core.multiarray"):
+        try:
+            names.append(importlib.import_module(module).scalar)
+        except (ImportError, AttributeError):
+            pass
+    names += [type(np.dtype(t)) for t in ("float64", "float32", "int64", "int32", "bool")]
+    return names
+
+
+def checkpoint_problems(run_dir: Path) -> Tuple[Optional[int], List[str]]:
+    """(the step it was saved at, problems) of the newest checkpoint under ``run_dir``."""
+    import torch
+
+    found = sorted(Path(run_dir).rglob("step-*.ckpt"))
+    if not found:
+        return None, ["no checkpoint was saved"]
+    path = found[-1]
+    if path.is_symlink() or not path.is_file() or path.stat().st_size > MAX_CHECKPOINT:
+        return None, [f"checkpoint {path.name}: not a regular file under {MAX_CHECKPOINT >> 30} GiB"]
+    try:
+        with torch.serialization.safe_globals(_numpy_globals()):  # numpy scalars in schedulers' state
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - a file the sandbox wrote: any failure is a finding
+        return None, [f"checkpoint {path.name} does not load as plain tensors: {type(exc).__name__}: "
+                      f"{str(exc).splitlines()[0][:200] if str(exc) else ''}"]
+    problems, bad = [], []
+
+    def walk(value, name: str, depth: int = 0) -> None:
+        if depth > 12 or len(bad) > 8:
+            return
+        if isinstance(value, torch.Tensor):
+            if value.is_floating_point() and value.numel() and not torch.isfinite(value).all():
+                bad.append(name)
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                walk(v, f"{name}.{k}" if name else str(k), depth + 1)
+        elif isinstance(value, (list, tuple)):
+            for i, v in enumerate(value):
+                walk(v, f"{name}[{i}]", depth + 1)
+
+    walk(state if isinstance(state, dict) else {}, "")
+    if bad:
+        problems.append(f"checkpoint {path.name}: tensors not finite: {', '.join(bad[:5])}"
+                        f"{' ...' if len(bad) > 5 else ''}")
+    step = state.get("step") if isinstance(state, dict) else None
+    return step if isinstance(step, int) else None, problems
+
+
+def judge_training(records, run_dir: Path, iterations: int) -> Tuple[int, List[Tuple[str, str]], dict]:
+    """(checks, [(rule, message)], details) of a smoke run from its records and its checkpoint."""
+    errors, problems = step_errors(records)
+    failures: List[Tuple[str, str]] = [("non-finite-output" if "not finite" in p else "forged-record", p)
+                                       for p in problems[:3]]
+    reached = max(errors) + 1 if errors else 0
+    details = {"recorded_steps": len(errors), "iterations_recorded": reached}
+    if reached < iterations and not failures:
+        failures.append(("iterations", f"the trainer's records reach {reached} of {iterations} iterations"))
+    finite = [errors[s] for s in sorted(errors) if np.isfinite(errors[s])]
+    if not failures and len(finite) >= 4:
+        q = max(len(finite) // 4, 1)
+        first, last = float(np.mean(finite[:q])), float(np.mean(finite[-q:]))
+        details.update({"photometric_first_recomputed": first, "photometric_last_recomputed": last})
+        if not last < LEARNING_RATIO * first:
+            failures.append(("no-learning", f"the photometric error recomputed from the rendered colours does not "
+                             f"decrease: first quarter {first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)"))
+    step, ckpt = checkpoint_problems(run_dir)
+    details["checkpoint_step"] = step
+    failures += [("checkpoint", p) for p in ckpt if "not finite" in p]
+    checks = len(errors) + (1 if step is not None else 0)
+    return checks, failures, details
