@@ -186,6 +186,11 @@ class Installer:
 _SUPPORTED: Optional[bool] = None
 
 
+def supervised_available() -> bool:
+    """Whether the sandbox supervises calls here (kernel support, not switched off by ``NERFIFY_SECCOMP=kill``)."""
+    return os.environ.get("NERFIFY_SECCOMP", "supervise") != "kill" and notify_supported()
+
+
 def notify_supported() -> bool:
     """Whether this kernel lets us supervise the sandbox's calls (checked once, in a throwaway child)."""
     global _SUPPORTED

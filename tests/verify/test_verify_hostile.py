@@ -1,5 +1,8 @@
 """The hostile part of the broken-plugin corpus (``hostile: true`` in tests/verify/broken_plugins/): plugins that
-try, when imported (the static rung's sandboxed probe, no training), each escape of issue 16: remount the root
+try to forge their verdict (patch ``torch.isfinite``/``math.isnan``/``numpy.isfinite`` and write fake probe events
+around a NaN colour head; turn NaN only after 30 calls) or to escape when imported, and then those that swallow
+the failure of ``setns``, ``mount``, a connect to our loopback or a write to ``/dev`` (named by the seccomp
+supervisor). Escapes run the static rung's sandboxed probe (no training): remount the root
 read-write and write outside, write to /dev, join the parent's network namespace and connect to its loopback,
 connect to a unix socket under /tmp, read /etc/shadow and a secret of the user, flood the console with markup
 and terminal escapes, fork many processes, daemonize children that outlive the rung, and map more memory
@@ -129,7 +132,7 @@ def test_hostile_plugin_is_stopped_and_reported(name, reference_plugins, tmp_pat
                                **canaries.values)
         before = snapshot(plugin)
         start = time.perf_counter()
-        report = run_ladder(plugin, out_dir=tmp_path / "out", repair="off", rungs=["static"],
+        report = run_ladder(plugin, out_dir=tmp_path / "out", repair="off", rungs=case.get("rungs", ["static"]),
                             timeout=case.get("timeout", 120), limits=Limits(**case.get("limits", {})))
         seconds = time.perf_counter() - start
     finally:
@@ -142,10 +145,14 @@ def test_hostile_plugin_is_stopped_and_reported(name, reference_plugins, tmp_pat
 
     # the verdict, naming what was tried
     assert not report.ok, f"{name}: the ladder passed a hostile plugin"
-    static = report.rung("static")
+    static = report.rung(expect["rung"])
     hits = [d for d in static.failures if d.rule == expect["rule"] and expect["message"] in d.message]
     assert hits, f"{name}: expected {expect}, got {[str(d) for d in static.failures]}"
+    for message in case.get("expect_also", []):  # each attempt named, not only the first
+        assert any(message in d.message for d in static.failures), f"{name}: {message!r} not reported"
     assert static.details["sandbox"]["mode"] == "bwrap" and "no-capabilities" in static.details["isolation"]
+    if expect["rung"] != "static":  # the verdict is the checker's, not the plugin's: checks were made
+        assert static.details.get("checked_by") == "checker" and static.checks > 0
     # the canaries: nothing written, received, read or left running; the plugin folder as it was
     assert not canaries.outside.exists(), "the plugin wrote outside its folder"
     assert not canaries.dev.exists(), "the plugin wrote to /dev"
