@@ -435,6 +435,33 @@ class Bench:
 
 
 @dataclass
+class Survey:
+    """The paper survey (nerfify_ns/benchsuite/survey.py): every paper of a folder or a suite through the pipeline
+    up to its plan, each in a process of its own: the family, the base and why, the contributions as read, each novel
+    part with its production and status; with a suite, found / implemented / spurious against its novelty items.
+    Writes survey.md and survey.json. Exit 1 when a paper ended in a traceback; 2: a bad folder or suite."""
+
+    target: tyro.conf.Positional[Path]
+    """A folder of papers (.pdf, .md, .tex, .txt; SOURCE.md files are skipped) or a suite file (YAML)."""
+    out: Path = Path("survey-results")
+    """Where survey.md and survey.json go."""
+    verify: bool = False
+    """Run each paper up to the verification ladder (minutes a paper) instead of the plan (seconds)."""
+
+    def main(self) -> None:
+        from nerfify_ns.benchsuite import survey as sv
+
+        if not self.target.exists():
+            raise UsageError(f"{self.target}: no such folder or suite; pass a folder of papers or a suite file")
+        rows = sv.survey(self.target, verify=self.verify)
+        sv.write(rows, self.out)
+        CONSOLE.print(sv.table(rows), soft_wrap=True, highlight=False, markup=False)
+        CONSOLE.print(f"outputs: {self.out} (survey.md, survey.json)", soft_wrap=True, highlight=False)
+        if sv.totals(rows)["tracebacks"]:
+            raise SystemExit(1)
+
+
+@dataclass
 class GrammarExport:
     """Export the grammar of plans as a JSON Schema and a GBNF grammar (for constrained decoding)."""
 
@@ -554,6 +581,7 @@ Commands = Union[
     Annotated[Compose, tyro.conf.subcommand("compose")],
     Annotated[Verify, tyro.conf.subcommand("verify")],
     Annotated[Bench, tyro.conf.subcommand("bench")],
+    Annotated[Survey, tyro.conf.subcommand("survey")],
     Annotated[Report, tyro.conf.subcommand("report")],
     Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
     Annotated[Demo, tyro.conf.subcommand("demo")],
@@ -563,7 +591,7 @@ Commands = Union[
 ]
 
 
-SUBCOMMANDS = ("paper", "compose", "verify", "bench", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
+SUBCOMMANDS = ("paper", "compose", "verify", "bench", "survey", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
 
 
 def _plain(text: str) -> str:

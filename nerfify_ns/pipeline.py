@@ -47,6 +47,15 @@ from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.proxy import smoke_samples
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
+class FamilyError(NerfifyError):
+    """A paper whose family the grammar cannot build (Gaussian splatting, surfaces, methods that do not train a
+    view-synthesis model): one line saying what was read and what cannot be built."""
+
+    def __init__(self, family: Any, parts: int):
+        super().__init__(f"a {family.headline()} paper: {family.why}; read {parts} novel part(s) of it "
+                         "(plan.yaml, report.html), built none")
+
+
 LOG_FILE = "nerfify.log"
 """The run's log in its output folder: warnings and other packages' output, stage by stage."""
 
@@ -108,7 +117,7 @@ def run_paper(
     check_count("--patch-rounds", patch_rounds, 0)
     corrections, reuse = read_corrections(equations) if equations is not None else ({}, {})
     if out is not None and not dry_run:
-        check_target(Path(out), overwrite)  # before the paper is read: a bad --out costs nothing
+        check_target(Path(out), overwrite, inputs=(paper, data))  # before the paper is read: a bad --out costs nothing
     kb = KnowledgeBase.of(kb)
     with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
         doc = ingest(paper)
@@ -119,9 +128,12 @@ def run_paper(
         if agents is not None:
             stage.note("asking the model for a plan (planner agent)")
             derived.plan = agents.plan(doc, derived)
-        stage.note("compiling the paper's novel parts from its equations")
+        buildable = derived.family is None or derived.family.buildable
+        if buildable:
+            stage.note("compiling the paper's novel parts from its equations")
         implementation = (implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
-                          if ablations.equations else Implementation(Plan.of(derived.plan), sources={}, records=[]))
+                          if ablations.equations and buildable else
+                          Implementation(Plan.of(derived.plan), sources={}, records=[]))
         if agents is not None and not dry_run:
             stage.note("asking the model for the parts the equations left open (coder agent, sandboxed ladder)")
             agents.code(implementation)
@@ -132,7 +144,17 @@ def run_paper(
     if dry_run:
         return PaperResult(None, doc, derived, graph, derived.plan, outcome, implementation=implementation)
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
-    with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
+    if not buildable:  # the plan and what was read are written; nothing is built that would pretend
+        with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
+            _write_paper_artefacts(staging, doc, derived, graph)
+            (staging / "plan.yaml").write_text(Plan.of(derived.plan).dump())
+            with outcome.stage("plan", "checking that the grammar can build the paper's method",
+                               failures=(NerfifyError,)):
+                raise FamilyError(derived.family, len(derived.holes))
+            _report(staging, outcome)
+            _rewrite_saved_paths(staging, final)
+        return PaperResult(final, doc, derived, graph, derived.plan, outcome, implementation=implementation)
+    with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
         plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget, patch_rounds,
@@ -185,7 +207,7 @@ def run_compose(
     check_count("--patch-rounds", patch_rounds, 0)
     validate(plan)  # a plan the grammar rejects is bad input: nothing is written
     final = Path(out).absolute()
-    with atomic_dir(final, overwrite) as staging, run_log(staging / LOG_FILE):
+    with atomic_dir(final, overwrite, inputs=(data,)) as staging, run_log(staging / LOG_FILE):
         plan, summary = _build(plan, staging, dataset, scene, keep_all, budget, patch_rounds, outcome, sources,
                                deadline=deadline)
         files = _plugin_files(staging)
@@ -364,8 +386,8 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     recorded as the plan's ``schedule`` (plan.yaml rewritten). Raises ``BudgetError`` when the budget leaves too
     little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
     :data:`UNMEASURED_ITERATIONS`."""
-    from nerfify_ns.budget import fit_iterations, training_limit
-    from nerfify_ns.runtime.presets import step_time_exponent
+    from nerfify_ns.budget import RENDER_COST, fit_iterations, training_limit
+    from nerfify_ns.runtime.presets import render_cost, step_time_exponent
     from nerfify_ns.synthesis.proxy import Measured, fit_proxy
     from nerfify_ns.synthesis.schedule import scale_schedule
 
@@ -392,13 +414,15 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
                                 timing.get("samples") or {})
             fitted_proxy = fit_proxy(plan, measured, seconds_left=left, rays=rays, exponent=exponent,
                                      rays_per_checkpoint=rendered, train_pixels=h * w * len(data.train_frames),
-                                     budget=budget, most=most, scene=proxy_scene)
+                                     budget=budget, most=most, scene=proxy_scene,
+                                     render_cost=render_cost(plan["base"], RENDER_COST))
             fit, step = fitted_proxy.time, fitted_proxy.seconds_per_iteration
             if fitted_proxy.active:
                 proxy, args, rays = fitted_proxy.record(paper_rays), fitted_proxy.args(), fitted_proxy.rays
         else:
             step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** exponent
-            fit = fit_iterations(left, step, timing["startup_seconds"], rendered, rays, budget, most=most)
+            fit = fit_iterations(left, step, timing["startup_seconds"], rendered, rays, budget, most=most,
+                                 render_cost=render_cost(plan["base"], RENDER_COST))
         iterations, every = fit.iterations, fit.every
         limit = training_limit(budget, left)
         record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
@@ -563,7 +587,7 @@ def run_demo(
     dataset = _read_data(data)
     check_count("--iterations", iterations)
     final = Path(out).absolute()
-    with atomic_dir(out, overwrite) as staging, run_log(staging / LOG_FILE):
+    with atomic_dir(out, overwrite, inputs=(data,)) as staging, run_log(staging / LOG_FILE):
         if dataset is None:
             with outcome.stage("scene", f"rendering scene '{scene}'"):
                 data = write_scene(scene, staging / "scene")
