@@ -12,7 +12,12 @@ nothing when CUDA is available, unless forced. Each patch is small and named:
                     same parameter layout (:mod:`nerfify_ns.runtime.hashgrid`);
 * ``cpu_default``   ``--machine.device-type`` defaults to ``cpu`` for every registered method;
 * ``seeded_workers`` the parallel datamanager's ray-sampling workers are seeded from
-                    ``--machine.seed``, so a seed fixes the whole run (:mod:`nerfify_ns.runtime.seeding`).
+                    ``--machine.seed``, so a seed fixes the whole run (:mod:`nerfify_ns.runtime.seeding`);
+* ``denormals``     denormal floats flushed to zero in every compute thread;
+* ``fused_optimizer`` Adam/AdamW built with their fused CPU kernel;
+* ``contraction``   the scene contraction's L-inf norm as ``abs().amax()``;
+* ``occupancy_chunks`` the occupancy grid's density evaluated in chunks during its updates
+                    (the last four: :mod:`nerfify_ns.runtime.fused`, each exact to float rounding).
 
 One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
 device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
@@ -90,12 +95,48 @@ def _patch_seeded_workers() -> None:
     seed_parallel_workers()
 
 
+def _patch_denormals() -> None:
+    from nerfify_ns.runtime.fused import flush_denormals
+
+    flush_denormals()
+
+
+def _patch_fused_optimizer() -> None:
+    from nerfstudio.engine.optimizers import OptimizerConfig
+
+    from nerfify_ns.runtime.fused import fused_optimizer_setup
+
+    OptimizerConfig.setup = fused_optimizer_setup
+
+
+def _patch_contraction() -> None:
+    from nerfstudio.field_components.spatial_distortions import SceneContraction
+
+    from nerfify_ns.runtime.fused import make_contraction_forward
+
+    if not hasattr(SceneContraction.forward, "_nerfify_stock"):
+        SceneContraction.forward = make_contraction_forward(SceneContraction.forward)
+
+
+def _patch_occupancy_chunks() -> None:
+    from nerfacc.estimators.occ_grid import OccGridEstimator
+
+    from nerfify_ns.runtime.fused import make_chunked_occupancy_update
+
+    if not hasattr(OccGridEstimator._update, "_nerfify_stock"):
+        OccGridEstimator._update = make_chunked_occupancy_update(OccGridEstimator._update)
+
+
 PATCHES: Dict[str, Callable[[], None]] = {
     "lpips": _patch_lpips,
     "nerfacc": _patch_nerfacc,
     "hashgrid": _patch_hashgrid,
     "cpu_default": _patch_cpu_default,
     "seeded_workers": _patch_seeded_workers,
+    "denormals": _patch_denormals,
+    "fused_optimizer": _patch_fused_optimizer,
+    "contraction": _patch_contraction,
+    "occupancy_chunks": _patch_occupancy_chunks,
 }
 
 

@@ -20,7 +20,14 @@ applied = activate()
 import torchmetrics.image.lpip as tm
 from nerfstudio.field_components.encodings import HashEncoding
 from nerfify_ns.runtime import nerfacc_cpu
+from nerfstudio.engine.optimizers import OptimizerConfig
+from nerfstudio.field_components.spatial_distortions import SceneContraction
+from nerfacc.estimators.occ_grid import OccGridEstimator
 print(json.dumps({{
+    "optimizer": OptimizerConfig.setup.__module__,
+    "contraction": SceneContraction.forward.__module__,
+    "occupancy": OccGridEstimator._update.__module__,
+    "denormal_kept": bool((torch.full((1 << 20,), 1e-39) * 1.0 != 0).any()),
     "applied": applied,
     "lpips": tm.LearnedPerceptualImagePatchSimilarity.__name__,
     "hash": HashEncoding.pytorch_fwd.__module__,
@@ -42,8 +49,11 @@ def probe(prelude: str = "", env: dict | None = None) -> dict:
 @pytest.mark.skipif(CUDA, reason="CUDA is available here: the runtime layer stays off (see the test below)")
 def test_active_without_cuda():
     state = probe(env=AUTO)
-    assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers"]
+    assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers", "denormals",
+                                "fused_optimizer", "contraction", "occupancy_chunks"]
     assert state["lpips"] == "OfflineLPIPS"
+    assert {state[k] for k in ("optimizer", "contraction", "occupancy")} == {"nerfify_ns.runtime.fused"}
+    assert state["denormal_kept"] is False
     assert state["hash"] == "nerfify_ns.runtime.hashgrid"
     assert state["nerfacc"] is True
 
@@ -56,6 +66,10 @@ def test_changes_nothing_on_a_machine_with_cuda():
     assert state["lpips"] == "LearnedPerceptualImagePatchSimilarity"
     assert state["hash"] == "nerfstudio.field_components.encodings"
     assert state["nerfacc"] is False
+    assert state["optimizer"] == "nerfstudio.engine.optimizers"
+    assert state["contraction"] == "nerfstudio.field_components.spatial_distortions"
+    assert state["occupancy"] == "nerfacc.estimators.occ_grid"
+    assert state["denormal_kept"] is True
 
 
 def test_changes_nothing_when_cuda_is_available():
@@ -64,6 +78,10 @@ def test_changes_nothing_when_cuda_is_available():
     assert state["lpips"] == "LearnedPerceptualImagePatchSimilarity"
     assert state["hash"] == "nerfstudio.field_components.encodings"
     assert state["nerfacc"] is False
+    assert state["optimizer"] == "nerfstudio.engine.optimizers"
+    assert state["contraction"] == "nerfstudio.field_components.spatial_distortions"
+    assert state["occupancy"] == "nerfacc.estimators.occ_grid"
+    assert state["denormal_kept"] is True
 
 
 def test_switch_off_and_skip():

@@ -22,9 +22,15 @@
 #include <ATen/Parallel.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <vector>
+
+#if defined(__SSE__) || defined(__x86_64__)
+#include <xmmintrin.h>
+#define NERFIFY_HAVE_MXCSR 1
+#endif
 
 namespace {
 
@@ -345,6 +351,28 @@ std::tuple<at::Tensor, at::Tensor> hashgrid_backward(const at::Tensor& grad_out_
   return {grad_table, grad_pos};
 }
 
+// Sets (or clears) flush-to-zero and denormals-are-zero in the calling thread and in every thread of
+// ATen's intra-op pool. torch.set_flush_denormal changes only the calling thread, and the pool's threads
+// do not inherit it, so without this half of a two-thread elementwise op still runs at denormal speed.
+// Returns the number of threads whose MXCSR was set (0 where the CPU has no MXCSR).
+int64_t set_flush_denormal_all_threads(bool on) {
+#ifdef NERFIFY_HAVE_MXCSR
+  constexpr unsigned kFtzDaz = 0x8040u;  // FTZ (bit 15) | DAZ (bit 6)
+  auto apply = [on]() { _mm_setcsr(on ? (_mm_getcsr() | kFtzDaz) : (_mm_getcsr() & ~kFtzDaz)); };
+  apply();
+  std::atomic<int64_t> count{0};
+  const int64_t threads = at::get_num_threads();
+  at::parallel_for(0, threads, 1, [&](int64_t begin, int64_t end) {
+    apply();
+    count += end - begin > 0 ? 1 : 0;
+  });
+  return std::max<int64_t>(count.load(), 1);
+#else
+  (void)on;
+  return 0;
+#endif
+}
+
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "nerfify multi-resolution hash encoding, fused CPU kernel";
   m.attr("ABI_VERSION") = 1;
@@ -354,4 +382,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("backward", &hashgrid_backward, "hash-grid backward -> (grad_table or empty, grad_positions or empty)",
         py::arg("grad_out"), py::arg("positions"), py::arg("table"), py::arg("scalings"), py::arg("table_size"),
         py::arg("need_table_grad") = true, py::arg("need_pos_grad") = true, py::arg("schedule") = 0);
+  m.def("set_flush_denormal_all_threads", &set_flush_denormal_all_threads,
+        "FTZ/DAZ on or off in the calling thread and every intra-op pool thread -> threads set",
+        py::arg("on") = true);
 }
