@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from nerfify_ns.evaluate.smoke import SmokeTrainError
-from nerfify_ns.atomic import OutputExistsError, atomic_dir
+from nerfify_ns.atomic import MARKER, OutputExistsError, OverwriteRefused, atomic_dir
 from nerfify_ns.pipeline import run_demo
 
 
@@ -36,9 +36,16 @@ def test_non_empty_output_is_refused_unless_overwrite(tmp_path):
         with atomic_dir(out):
             pass
     assert (out / "keep.txt").read_text() == "precious"
-    with atomic_dir(out, overwrite=True) as staging:
+    with pytest.raises(OverwriteRefused, match="replaces only an output folder of nerfify-ns"):
+        with atomic_dir(out, overwrite=True):  # not ours: even --overwrite leaves it alone
+            pass
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+    (out / "keep.txt").unlink()
+    with atomic_dir(out) as staging:
+        (staging / "old.txt").write_text("x")
+    with atomic_dir(out, overwrite=True) as staging:  # ours (its marker): replaced
         (staging / "new.txt").write_text("y")
-    assert [p.name for p in out.iterdir()] == ["new.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "new.txt"]
 
 
 def test_failed_training_keeps_the_log_and_writes_no_output(tiny_scene, tmp_path):
