@@ -755,6 +755,8 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             if cache is not None:
                 cache[digest] = copy.deepcopy(result)
         result.seconds = time.perf_counter() - t0
+        if corr.get("recompiled_because"):  # its generated code was edited since: said, not reused
+            result.notes = list(result.notes) + [str(corr["recompiled_because"])]
         records.append(result)
         if result.status in (IMPLEMENTED, PARTLY) and result.source:
             module = result.component["module"]

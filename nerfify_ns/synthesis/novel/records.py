@@ -5,9 +5,12 @@
 
 Each hole's record holds the equations as read (LaTeX a person may fix: a subscript, an operator), the bindings
 (what each symbol is: ``as: input|network|parameter|constant`` and its ``role``), the sizes (``shape``), the
-status and the reason, and ``hash``: the digest of those editable parts as written. On a rerun, a hole whose
-editable parts still match its hash was not edited: its component is taken from ``equations/<hole>.py`` next to
-the file (not recompiled); an edited hole is recompiled with the person's LaTeX, bindings and sizes.
+status and the reason, ``hash``: the digest of those editable parts as written, and ``source_hash``: the digest
+of the generated component ``equations/<hole>.py`` as it was written. On a rerun, a hole whose editable parts
+still match its hash was not edited: its component is taken from ``equations/<hole>.py`` next to the file (not
+recompiled) only when that file still matches ``source_hash``; a component edited (or replaced, or missing its
+recorded digest) is compiled again, and the hole's notes say so. An edited hole is recompiled with the person's
+LaTeX, bindings and sizes. The file is read within the bounds of :mod:`nerfify_ns.safeio` (size, depth, aliases).
 """
 
 from __future__ import annotations
@@ -15,17 +18,22 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import logging
 from pathlib import Path
 from typing import Any, Optional
 
 import yaml
 
+from nerfify_ns import safeio
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.synthesis.novel.implement import HoleResult, Implementation
 
 FILE = "equations.yaml"
 FOLDER = "equations"
 MAX_BYTES = 4 << 20
+MAX_SOURCE = 1 << 20
+"""Bytes of a generated component read back for reuse."""
+LOG = logging.getLogger("nerfify")
 
 
 class EquationsFileError(NerfifyError):
@@ -44,12 +52,19 @@ def editable_hash(record: dict) -> str:
     return hashlib.sha256(data.encode()).hexdigest()[:16]
 
 
+def source_hash(source: str) -> str:
+    """The digest of a generated component's code as written (UTF-8)."""
+    return hashlib.sha256(source.encode("utf-8")).hexdigest()
+
+
 def to_yaml(implementation: Implementation, doc: Any = None) -> str:
     title = (getattr(doc, "title", "") or "").strip()
     holes = []
     for r in implementation.records:
         data = r.to_dict()
         data["hash"] = editable_hash(data)
+        if r.source:
+            data["source_hash"] = source_hash(r.source)
         holes.append(data)
     body = {"paper": title, "summary": implementation.headline(), "equations": implementation.counts,
             "seconds": round(implementation.seconds, 3), "holes": holes}
@@ -107,7 +122,7 @@ def write_records(folder: Path, implementation: Implementation, doc: Any = None,
     for r in implementation.records:
         if r.source:
             sources.mkdir(exist_ok=True)
-            (sources / f"{r.id}.py").write_text(r.source)
+            (sources / f"{r.id}.py").write_text(r.source, encoding="utf-8")
     return path
 
 
@@ -116,11 +131,9 @@ def read_corrections(path: Path) -> tuple[dict, dict]:
     unedited holes' earlier results (by hole id), with their component source when it lies next to the file."""
     path = Path(path)
     try:
-        if path.stat().st_size > MAX_BYTES:
-            raise EquationsFileError(f"--equations {path}: larger than {MAX_BYTES >> 20} MB")
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise EquationsFileError(f"--equations {path}: cannot read it ({str(exc).splitlines()[0][:160]})") from None
+        data = safeio.load_yaml(path, MAX_BYTES, what=f"--equations {path}")
+    except safeio.ReadRefused as exc:
+        raise EquationsFileError(str(exc)) from None
     if not isinstance(data, dict) or not isinstance(data.get("holes"), list):
         raise EquationsFileError(f"--equations {path}: not an equations.yaml (a mapping with a list of holes)")
     edited, kept = [], {}
@@ -142,14 +155,42 @@ def read_corrections(path: Path) -> tuple[dict, dict]:
                                 sizes=hole.get("sizes") or {}, state=hole.get("state") or {},
                                 notes=list(hole.get("notes") or []), component=hole.get("component") or {},
                                 checks=hole.get("checks") or {}, hash=hole["hash"])
-            if result.component and source_file.is_file():
-                result.source = source_file.read_text()
-                kept[hole["id"]] = result
-            elif not result.component:
+            if result.component:
+                source, why = _reusable_source(source_file, hole)
+                if source is not None:
+                    result.source = source
+                    kept[hole["id"]] = result
+                elif why:
+                    LOG.warning("--equations %s: hole %s: %s", path, hole["id"], why)
+                    edited.append({**copy.deepcopy(hole), RECOMPILE_NOTE: why})
+            else:
                 kept[hole["id"]] = result
         else:
             edited.append(copy.deepcopy(hole))
     return {"holes": edited}, kept
+
+
+RECOMPILE_NOTE = "recompiled_because"
+"""Key of a correction whose hole is compiled again because its generated component cannot be reused."""
+
+
+def _reusable_source(source_file: Path, hole: dict) -> tuple:
+    """(the component's code, None) when ``source_file`` matches the hole's ``source_hash``; else (None, why the
+    hole is compiled again), or (None, None) when there is no file to reuse (compiled again, as before)."""
+    if not source_file.is_file() and not source_file.is_symlink():
+        return None, None
+    name = f"{FOLDER}/{source_file.name}"
+    recorded = hole.get("source_hash")
+    if not isinstance(recorded, str) or not recorded:
+        return None, (f"not reused: {name} has no source_hash recorded when it was generated; compiled again")
+    try:
+        data = safeio.read_bytes(source_file, MAX_SOURCE, what=name, follow_links=False)
+    except safeio.ReadRefused as exc:
+        return None, f"not reused: {exc}; compiled again"
+    if hashlib.sha256(data).hexdigest() != recorded:
+        return None, (f"not reused: {name} does not match the source_hash recorded when it was generated (edited "
+                      "or replaced since); compiled again")
+    return data.decode("utf-8", errors="replace"), None
 
 
 def load_records(folder: Path) -> Optional[dict]:
@@ -158,7 +199,7 @@ def load_records(folder: Path) -> Optional[dict]:
     if not path.is_file():
         return None
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError):
+        data = safeio.load_yaml(path, MAX_BYTES)
+    except safeio.ReadRefused:
         return None
     return data if isinstance(data, dict) else None
