@@ -205,13 +205,14 @@ class TimeFit:
 
 def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_seconds: float,
                    rays_per_checkpoint: int, rays_per_iteration: int, budget: "Budget",
-                   most: Optional[int] = None) -> TimeFit:
+                   most: Optional[int] = None, render_cost: float = RENDER_COST) -> TimeFit:
     """Training iterations that fit ``seconds_left``: a training process (``startup_seconds`` + iterations), a
     rendering process (``startup_seconds`` + each checkpoint's ``rays_per_checkpoint`` rays at
-    :data:`RENDER_COST` of a training ray) and :data:`POST_SECONDS`; at most ``most``. Raises
+    ``render_cost`` of a training ray, :data:`RENDER_COST` unless the base's preset measured its own) and
+    :data:`POST_SECONDS`; at most ``most``. Raises
     :class:`BudgetError` when fewer than :data:`MIN_ITERATIONS` fit."""
     per_ray = seconds_per_iteration / max(rays_per_iteration, 1)
-    render_one = rays_per_checkpoint * per_ray * RENDER_COST
+    render_one = rays_per_checkpoint * per_ray * render_cost
     checkpoints = budget.checkpoints
     if budget.every is not None:  # a fixed cadence: as many checkpoints as the iterations that fit make
         per_iteration = seconds_per_iteration + render_one / budget.every

@@ -45,6 +45,12 @@ def step_time_exponent(base: Optional[str]) -> float:
     return float(smoke_presets().get(base or "", {}).get("step_time_exponent", DEFAULT_STEP_TIME_EXPONENT))
 
 
+def render_cost(base: Optional[str], default: float) -> float:
+    """Rendering a ray against training one for a plugin derived from ``base`` (``render_cost`` in the preset,
+    measured; ``default`` otherwise): a budgeted run reserves the checkpoints' rendering with it."""
+    return float(smoke_presets().get(base or "", {}).get("render_cost", default))
+
+
 def generated_smoke_args(base: str) -> List[str]:
     """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
     and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:

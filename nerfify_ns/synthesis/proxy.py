@@ -24,7 +24,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 import yaml
 
-from nerfify_ns.budget import Budget, BudgetError, TimeFit, fit_iterations
+from nerfify_ns.budget import RENDER_COST, Budget, BudgetError, TimeFit, fit_iterations
 from nerfify_ns.grammar import derive, load_grammar
 from nerfify_ns.plan import Plan
 
@@ -204,16 +204,17 @@ def _predict(measured: Measured, settings: List[Knob], exponent: float, base_cos
 
 
 def _fits(left: float, step: float, measured: Measured, rays_per_checkpoint: int, rays: int, budget: Budget,
-          most: Optional[int]) -> Optional[TimeFit]:
+          most: Optional[int], render_cost: float) -> Optional[TimeFit]:
     try:
-        return fit_iterations(left, step, measured.startup_seconds, rays_per_checkpoint, rays, budget, most=most)
+        return fit_iterations(left, step, measured.startup_seconds, rays_per_checkpoint, rays, budget, most=most,
+                              render_cost=render_cost)
     except BudgetError:
         return None
 
 
 def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int, exponent: float,
               rays_per_checkpoint: int, train_pixels: int, budget: Budget, most: Optional[int] = None,
-              scene: Optional[dict] = None) -> ProxyFit:
+              scene: Optional[dict] = None, render_cost: float = RENDER_COST) -> ProxyFit:
     """The mildest proxy of ``plan`` that reaches ``proxy.yaml``'s target in ``seconds_left`` (the paper's settings
     when they do), else the strongest; ``rays``: the run's batch before scaling; ``exponent``: the base's step-time
     exponent in the batch. Raises :class:`BudgetError` (from :func:`fit_iterations`) when not even the strongest
@@ -225,7 +226,7 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
 
     def attempt() -> Tuple[Optional[TimeFit], float, int]:
         step, r = _predict(measured, settings, exponent, base_cost, base_width)
-        return _fits(seconds_left, step, measured, rays_per_checkpoint, r, budget, most), step, r
+        return _fits(seconds_left, step, measured, rays_per_checkpoint, r, budget, most, render_cost), step, r
 
     def enough(fit: Optional[TimeFit], r: int) -> bool:
         return fit is not None and (fit.iterations >= (most or math.inf) or (
@@ -246,7 +247,8 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
         if enough(fit, r):
             break
     if fit is None:  # not even the strongest proxy: the budget's own error, with what it would need
-        fit_iterations(seconds_left, step, measured.startup_seconds, rays_per_checkpoint, r, budget, most=most)
+        fit_iterations(seconds_left, step, measured.startup_seconds, rays_per_checkpoint, r, budget, most=most,
+                       render_cost=render_cost)
     return ProxyFit(settings, fit, r, step, dict(target), enough(fit, r), train_pixels, scene)
 
 

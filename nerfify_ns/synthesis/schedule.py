@@ -60,9 +60,13 @@ class ScheduleFit:
         """The plan's ``schedule`` annotation."""
         why = (f"the run trains {self.run_iterations} of the paper's {self.paper_iterations} iterations: every "
                f"step count of the schedule is scaled by {self.factor:.4g}")
-        if self.batch:
-            why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per step: "
-                    f"every learning rate is scaled by {self.batch['factor']:.4g} ({self.batch['rule']} scaling rule)")
+        if self.batch and self.batch["factor"] != 1.0:
+            why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per "
+                    f"step: every learning rate is scaled by {self.batch['factor']:.4g} ({self.batch['rule']} "
+                    f"scaling rule)")
+        elif self.batch:
+            why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per "
+                    f"step with the paper's learning rates (the base's rule: {self.batch['rule']})")
         why += " (the plugin's code keeps the paper's values)"
         return {"paper_iterations": self.paper_iterations, "run_iterations": self.run_iterations,
                 "factor": round(self.factor, 6), **({"batch": self.batch} if self.batch else {}), "reason": why,
@@ -119,8 +123,12 @@ def _scale_learning_rates(plan: Plan, used: Dict[str, str], rays: int, fit: Sche
     rule = step_parameters()["batch"]
     if paper_rays <= 0 or rays >= paper_rays:
         return
-    factor = (rays / paper_rays) ** rule["exponent"]
-    fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6), "rule": rule["rule"]}
+    own = (rule.get("bases") or {}).get(plan.get("base")) or {}  # a base measured to need its own rule
+    factor = (rays / paper_rays) ** own.get("exponent", rule["exponent"])
+    fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6),
+                 "rule": own.get("rule", rule["rule"])}
+    if factor == 1.0:
+        return
     for path, terminal in used.items():
         names = rule["learning_rates"].get(terminal) or []
         if not names or not path.startswith("optimizers."):
