@@ -1,6 +1,7 @@
 """Training-step time of a generated plugin's model against Nerfstudio's built-in model, interleaved.
 
     python -m nerfify_ns.bench.step_timing PLUGIN_DIR BUILTIN_METHOD [--rays 1024] [--repeats 15]
+    python -m nerfify_ns.bench.step_timing --flops METHOD [--plugin PLUGIN_DIR] [--rays 1024]
 
 ``ns-train`` rays/s of two separate processes differ by up to ~10% on a shared 2-core machine even
 for computationally identical models (measured: vanilla-nerf 77 vs 68 rays/s, same losses). This
@@ -102,13 +103,47 @@ def time_steps(plugin_dir: str, builtin: str, rays: int, repeats: int, warmup: i
             "throughput_ratio": median["builtin"] / median["generated"]}
 
 
+def step_flops(method: str, rays: int, plugin_dir: str = "") -> Dict[str, object]:
+    """Floating-point operations of one training step (forward, losses, backward), counted by
+    ``torch.utils.flop_counter`` (matrix products and convolutions: the work a FLOP bound is about),
+    of a built-in method or, with ``plugin_dir``, the plugin's method; per step and per ray. The
+    model is fresh (an Instant-NGP occupancy grid has not pruned yet: its count is an upper bound)."""
+    from nerfstudio.configs.method_configs import all_methods
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from nerfify_ns.runtime import activate
+
+    activate()
+    if plugin_dir:
+        from nerfify_ns.synthesis.registry import load_plugin_method
+
+        config = load_plugin_method(plugin_dir).config
+    else:
+        config = all_methods[method]
+    bundle, batch = ray_batch(rays)
+    step = _step_fn(build_model(config), bundle, batch)
+    step()  # the first step builds lazy state (Instant-NGP's grid update runs here at step 0)
+    with FlopCounterMode(display=False) as counter:
+        step()
+    flops = counter.get_total_flops()
+    return {"method": method, "plugin": plugin_dir or None, "rays": rays, "flops_per_step": flops,
+            "flops_per_ray": flops / rays}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("plugin_dir")
-    parser.add_argument("builtin")
+    parser.add_argument("plugin_dir", nargs="?")
+    parser.add_argument("builtin", nargs="?")
     parser.add_argument("--rays", type=int, default=1024)
     parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--flops", metavar="METHOD", help="count one training step's FLOPs of METHOD instead")
+    parser.add_argument("--plugin", default="", help="with --flops: the plugin folder METHOD's config comes from")
     ns = parser.parse_args()
+    if ns.flops:
+        print(json.dumps(step_flops(ns.flops, ns.rays, ns.plugin)))
+        return
+    if not ns.plugin_dir or not ns.builtin:
+        parser.error("PLUGIN_DIR and BUILTIN_METHOD are required (or --flops METHOD)")
     print(json.dumps(time_steps(ns.plugin_dir, ns.builtin, ns.rays, ns.repeats)))
 
 
