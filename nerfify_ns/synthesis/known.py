@@ -60,6 +60,11 @@ def _children(e: Any) -> list:
     return []
 
 
+def _constant(e: Any) -> bool:
+    """An expression without symbols (2, 1/2, \\pi is a symbol and stays)."""
+    return not any(isinstance(t, ir.Symbol) for t in _subtrees(e))
+
+
 def _flatten(e: Any, op: str) -> list:
     if isinstance(e, ir.BinOp) and e.op == op:
         return _flatten(e.left, op) + _flatten(e.right, op)
@@ -97,27 +102,27 @@ class _Canon:
     @staticmethod
     def shape(e: Any) -> str:
         if isinstance(e, ir.BinOp) and e.op in COMMUTATIVE:
-            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and isinstance(p, ir.Number))]
+            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and _constant(p))]
             if len(parts) == 1:
                 return _Canon.shape(parts[0])
             return f"{e.op}({','.join(sorted(_Canon.shape(p) for p in parts))})"
-        if isinstance(e, ir.BinOp) and e.op == "/" and isinstance(e.right, ir.Number):
+        if isinstance(e, ir.BinOp) and e.op == "/" and _constant(e.right):
             return _Canon.shape(e.left)  # a constant factor
         kids = [k for k in _children(e) if k is not None]
         return _label(e) + (f"({','.join(_Canon.shape(k) for k in kids)})" if kids else "")
 
     def full(self, e: Any) -> str:
         if isinstance(e, ir.Symbol):
-            key = getattr(e, "name", "") + "|" + ",".join(getattr(e, "subscripts", ()) or ())
+            key = "|".join([e.name, ",".join(e.subscripts), e.superscript or "", ",".join(e.decorations)])
             self.names.setdefault(key, f"v{len(self.names)}")
             return self.names[key]
         if isinstance(e, ir.BinOp) and e.op in COMMUTATIVE:
-            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and isinstance(p, ir.Number))]
+            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and _constant(p))]
             if len(parts) == 1:
                 return self.full(parts[0])
             ordered = sorted(parts, key=_Canon.shape)
             return f"{e.op}({','.join(self.full(p) for p in ordered)})"
-        if isinstance(e, ir.BinOp) and e.op == "/" and isinstance(e.right, ir.Number):
+        if isinstance(e, ir.BinOp) and e.op == "/" and _constant(e.right):
             return self.full(e.left)
         kids = [k for k in _children(e) if k is not None]
         return _label(e) + (f"({','.join(self.full(k) for k in kids)})" if kids else "")

@@ -32,7 +32,7 @@ import yaml
 
 from nerfify_ns.knowledge.citations import find_spans
 from nerfify_ns.knowledge.sentences import section_roles, split_sentences
-from nerfify_ns.synthesis.known import CardEquations, Match
+from nerfify_ns.synthesis.known import CardEquations, _parsed
 
 LEDGER_FILE = Path(__file__).resolve().parent / "ledger.yaml"
 LINK_THRESHOLD = 0.34
@@ -105,6 +105,8 @@ class Part:
     page: Optional[int] = None
     line: Optional[int] = None
     generic: bool = False
+    lead: bool = False
+    """The opening of a section whose run-in paragraphs are the parts (its claims announce them)."""
     appendix: bool = False
     """In an appendix or supplementary section (after the references, or numbered A, B, ...)."""
     claims: list = field(default_factory=list)
@@ -176,6 +178,8 @@ class _Reader:
         self.roles = section_roles(doc, kb.rules)
         self.index = CardEquations.of(kb)
         self.target_cards = target_cards
+        self.claimless = False
+        """The paper states no claim of a part in the first person (set after linking)."""
 
     # ------------------------------------------------------------------ claims
     def claims(self) -> list[Claim]:
@@ -230,7 +234,7 @@ class _Reader:
             if self.roles[i] != "method":
                 continue
             has_child = i + 1 < len(sections) and levels[i + 1] > levels[i] and self.roles[i + 1] == "method"
-            if has_child:
+            if has_child and not any(e.section == s.heading for e in equations):
                 continue  # an introduction to its subsections, which are the parts (its claims link to them)
             heading = s.heading
             title = (getattr(s, "title", "") or heading).strip()
@@ -272,12 +276,15 @@ class _Reader:
                     "number": e.number, "latex": e.latex, "text": e.text,
                     "where": ", ".join(x for x in (f"p.{e.loc.page}" if getattr(e.loc, "page", None) else "",
                                                    f"Sec. {heading}") if x),
-                    "known": match.card if match else None, "how": match.how if match else ""})
+                    "known": match.card if match else None, "how": match.how if match else "",
+                    "read": bool(_parsed(e.latex) or _parsed(e.text))})
             for h in hps:
                 if h.section == heading:
                     section_parts[-1 if len(section_parts) == 1 else 0].hyperparameters.append(
                         {"name": h.name, "value": h.value if isinstance(h.value, (int, float, str)) else str(h.value),
                          "sentence": (h.sentence or "")[:200]})
+            if len(section_parts) > 1 and not section_parts[0].equations:
+                section_parts[0].lead = True  # it introduces the run-in parts after it
             parts.extend(p for p in section_parts if p.sentences or p.equations)
         for n, p in enumerate(parts, 1):
             p.id = f"p{n}"
@@ -313,9 +320,23 @@ class _Reader:
         eqs = p.equations
         first = [x for x in p.sentences if self.r["first_person"].search(x)]
         borrowed = [x for x in first if _borrows(x, self.r)]
-        takes = not p.own_claims and first and len(borrowed) * 2 > len(first)
         unmatched = [e for e in eqs if not e["known"]]
+        # a part that takes earlier work, unless an equation the parser read is new or is a card's the grammar
+        # does not compute (an equation read is meaning; an unreadable one is not evidence either way)
+        structural = [e for e in eqs if (not e["known"] and e.get("read")) or (e["known"] and self.unbuilt(e["known"]))]
+        takes = not p.own_claims and first and len(borrowed) * 2 > len(first) and not structural
+        unbuilt_eqs = [e for e in eqs if e["known"] and self.unbuilt(e["known"])]
+        if not p.claims and not p.own_claims and unbuilt_eqs and not p.appendix:
+            self._unbuilt(p, sorted({e["known"] for e in unbuilt_eqs}))
+            return
         if not p.claims and not p.own_claims:
+            if self.claimless and not takes and not p.appendix and not (eqs and not unmatched) \
+                    and not self._cards_named(p):
+                p.status = "new"
+                p.why = ("the paper states no claim in the first person (a condensed or third-person text): every "
+                         "method part it describes that no card covers is taken as its own"
+                         + (f"; {len(unmatched)} equation(s) no card has" if unmatched else ""))
+                return
             if unmatched and not takes and not p.appendix:
                 p.status = "new"
                 p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)}),"
@@ -327,6 +348,10 @@ class _Reader:
             p.status, p.why = "unclaimed", "only general claims link to it (no claim of its own, no equation)"
             return
         known = [e["known"] for e in eqs if e["known"]]
+        unbuilt = sorted({k for k in known if self.unbuilt(k)})
+        if eqs and len(known) == len(eqs) and unbuilt:
+            self._unbuilt(p, unbuilt)
+            return
         if eqs and len(known) == len(eqs):
             p.status, p.covered_by = "known", sorted(set(known))
             p.why = "every equation of it matches a card's by structure: " + ", ".join(
@@ -350,6 +375,19 @@ class _Reader:
         p.status = "new"
         p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
                  if unmatched else "a part the paper claims, described in prose, that no card covers")
+
+    def _unbuilt(self, p: Part, cards: list) -> None:
+        card = self.kb.cards[cards[0]]
+        p.status, p.covered_by = "new", cards
+        p.production = _production_of_slot(card.equation_slot) or card.production
+        p.production_scores = {p.production: "the card's equation slot"}
+        p.why = (f"its equation is {card.title}'s ({', '.join(cards)}), which the grammar's "
+                 f"{'/'.join(card.terminals)} terminal does not compute: the paper's own use of it is built here")
+
+    def unbuilt(self, card: str) -> bool:
+        """Whether ``card``'s equation is one the grammar's terminals do not compute (its own slot would)."""
+        c = self.kb.cards.get(card)
+        return c is not None and not c.implements_equation and bool(c.equation_slot)
 
     def _distinctive_link(self, p: Part) -> bool:
         """Whether a claim shares a word of the part's heading that is not a generic heading word."""
@@ -377,6 +415,15 @@ class _Reader:
         p.production_scores = dict(sorted(scores.items(), key=lambda kv: -kv[1])[:4])
 
 
+def _production_of_slot(slot: Optional[str]) -> str:
+    """The production (nonterminal) at a plan path of the grammar ('model.field.MLPField.rgb_head' -> 'RGBHead')."""
+    if not slot:
+        return ""
+    from nerfify_ns.grammar import load_grammar
+
+    return dict(load_grammar().symbol_paths()).get(slot, "")
+
+
 def _lhs_name(e: dict) -> str:
     src = e.get("latex") or e.get("text") or ""
     lhs = src.split("=", 1)[0] if "=" in src else ""
@@ -393,12 +440,20 @@ def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> L
     claims = reader.claims()
     parts = reader.parts()
     reader.link(claims, parts)
+    reader.claimless = not any(not c.whole_paper for c in claims) and not any(p.own_claims for p in parts)
     for p in parts:
-        if p.generic and not p.own_claims:
+        if p.appendix and not p.own_claims:
+            p.status, p.why = "unclaimed", "an appendix part that claims nothing itself (details of the method)"
+            continue
+        if p.lead:
+            p.status, p.why = "unclaimed", "it introduces the parts after it in its section (they are judged themselves)"
+            continue
+        if p.generic and not p.own_claims and not any(not e["known"] or reader.unbuilt(e["known"])
+                                                      for e in p.equations):
             p.status, p.why = "unclaimed", "a generic section (details, overview) that claims nothing itself"
             continue
         reader.judge(p)
-        if p.status == "new":
+        if p.status == "new" and not p.production:
             reader.production(p)
     _merge(parts)
     return Ledger(claims, parts)

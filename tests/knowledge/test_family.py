@@ -1,0 +1,61 @@
+"""A paper's family, read from its method, and what it does: a dynamic paper stands on a time-capable base, a
+paper the grammar cannot build stops after its plan with one line (exit 1), never a plugin that pretends."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nerfify_ns.knowledge.family import detect_family
+from nerfify_ns.knowledge.kb import KnowledgeBase
+from nerfify_ns.paper import ingest
+from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+from nerfify_ns.synthesis.resources import load_reference_plan
+
+PAPERS = Path(__file__).resolve().parents[1] / "data" / "papers"
+LABELS = yaml.safe_load((PAPERS / "families.yaml").read_text())
+EXPECTED = {Path(p["input"]).name: p["family"] for p in LABELS["papers"]}
+CLI = Path(sys.executable).with_name("ns-nerfify")
+KB = KnowledgeBase.default()
+
+
+@pytest.mark.parametrize("name", sorted(EXPECTED))
+def test_the_family_of_each_test_paper(name):
+    family = detect_family(ingest(PAPERS / name), KB.rules)
+    assert family.name == EXPECTED[name], family.to_dict()
+    if family.name == "static":  # what is left when no family's cues pass: every score is recorded
+        assert all(v["score"] < v["threshold"] for v in family.scores.values()), family.scores
+    else:
+        assert family.evidence, "the family is stated with the sentences that decided it"
+
+
+def test_a_dynamic_paper_stands_on_a_time_capable_base_with_its_time_part_as_a_hole():
+    derived = plan_from_paper(ingest(PAPERS / "family_dynamic.md"), KB)
+    assert derived.plan["scene"]["timestamps"] is True
+    base_plan = load_reference_plan(derived.base_choice.base)
+    assert base_plan["scene"]["timestamps"] is True, derived.base_reason
+    assert "FieldWrapper" in [h["production"] for h in derived.holes]
+
+
+def test_a_static_paper_gets_its_one_new_part():
+    derived = plan_from_paper(ingest(PAPERS / "family_static.md"), KB)
+    assert derived.family.name == "static" and derived.plan["scene"]["timestamps"] is False
+    assert [h["production"] for h in derived.holes] == ["Renderer"]
+
+
+@pytest.mark.parametrize("name, family", [("family_splatting.md", "splatting"),
+                                          ("family_not_training.md", "not-training")])
+def test_a_paper_the_grammar_cannot_build_stops_after_its_plan(tmp_path, name, family):
+    out = tmp_path / "out"
+    done = subprocess.run([str(CLI), str(PAPERS / name), "--out", str(out)], capture_output=True, text=True,
+                          timeout=300)
+    text = done.stdout + done.stderr
+    assert done.returncode == 1, text
+    assert "Traceback" not in text
+    failed = [line for line in text.splitlines() if line.startswith("failed ")]
+    assert len(failed) == 1 and f"a {family}" in failed[0] and "built none" in failed[0], text
+    plan = yaml.safe_load((out / "plan.yaml").read_text())
+    assert plan["family"]["name"] == family and plan["family"]["buildable"] is False
+    assert (out / "report.html").is_file() and not (out / "pyproject.toml").exists()

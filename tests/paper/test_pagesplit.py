@@ -1,0 +1,57 @@
+"""Flat PDF-text extractions (page-split or heading-less): numbered headings recovered only when their numbers
+follow each other, page markers as locations, hyphenation undone, numbered flattened equations kept."""
+
+from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
+
+TEXT = """
+
+---
+
+## Page 1
+
+TimeField: Fast Dynamic Radiance Fields
+Ann Author Ben Writer
+1University of Somewhere2Another Lab
+Abstract
+We propose a time-conditioned radiance field that represents dy-
+namic scenes with latent codes.
+Lab Research.1. Introduction
+Dynamic scenes are hard. We build on NeRF [1] and add a
+deformation field that warps points into a canonical space.
+
+---
+
+## Page 2
+
+2. Related Work
+Prior work uses static fields.
+3. Method
+3.1. Deformation Field
+The deformation maps a point and a time to an offset:
+Δx = D(γ(x), γ(t)), (1)
+5123. The emptiness voxel is not a heading.
+3.2. Training
+We train for 30k iterations.
+4. Experiments
+Results.
+"""
+
+
+def test_a_page_split_extraction_is_recognised():
+    assert is_page_split(TEXT)
+    assert not is_page_split("# Title\n\n## 1 Introduction\n\ntext\n")
+
+
+def test_headings_title_abstract_and_equations_are_recovered():
+    blocks = page_split_blocks(TEXT)
+    headings = [(b.number, b.text) for b in blocks if b.kind == "heading"]
+    assert headings == [("", "Abstract"), ("1", "Introduction"), ("2", "Related Work"), ("3", "Method"),
+                        ("3.1", "Deformation Field"), ("3.2", "Training"), ("4", "Experiments")]
+    assert blocks[0].kind == "title" and blocks[0].text == "TimeField: Fast Dynamic Radiance Fields"
+    start = next(i for i, b in enumerate(blocks) if b.kind == "heading" and b.text == "Abstract")
+    abstract = blocks[start + 1]
+    assert "dynamic scenes" in abstract.text  # "dy-\nnamic" joined
+    equations = [b for b in blocks if b.kind == "equation"]
+    assert [(e.number, e.text) for e in equations] == [("1", "Δx = D(γ(x), γ(t))")]
+    assert equations[0].loc.page == 2
+    assert any("5123. The emptiness voxel" in b.text for b in blocks if b.kind == "para")
