@@ -26,7 +26,10 @@ class LLMConfig:
     base_url: Optional[str] = None
     """The endpoint (OpenAI-compatible servers: ``http://HOST:PORT/v1``); default: the backend's."""
     timeout: float = 120.0
-    """Seconds one request may take before it is abandoned (and retried)."""
+    """Seconds one request may take in all (connecting, sending, the whole answer however slowly it arrives)
+    before it is abandoned (and retried)."""
+    max_body: int = 32 << 20
+    """Bytes one response may hold (headers included); a larger one is refused while it arrives."""
     retries: int = 2
     """Retries of a failed request (timeout, connection, 5xx, HTML, truncated or invalid answer), with backoff."""
     backoff: float = 1.0
@@ -75,7 +78,7 @@ class LLMConfig:
 
     def check(self) -> None:
         """Refuse what cannot work before anything runs: a non-positive setting, a missing key."""
-        for name in ("timeout", "max_tokens", "coder_rounds"):
+        for name in ("timeout", "max_tokens", "coder_rounds", "max_body"):
             if getattr(self, name) <= 0:
                 raise LLMSetupError(f"--llm-{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
         if self.retries < 0:

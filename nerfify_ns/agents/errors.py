@@ -12,7 +12,7 @@ class LLMSetupError(AgentError):
 
 
 class ProviderError(AgentError):
-    """The endpoint failed: ``kind`` is timeout, connection, http, not-json, truncated, refused or empty."""
+    """The endpoint failed: ``kind`` is timeout, connection, http, not-json, too-large, truncated, refused or empty."""
 
     def __init__(self, kind: str, message: str, *, retry: bool = False) -> None:
         super().__init__(message)

@@ -10,14 +10,24 @@ The SDKs are imported only when a provider is built (``pip install nerfify-ns[ll
 (:data:`SHAPES`, keyed by the capability table's ``structured`` mode), not a chain of conditions. Errors become
 :class:`ProviderError` with a one-line message (the key never appears in one: it is not in the request we
 build, and the SDK's messages do not carry headers).
+
+Every request the SDKs send goes through our network layer (:class:`_DeadlineBackend` under the SDK's own HTTP
+client): ``--llm-timeout`` is the deadline of the whole request (connecting, sending, the headers and the body,
+however slowly they drip), every read waits at most what is left of it; the bytes received are counted and a
+response over ``max_body`` bytes is refused while it arrives; a compressed body (we ask for none) is refused
+rather than inflated. The scripted answers file is read within the bounds of :mod:`nerfify_ns.safeio`.
 """
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import json
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Union
+from typing import Any, Callable, Dict, Iterator, List, Optional, Union
 
 from nerfify_ns.agents.config import LLMConfig
 from nerfify_ns.agents.errors import LLMSetupError, ProviderError
@@ -134,19 +144,154 @@ def _import(module: str):
 
 
 
-def _sdk_call(sdk: Any, create: Callable[..., Any], kwargs: dict, where: str, timeout: float) -> Any:
-    """``create(**kwargs)`` with the SDK's errors as :class:`ProviderError` (the openai and anthropic SDKs name
-    their errors alike): a timeout, no connection, an HTTP status, a body that is not the API's JSON."""
+# ------------------------------------------------------------------------------------------ deadline and size
+class BodyTooLarge(Exception):
+    """A response grew past the call's byte limit while it arrived (raised inside the SDK's HTTP client)."""
+
+
+class _CallLimits(threading.local):
+    deadline: Optional[float] = None
+    budget: Optional[int] = None
+    received: int = 0
+
+
+_limits = _CallLimits()
+
+
+@contextlib.contextmanager
+def call_limits(seconds: float, max_bytes: int) -> Iterator[None]:
+    """Bound every network read and write of this thread's requests inside the block: a total deadline of
+    ``seconds`` and at most ``max_bytes`` received (headers included)."""
+    _limits.deadline, _limits.budget, _limits.received = time.monotonic() + seconds, max_bytes, 0
     try:
-        return create(**kwargs)
+        yield
+    finally:
+        _limits.deadline, _limits.budget, _limits.received = None, None, 0
+
+
+def _left(timeout: Optional[float], error: type) -> Optional[float]:
+    """The wait allowed now: the smaller of ``timeout`` and what is left of the call's deadline (``error``
+    raised once it passed)."""
+    if _limits.deadline is None:
+        return timeout
+    left = _limits.deadline - time.monotonic()
+    if left <= 0:
+        raise error("the request's total deadline passed")
+    return left if timeout is None else min(timeout, left)
+
+
+def _limited_backend(httpcore: Any) -> Any:
+    """A network backend of ``httpcore`` (httpcore or httpcore2, whichever the SDK's client uses) that bounds every
+    read and write by the call's deadline and counts the bytes received (:func:`call_limits`)."""
+
+    class Stream(httpcore.NetworkStream):
+        def __init__(self, inner: Any) -> None:
+            self.inner = inner
+
+        def read(self, max_bytes: int, timeout: Optional[float] = None) -> bytes:
+            data = self.inner.read(max_bytes, _left(timeout, httpcore.ReadTimeout))
+            if _limits.budget is not None:
+                _limits.received += len(data)
+                if _limits.received > _limits.budget:
+                    raise BodyTooLarge(f"the response is over {_limits.budget} bytes")
+            return data
+
+        def write(self, buffer: bytes, timeout: Optional[float] = None) -> None:
+            self.inner.write(buffer, _left(timeout, httpcore.WriteTimeout))
+
+        def close(self) -> None:
+            self.inner.close()
+
+        def start_tls(self, ssl_context: Any, server_hostname: Optional[str] = None,
+                      timeout: Optional[float] = None) -> Any:
+            return Stream(self.inner.start_tls(ssl_context, server_hostname, _left(timeout, httpcore.ConnectTimeout)))
+
+        def get_extra_info(self, info: str) -> Any:
+            return self.inner.get_extra_info(info)
+
+    class Backend(httpcore.NetworkBackend):
+        def __init__(self, inner: Any) -> None:
+            self.inner = inner
+
+        def connect_tcp(self, host: str, port: int, timeout: Optional[float] = None, local_address: Any = None,
+                        socket_options: Any = None) -> Any:
+            return Stream(self.inner.connect_tcp(host, port, _left(timeout, httpcore.ConnectTimeout), local_address,
+                                                 socket_options))
+
+        def connect_unix_socket(self, path: str, timeout: Optional[float] = None, socket_options: Any = None) -> Any:
+            return Stream(self.inner.connect_unix_socket(path, _left(timeout, httpcore.ConnectTimeout),
+                                                         socket_options))
+
+        def sleep(self, seconds: float) -> None:
+            self.inner.sleep(seconds)
+
+    return Backend
+
+
+def limited_http_client(sdk: Any, timeout: float) -> Any:
+    """An HTTP client for ``sdk`` (the openai or anthropic module) whose connections go through the limited
+    backend, that asks for an uncompressed body and refuses a compressed one (never inflated)."""
+    base = importlib.import_module(f"{sdk.__name__}._base_client")
+    httpx = getattr(base, "httpx2", None) or getattr(base, "httpx")
+    httpcore = importlib.import_module("httpcore2" if httpx.__name__ == "httpx2" else "httpcore")
+
+    class Transport(httpx.HTTPTransport):
+        def __init__(self) -> None:
+            super().__init__()
+            pool = getattr(self, "_pool", None)
+            inner = getattr(pool, "_network_backend", None)
+            if inner is None:  # a client layout we do not know: refuse rather than run unbounded
+                raise LLMSetupError(f"cannot bound the requests of this {httpx.__name__} version; "
+                                    "pip install 'nerfify-ns[llm]'")
+            pool._network_backend = _limited_backend(httpcore)(inner)
+
+        def handle_request(self, request: Any) -> Any:
+            request.headers["Accept-Encoding"] = "identity"
+            response = super().handle_request(request)
+            encoding = response.headers.get("Content-Encoding", "identity").strip().lower()
+            if encoding not in ("", "identity"):
+                response.close()
+                raise BodyTooLarge(f"the response is compressed ({encoding}) although none was asked for; it is "
+                                   "not inflated")
+            return response
+
+    return httpx.Client(transport=Transport(), timeout=timeout, follow_redirects=False)
+
+
+def _cause(exc: BaseException, kind: type) -> Optional[BaseException]:
+    seen = 0
+    while exc is not None and seen < 20:
+        if isinstance(exc, kind):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+        seen += 1
+    return None
+
+
+def _sdk_call(sdk: Any, create: Callable[..., Any], kwargs: dict, where: str, timeout: float,
+              max_body: int = 32 << 20) -> Any:
+    """``create(**kwargs)`` within the call's limits (:func:`call_limits`), with the SDK's errors as
+    :class:`ProviderError` (the openai and anthropic SDKs name their errors alike): a timeout (the whole call's),
+    a body over the limit, no connection, an HTTP status, a body that is not the API's JSON."""
+    try:
+        with call_limits(timeout, max_body):
+            return create(**kwargs)
+    except BodyTooLarge as exc:
+        raise ProviderError("too-large", f"{where}: {exc}; refused", retry=False) from None
     except sdk.APITimeoutError:
         raise ProviderError("timeout", f"{where} did not answer within {timeout:g} s", retry=True) from None
     except sdk.APIConnectionError as exc:
+        large = _cause(exc, BodyTooLarge)
+        if large is not None:
+            raise ProviderError("too-large", f"{where}: {large}; refused", retry=False) from None
         raise ProviderError("connection", f"cannot reach {where}: {_first_line(exc.__cause__ or exc)}",
                             retry=True) from None
     except sdk.APIStatusError as exc:
         raise _status_error(exc, where) from None
     except sdk.APIError as exc:
+        large = _cause(exc, BodyTooLarge)
+        if large is not None:
+            raise ProviderError("too-large", f"{where}: {large}; refused", retry=False) from None
         raise ProviderError("not-json", f"{where} did not answer with the API's JSON: {_first_line(exc)}",
                             retry=True) from None
 
@@ -166,7 +311,7 @@ class OpenAIProvider(Provider):
         openai = _import("openai")
         self.openai, self.config = openai, config
         self.client = openai.OpenAI(api_key=config.api_key(), base_url=config.endpoint, timeout=config.timeout,
-                                    max_retries=0)
+                                    max_retries=0, http_client=limited_http_client(openai, config.timeout))
         self.where = config.endpoint or "the OpenAI API"
 
     def complete(self, request: Request) -> Response:
@@ -177,7 +322,8 @@ class OpenAIProvider(Provider):
             kwargs["seed"] = request.seed
         mode = info.structured if self.config.constrained else "none"
         kwargs.update(SHAPES[mode](request, info.strict_schema))
-        raw = _sdk_call(openai, self.client.chat.completions.create, kwargs, self.where, self.config.timeout)
+        raw = _sdk_call(openai, self.client.chat.completions.create, kwargs, self.where, self.config.timeout,
+                        self.config.max_body)
         choices = getattr(raw, "choices", None)
         if not choices:  # the SDK hands back a string when the body is not JSON (an HTML page, a proxy's error)
             raise ProviderError("not-json", f"{self.where} answered with something that is not a chat completion: "
@@ -201,7 +347,8 @@ class AnthropicProvider(Provider):
         anthropic = _import("anthropic")
         self.anthropic, self.config = anthropic, config
         self.client = anthropic.Anthropic(api_key=config.api_key(), base_url=config.endpoint,
-                                          timeout=config.timeout, max_retries=0)
+                                          timeout=config.timeout, max_retries=0,
+                                          http_client=limited_http_client(anthropic, config.timeout))
         self.where = config.endpoint or "the Anthropic API"
 
     @staticmethod
@@ -230,7 +377,8 @@ class AnthropicProvider(Provider):
             kwargs["tools"] = [{"name": request.schema_name, "description": "Give the answer.",
                                 "input_schema": request.schema}]
             kwargs["tool_choice"] = {"type": "tool", "name": request.schema_name}
-        raw = _sdk_call(anthropic, self.client.messages.create, kwargs, self.where, self.config.timeout)
+        raw = _sdk_call(anthropic, self.client.messages.create, kwargs, self.where, self.config.timeout,
+                        self.config.max_body)
         blocks = getattr(raw, "content", None)
         if blocks is None:
             raise ProviderError("not-json", f"{self.where} answered with something that is not a message: "
@@ -245,6 +393,10 @@ class AnthropicProvider(Provider):
 
 # ------------------------------------------------------------------------------------------ scripted
 Answer = Union[str, dict, Callable[[Request], Union[str, dict]]]
+MAX_SCRIPT = 8 << 20
+"""Bytes of a scripted answers file."""
+MAX_SCRIPT_NODES = 200_000
+"""Nodes a scripted answers file may expand to (aliases counted as what they stand for)."""
 
 
 class ScriptedProvider(Provider):
@@ -262,13 +414,13 @@ class ScriptedProvider(Provider):
 
     @classmethod
     def from_file(cls, path: Union[str, Path]) -> "ScriptedProvider":
-        import yaml
+        from nerfify_ns import safeio
 
         path = Path(path)
         try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise LLMSetupError(f"scripted answers {path}: cannot read it ({_first_line(exc, 100)})") from None
+            data = safeio.load_yaml(path, MAX_SCRIPT, what="the file", max_nodes=MAX_SCRIPT_NODES)
+        except safeio.ReadRefused as exc:
+            raise LLMSetupError(f"scripted answers {path}: cannot read it ({_first_line(exc, 200)})") from None
         if not isinstance(data, (list, dict)):
             raise LLMSetupError(f"scripted answers {path}: expected a list, or a mapping stage -> list")
         return cls(data)
