@@ -39,6 +39,10 @@ MAX_PHRASE = 160
 METRICS = ("psnr", "ssim", "lpips")
 ID = re.compile(r"^[a-z0-9][a-z0-9_.-]{0,63}$")
 MAX_BYTES = 1 << 20
+MAX_NODES = 200_000
+"""Nodes a suite file may expand to (aliases counted as what they stand for)."""
+MAX_RUNS = 5000
+"""(paper, scene, seed) runs of one suite; each is two tasks or more (reference, pipeline, ablations)."""
 
 
 class SuiteError(NerfifyError):
@@ -400,24 +404,37 @@ class _Reader:
 
 def load_suite(path: Path) -> Suite:
     """Read and check the suite at ``path`` (see the module docstring); :class:`SuiteError` names the problem."""
+    from collections import Counter
+
+    from nerfify_ns import safeio
+
     path = Path(path)
     if not path.is_file():
         raise SuiteError(f"suite {path} not found (a YAML file; see docs/bench.md)")
-    if path.stat().st_size > MAX_BYTES:
-        raise SuiteError(f"suite {path} is over {MAX_BYTES >> 20} MB")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise SuiteError(f"{path.name}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    try:  # bounded: size, depth, and the nodes its aliases expand to (an alias bomb stops while it is read)
+        data = safeio.load_yaml(path, MAX_BYTES, what=path.name, max_nodes=MAX_NODES)
+    except safeio.NotParsed as exc:
+        raise SuiteError(f"{path.name}: not valid YAML ({str(exc).split('(', 1)[-1].rstrip(')')})") from None
+    except safeio.ReadRefused as exc:
+        raise SuiteError(f"suite {exc}") from None
     r = _Reader(path.resolve())
     data = r.mapping(data, "top level", ("papers",), ("name", "description", "budget", "seeds"))
     budget = r.budget(data.get("budget"), "budget", BenchBudget())
     seeds = r.seeds(data["seeds"], "seeds") if "seeds" in data else (0,)
     if not isinstance(data["papers"], list) or not data["papers"]:
         raise r.fail("papers", "expected a non-empty list of papers")
-    papers = [r.paper(p, f"papers[{k}]", budget, seeds) for k, p in enumerate(data["papers"])]
-    ids = [p.id for p in papers]
-    if len(set(ids)) != len(ids):
-        raise r.fail("papers", f"paper id {next(i for i in ids if ids.count(i) > 1)!r} repeated")
+    papers, runs = [], 0
+    for k, value in enumerate(data["papers"]):
+        paper = r.paper(value, f"papers[{k}]", budget, seeds)
+        runs += len(paper.scenes) * len(paper.seeds)
+        if runs > MAX_RUNS:  # checked as it grows: 2 x 10^6 tasks in 94 KB are refused, not listed
+            raise r.fail(f"papers[{k}]", f"the suite expands to more than {MAX_RUNS} runs (papers x scenes x seeds, "
+                                         "each a reference and a pipeline run plus one per ablation); split it into "
+                                         "several suites")
+        papers.append(paper)
+    counts = Counter(p.id for p in papers)
+    repeated = next((i for i, n in counts.items() if n > 1), None)
+    if repeated is not None:
+        raise r.fail("papers", f"paper id {repeated!r} repeated")
     return Suite(name=str(data.get("name") or path.stem), path=path.resolve(), papers=tuple(papers),
                  description=str(data.get("description") or ""))

@@ -28,6 +28,7 @@ from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from nerfify_ns import safeio
 from nerfify_ns.dataset import colmap as colmap_io
 from nerfify_ns.dataset.model import SPLITS, Dataparser, Dataset, DatasetError, Frame, Intrinsics
 
@@ -471,6 +472,10 @@ def read_llff(root: Path, evidence: str) -> Dataset:
     where = f"{root}: poses_bounds.npy"
     if path.stat().st_size > MAX_NPY_BYTES:
         raise DatasetError(f"{where} is {path.stat().st_size} bytes (at most {MAX_NPY_BYTES})")
+    try:  # the header's shape against the bytes the file holds, before any array is allocated
+        safeio.npy_header(path, MAX_NPY_BYTES, what=where)
+    except safeio.ReadRefused as exc:
+        raise DatasetError(str(exc)) from None
     try:
         array = np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:

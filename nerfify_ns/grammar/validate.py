@@ -17,13 +17,13 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Nonterminal, Param, Terminal, load_grammar
 from nerfify_ns.plan import method_name_problems
 
-METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}$")
+METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}\Z")  # \Z: "$" would also match before a final newline
 ANNOTATIONS: Dict[str, type] = {
     "method": str, "description": str, "paper": dict, "evidence": dict, "pruned": list, "holes": list,
     "notes": list, "repairs": list, "schedule": dict, "family": dict, "contributions": list,
 }
-IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-MODULE = re.compile(r"^components\.[A-Za-z_][A-Za-z0-9_]*$")
+IDENTIFIER = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\Z")
+MODULE = re.compile(r"^components\.[A-Za-z_][A-Za-z0-9_]*\Z")
 """A custom component's module: inside the plugin's ``components`` package."""
 RESERVED_MODULES = frozenset(p.stem for p in (Path(__file__).resolve().parents[1] / "components").glob("*.py"))
 """Module names of nerfify's own components (copied into plugins): a custom module may not take one."""
