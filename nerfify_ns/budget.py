@@ -228,7 +228,8 @@ def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_se
         need = fixed + MIN_ITERATIONS * per_iteration  # the time left at which MIN_ITERATIONS fit
         raise BudgetError(f"the budget leaves {max(seconds_left, 0):.0f} s for training and evaluation, and "
                           f"{MIN_ITERATIONS} iterations with their evaluation need about {need:.0f} s (measured "
-                          f"{seconds_per_iteration:.2f} s per iteration); give a longer --budget")
+                          f"{seconds_per_iteration:.2f} s per iteration and {startup_seconds:.0f} s to start each "
+                          f"of the two Nerfstudio processes); give a longer --budget")
     return TimeFit(iterations, budget.cadence(iterations), seconds_left, seconds_per_iteration, startup_seconds,
                    render)
 

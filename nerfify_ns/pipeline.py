@@ -358,10 +358,10 @@ def _note_unverified(plan: Plan, folder: Path, ladder, budget: Budget) -> None:
     in the plan's notes and in the ladder's report, and how to finish it."""
     smoke = ladder.rung("smoke")
     done, wanted = smoke.details.get("iterations", 0), smoke.details.get("iterations_wanted")
-    line = (f"smoke rung not verified: time ({smoke.failures[0].message}); the plugin is kept as it is; finish "
-            f"the rung with a longer --budget{f' or --smoke-iterations {done}' if done >= 3 else ''}")
-    smoke.notes.append(line)
-    plan.notes.append(line)
+    figures = (f"{smoke.failures[0].message}; the plugin is kept as it is; finish the rung with a longer --budget"
+               f"{f' or --smoke-iterations {done}' if done >= 3 else ''}")
+    smoke.notes.append(figures)
+    plan.notes.append(f"smoke rung not verified: time ({figures})")
     (folder / "plan.yaml").write_text(Plan.of(plan).dump())
     smoke.details["verdict"] = "not verified: time"
     if wanted is None:
