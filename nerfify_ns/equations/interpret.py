@@ -21,10 +21,9 @@ import numpy as np
 
 from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Expr, Integral, Neg, Norm, Number,
                  ParseFailure, Reduce, Symbol)
-from .shapes import (RAY, SAMPLE, CompileError, ShapeError, check_layout, is_bound_variable, named_sizes,
-                     param_specs, sample_indexed_keys, schedule)
+from .shapes import (MAX_RANGE, MAX_RANGE_ITERATIONS, RAY, SAMPLE, CompileError, ShapeError, check_cost,
+                     check_layout, is_bound_variable, named_sizes, param_specs, sample_indexed_keys, schedule)
 
-MAX_RANGE = 4096
 _IMPLICIT = "@S"
 
 
@@ -48,6 +47,7 @@ class _Eval:
         self.sample_vars: list[str] = []
         self.ranges: dict[str, float] = {}
         self.where = ""
+        self.iterations = 0  # of finite ranges, all together: the static check's bound, kept while running
 
     # --- alignment -----------------------------------------------------------------------------------------
     def _rank(self, axis: str) -> int:
@@ -256,13 +256,17 @@ class _Eval:
 
     def _range(self, r: Reduce) -> Val:
         lo, hi = self.ev(r.lower), self.ev(r.upper)
-        if lo.a.ndim or hi.a.ndim or lo.a != np.round(lo.a) or hi.a != np.round(hi.a):
+        if lo.a.ndim or hi.a.ndim or not (np.isfinite(lo.a) and np.isfinite(hi.a)) or lo.a != np.round(lo.a) \
+                or hi.a != np.round(hi.a):
             raise CompileError(f"{self.where}: the range of '{r.index}' is not a pair of integers")
-        lo_i, hi_i = int(lo.a), int(hi.a)
-        if hi_i - lo_i + 1 > MAX_RANGE:
+        if float(hi.a) - float(lo.a) + 1 > MAX_RANGE:
             raise CompileError(f"{self.where}: a range of more than {MAX_RANGE} terms")
+        lo_i, hi_i = int(lo.a), int(hi.a)
         acc = Val(np.asarray(0.0 if r.kind == "sum" else 1.0), ())
         for k in range(lo_i, hi_i + 1):
+            self.iterations += 1
+            if self.iterations > MAX_RANGE_ITERATIONS:
+                raise CompileError(f"{self.where}: more than {MAX_RANGE_ITERATIONS:,} iterations of finite ranges")
             self.ranges[r.index] = float(k)
             term = self.ev(r.body)
             acc = self.binary(np.add if r.kind == "sum" else np.multiply, acc, term)
@@ -314,6 +318,7 @@ def interpret(ir, bindings: dict, layout: dict | None = None, sizes: dict | None
         raise ShapeError(f"bindings disagree on the number of rays {sorted(n_rays)} or samples {sorted(n_samples)}")
     outputs = list(outputs) if outputs is not None else [eq.defines for eq in equations]
     order = schedule(equations, outputs, set(values) | set(named_sizes(sizes)))
+    check_cost(order, sizes)  # nested finite ranges, operations: refused before anything is evaluated
     ev = _Eval(values, sizes, next(iter(n_rays), None), next(iter(n_samples), None))
     for eq in order:
         ev.where = f"equation {eq.number}" if eq.number else f"the equation of '{eq.defines}'"

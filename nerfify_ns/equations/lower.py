@@ -29,10 +29,12 @@ from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Ex
 from .emit import assemble
 from .naming import Names, class_name_ok
 from .render import safe_comment, show
-from .shapes import (RAY, SAMPLE, CompileError, ParamSpec, ShapeError, check_layout, is_bound_variable, named_sizes,
-                     param_specs, resolve_dims, schedule)
+from .shapes import (MAX_RANGE, RAY, SAMPLE, CompileError, ParamSpec, ShapeError, check_cost, check_layout,
+                     is_bound_variable, named_sizes, param_specs, resolve_dims, schedule)
 
 _IMPLICIT = "@S"
+MAX_LIMIT = 1 << 40
+"""The largest magnitude of a range limit: no paper's range comes near it, and its arithmetic stays exact."""
 _ATOM, _POW, _UNARY, _MUL, _ADD, _CMP = 100, 8, 7, 6, 5, 3
 
 
@@ -416,6 +418,9 @@ class _Lower:
     def _int_bound(self, e: Expr) -> tuple[str, int | None]:
         """A range limit as Python int code, and its value when it does not depend on an outer range."""
         if isinstance(e, Number):
+            if not math.isfinite(e.value) or abs(e.value) > MAX_LIMIT:
+                raise LoweringError(f"{self.where}: a range limit that is not a finite number of at most "
+                                    f"{MAX_LIMIT:,}")
             if e.value != int(e.value):
                 raise LoweringError(f"{self.where}: a range limit that is not an integer")
             return str(int(e.value)), int(e.value)
@@ -431,6 +436,8 @@ class _Lower:
             (a, va), (b, vb) = self._int_bound(e.left), self._int_bound(e.right)
             if va is not None and vb is not None:
                 value = va + vb if e.op == "+" else (va - vb if e.op == "-" else va * vb)
+                if abs(value) > MAX_LIMIT:
+                    raise LoweringError(f"{self.where}: a range limit larger than {MAX_LIMIT:,}")
                 return str(value), value
             return f"({a} {e.op} {b})", None
         raise LoweringError(f"{self.where}: a range limit that is not a number or a size "
@@ -438,8 +445,8 @@ class _Lower:
 
     def _range(self, r: Reduce) -> _C:
         (lo, lo_value), (hi, hi_value) = self._int_bound(r.lower), self._int_bound(r.upper)
-        if lo_value is not None and hi_value is not None and hi_value - lo_value + 1 > 4096:
-            raise LoweringError(f"{self.where}: a range of more than 4096 terms")
+        if lo_value is not None and hi_value is not None and hi_value - lo_value + 1 > MAX_RANGE:
+            raise LoweringError(f"{self.where}: a range of more than {MAX_RANGE} terms")
         stop = str(hi_value + 1) if hi_value is not None else f"{hi} + 1"
         acc = self.names.fresh("acc", r.kind)
         loop = self.names.fresh("k", r.index)
@@ -498,6 +505,7 @@ def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None
         env[key] = (f"self.{attr}", _T((), tuple(spec.shape)), True)
         param_rows[key] = (attr, spec)
     order = schedule(equations, list(outputs), set(env) | set(named_sizes(sizes)))
+    check_cost(order, sizes)  # nested finite ranges, operations: refused before anything is emitted
     first = input_rows[0][1] if input_rows else None
     sample_ref = next((ident for key, ident, dims in input_rows if SAMPLE in dims), None)
     ray_ref = next((ident for key, ident, dims in input_rows if RAY in dims), None)

@@ -15,6 +15,12 @@ What converters leave in NeRF papers' LaTeX and what it becomes here:
     |x|, \\|x\\|, \\vert, \\Vert                                        \\lvert x \\rvert, \\lVert x \\rVert
     unicode (sigma, odot, minus sign, math italic letters)         LaTeX commands (NFKC)
     trailing . , ; and the comma before \\quad                      removed
+    numbers (``read_numbers``): 1 0 ^ { - 2 }, 5 1 2, 0 . 0 0 1    10^{-2}, 512, 0.001
+    (MinerU's spaced digits), 8\\,192, 1e-2, 10⁻³, 2¹⁹, 5·10⁻⁴       8192, 0.01, 10^{-3}, 2^{19}, 5\\cdot 10^{-4}
+
+``normalize_numbers(text)`` is the same number reading on a plain string: the paper's LaTeX normaliser
+(``paper/mathnorm.py``) and the hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read
+one way wherever it appears.
 
 Limits (hostile input): at most ``MAX_CHARS`` characters and ``MAX_DEPTH`` nested groups; every pattern
 here is linear in the length of the text.
@@ -75,6 +81,103 @@ class Mapped:
         return self.origin[min(max(i, 0), len(self.origin) - 1)] + 1
 
 
+# --- numbers as papers write them ----------------------------------------------------------------------
+
+def _script_chars() -> dict[str, tuple[str, str]]:
+    """Unicode superscript and subscript characters -> ('^' or '_', the plain character): ``⁻³`` -> ^, -3."""
+    out = {}
+    for code in range(0xB0, 0x2C80):
+        ch = chr(code)
+        kind = unicodedata.decomposition(ch).split(" ", 1)[0]
+        if kind in ("<super>", "<sub>") and ch not in "\u00aa\u00ba\u2120\u2122":
+            plain = unicodedata.normalize("NFKC", ch).replace("\u2212", "-")
+            if len(plain) == 1 and (plain.isalnum() or plain in "+-=()"):
+                out[ch] = ("^" if kind == "<super>" else "_", plain)
+    return out
+
+
+_SCRIPTS = _script_chars()
+_SCRIPT_RUN = re.compile("[" + re.escape("".join(_SCRIPTS)) + "]+")
+_BLANK = r"(?:[ \t\n]|\\[,;:! ]|~|[\u00a0\u2006\u2009\u202f])"
+_THIN = r"[\u00a0\u2006\u2009\u202f]"
+_SPACED_DIGITS = re.compile(rf"(?<![A-Za-z0-9.\\])\d(?:{_BLANK}*\.{_BLANK}*\d|{_BLANK}+\d|\d)+")
+_THOUSANDS = re.compile(rf"(?<![\d.,]){_THIN}*\d{{1,3}}(?:{_THIN}\d{{3}})+(?![\d.,])")
+_E_NOTATION = re.compile(r"(?<![A-Za-z0-9.\\_^])(\d+(?:\.\d+)?)(?:[eE]([-+]?)|\s*[eE]\s*([-+]))\s*(\d{1,4})"
+                         r"(?![A-Za-z0-9.])")
+MAX_DECIMAL_EXPONENT = 30
+"""``1e-40`` is written ``{1 \\times 10^{-40}}`` rather than as a decimal of 40 digits."""
+
+
+def _scripts(m: Mapped) -> Mapped:
+    """Runs of Unicode superscripts/subscripts -> ``^{...}``/``_{...}`` (``10⁻³`` -> ``10^{-3}``, ``xᵢ`` ->
+    ``x_{i}``); the minus sign U+2212 -> ``-``."""
+    def run(match: re.Match) -> str:
+        out, kind_open = [], None
+        for ch in match.group(0):
+            kind, plain = _SCRIPTS[ch]
+            if kind != kind_open:
+                if kind_open is not None:
+                    out.append("}")
+                out.append(kind + "{")
+                kind_open = kind
+            out.append(plain)
+        return "".join(out) + "}"
+
+    return m.sub(_SCRIPT_RUN, run).sub("\u2212", "-")
+
+
+def _spaced_digits(m: Mapped) -> Mapped:
+    """MinerU's digits written one token at a time (``1 0``, ``5 1 2``, ``0 . 0 0 1``) and thin-space thousands
+    (``8\\,192``) -> one number. A digit that is a one-character script (``x^2 3``) or ``\\frac``'s
+    argument (``\\frac 1 2``) stays apart: TeX takes one character there."""
+    text = m.text
+
+    def join(match: re.Match) -> str:
+        run = match.group(0)
+        if re.search(r"(?:[_^]|\\[dtc]?frac|\\sqrt)\s*$", text[max(0, match.start() - 12):match.start()]):
+            return run
+        return re.sub(_BLANK, "", run)
+
+    return m.sub(_SPACED_DIGITS, join)
+
+
+def _e_notation(m: Mapped) -> Mapped:
+    """``1e-2``, ``5E-4``, ``1 e - 3`` (MinerU) -> ``0.01``, ``0.0005``, ``0.001``; a larger exponent ->
+    ``{1 \\times 10^{-40}}`` (the reader folds it, refusing what overflows)."""
+    from decimal import Decimal
+
+    def number(match: re.Match) -> str:
+        mantissa, sign, digits = match.group(1), match.group(2) or match.group(3) or "", match.group(4)
+        exponent = int(sign + digits) if sign != "+" else int(digits)
+        if abs(exponent) > MAX_DECIMAL_EXPONENT:
+            return f"{{{mantissa} \\times 10^{{{exponent}}}}}"
+        text = format(Decimal(mantissa).scaleb(exponent), "f")
+        return text.rstrip("0").rstrip(".") if "." in text else text
+
+    return m.sub(_E_NOTATION, number)
+
+
+def read_numbers(m: Mapped, *, math: bool = True) -> Mapped:
+    """Numbers in every notation papers use, as plain LaTeX numbers (the module docstring's table). ``math``:
+    the text is mathematics (a formula, ``$...$``), where any blank between digits is a converter's; in prose
+    only thin spaces (and no-break spaces) between groups of three digits join them."""
+    m = _scripts(m)
+    if not math:
+        return m.sub(_THOUSANDS, lambda x: re.sub(_THIN, "", x.group(0)))
+    return _e_notation(_spaced_digits(m))
+
+
+_PROSE_WORK = re.compile("[" + re.escape("".join(_SCRIPTS)) + "\u2212]|" + _THOUSANDS.pattern)
+
+
+def normalize_numbers(text: str, *, math: bool = True) -> str:
+    """``read_numbers`` on a plain string (``1 \\times 1 0 ^ { - 2 }`` -> ``1 \\times 10 ^ { - 2 }``); a text
+    with nothing to change is returned as it is (one scan)."""
+    if not (_PROSE_WORK.search(text) or (math and (_SPACED_DIGITS.search(text) or _E_NOTATION.search(text)))):
+        return text
+    return read_numbers(Mapped(text), math=math).text
+
+
 @dataclass
 class Normalized:
     pieces: list[Mapped]
@@ -107,9 +210,9 @@ _DROP_ENVS = ("equation", "equation*", "align", "align*", "aligned", "split", "g
               "displaymath", "math")
 
 
-def _unicode(text: str) -> Mapped:
+def _unicode(m: Mapped) -> Mapped:
     out, origin = [], []
-    for i, ch in enumerate(text):
+    for i, ch in zip(m.origin, m.text):
         if ch in _UNICODE:
             new = _UNICODE[ch]
         elif ch in "\n\r\t\f\v":
@@ -217,6 +320,20 @@ def check_depth(m: Mapped, limit: int = MAX_DEPTH) -> None:
             i = closed.end()
             continue
         i += 1
+
+
+def size_refusal(latex: str) -> str | None:
+    """Why ``normalize`` refuses ``latex`` for its size alone (longer than ``MAX_CHARS``, nested deeper than
+    ``MAX_DEPTH``, more than ``MAX_BIG_OPERATORS``), None when its size is fine. Linear and cheap: whoever
+    handles an equation before or beside the reader (drawing it, comparing it) skips what the reader refuses
+    as too large."""
+    if len(latex) > MAX_CHARS:
+        return f"longer than {MAX_CHARS} characters ({len(latex)})"
+    try:
+        check_depth(Mapped(latex))
+    except NormalizeError as err:
+        return err.reason
+    return None
 
 
 def _environments(m: Mapped) -> Mapped:
@@ -349,12 +466,12 @@ def normalize(latex: str) -> Normalized:
     """The pieces (one equation each) of a displayed equation, cleaned; raises NormalizeError."""
     if len(latex) > MAX_CHARS:
         raise NormalizeError(f"longer than {MAX_CHARS} characters ({len(latex)})", MAX_CHARS + 1)
-    m = _unicode(latex)
+    m = _unicode(_scripts(Mapped(latex)))
     m = m.sub(r"(?<!\\)%[^\n]*", " ")
     m = m.sub(r"\\\\\s*\[[^\]\n]{0,12}\]", r"\\\\ ")  # \\[6pt]
     m = m.sub(r"(?<!\\)\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]", r"\\\\ ")  # a lost \\ of \\[2pt]
     m = m.sub(r"(?<!\\)\\[ \t]*\n", r"\\\\ ")  # a backslash ending a line: a lost \\
-    m = m.sub(r"\s+", " ")
+    m = read_numbers(m.sub(r"\s+", " "))
     number = None
     tag = re.search(r"\\tag\*?\s*\{([^{}]{0,40})\}", m.text)
     if tag:

@@ -29,7 +29,7 @@ from lark import Lark, Token
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken, VisitError
 
 from .ir import DEFAULT_CONVENTIONS, Conventions, Equation, Expr, ParseFailure, depth
-from .normalize import Mapped, NormalizeError, normalize
+from .normalize import MAX_CHARS, Mapped, NormalizeError, normalize
 from .reader import APPROX_RELATIONS, DEFINE_RELATIONS, ReadError, Reader, Word
 
 MAX_IR_DEPTH = 120
@@ -78,7 +78,7 @@ def _read_piece(piece: Mapped, latex: str, number: str | None):
             return _failure(inner.reason, piece, inner.pos, inner.fragment, latex, number)
         if isinstance(inner, RecursionError):
             return _failure("nested too deeply", piece, None, "", latex, number)
-        raise
+        return _failure(f"could not read: {_describe(inner)}", piece, None, "", latex, number)
     except ReadError as err:
         return _failure(err.reason, piece, err.pos, err.fragment, latex, number)
     except RecursionError:
@@ -113,11 +113,28 @@ def _equation(parts, piece: Mapped, latex: str, number: str | None, conventions:
         return resolve(equation, conventions)
     except ResolveError as err:
         return ParseFailure(err.reason, None, err.fragment, latex, number)
+    except RecursionError:
+        return ParseFailure("nested too deeply", None, "", latex, number)
+
+
+def _describe(err: BaseException) -> str:
+    """An exception as a reason: its type and its message's first line (``ZeroDivisionError: ...``)."""
+    message = " ".join(str(err).split())[:200]
+    return f"{type(err).__name__}: {message}" if message else type(err).__name__
 
 
 def parse_equations(latex: str, *, number: str | None = None,
                     conventions: Conventions = DEFAULT_CONVENTIONS) -> list[Equation | ParseFailure]:
-    """Every equation of a displayed block (aligned rows, ``\\quad``-separated "where" clauses)."""
+    """Every equation of a displayed block (aligned rows, ``\\quad``-separated "where" clauses). Never raises
+    for what a paper holds: anything the reader cannot take, an error of the reader itself included, is a
+    ParseFailure with its reason (``could not read: ZeroDivisionError: ...``)."""
+    try:
+        return _parse_equations(str(latex or ""), number, conventions)
+    except Exception as err:  # noqa: BLE001 - the per-equation boundary: the block's failure, the run goes on
+        return [ParseFailure(f"could not read: {_describe(err)}", None, "", str(latex or "")[:MAX_CHARS], number)]
+
+
+def _parse_equations(latex: str, number: str | None, conventions: Conventions) -> list[Equation | ParseFailure]:
     try:
         normalized = normalize(latex)
     except NormalizeError as err:
@@ -145,7 +162,15 @@ def parse_equation(latex: str, *, number: str | None = None,
 
 
 def parse_expression(latex: str) -> Expr | ParseFailure:
-    """An expression without '=' (a symbol table entry, a right-hand side given alone); not resolved."""
+    """An expression without '=' (a symbol table entry, a right-hand side given alone); not resolved. Never
+    raises for what a paper holds (as ``parse_equations``)."""
+    try:
+        return _parse_expression(str(latex or ""))
+    except Exception as err:  # noqa: BLE001 - the per-expression boundary
+        return ParseFailure(f"could not read: {_describe(err)}", None, "", str(latex or "")[:MAX_CHARS])
+
+
+def _parse_expression(latex: str) -> Expr | ParseFailure:
     try:
         normalized = normalize(latex)
     except NormalizeError as err:

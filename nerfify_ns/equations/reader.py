@@ -131,12 +131,42 @@ def _product(items: list[tuple[str | None, object, int]]) -> Expr:
     return result
 
 
+MAX_NUMBER_DIGITS = 40
+"""A number literal of more digits is refused (a paper's constants have a few; a long run is noise)."""
+
+
+def fold_power(base: float, exponent: float) -> float:
+    """``base ** exponent`` for constants the paper writes (``10^{-2}``, ``2^{19}``), or a ReadError that says
+    why not: a division by zero (``0^{-2}``), a result too large for a float, or not a real number
+    (``(-8)^{1/2}``). Never raises anything else."""
+    text = f"{base:g}^{exponent:g}"
+    if base == 0 and exponent < 0:
+        raise ReadError("a constant that divides by zero", None, text)
+    try:
+        value = float(base) ** float(exponent)
+    except ZeroDivisionError:
+        raise ReadError("a constant that divides by zero", None, text) from None
+    except OverflowError:
+        raise ReadError("a constant too large for a float", None, text) from None
+    if isinstance(value, complex):
+        raise ReadError("a constant that is not a real number", None, text)
+    if math.isnan(value) or (math.isinf(value) and not (math.isinf(base) or math.isinf(exponent))):
+        raise ReadError("a constant too large for a float", None, text)
+    return value
+
+
+def _literal(text: str, pos: int | None = None) -> float:
+    """A number token's value, refused when it is too long to be a paper's constant."""
+    digits = sum(ch.isdigit() for ch in text)
+    if digits > MAX_NUMBER_DIGITS:
+        raise ReadError(f"a number of more than {MAX_NUMBER_DIGITS} digits", pos, text[:20] + "...")
+    return float(text)
+
+
 def _power(base: Expr, exponent: Expr) -> Expr:
     if isinstance(base, Number) and isinstance(exponent, Number):
-        try:
-            return Number(float(base.value) ** float(exponent.value), f"{base.text or base.value}^{exponent.value:g}")
-        except OverflowError:
-            raise ReadError("a number too large", None, "^") from None
+        value = fold_power(float(base.value), float(exponent.value))
+        return Number(value, f"{base.text or base.value}^{exponent.value:g}")
     return BinOp("^", base, exponent)
 
 
@@ -382,7 +412,7 @@ class Reader(Transformer):
     def sarg(self, meta, children):
         if len(children) == 2:  # SIGN NUMBER
             sign, num = children
-            value = float(num) * (-1 if str(sign) == "-" else 1)
+            value = _literal(str(num), _pos(num)) * (-1 if str(sign) == "-" else 1)
             return _SArg([Number(value, str(sign) + str(num))], str(sign) + str(num), _pos(sign))
         child = children[0]
         if isinstance(child, Token):
@@ -407,7 +437,7 @@ class Reader(Transformer):
     def _token_primary(self, tok: Token) -> list:
         kind = tok.type
         if kind == "NUMBER":
-            return [(Number(float(tok), str(tok)), _pos(tok))]
+            return [(Number(_literal(str(tok), _pos(tok)), str(tok)), _pos(tok))]
         if kind == "LETTERS":
             return self._letters(tok)
         if kind == "GREEK":
@@ -420,7 +450,7 @@ class Reader(Transformer):
 
     # --- primaries -----------------------------------------------------------------------------------------
     def number(self, meta, children):
-        return Number(float(children[0]), str(children[0]))
+        return Number(_literal(str(children[0]), _pos(children[0])), str(children[0]))
 
     def letters(self, meta, children):
         return self._letters(children[0])

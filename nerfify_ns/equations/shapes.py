@@ -174,3 +174,108 @@ def schedule(equations: list[Equation], outputs: list[str], available: set[str])
         else:  # pragma: no cover - the walk above already rejected cycles
             raise CompileError("equations define each other in a cycle")
     return stable
+
+
+# --- the cost of evaluating equations, known before anything runs ---------------------------------------
+
+MAX_RANGE = 4096
+"""Terms of one finite range (``\\sum_{k=0}^{L-1}``)."""
+
+MAX_RANGE_ITERATIONS = 4096
+"""Iterations of finite ranges in one evaluation of the equations, nested ranges multiplied and ranges side by
+side added (a spherical-harmonics basis of degree 4 takes 16-25, a positional encoding 10-20). Three nested
+``\\sum_{k=1}^{4096}`` ask for 7e10 and are refused before the lowering, the interpreter or the check runs."""
+
+MAX_OPERATIONS = 200_000
+"""Operations (IR nodes, a range's body counted once per iteration) in one evaluation of the equations: the
+longest equations the reader takes, a few dozen in one part, stay below 100,000. The check's gradcheck runs
+the module twice per input value, so its work is this times the values it perturbs (``check.py``)."""
+
+
+@dataclass(frozen=True)
+class Cost:
+    """What one evaluation of some equations asks for: ``iterations`` of finite ranges (nested multiplied),
+    ``operations`` (IR nodes, a range's body once per iteration)."""
+
+    iterations: int
+    operations: int
+
+
+def _interval(e, env: dict, named: dict):
+    """The (low, high) a range limit can take, with the enclosing ranges' variables at any of their values;
+    None when it is not a number, a size or arithmetic of them (the lowering refuses those)."""
+    import math
+
+    from .ir import BinOp, Neg, Number
+
+    if isinstance(e, Number):
+        return (float(e.value), float(e.value)) if math.isfinite(e.value) else None
+    if isinstance(e, Symbol) and not e.subscripts and not e.args:
+        if e.name in env:
+            return env[e.name]
+        if e.key in named:
+            return (float(named[e.key]), float(named[e.key]))
+        return None
+    if isinstance(e, Neg):
+        inner = _interval(e.arg, env, named)
+        return None if inner is None else (-inner[1], -inner[0])
+    if isinstance(e, BinOp) and e.op in ("+", "-", "*"):
+        a, b = _interval(e.left, env, named), _interval(e.right, env, named)
+        if a is None or b is None:
+            return None
+        if e.op == "+":
+            return (a[0] + b[0], a[1] + b[1])
+        if e.op == "-":
+            return (a[0] - b[1], a[1] - b[0])
+        products = [x * y for x in a for y in b]
+        return (min(products), max(products))
+    return None
+
+
+def _cost(e, env: dict, named: dict) -> tuple[int, int]:
+    if isinstance(e, Reduce) and e.axis == "range":
+        lo = _interval(e.lower, env, named) if e.lower is not None else None
+        hi = _interval(e.upper, env, named) if e.upper is not None else None
+        if lo is None or hi is None:
+            # limits that are not numbers or sizes: the lowering refuses them, the interpreter counts its
+            # iterations as it runs them (MAX_RANGE_ITERATIONS); here the body is counted once
+            count, inner_env = 1, {k: v for k, v in env.items() if k != e.index}
+        else:
+            span = min(hi[1], 1e15) - max(lo[0], -1e15) + 1
+            count = max(0, int(span))
+            inner_env = {**env, e.index: (lo[0], hi[1])}
+        body_iterations, body_operations = _cost(e.body, inner_env, named)
+        return count * (1 + body_iterations), 1 + count * body_operations
+    iterations, operations = 0, 1
+    for child in children(e):
+        i, o = _cost(child, env, named)
+        iterations, operations = iterations + i, operations + o
+    return iterations, operations
+
+
+def evaluation_cost(equations, sizes: dict | None = None) -> Cost:
+    """The cost of one evaluation of ``equations`` (see ``Cost``), from the IR and the sizes alone."""
+    named = named_sizes(sizes or {})
+    iterations = operations = 0
+    for eq in equations:
+        for side in (eq.rhs, *eq.also):
+            i, o = _cost(side, {}, named)
+            iterations, operations = iterations + i, operations + o
+    return Cost(iterations, operations)
+
+
+def check_cost(equations, sizes: dict | None = None) -> Cost:
+    """``evaluation_cost``, or a CompileError when it is past ``MAX_RANGE_ITERATIONS`` or ``MAX_OPERATIONS``:
+    checked before anything is lowered, interpreted or run."""
+    cost = evaluation_cost(equations, sizes)
+    if cost.iterations > MAX_RANGE_ITERATIONS:
+        raise CompileError(f"the equations ask for {_count(cost.iterations)} iterations of finite ranges in one "
+                           f"evaluation (nested ranges multiply); at most {MAX_RANGE_ITERATIONS:,} are run")
+    if cost.operations > MAX_OPERATIONS:
+        raise CompileError(f"the equations ask for {_count(cost.operations)} operations in one evaluation; at most "
+                           f"{MAX_OPERATIONS:,} are run")
+    return cost
+
+
+def _count(n: int) -> str:
+    return f"{n:,}" if n < 10**9 else f"{float(n):.1e}"

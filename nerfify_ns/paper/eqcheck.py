@@ -7,6 +7,12 @@ mathtext cannot draw is never dropped silently: ``EquationCheck.render_error`` s
 then shows the LaTeX as text with that reason. ``render_checks_html(checks)`` fills the Jinja2 partial
 ``equation_check.html.j2`` (beside this module; images inlined as ``data:`` URIs) for a report to include.
 
+Bounded: an equation the equation reader refuses for its size (``equations.normalize.size_refusal``: longer
+than its character limit, nested too deeply, too many big operators), or longer than ``MAX_DRAW_CHARS``, is
+not given to mathtext (its time and memory grow with the input: a 600 KB formula took minutes and GBs); its
+image says why it was not drawn. Text shown as text is escaped, so a
+``$`` in it never starts mathtext either.
+
 Usage: ``python -m nerfify_ns.paper.eqcheck PAPER OUT_DIR`` writes the PNGs and ``equations.html``.
 """
 
@@ -21,6 +27,9 @@ from typing import Iterable, Optional, Union
 
 
 PARTIAL = "equation_check.html.j2"
+MAX_DRAW_CHARS = 1500
+"""The longest equation given to mathtext (its time grows with the length, about 1 s per 1000 characters on
+one core; the longest equations of real papers have 300-800)."""
 _ENVS = {"pmatrix": ("(", ")"), "bmatrix": ("[", "]"), "Bmatrix": (r"\{", r"\}"), "vmatrix": ("|", "|"),
          "Vmatrix": (r"\|", r"\|"), "matrix": (".", "."), "smallmatrix": (".", "."), "cases": (r"\{", "."),
          "array": (".", "."), "aligned": (".", "."), "align": (".", "."), "align*": (".", "."),
@@ -144,15 +153,55 @@ def _simplify(row: str) -> str:
     return row
 
 
+def _plain(text: str) -> str:
+    """Text matplotlib draws as it is (a ``$`` would start mathtext)."""
+    return text.replace("$", r"\$")
+
+
+def _placeholder(path: Path, latex: str, reason: str, dpi: int) -> None:
+    """A small image that says why an equation was not drawn (plain text only)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8, 0.8), dpi=dpi)
+    FigureCanvasAgg(fig)
+    fig.text(0.01, 0.55, _plain(" ".join(latex[:120].split())), fontsize=9, family="monospace", color="#b00020")
+    fig.text(0.01, 0.15, _plain(reason[:150]), fontsize=8, color="#b00020")
+    fig.savefig(path, dpi=dpi, facecolor="white")
+
+
 def render_latex_png(latex: str, path: Union[str, Path], dpi: int = 150,
                      fontsize: float = 14) -> tuple[bool, str, str, bool]:
     """Render ``latex`` (one equation, rows allowed) to ``path``. Returns (ok, error, mathtext given,
-    approximated). On a parse failure the image shows the LaTeX as text with the reason, and ok is False."""
+    approximated). On a parse failure the image shows the LaTeX as text with the reason, and ok is False. An
+    equation too large for the equation reader is not drawn (the image says so); nothing here raises for what
+    a paper wrote: a failure is the error returned."""
+    from nerfify_ns.equations.normalize import size_refusal
+
+    path = Path(path)
+    latex = str(latex or "")
+    refusal = size_refusal(latex) or (f"longer than {MAX_DRAW_CHARS} characters ({len(latex)}), the most drawn"
+                                      if len(latex) > MAX_DRAW_CHARS else None)
+    try:
+        if refusal:
+            error = f"not drawn: {refusal}"
+            _placeholder(path, latex, error, dpi)
+            return False, error, "", False
+        return _render(latex, path, dpi, fontsize)
+    except Exception as err:  # noqa: BLE001 - the per-equation boundary: the record says why, the run goes on
+        error = f"could not draw: {type(err).__name__}: {' '.join(str(err).split())[:200]}"
+        try:
+            _placeholder(path, latex, error, dpi)
+        except Exception:  # noqa: BLE001 - no image at all: the error says why
+            pass
+        return False, error, "", False
+
+
+def _render(latex: str, path: Path, dpi: int, fontsize: float) -> tuple[bool, str, str, bool]:
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    path = Path(path)
     rows, approx = to_mathtext(latex)
     errors = []
     lines = []
@@ -182,7 +231,8 @@ def render_latex_png(latex: str, path: Union[str, Path], dpi: int = 150,
             if kind == "math":
                 fig.text(0.01, y + step * 0.25, f"${row}$", fontsize=fontsize)
             else:
-                fig.text(0.01, y + step * 0.25, row, fontsize=fontsize * 0.7, family="monospace", color="#b00020")
+                fig.text(0.01, y + step * 0.25, _plain(row), fontsize=fontsize * 0.7, family="monospace",
+                         color="#b00020")
         if not ok:
             fig.text(0.01, 0.02, "mathtext could not draw this equation: shown as LaTeX text", fontsize=9,
                      color="#b00020")
@@ -191,8 +241,8 @@ def render_latex_png(latex: str, path: Union[str, Path], dpi: int = 150,
         except Exception as e:  # a failure only at layout time (e.g. a glyph missing from the font)
             fig2 = Figure(figsize=(8, 0.8), dpi=dpi)
             FigureCanvasAgg(fig2)
-            fig2.text(0.01, 0.5, latex[:200], fontsize=9, family="monospace", color="#b00020")
-            fig2.text(0.01, 0.1, f"mathtext failed: {str(e)[:120]}", fontsize=8, color="#b00020")
+            fig2.text(0.01, 0.5, _plain(latex[:200]), fontsize=9, family="monospace", color="#b00020")
+            fig2.text(0.01, 0.1, _plain(f"mathtext failed: {str(e)[:120]}"), fontsize=8, color="#b00020")
             fig2.savefig(path, dpi=dpi, bbox_inches="tight", facecolor="white")
             errors.append(f"mathtext failed while drawing: {re.sub(chr(10), ' ', str(e))[:200]}")
             ok = False

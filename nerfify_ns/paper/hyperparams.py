@@ -10,6 +10,7 @@ from typing import Iterable, Optional, Union
 
 import yaml
 
+from nerfify_ns.equations.normalize import normalize_numbers
 from nerfify_ns.paper.document import Hyperparameter, Location
 
 Value = Union[int, float, list]
@@ -25,14 +26,21 @@ _VAL = rf"(?:{_SCI}|{_E}|{_POW}|{_UPOW}|{_PLAIN})"
 NUMBER = rf"(?<![\w.^/])(?P<num>[-−]?{_VAL}(?:\s*[–—]\s*{_VAL}|-(?=\d){_VAL})?)(?![\d])"
 INTEGER = r"(?P<num>\d+)(?![\d.])"
 
+_INLINE_MATH = re.compile(r"\$([^$]{1,400})\$")
 _GREEK = {"lambda": "λ", "beta": "β", "epsilon": "ϵ", "varepsilon": "ε", "gamma": "γ", "sigma": "σ",
           "alpha": "α", "delta": "δ", "theta": "θ", "phi": "ϕ", "mu": "μ", "omega": "ω", "tau": "τ"}
 
 
 def normalize_math(s: str) -> str:
-    """Flatten inline LaTeX so patterns see ``N_c=64``, ``5 × 10^-4``, ``λ_rgb = 0.1``."""
+    """Flatten inline LaTeX so patterns see ``N_c=64``, ``5 × 10^-4``, ``λ_rgb = 0.1``. Numbers are read first
+    as the equation reader reads them (``equations.normalize.normalize_numbers``): in inline math MinerU's
+    spaced digits (``$1 \\times 1 0 ^ { - 2 }$``, ``$5 1 2$``), ``1e-2``; everywhere Unicode superscripts
+    (``10⁻³``, ``2¹⁹``) and thin-space thousands (``8 192``)."""
+    s = normalize_numbers(s, math=False)
+    if "$" in s:
+        s = _INLINE_MATH.sub(lambda m: "$" + normalize_numbers(m.group(1)) + "$", s)
     s = unicodedata.normalize("NFKC", s).replace("$", "")
-    s = re.sub(r"\\(?:times|cdot)\b", " × ", s)
+    s = re.sub(r"\\(?:times|cdot)(?![A-Za-z])", " × ", s)
     s = re.sub(r"\\(" + "|".join(_GREEK) + r")(?![A-Za-z])", lambda m: _GREEK[m.group(1)], s)
     for _ in range(3):
         s = re.sub(r"\\(?:mathrm|mathbf|mathit|text|textrm|textit|textbf|operatorname|boldsymbol|bm)\s*\{([^{}]*)\}",
@@ -83,11 +91,15 @@ def split_sentences(text: str) -> list[str]:
     """Split a paragraph into sentences, keeping abbreviations ("Fig.", "et al.", initials) intact."""
     pieces = re.split(r"(?<=[.!?])\s+(?=[A-Z0-9(\[$\\])", text.strip())
     out: list[str] = []
+    open_math = False  # inside inline math: an odd number of $ so far in the sentence (a lone $ for 1000 chars)
     for piece in pieces:
-        if out and _ABBREV.search(out[-1]):
+        # an abbreviation, or a period inside inline math (MinerU's "$0 . 0 0 1$"), does not end a sentence
+        if out and ((open_math and len(out[-1]) < 1000) or _ABBREV.search(out[-1])):
             out[-1] += " " + piece
         else:
             out.append(piece)
+            open_math = False
+        open_math ^= piece.count("$") % 2 == 1
     return [s for s in out if s]
 
 

@@ -13,6 +13,9 @@ checks behind an equation's confidence, and the finishing pass of the builder (s
   ``\\label``/``\\tag``/``\\nonumber``, ``\\limits``;
 * spacing: Mathpix's ``L _ { \\mathrm { r e c } }`` -> ``L_{\\mathrm{rec}}``; thin spaces -> a blank; trailing
   sentence punctuation dropped;
+* numbers as the equation reader reads them (``equations.normalize.normalize_numbers``): MinerU's spaced digits
+  ``1 0 ^ { - 2 }`` -> ``10^{-2}``, ``0 . 0 0 1`` -> ``0.001``, ``8\\,192`` -> ``8192``, ``1e-2`` -> ``0.01``,
+  ``10⁻³`` -> ``10^{-3}``;
 * Unicode pasted into LaTeX -> commands (``σ`` -> ``\\sigma``); ``\\lVert``/``\\Vert`` -> ``\\|``; ``\\dfrac`` ->
   ``\\frac``; ``{a \\over b}`` -> ``\\frac{a}{b}``; ``\\operatorname*`` -> ``\\operatorname``.
 
@@ -25,6 +28,7 @@ import re
 from functools import lru_cache
 from typing import Iterable, Optional
 
+from nerfify_ns.equations.normalize import normalize_numbers
 from nerfify_ns.paper.mathsym import UNICODE_TO_LATEX, to_latex_char
 
 _FONT_DECL = {"bf": r"\mathbf", "bm": r"\mathbf", "boldmath": r"\mathbf", "cal": r"\mathcal", "rm": r"\mathrm",
@@ -382,6 +386,7 @@ def normalize_latex(latex: str, lost_backslashes: Optional[bool] = None) -> str:
     s = re.sub(r"\\mathbf\{\\mathbf\{([^{}]*)\}\}", r"\\mathbf{\1}", s)
     s = re.sub(r"\\(?:mathbf|mathrm|mathcal|mathbb|mathit|mathsf|mathtt|boldsymbol|pmb|text|operatorname)\{\s*\}", "", s)
     s = _unwrap_arrays(s)
+    s = normalize_numbers(s)
     s = _unicode(s)
     s = _THIN_SPACES.sub(" ", s)
     s = re.sub(r"\\qquad(?![A-Za-z])", r"\\quad", s)

@@ -107,9 +107,20 @@ def doc_items(doc: Any) -> list[Item]:
     return items
 
 
+def describe(err: BaseException) -> str:
+    """An exception as part of a recorded reason: its type and the first 200 characters of its message."""
+    message = " ".join(str(err).split())[:200]
+    return f"{type(err).__name__}: {message}" if message else type(err).__name__
+
+
 def _parse(item: Item) -> None:
+    """Read an item's equations once; whatever goes wrong is the item's recorded failure, never the run's."""
     if not item.parsed:
-        item.parsed = parse_equations(item.latex, number=item.number or None)
+        try:
+            item.parsed = parse_equations(item.latex, number=item.number or None)
+        except Exception as err:  # noqa: BLE001 - the per-equation boundary (parse_equations itself never raises)
+            item.parsed = [ParseFailure(f"could not read Eq. {item.number or '?'}: {describe(err)}", None, "",
+                                        item.latex[:200], item.number or None)]
 
 
 # ------------------------------------------------------------------------------------------ records
@@ -330,6 +341,8 @@ class _Hole:
                 bindings[key] = self._bind(key, sym, eq, corrections.get(key))
             except _Unbound as err:
                 unbound.append(str(err))
+            except Exception as err:  # noqa: BLE001 - the per-symbol boundary: this symbol's reason
+                unbound.append(f"'{key}' could not be bound: {describe(err)}")
         if unbound:
             raise _Unbound(" | ".join(unbound))
         for eq in equations:  # persistent state: a symbol its own definition reads
@@ -737,23 +750,27 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             _parse(it)
             it.in_hole = False
         t0 = time.perf_counter()
-        work = _Hole(merged, local_items, words, notation, plan, context, corr, cards)
-        work._basis = {}
-        work._concat_used = set()
-        digest = _digest(merged, local_items, corr, context)
-        if reuse and hid in reuse and reuse[hid].production == merged["production"]:
-            result = copy.deepcopy(reuse[hid])
-            result.notes = [n for n in result.notes if not n.startswith("not recompiled")] + [
-                "not recompiled: equations.yaml leaves this part as it was (its hash matches)"]
-        elif cache is not None and digest in cache:
-            result = copy.deepcopy(cache[digest])
-            result.notes = list(result.notes) + ["not recompiled: its equations, bindings and sizes did not change"]
-        else:
-            result = _implement_one(work)
-            result = _try_alternative(result, merged, local_items, words, notation, plan, context, corr, cards)
-            result.hash = digest
-            if cache is not None:
-                cache[digest] = copy.deepcopy(result)
+        try:
+            work = _Hole(merged, local_items, words, notation, plan, context, corr, cards)
+            work._basis = {}
+            work._concat_used = set()
+            digest = _digest(merged, local_items, corr, context)
+            if reuse and hid in reuse and reuse[hid].production == merged["production"]:
+                result = copy.deepcopy(reuse[hid])
+                result.notes = [n for n in result.notes if not n.startswith("not recompiled")] + [
+                    "not recompiled: equations.yaml leaves this part as it was (its hash matches)"]
+            elif cache is not None and digest in cache:
+                result = copy.deepcopy(cache[digest])
+                result.notes = list(result.notes) + ["not recompiled: its equations, bindings and sizes did not "
+                                                     "change"]
+            else:
+                result = _implement_one(work)
+                result = _try_alternative(result, merged, local_items, words, notation, plan, context, corr, cards)
+                result.hash = digest
+                if cache is not None:
+                    cache[digest] = copy.deepcopy(result)
+        except Exception as err:  # noqa: BLE001 - the per-part boundary: this part's reason, the run goes on
+            result = _failed_part(merged, hid, local_items, err)
         result.seconds = time.perf_counter() - t0
         if corr.get("recompiled_because"):  # its generated code was edited since: said, not reused
             result.notes = list(result.notes) + [str(corr["recompiled_because"])]
@@ -777,6 +794,11 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
                                   f"{', '.join(result.component['implements'])}")
             new_holes.append(h)
     plan["holes"] = new_holes
+    if words.unread:
+        where, reason, _ = words.unread[0]
+        plan.setdefault("notes", []).append(
+            f"notation: {len(words.unread)} sentence(s) or value(s) not read ({where + ': ' if where else ''}"
+            f"{reason}); the rest of the paper was read")
     if records:
         done = sum(r.status == IMPLEMENTED for r in records)
         plan.setdefault("notes", []).append(
@@ -785,6 +807,20 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
         _parse(it)
     result = Implementation(plan, sources, records, time.perf_counter() - start)
     result.counts = equation_counts(items)
+    return result
+
+
+def _failed_part(hole: dict, hid: str, items: list[Item], err: BaseException) -> HoleResult:
+    """The record of a part whose reading, binding or compiling raised: not implemented, the exception (type and
+    message) its reason, the equations it names with what the reader made of them."""
+    result = HoleResult(id=hid, slot=str(hole.get("slot", "")), production=str(hole.get("production", "")),
+                        section=str(hole.get("section", "")))
+    result.reason = f"could not compile the part: {describe(err)}"
+    try:
+        wanted = {str(e.get("number")) for e in hole.get("equations", []) or [] if isinstance(e, dict)}
+        result.equations = [_record_equation(it, []) for it in items if it.number and it.number in wanted]
+    except Exception:  # noqa: BLE001 - the reason above stands alone
+        result.equations = []
     return result
 
 
@@ -975,6 +1011,9 @@ def _lower(att: _Attempt, bindings: dict, sized: _Sized, class_name: str, check:
     except CompileError as err:
         out.reason = str(err)
         return out
+    except Exception as err:  # noqa: BLE001 - a lowering failure on what a paper wrote: the part's reason
+        out.reason = f"lowering: {describe(err)}"
+        return out
     if check:
         out.report = check_lowering(att.equations, inputs, sized.params, outputs, class_name=class_name)
         if not out.report.ok:
@@ -1018,6 +1057,8 @@ def _implement_one(work: _Hole) -> HoleResult:
             break
         except (CompileError, WidthError) as err:
             failures.append(f"{label}: {err}")
+        except Exception as err:  # noqa: BLE001 - the per-form boundary: this form's reason, the next is tried
+            failures.append(f"{label}: could not compile: {describe(err)}")
     considered = list(own)
     if chosen is None:
         res.equations = [_record_equation(it, []) for it in considered]

@@ -64,6 +64,11 @@ class Definition:
         return f"{where}\"{_short(self.quote)}\"" if self.quote else self.phrase
 
 
+def _describe(err: BaseException) -> str:
+    message = " ".join(str(err).split())[:200]
+    return f"{type(err).__name__}: {message}" if message else type(err).__name__
+
+
 def _short(text: str, limit: int = 200) -> str:
     text = " ".join(str(text).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -163,7 +168,7 @@ def mentions(text: str) -> list[Mention]:
     covered = []
     for m in _INLINE_MATH.finditer(text):
         covered.append((m.start(), m.end()))
-        expr = parse_expression(m.group(1))
+        expr = parse_expression(m.group(1))  # never raises: what it cannot read is a ParseFailure
         if isinstance(expr, ParseFailure):
             continue
         for node in walk(expr):
@@ -210,6 +215,7 @@ class PaperWords:
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
     sentences: list = field(default_factory=list)     # (text, where, section)
+    unread: list = field(default_factory=list)        # (where, reason, sentence): what could not be read
     _text: str = ""
 
     @classmethod
@@ -218,13 +224,20 @@ class PaperWords:
         words = cls()
         for text, where, section in _sentences(doc):
             words.sentences.append((text, where, section))
-            words._read_sentence(text, where, notation)
+            try:
+                words._read_sentence(text, where, notation)
+            except Exception as err:  # noqa: BLE001 - the per-sentence boundary: recorded, the others are read
+                words.unread.append((where, f"could not read the sentence's notation: {_describe(err)}", text))
         for hp in getattr(doc, "hyperparameters", []) or []:
-            where = _where_of(hp.loc, hp.section)
-            if hp.name == "hidden_dim" and isinstance(hp.value, (int, float)):
-                words.widths.append((int(hp.value), hp.sentence, where))
-            elif hp.name == "num_layers" and isinstance(hp.value, (int, float)):
-                words.layers.append((int(hp.value), hp.sentence, where))
+            try:
+                where = _where_of(hp.loc, hp.section)
+                if hp.name == "hidden_dim" and isinstance(hp.value, (int, float)):
+                    words.widths.append((int(hp.value), hp.sentence, where))
+                elif hp.name == "num_layers" and isinstance(hp.value, (int, float)):
+                    words.layers.append((int(hp.value), hp.sentence, where))
+            except Exception as err:  # noqa: BLE001 - a hyperparameter that is no width (inf, nan): recorded
+                words.unread.append(("", f"could not read the hyperparameter {hp.name}: {_describe(err)}",
+                                     hp.sentence))
         return words
 
     def _read_sentence(self, text: str, where: str, notation: Notation) -> None:
