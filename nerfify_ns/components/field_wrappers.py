@@ -6,7 +6,7 @@ FieldWrapper contract of the grammar): ``forward(positions [N, 3], times [N, 1],
 at, and features appended to the input of the field's backbone (width 0 for a conditioner that adds none).
 Positions are world positions (before the field's normalisation or contraction); times are in [0, 1].
 
-- :class:`DeformationField`: a deformation network into a canonical space, Psi_t(x, t) = Delta x, the field
+- :class:`DeformationNetwork`: a deformation network into a canonical space, Psi_t(x, t) = Delta x, the field
   queried at x + Delta x, with Psi_t(x, 0) = 0 so the scene at t = 0 is the canonical one (D-NeRF, Pumarola
   et al. 2021, arXiv 2011.13961, Sec. 4, Eqs. 2-3); its own sinusoidal encodings of x and t; optionally the
   coarse-to-fine window over the frequencies of x (Nerfies, Park et al. 2021, arXiv 2011.12948, Eqs. 8-9), which
@@ -39,7 +39,7 @@ from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
-__all__ = ["Sinusoids", "DeformationField", "TimeEmbedding", "FrameCodes", "CameraTimeOffset", "FieldBlend",
+__all__ = ["Sinusoids", "DeformationNetwork", "TimeEmbedding", "FrameCodes", "CameraTimeOffset", "FieldBlend",
            "BlendedField", "condition", "mlp"]
 
 Conditioned = Tuple[Tensor, Tensor, Tensor]
@@ -64,7 +64,7 @@ class Sinusoids(nn.Module):
         weights = 0.5 * (1 - torch.cos(math.pi * (self.window - torch.arange(self.num_frequencies, device=x.device))
                                        .clamp(0.0, 1.0))).to(x)[:, None]
         parts = [torch.sin(scaled) * weights, torch.cos(scaled) * weights]
-        out = torch.cat(parts, dim=-2).reshape(*x.shape[:-1], -1)
+        out = torch.cat(parts, dim=-2).reshape(*x.shape[:-1], 2 * self.num_frequencies * self.in_dim)
         return torch.cat([x, out], dim=-1) if self.include_input else out
 
 
@@ -83,7 +83,7 @@ def _float(x: Tensor) -> Tensor:
     return x if x.dtype in (torch.float32, torch.float64) else x.float()
 
 
-class DeformationField(nn.Module):
+class DeformationNetwork(nn.Module):
     """D-NeRF's deformation network Psi_t: (gamma(x), gamma(t)) -> Delta x (an MLP of ``num_layers`` x
     ``layer_width``); the field is queried at the canonical position x + Delta x. With ``zero_at_t0`` the
     displacement is 0 at t = 0 (D-NeRF Eq. 2: the canonical space is the scene at t = 0). The last layer starts
@@ -191,7 +191,8 @@ def condition(wrappers: Sequence[nn.Module], positions: Tensor, times: Optional[
         x, t, extra = wrapper(x, t, cams)
         if extra.shape[-1]:
             extras.append(extra)
-    features = torch.cat(extras, dim=-1).reshape(*shape, -1) if extras else None
+    features = torch.cat(extras, dim=-1) if extras else None
+    features = features.reshape(*shape, features.shape[-1]) if features is not None else None
     return x.reshape(*shape, 3), t.reshape(*shape, 1), features
 
 

@@ -1,13 +1,13 @@
 """Schedule hooks: training callbacks that change a part of the model or the data at given steps.
 
 A hook is a module with ``forward(steps [K] long) -> values [K]`` (its schedule: the value it writes at each
-step; the ScheduleHook contract of the grammar), ``write(value, model, datamanager)`` (what it changes) and
+step; the ScheduleHook contract of the grammar), ``write(value, model, datamanager)`` (what it changes; ``run(step, model, pipeline)`` writes the value of a step) and
 ``check(model)`` (called when the model is built: the part it changes exists). :func:`training_callbacks` turns
 the model's hooks into Nerfstudio ``TrainingCallback``s run before every training iteration with the trainer's
 ``TrainingCallbackAttributes`` (the pipeline, hence the datamanager).
 
 - :class:`Anneal`: a scalar of the model annealed from ``start_value`` to ``end_value`` between two steps
-  (linear, cosine or geometric), e.g. the coarse-to-fine window over encoding frequencies of Nerfies (Park et
+  (linear or cosine), e.g. the coarse-to-fine window over encoding frequencies of Nerfies (Park et
   al. 2021, arXiv 2011.12948, Eq. 9: alpha(step) = m step / N) or a deformation's window.
 - :class:`Freeze`: the parameters of a part of the model stop learning between two steps (a stage that trains
   the canonical field before the deformation: the warm-up of Deformable 3D Gaussians, Yang et al. 2024,
@@ -67,7 +67,7 @@ class ScheduleHook(nn.Module):
     def write(self, value: float, model: nn.Module, datamanager: Any) -> None:  # pragma: no cover
         raise NotImplementedError
 
-    def apply(self, step: int, model: nn.Module, pipeline: Any = None) -> None:
+    def run(self, step: int, model: nn.Module, pipeline: Any = None) -> None:
         self.write(self.value(step), model, getattr(pipeline, "datamanager", None))
 
 
@@ -79,10 +79,8 @@ class Anneal(ScheduleHook):
     def __init__(self, target: str = "deformation.window", start_value: float = 0.0, end_value: float = 10.0,
                  start_step: int = 0, end_step: int = 2000, curve: str = "linear") -> None:
         super().__init__()
-        if curve not in ("linear", "cosine", "geometric"):
-            raise ValueError(f"curve must be linear, cosine or geometric, got {curve!r}")
-        if curve == "geometric" and (start_value <= 0 or end_value <= 0):
-            raise ValueError("a geometric curve needs positive start and end values")
+        if curve not in ("linear", "cosine"):
+            raise ValueError(f"curve must be linear or cosine, got {curve!r}")
         self.part, _, self.attribute = target.rpartition(".")
         self.target = target
         self.start_value, self.end_value = float(start_value), float(end_value)
@@ -93,8 +91,6 @@ class Anneal(ScheduleHook):
         a, b = self.start_value, self.end_value
         if self.curve == "cosine":
             s = (1 - torch.cos(math.pi * s)) / 2
-        if self.curve == "geometric":
-            return (a * (b / a) ** s).float()
         return (a + (b - a) * s).float()
 
     def _targets(self, model: nn.Module) -> List[Tuple[str, nn.Module]]:
@@ -130,17 +126,17 @@ class Freeze(ScheduleHook):
     def forward(self, steps: Tensor) -> Tensor:
         return ((steps >= self.start_step) & (steps < self.end_step)).float()
 
-    def _parameters(self, model: nn.Module) -> List[nn.Parameter]:
+    def _params_of(self, model: nn.Module) -> List[nn.Parameter]:
         return [p for _, part in named_parts(model, self.module) for p in part.parameters()]
 
     def check(self, model: nn.Module) -> None:
         if not named_parts(model, self.module):
             raise ValueError(f"freeze: the model has no part named {self.module!r}")
-        if len({id(p) for p in self._parameters(model)}) >= len(list(model.parameters())):
+        if len({id(p) for p in self._params_of(model)}) >= len(list(model.parameters())):
             raise ValueError(f"freeze: {self.module!r} holds every parameter of the model; nothing would learn")
 
     def write(self, value: float, model: nn.Module, datamanager: Any) -> None:
-        params = self._parameters(model)
+        params = self._params_of(model)
         if not params:
             self.check(model)
         for p in params:
@@ -193,5 +189,5 @@ def training_callbacks(hooks: Iterable[ScheduleHook], model: nn.Module, attribut
 
     pipeline = getattr(attributes, "pipeline", None)
     return [TrainingCallback(where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
-                             update_every_num_iters=max(int(hook.every), 1), func=hook.apply,
+                             update_every_num_iters=max(int(hook.every), 1), func=hook.run,
                              kwargs={"model": model, "pipeline": pipeline}) for hook in hooks]

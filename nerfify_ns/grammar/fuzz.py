@@ -215,6 +215,11 @@ class PlanSampler:
         if v.rule in ("requires_base", "requires_terminal"):
             return self._drop_or_redraw(plan, v.path)
         if v.rule == "param_constraint":
+            parent = v.path.rpartition(".")[0]
+            nt = self.g.nonterminals.get(self.g.slot_symbol(parent) or "") if parent else None
+            if nt is not None and nt.kind == "set" and self.rng.random() < 0.5:
+                plan.delete(v.path)  # a member whose rule needs another part of the plan (a hook's target)
+                return True
             plan.set(v.path, self.terminal(v.production))
             return True
         return False

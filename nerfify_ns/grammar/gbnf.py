@@ -235,9 +235,12 @@ def _active(path: str, ctx: Dict[str, Any], decisions: List[str]) -> bool:
     return True
 
 
-def _holds(g: Grammar, duty: dict, ctx: Dict[str, Any]) -> Optional[bool]:
-    """Whether a base/terminal duty holds under ``ctx`` (None for duties that become effects)."""
+def _holds(g: Grammar, duty: dict, ctx: Dict[str, Any], scene: Optional[Dict[str, Any]] = None) -> Optional[bool]:
+    """Whether a base/terminal duty holds under ``ctx`` (None for duties that become effects); a scene duty holds
+    when ``scene`` (the flags a context pins) gives every flag it names the value it needs."""
     (rule, arg), = duty.items()
+    if rule == "requires_scene" and scene is not None and all(flag in scene for flag in arg):
+        return all(scene[flag] == value for flag, value in arg.items())
     if rule == "requires_base":
         return ctx.get("base") in arg
     if rule == "requires_terminal":
@@ -255,7 +258,23 @@ def _contexts(g: Grammar) -> List[_Effects]:
         symbol, optional = slots[path]
         contexts = [{**ctx, path: option} for ctx in contexts
                     for option in (_options(g, symbol, optional) if _active(path, ctx, decisions) else [ABSENT])]
-    return [e for e in (_effects(g, ctx, slots, decisions) for ctx in contexts) if e is not None]
+    pins: List[Dict[str, Any]] = [{}]
+    for flag, values in _scene_splits(g, slots, decisions).items():
+        pins = [{**pin, flag: value} for pin in pins for value in values]
+    return [e for e in (_effects(g, ctx, slots, decisions, pin) for ctx in contexts for pin in pins)
+            if e is not None]
+
+
+def _scene_splits(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: List[str]) -> Dict[str, List[Any]]:
+    """Scene flags that dependent items (set members) need: each context is split over their values, so a member
+    that needs a flag is allowed exactly where the context pins the flag to that value."""
+    flags: Dict[str, List[Any]] = {}
+    for _, terminal in _dependent_items(g, slots, decisions):
+        for duty in g.terminals[terminal].duties:
+            for flag in duty.get("requires_scene") or {}:
+                param = g.terminals["scene"].params[flag]
+                flags[flag] = [True, False] if param.type == "bool" else list(param.values)
+    return flags
 
 
 def _dependent_items(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: List[str]) -> List[Tuple[str, str]]:
@@ -267,8 +286,9 @@ def _dependent_items(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: 
     return items
 
 
-def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions) -> Optional[_Effects]:
-    required, forbidden, scene, groups = set(), set(), {}, set()
+def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions,
+             pinned: Optional[Dict[str, Any]] = None) -> Optional[_Effects]:
+    required, forbidden, scene, groups = set(), set(), dict(pinned or {}), set()
     for path, choice in ctx.items():
         if choice is ABSENT or choice not in g.terminals:
             continue
@@ -288,9 +308,9 @@ def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions) -> Optional[_Eff
         if not _active(path, ctx, decisions):
             continue
         term = g.terminals[terminal]
-        if term.param_groups or any(_holds(g, d, ctx) is None for d in term.duties):
+        if term.param_groups or any(_holds(g, d, ctx, scene) is None for d in term.duties):
             raise GrammarSpecError(f"GBNF export: {terminal} at {path} has duties a grammar cannot express here")
-        if not all(_holds(g, d, ctx) for d in term.duties):
+        if not all(_holds(g, d, ctx, scene) for d in term.duties):
             if path in required:
                 return None
             forbidden.add(path)
@@ -394,8 +414,10 @@ class _Emitter:
             return self.obj(symbol, members)
         if nt.kind == "set":
             members = [(m, self.terminal(m, fx), False) for m in nt.members if join(m) not in fx.forbidden]
-            return self.custom_set(symbol, members, fx) if nt.custom and not self.structure_only \
-                else self.obj(symbol, members)
+            custom = nt.custom and not self.structure_only and all(
+                _holds(self.g, d, dict(fx.ctx), dict(fx.scene)) is not False
+                for d in duties_at(self.g, join(CUSTOM), CUSTOM))  # a set's custom members: their interface's duties
+            return self.custom_set(symbol, members, fx) if custom else self.obj(symbol, members)
         if nt.kind == "open" and self.structure_only:
             return self.terminal(nt.terminal, fx)
         if nt.kind == "open":

@@ -137,13 +137,21 @@ def _duty_schema(g: Grammar, duty: dict) -> Dict[str, Any]:
 
 
 def _custom_duties(g: Grammar) -> List[Dict[str, Any]]:
-    """Duties of custom components, per production (e.g. a custom sampler only under some bases)."""
+    """Duties of custom components, per production (e.g. a custom sampler only under some bases); in a set, any
+    member named ``custom`` or ``custom_<name>`` carries them."""
     clauses = []
     for path, symbol in g.symbol_paths():
         if symbol != CUSTOM:
             continue
+        parent = path.rsplit(".", 1)[0] if "." in path else ""
+        kind = g.nonterminals.get(g.slot_symbol(parent) or "")
+        if kind is not None and kind.kind == "set":
+            some_custom = {"type": "object", "not": {"propertyNames": {"not": {"pattern": CUSTOM_MEMBER.pattern}}}}
+            present = _at(parent, some_custom)
+        else:
+            present = _at(path, {})
         for duty in duties_at(g, path, CUSTOM):
-            clauses.append({"if": _at(path, {}), "then": _duty_schema(g, duty)})
+            clauses.append({"if": present, "then": _duty_schema(g, duty)})
     return clauses
 
 

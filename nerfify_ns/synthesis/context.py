@@ -330,11 +330,20 @@ def field_wrappers(ctx: Context) -> dict:
         member = f"{path}.{name}"
         terminal = ctx.derivation.used.get(member)
         if terminal == CUSTOM:
-            component = custom_component(ctx.params(member), ctx.names.package)
+            entry = ctx.params(member)
+            component = custom_component(entry, ctx.names.package)
             imports.append(component["import"])
-            conditioners.append({"name": name, "ctor": call(component["cls"], "num_images=num_images",
-                                                            component["kwargs"])})
+            ctor = call(component["cls"], "num_images=num_images", component["kwargs"])
             ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[CUSTOM].doc)
+            if entry.get("wrapper") == "blend":
+                if blend is not None:
+                    raise NerfifyError(f"{member}: the plan blends its fields twice (one blend per field)")
+                imports += _imports(ctx, {"imports": ["from .components.field_wrappers import BlendedField"],
+                                          "component": "field_wrappers"})
+                blend = {"ctor": ctor, "num_fields": int((entry.get("params") or {}).get("num_fields", 2)),
+                         "static_first": False}
+            else:
+                conditioners.append({"name": name, "ctor": ctor})
             continue
         code = snippet(name)
         imports += _imports(ctx, code)
@@ -342,6 +351,8 @@ def field_wrappers(ctx: Context) -> dict:
         ctor = render_snippet(code["ctor"], params, ctx.names.package)
         ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[name].doc)
         if code.get("stage") == "blend":
+            if blend is not None:
+                raise NerfifyError(f"{member}: the plan blends its fields twice (one blend per field)")
             blend = {"ctor": ctor, "num_fields": params["num_fields"], "static_first": params["static_first"]}
         else:
             conditioners.append({"name": name, "ctor": ctor})

@@ -58,6 +58,17 @@ def _tensor_cp(p: dict) -> None:
     p["model"]["regularizers"] = {"tensor_l1": {"weight": 0.0005}}
 
 
+def _dynamic_nerf(p: dict) -> None:
+    """A dynamic NeRF: every field wrapper, a pixel map, every schedule hook, custom members of each."""
+    p["scene"]["timestamps"] = True
+    p["model"]["field_wrappers"] = {"camera_time_offset": {}, "deformation": {"num_layers": 4},
+                                    "frame_codes": {"dim": 8}, "time_embedding": {}, "field_blend": {"mode": "mixer"},
+                                    "custom": CUSTOM, "custom_flow": CUSTOM}
+    p["pixel_sampler"] = {"gradient_importance": {"uniform_fraction": 0.25}}
+    p["model"]["schedule_hooks"] = {"anneal": {"target": "deformation.window"}, "freeze": {"module": "deformation"},
+                                    "image_curriculum": {"rule": "keyframes"}, "custom_stage": CUSTOM}
+
+
 VALID: Dict[str, dict] = {
     **{f"reference {n}": ref(n) for n in ["instant-ngp", "kplanes-static", "mipnerf", "nerfacto", "tensorf",
                                           "vanilla-nerf"]},
@@ -89,6 +100,14 @@ VALID: Dict[str, dict] = {
         field(p).update(density_head={"custom": CUSTOM}, backbone={"custom": CUSTOM}))),
     "custom field and importance sampler": mutate("vanilla-nerf", lambda p: p["model"].update(
         field={"custom": CUSTOM}, sampler={"custom": CUSTOM})),
+    "dynamic NeRF: field wrappers, pixel map, schedule hooks": mutate("vanilla-nerf", _dynamic_nerf),
+    "two static fields blended by density, views chosen by a rule": mutate("nerfacto", lambda p: (
+        p["model"].update(field_wrappers={"field_blend": {}}),
+        p.update(pixel_sampler={"view_selection": {"rule": "first_n", "n": 3}}))),
+    "custom pixel map and custom field wrapper": mutate("mipnerf", lambda p: (
+        p["model"].update(field_wrappers={"custom": CUSTOM}), p.update(pixel_sampler={"custom": CUSTOM}))),
+    "separate density and colour branches, inputs at every layer": mutate("vanilla-nerf", lambda p: field(p)[
+        "backbone"].update(skip_every_layer=True, branches=True, density_layers=2, color_width=64)),
 }
 
 # (rule the violation must name, plan)
@@ -162,6 +181,22 @@ INVALID: Dict[str, Tuple[str, dict]] = {
         p["model"]["losses"].pop("distortion"), p["optimizers"].pop("proposal_networks")))),
     "custom regulariser with a bad key": ("unknown_member", mutate("nerfacto", lambda p: p["model"].update(
         regularizers={"customs": CUSTOM}))),
+    "a deformation without timestamps": ("requires_scene", mutate("vanilla-nerf", lambda p: p["model"].update(
+        field_wrappers={"deformation": {}}))),
+    "frame codes on a static scene beside a blend": ("requires_scene", mutate("nerfacto", lambda p: p["model"].update(
+        field_wrappers={"field_blend": {}, "frame_codes": {}}))),
+    "a field wrapper around a tensorial field": ("requires_terminal", mutate("tensorf", lambda p: p["model"].update(
+        field_wrappers={"field_blend": {}}))),
+    "a custom field wrapper around a tensorial field": ("requires_terminal", mutate("tensorf", lambda p: p[
+        "model"].update(field_wrappers={"custom_warp": CUSTOM}))),
+    "unknown field wrapper": ("unknown_member", mutate("vanilla-nerf", lambda p: p["model"].update(
+        field_wrappers={"optical_flow": {}}))),
+    "unknown pixel sampler": ("unknown_alternative", mutate("vanilla-nerf", lambda p: p.update(
+        pixel_sampler={"patches": {}}))),
+    "curriculum with a key-frame stride of 0": ("param_range", mutate("vanilla-nerf", lambda p: p["model"].update(
+        schedule_hooks={"image_curriculum": {"keyframe_stride": 0}}))),
+    "branch width out of range": ("param_range", mutate("vanilla-nerf", lambda p: field(p)["backbone"].update(
+        branches=True, density_width=4))),
 }
 
 

@@ -36,6 +36,9 @@ class Custom:
     """Position encodings only: the domain the component expects its positions in."""
     weight: float = param(1.0, range=(0.0, 100.0))
     """Regularisers only: weight of the term in the total loss."""
+    wrapper: Literal["condition", "blend"] = param("condition")
+    """Field wrappers only: a conditioner of the field's inputs, or a blend of several copies of the field (its
+    ``params.num_fields``, default 2)."""
 
 
 @dataclass(frozen=True)
@@ -55,7 +58,10 @@ class Interface:
     """Duties of a custom component in this production (as a terminal's)."""
 
     def contract_for(self, params: Dict[str, Any]) -> Contract:
-        """The contract, with the position range of the component's input domain where it has one."""
+        """The contract, with the position range of the component's input domain where it has one (a field
+        wrapper's: a conditioner's or, ``wrapper: blend``, a blend's of ``params.num_fields`` fields)."""
+        if self.production == "FieldWrapper" and params.get("wrapper") == "blend":
+            return blend_contract(int((params.get("params") or {}).get("num_fields", 2)))
         if self.production != "PosEncoding":
             return self.contract
         rng = DOMAIN_RANGES[params.get("input_domain", "signed_unit")]
@@ -124,10 +130,19 @@ def _field(module, inputs, env):
     return {"density": out[FieldHeadNames.DENSITY], "rgb": out[FieldHeadNames.RGB]}
 
 
-def _conditioner(module, inputs, env):
-    from nerfify_ns.registry.terminals.wrappers import _conditioner_call
+def _field_wrapper(module, inputs, env):
+    from nerfify_ns.registry.terminals.wrappers import _blend_call, _conditioner_call
 
+    if env.get("wrapper") == "blend":
+        return _blend_call(module, inputs, env)
     return _conditioner_call("positions", "times", "features")(module, inputs, env)
+
+
+def blend_contract(num_fields: int) -> Contract:
+    """The contract of a blend of ``num_fields`` fields (the field_blend terminal's, at that count)."""
+    from nerfify_ns.registry.terminals.wrappers import blend_contract as terminal_contract
+
+    return terminal_contract(str(num_fields))
 
 
 def _pixel_map(module, inputs, env):
@@ -199,7 +214,10 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
               "[N, 3] (world), times [N, 1], camera_indices [N] long) -> (positions [N, 3], times [N, 1], features "
               "[N, get_out_dim()]): the position and time the field is queried at (return the inputs to keep "
               "them) and features appended to the backbone's input (width 0 for none); applied in the plan's "
-              "order, before the field's own encoding", ("num_images",),
+              "order, before the field's own encoding. With `wrapper: blend`, a blend of K = params.num_fields "
+              "(default 2) copies of the field: __init__(num_images, ...); forward(densities [N, K, 1], rgbs "
+              "[N, K, 3], positions [N, 3], times [N, 1]) -> (density [N, 1] >= 0, rgb [N, 3] in [0, 1])",
+              ("num_images",),
               Contract({"positions": T("[N, 3]", grad=True, role="positions", doc="sample positions (world)"),
                         "times": T("[N, 1]", range=(0.0, 1.0), grad=True, doc="sample times"),
                         "camera_indices": T("[N]", "long", role="camera_indices", doc="training image index")},
@@ -207,7 +225,7 @@ INTERFACES: Dict[str, Interface] = {i.production: i for i in [
                         "times": T("[N, 1]", doc="the time the field is queried at"),
                         "features": T("[N, out_dim]", doc="features appended to the backbone's input")},
                        doc="reads positions, times, camera indices; writes positions, times, backbone features"),
-              _conditioner, ("empty_batch", "points_outside_contraction", "half"), out_dim=True,
+              _field_wrapper, ("empty_batch", "points_outside_contraction", "half"), out_dim=True,
               duties=({"requires_terminal": {"slot": "model.field", "any_of": ["MLPField"]}},)),
     Interface("PixelSampler", "a per-image pixel map: forward(images [N, H, W, 3] in [0, 1], image_indices [N] long) "
               "-> weights [N, H, W] >= 0; the plugin's MapPixelSampler draws each batch's pixels in proportion "

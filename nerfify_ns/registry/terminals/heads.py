@@ -156,8 +156,9 @@ def _call(key: str):
 
 
 SKIPS_BEFORE_LAST_LAYER = Constraint(
-    "skip connections feed hidden layers: every entry of skip_connections is below num_layers - 1",
-    lambda p, plan: all(s < p["num_layers"] - 1 for s in p["skip_connections"] or []))
+    "skip connections feed hidden layers: every entry of skip_connections is below num_layers - 1 (unless "
+    "skip_every_layer, which replaces them)",
+    lambda p, plan: p.get("skip_every_layer") or all(s < p["num_layers"] - 1 for s in p["skip_connections"] or []))
 """Nerfstudio's MLP concatenates the input before layer i; its last layer (num_layers - 1) takes no skip."""
 
 BRANCHES_NEED_A_LINEAR_DENSITY_HEAD = Constraint(

@@ -54,8 +54,8 @@ class Anneal:
     """Step at which annealing starts."""
     end_step: int = param(2000, range=(0, 10000000))
     """Step at which annealing ends."""
-    curve: Literal["linear", "cosine", "geometric"] = param("linear")
-    """Interpolation between the two values (geometric: both must be positive)."""
+    curve: Literal["linear", "cosine"] = param("linear")
+    """Interpolation between the two values (cosine: eased at both ends)."""
 
 
 @dataclass
@@ -177,10 +177,7 @@ TERMINALS = [
                   component="schedule_hooks", traits={"writes": "model"}),
         harness=Harness(build=_build("Anneal", "target", "start_value", "end_value", "start_step", "end_step",
                                      "curve"), call=hook_call, cases=HOOK_CASES),
-        constraints=(_writes_a_part_of_the_plan("target", attribute=True),
-                     Constraint("a geometric curve needs positive start and end values",
-                                lambda p, plan: p["curve"] != "geometric" or (p["start_value"] > 0
-                                                                              and p["end_value"] > 0)))),
+        constraints=(_writes_a_part_of_the_plan("target", attribute=True),)),
     TerminalDef(
         "freeze", "ScheduleHook", Freeze,
         "A part of the model stops learning between two steps (a training stage, e.g. the canonical field "

@@ -29,6 +29,11 @@ TIMES_NEED_PADDED_SAMPLES = Constraint(
     "a wrapper that reads times reads each sample's ray time; instant-ngp's packed samples carry none",
     lambda p, plan: plan.get("base") != "instant-ngp")
 
+ONE_BLEND = Constraint(
+    "one blend per field: no custom field wrapper with `wrapper: blend` beside field_blend",
+    lambda p, plan: not any(isinstance(v, dict) and v.get("wrapper") == "blend" for k, v in (
+        ((plan.get("model") or {}).get("field_wrappers") or {}).items()) if str(k).startswith("custom")))
+
 POSITIONS = T("[N, 3]", grad=True, role="positions", doc="sample positions in world space")
 TIMES_IN = T("[N, 1]", range=(0.0, 1.0), grad=True, doc="sample times (the ray's frame time)")
 CAMERAS = T("[N]", "long", role="camera_indices", doc="training camera (image) index of the sample's ray")
@@ -131,6 +136,18 @@ def _blend_call(module, inputs, env):
     return {"density": density, "rgb": rgb}
 
 
+def blend_contract(fields: str = "num_fields") -> Contract:
+    """What a blend of ``fields`` fields reads and writes (a count or the parameter's name)."""
+    return Contract({"densities": T(f"[N, {fields}, 1]", range=(0.0, 5.0), grad=True, role="densities",
+                                    doc="each field's density"),
+                     "rgbs": T(f"[N, {fields}, 3]", range=(0.0, 1.0), grad=True, doc="each field's colour"),
+                     "positions": POSITIONS, "times": TIMES_IN},
+                    {"density": T("[N, 1]", range=(0.0, None), doc="blended density"),
+                     "rgb": T("[N, 3]", range=(0.0, 1.0), doc="blended colour")},
+                    doc="reads the fields' densities and colours (and, mixer, positions and times); writes one "
+                        "density and colour per sample")
+
+
 def ctor(cls: str, args: str) -> str:
     return f"{cls}({args})"
 
@@ -140,17 +157,17 @@ TERMINALS = [
         "deformation", "FieldWrapper", Deformation,
         "A deformation network Psi_t(gamma(x), gamma(t)) -> Delta x into a canonical space, the field queried at "
         "x + Delta x (D-NeRF Eqs. 2-3).",
-        "nerfify_ns.components.field_wrappers.DeformationField",
+        "nerfify_ns.components.field_wrappers.DeformationNetwork",
         contract=Contract({"positions": POSITIONS, "times": TIMES_IN},
                           {"positions": T("[N, 3]", doc="canonical positions x + Delta x")},
                           doc="reads positions and times; writes positions"),
-        code=Code((IMPORT.format("DeformationField"),),
-                  ctor=ctor("DeformationField", "num_layers={{ p.num_layers }}, layer_width={{ p.layer_width }}, "
+        code=Code((IMPORT.format("DeformationNetwork"),),
+                  ctor=ctor("DeformationNetwork", "num_layers={{ p.num_layers }}, layer_width={{ p.layer_width }}, "
                             "position_frequencies={{ p.position_frequencies }}, "
                             "time_frequencies={{ p.time_frequencies }}, zero_at_t0={{ p.zero_at_t0 }}"),
                   component=COMPONENT, traits={"stage": "condition", "schedulable": ["deformation",
                                                                                     "deformation.window"]}),
-        harness=Harness(build=_conditioner_build("DeformationField", "num_layers", "layer_width",
+        harness=Harness(build=_conditioner_build("DeformationNetwork", "num_layers", "layer_width",
                                                  "position_frequencies", "time_frequencies", "zero_at_t0"),
                         call=_conditioner_call("positions"), cases=POINT_CASES, small=SMALL),
         duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
@@ -201,18 +218,11 @@ TERMINALS = [
         "Several copies of the field blended per sample: by density (NeRF-W Eq. 10) or by a learned mixer's "
         "softmax weights (NeRFPlayer's decomposition).",
         "nerfify_ns.components.field_wrappers.BlendedField",
-        contract=Contract({"densities": T("[N, num_fields, 1]", range=(0.0, 5.0), grad=True, role="densities",
-                                          doc="each field's density"),
-                           "rgbs": T("[N, num_fields, 3]", range=(0.0, 1.0), grad=True, doc="each field's colour"),
-                           "positions": POSITIONS, "times": TIMES_IN},
-                          {"density": T("[N, 1]", range=(0.0, None), doc="blended density"),
-                           "rgb": T("[N, 3]", range=(0.0, 1.0), doc="blended colour")},
-                          doc="reads the fields' densities and colours (and, mixer, positions and times); writes one "
-                              "density and colour per sample"),
+        contract=blend_contract(),
         code=Code((IMPORT.format("BlendedField"), IMPORT.format("FieldBlend")),
                   ctor=ctor("FieldBlend", "num_fields={{ p.num_fields }}, mode={{ p.mode | tojson }}, "
                             "mixer_width={{ p.mixer_width }}, mixer_layers={{ p.mixer_layers }}"),
                   component=COMPONENT, traits={"stage": "blend", "schedulable": ["blend"]}),
         harness=Harness(build=_blend_build, call=_blend_call, cases=("zeros", "empty_batch", "half"), small=SMALL),
-        duties=(MLP_FIELD,)),
+        duties=(MLP_FIELD,), constraints=(ONE_BLEND,)),
 ]
