@@ -12,7 +12,10 @@ running without one, and a rerun removes that folder and runs the task again, sk
   temporary folder on its worker and returns the result with the folder as a gzipped tar (checkpoints left out),
   which is unpacked into the run folder here. Workers must see the suite, its checks and the papers at the same
   paths (the same checkout and ``../shared`` on every node, or a shared file system). Ray is an optional extra
-  (``pip install nerfify-ns[ray]``, installed by ``scripts/setup.sh --dev``).
+  (``pip install nerfify-ns[ray]``, installed by ``scripts/setup.sh --dev``). SIGINT or SIGTERM stops it like every
+  command of ours: our handlers are put back after ``ray.init()`` (which installs its own), the pending tasks are
+  cancelled, the cluster it started is shut down (its task processes die with their workers), and the command
+  prints one ``interrupted:`` line and exits 130 or 143.
 """
 
 from __future__ import annotations
@@ -21,12 +24,15 @@ import io
 import json
 import os
 import shutil
+import signal
 import sys
 import tarfile
 import tempfile
+import time
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
 
+from nerfify_ns import interrupts
 from nerfify_ns.benchsuite.tasks import RESULT, Task, thread_env
 from nerfify_ns.errors import NerfifyError
 
@@ -85,6 +91,17 @@ class LocalExecutor:
                                           f"see {folder / 'task.log'}"))
 
 
+def _die_with_parent() -> None:
+    """In a task process started by a Ray worker: SIGTERM when the worker dies (the cluster shut down), so no
+    task outlives the cluster that ran it (Linux; elsewhere a no-op)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _ray_task(suite_path: str, key: str, threads: Dict[str, str]) -> tuple:
     """On a Ray worker: run the task process in a temporary folder; its result and the folder as a tar.gz."""
     import subprocess
@@ -95,7 +112,8 @@ def _ray_task(suite_path: str, key: str, threads: Dict[str, str]) -> tuple:
         with open(folder / "task.log", "w") as log:
             code = subprocess.call([sys.executable, "-m", "nerfify_ns.benchsuite.tasks", suite_path, key,
                                     str(folder)], stdout=log, stderr=subprocess.STDOUT, cwd=folder,
-                                   env={**os.environ, **threads}, start_new_session=True)
+                                   env={**os.environ, **threads}, start_new_session=True,
+                                   preexec_fn=_die_with_parent)
         buffer = io.BytesIO()
         with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
             tar.add(folder, arcname=".", filter=lambda info: None if info.name.endswith(SKIP_SUFFIXES)
@@ -122,26 +140,50 @@ class RayExecutor:
                                 "it)") from None
         self.ray, self.address = ray, address
 
+    def _init(self) -> None:
+        """``ray.init()`` with our SIGINT/SIGTERM handling kept: Ray would install its own SIGTERM handler (exit 15,
+        or a native stack dump) for the rest of the command; a signal during the start waits for it to end, so the
+        cluster that started is then stopped."""
+        ray = self.ray
+        utils = getattr(getattr(ray, "_private", None), "utils", None)
+        own = getattr(utils, "set_sigterm_handler", None)
+        if own is not None:
+            utils.set_sigterm_handler = lambda handler: None
+        try:
+            with interrupts.held():
+                try:
+                    ray.init(address=self.address, include_dashboard=False, log_to_driver=False,
+                             logging_level="ERROR")
+                except Exception as exc:  # noqa: BLE001 - Ray's own errors: one line
+                    where = f" at {self.address}" if self.address else ""
+                    raise ExecutorError(f"cannot start or reach the Ray cluster{where}: {exc}") from None
+                finally:
+                    if own is not None:
+                        utils.set_sigterm_handler = own
+                    interrupts.install()  # ours, whatever the start installed
+        finally:
+            if own is not None:
+                utils.set_sigterm_handler = own
+
     def run(self, suite_path: Path, out: Path, tasks: Sequence[Task], needs: Dict[str, tuple], on_done: OnDone,
             timeout: float = 24 * 3600) -> None:
         ray = self.ray
         started_here = not ray.is_initialized()
-        if started_here:
-            try:
-                ray.init(address=self.address, include_dashboard=False, log_to_driver=False,
-                         logging_level="ERROR")
-            except Exception as exc:  # noqa: BLE001 - Ray's own errors: one line
-                where = f" at {self.address}" if self.address else ""
-                raise ExecutorError(f"cannot start or reach the Ray cluster{where}: {exc}") from None
+        pending: dict = {}
         try:
-            pending = {}
+            if started_here:
+                self._init()
             for task in tasks:
                 cpus, gpus = needs[task.key]
                 remote = ray.remote(num_cpus=cpus, num_gpus=gpus, max_retries=0)(_ray_task)
                 pending[remote.remote(str(suite_path), task.key, thread_env(cpus))] = task
+            deadline = time.monotonic() + timeout
             while pending:
-                done, _ = ray.wait(list(pending), num_returns=1, timeout=timeout)
+                # short waits: a signal is handled between two (a wait of hours would hold it in Ray's C++ code)
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE)
                 if not done:
+                    if time.monotonic() < deadline:
+                        continue
                     for task in pending.values():
                         on_done(task, _fail(task, "Ray task timed out"))
                     break
@@ -157,6 +199,31 @@ class RayExecutor:
                     result, code = None, f"Ray: {type(exc).__name__}: {str(exc)[:300]}"
                 on_done(task, result if result is not None else _fail(
                     task, f"the task ended without a result ({code}); see {folder / 'task.log'}"))
+        except interrupts.Interrupted:
+            for ref in pending:
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception:  # noqa: BLE001 - already finished or the cluster is going away
+                    pass
+            if started_here:
+                _STOPPED.append("stopped the Ray cluster it started")
+            raise
         finally:
             if started_here:
-                ray.shutdown()
+                with interrupts.held():
+                    ray.shutdown()  # also after a start cut short: what it started is stopped
+
+
+WAIT_SLICE = 1.0
+"""Seconds of one wait for a finished Ray task (how soon a signal is acted on)."""
+_STOPPED: List[str] = []
+"""What an interrupt's clean-up stopped (for the interrupted line)."""
+
+
+def _stopped_line() -> Optional[str]:
+    line = ", ".join(_STOPPED) or None
+    _STOPPED.clear()
+    return line
+
+
+interrupts.on_cleanup(_stopped_line, order=20)
