@@ -116,9 +116,11 @@ class Plan(dict):
     @classmethod
     def load(cls, path: Union[str, Path]) -> "Plan":
         """Read a plan from YAML (or JSON); anything else raises PlanFileError naming the file."""
-        try:
-            data = yaml.safe_load(Path(path).read_text())
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        from nerfify_ns import safeio
+
+        try:  # bounded: size, depth, and the nodes its aliases expand to
+            data = safeio.load_yaml(path, what="the file", max_nodes=200_000)
+        except safeio.ReadRefused as exc:
             raise PlanFileError(f"cannot read plan {path}: {str(exc).splitlines()[0]}; "
                                 "a plan is a YAML mapping (see method_configs/)") from None
         if not isinstance(data, dict):
