@@ -120,7 +120,9 @@ class TrainRun:
         return self.returncode == 0 and not self.timed_out and self.finite
 
     def log_tail(self, lines: int = 25) -> str:
-        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+        from nerfify_ns.safeio import read_tail  # the child wrote it: its tail only, however long it grew
+
+        text = read_tail(self.log_path, 256 << 10) if self.log_path.is_file() else ""
         return "\n".join(text.splitlines()[-lines:])
 
 

@@ -43,7 +43,9 @@ class ProcessResult:
 
     def tail(self, lines: int = 30) -> str:
         """The last ``lines`` lines of the log ('' when there is none)."""
-        text = self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+        from nerfify_ns.safeio import read_tail  # the child wrote it: its tail only, however long it grew
+
+        text = read_tail(self.log_path, 256 << 10) if self.log_path.is_file() else ""
         return "\n".join(text.splitlines()[-lines:])
 
 

@@ -78,3 +78,17 @@ def test_claimed_lengths_truncation_garbage_and_links(tmp_path):
         f.write(good[-3:])
     assert reader.poll()[ev.LOSS_TAG] == {1: 1.0}  # the completed record was the loss at step 1 again
     assert reader.last_step() == 1
+
+
+def test_a_huge_log_is_read_by_its_tail_only(tmp_path):
+    """A child (training, a sandboxed probe) may print without end: its log is read from the end, 256 KB at most."""
+    from nerfify_ns.runtime.process import ProcessResult
+
+    log = tmp_path / "train.log"
+    with open(log, "wb") as f:
+        f.truncate(8 << 30)  # 8 GiB (sparse): read whole, it would exhaust our memory
+        f.seek(0, os.SEEK_END)
+        f.write(b"step 1\nstep 2\nTraceback: the last line\n")
+    start = time.perf_counter()
+    tail = ProcessResult(returncode=1, seconds=1.0, timed_out=False, log_path=log).tail(2)
+    assert tail == "step 2\nTraceback: the last line" and time.perf_counter() - start < 2
