@@ -68,9 +68,10 @@ class Budget:
     """Iterations of the verification ladder's smoke-training rung (None: the base's own, ``smoke_iterations`` in
     ``runtime/smoke_presets.yaml``)."""
     timeout: Optional[float] = None
-    """Time limit of the ladder's smoke rung, seconds, when the user or a suite gives one (None: with ``seconds``,
-    its share of the time left, :func:`smoke_limit`; without, none). The check rungs (static, contract, stability)
-    take at most :data:`CHECK_SECONDS` each, or the time left of a budget."""
+    """Time limit of each process of the run (the ladder's, training, rendering), seconds, when the user or a suite
+    gives one. None: with ``seconds`` each limit derives from the time left (:func:`smoke_limit`,
+    :func:`training_limit`, :func:`check_limit`); without, the check rungs (static, contract, stability) take at most
+    :data:`CHECK_SECONDS` each and nothing else has a limit."""
     scene: dict = field(default_factory=dict)
     """Settings of a rendered scene (``write_scene`` keywords: resolution, n_train, n_val, n_test)."""
     cpu_presets: bool = False
@@ -135,7 +136,7 @@ class Limit:
         return math.inf if self.seconds is None else self.seconds
 
 
-GIVEN = "each verification process (the budget's timeout)"
+GIVEN = "each process (the budget's timeout)"
 
 
 def smoke_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
@@ -162,9 +163,10 @@ def check_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
 
 def training_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
     """The training's and the rendering's limit: with a wall-clock budget, the time it had left when training
-    started (a misestimate is cut off, not left running); without, none (``--iterations`` alone runs them all)."""
+    started (a misestimate is cut off, not left running); without, the budget's ``timeout`` when given (a
+    benchmark suite's), else none (``--iterations`` alone runs them all)."""
     if budget.seconds is None or seconds_left is None:
-        return Limit(None, "none")
+        return Limit(budget.timeout, GIVEN) if budget.timeout is not None else Limit(None, "none")
     return Limit(max(seconds_left, 1.0), f"the {_duration(budget.seconds)} budget (the time it had left when "
                                          f"training started)")
 

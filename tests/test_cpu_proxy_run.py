@@ -4,16 +4,33 @@ beyond a CPU's budget) trains a CPU proxy of the method, fits its budget, states
 from __future__ import annotations
 
 import json
+import resource
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
 import pytest
 
 BUDGET_SECONDS = 240.0
-"""The default budget of ``ns-nerfify PAPER``."""
+"""The default budget of ``ns-nerfify PAPER`` on a machine to itself."""
 OVERRUN = 1.15
 """What a run may exceed its budget by: the estimate of the time left is made from the smoke rung's pace, and a
 shared machine's pace changes while it trains (the report is written after the budget's evaluation)."""
+
+
+def machine_share() -> float:
+    """How much slower than on a machine to itself a process runs now: the wall time over the CPU time of
+    importing Nerfstudio's method configs (the start-up every Nerfstudio process pays) in a fresh process. 1 on an
+    idle machine; about 4.5 at a load of 13 on two cores (measured 2026-11-26: 48 s wall for 11.5 s of CPU)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import nerfstudio.configs.method_configs"], check=True,
+                   capture_output=True)
+    wall = time.perf_counter() - start
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return max(1.0, wall / max(cpu, 1e-3))
 
 
 @pytest.mark.slow
@@ -23,14 +40,22 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
     from nerfify_ns.plan import Plan
     from nerfify_ns.synthesis.resources import load_reference_plan
 
+    from nerfify_ns.synthesis.proxy import proxy_scene
+
     plan = Plan.of(load_reference_plan("vanilla-nerf"))
-    budget = replace(PAPER_BUDGET, seconds=BUDGET_SECONDS)  # the paper command's budget: the proxy allowed
+    # the paper command's budget (the proxy allowed) and its scene, on the share of the machine this test has: a
+    # loaded machine runs every process several times slower, start-ups included, and no budget fits that
+    share = machine_share()
+    scene = proxy_scene("vanilla-nerf", PAPER_BUDGET)
+    seconds = BUDGET_SECONDS * share
+    budget = replace(PAPER_BUDGET, seconds=seconds,
+                     scene={k: scene[k] for k in ("resolution", "n_test")})
     start = time.perf_counter()
     result = run_compose(plan, tmp_path / "out", budget=budget)
     wall = time.perf_counter() - start
     summary = result.summary
     assert result.outcome.ok, result.outcome.failed
-    assert wall <= OVERRUN * BUDGET_SECONDS, f"{wall:.0f} s for a {BUDGET_SECONDS:.0f} s budget"
+    assert wall <= OVERRUN * seconds, f"{wall:.0f} s for a {seconds:.0f} s budget ({share:.1f}x the machine's pace)"
 
     proxy = summary["schedule"]["proxy"]  # recorded in the plan and the summary, named in the report's headline
     assert proxy["headline"].startswith("trained a CPU proxy: ") and "samples per ray" in proxy["headline"]

@@ -32,6 +32,7 @@ def test_a_budget_derives_each_limit_and_names_it():
     assert check_limit(budget, 100.0).seconds == 100.0  # never more than the budget has left
     given = Budget(timeout=42.0)
     assert smoke_limit(given, None).seconds == 42.0 and check_limit(given, None).seconds == 42.0
+    assert training_limit(given, None).describe() == "the 42 s limit of each process (the budget's timeout)"
     assert smoke_limit(given, None).describe().startswith("the 42 s limit of ")
 
 

@@ -55,7 +55,14 @@ class Knob:
     weight: float = 1.0
     """Samples: the cost of one sample; widths: the cost's exponent."""
     value: Any = None
-    """The proxy's value (None: the paper's)."""
+    """The proxy's value (None: the plan's)."""
+    original: Any = None
+    """The paper's value where the plan was pruned for the scene (``pruned``: its ``from``), else None."""
+
+    @property
+    def papers(self) -> Any:
+        """The paper's own value (before any pruning for the scene)."""
+        return self.paper if self.original is None else self.original
 
     @property
     def current(self) -> Any:
@@ -90,6 +97,7 @@ def knobs(plan: dict, rays: int) -> List[Knob]:
     base = plan.get("base")
     defaults = load_grammar().terminals
     found: Dict[str, List[Knob]] = {kind: [] for kind in spec["order"]}
+    pruned = {p.get("path"): p.get("from") for p in plan.get("pruned") or [] if isinstance(p, dict) and "from" in p}
     for kind in ("samples", "width"):
         for path, terminal in used.items():
             for name, knob in ((spec.get(kind) or {}).get(terminal) or {}).items():
@@ -100,7 +108,8 @@ def knobs(plan: dict, rays: int) -> List[Knob]:
                 fields = (terminals[terminal].config or {}).get(base) or {}
                 flag = f"--pipeline.model.{_flag(fields[name])}" if name in fields else None
                 found[kind].append(Knob(kind, f"{path}.{name}", flag, value, int(knob["floor"]),
-                                        float(knob.get("weight", knob.get("exponent", 1.0)))))
+                                        float(knob.get("weight", knob.get("exponent", 1.0))),
+                                        original=pruned.get(f"{path}.{name}")))
     found["rays"].append(Knob("rays", RAYS_PATH, RAYS_FLAG, int(rays), int(spec["rays"]["floor"])))
     return [k for kind in spec["order"] for k in found.get(kind, [])]
 
@@ -162,14 +171,14 @@ class ProxyFit:
         parts = []
         samples = [k for k in self.knobs if k.kind == "samples"]
         if any(k in self.changed for k in samples):
-            before = sum(k.total(k.paper) for k in samples)
+            before = sum(k.total(k.papers) for k in samples)
             after = sum(k.total() for k in samples)
             parts.append(f"{after:.0f} instead of {before:.0f} samples per ray")
         for k in self.knobs:
             if k.kind == "rays" and (k in self.changed or (paper_rays or 0) > k.current):
                 parts.append(f"{k.current} instead of {paper_rays or k.paper} rays per step")
             elif k.kind == "width" and k in self.changed:
-                parts.append(f"MLP width {k.value} instead of {k.paper} ({k.path})")
+                parts.append(f"MLP width {k.value} instead of {k.papers} ({k.path})")
         if self.scene:
             parts.append(f"a {self.scene['resolution']} px scene with {self.scene['n_test']} test views instead of "
                          f"{self.scene['from_resolution']} px with {self.scene['from_n_test']}")
@@ -188,7 +197,8 @@ class ProxyFit:
                f"({'reaching' if self.reached else 'short of'} the target of {self.target['iterations']} iterations "
                f"and {self.target['epochs']:g} pass(es) over the training pixels: {passes:.2f} passes)")
         return {"headline": self.headline(paper_rays), "reason": why,
-                "settings": [{"path": k.path, "paper": k.paper, "proxy": k.value, "kind": k.kind}
+                "settings": [{"path": k.path, "paper": k.papers, **({"plan": k.paper} if k.original is not None
+                                                                      else {}), "proxy": k.value, "kind": k.kind}
                              for k in self.changed],
                 **({"scene": self.scene} if self.scene else {}),
                 "ns_train_args": self.args(), "seconds_per_iteration": round(self.seconds_per_iteration, 4),

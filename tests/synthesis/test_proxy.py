@@ -123,3 +123,17 @@ def test_fixed_settings_are_never_proxied():
     """compose --method and the benchmarks compare fixed settings: their budgets never train a proxy."""
     assert PAPER_BUDGET.proxy and not COMPOSE_BUDGET.proxy and not Budget().proxy
     assert proxy_scene("vanilla-nerf", replace(COMPOSE_BUDGET, seconds=240)) is None
+
+
+def test_the_headline_counts_from_the_papers_values_where_the_scene_pruned_them():
+    plan = _nerf_plan()
+    plan.set("model.sampler.hierarchical.num_coarse_samples", 48)
+    plan.set("model.sampler.hierarchical.num_importance_samples", 96)
+    plan["pruned"] = [{"rule": "r", "path": "model.sampler.hierarchical.num_coarse_samples", "action": "clamped",
+                       "from": 64, "to": 48, "reason": "small images"},
+                      {"rule": "r", "path": "model.sampler.hierarchical.num_importance_samples", "action": "clamped",
+                       "from": 128, "to": 96, "reason": "small images"}]
+    fit = _fit(plan, 400)
+    assert fit.headline(4096).startswith("trained a CPU proxy: 32 instead of 192 samples per ray")
+    coarse = next(s for s in fit.record(4096)["settings"] if s["path"].endswith("num_coarse_samples"))
+    assert (coarse["paper"], coarse["plan"], coarse["proxy"]) == (64, 48, 16)
