@@ -108,6 +108,8 @@ def section_roles(doc: Any, rules: Optional[Rules] = None) -> dict[int, str]:
             prefix = number.rsplit(".", 1)[0]
             parent = next((roles[j] for j in range(i - 1, -1, -1) if doc.sections[j].number == prefix), None)
         role = own or parent or "method"
+        if parent == "prior" and role == "method":
+            role = "prior"  # a subsection of related work describes others' methods, whatever its heading says
         roles[i] = role
         stack.append((level, number, role))
     return roles

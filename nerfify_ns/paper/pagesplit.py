@@ -22,12 +22,14 @@ from nerfify_ns.paper.document import Location
 PAGE_MARK = re.compile(r"^\s*#{1,3}\s*Page\s+(\d{1,4})\s*$", re.IGNORECASE)
 _RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
 # "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
-_HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)(?P<title>[A-Z][^\n]{1,90})$")
+_HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)(?P<title>(?:[A-Z]|\d[A-Z]\b)[^\n]{1,90})$")
 # a heading glued to the end of the previous line: "...Research.1. Introduction"
 _GLUED = re.compile(r"^(?P<before>.*[a-z.)\]])(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
                     r"(?: [A-Za-z-]+){0,6})$")
 _NAMED = re.compile(r"^(?P<name>Abstract|References|Acknowledge?ments?)\b[.:]?\s*(?P<rest>.*)$", re.IGNORECASE)
 _EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
+# a paragraph that opens with a run-in heading ("Ray Importance Sampling. We ...") starts on a line of its own
+_RUN_IN = re.compile(r"^[A-Z][\w-]*(?: (?:[A-Z0-9][\w-]*|of|for|and|the|in|with|via|to|on)){1,6}\.\s+[A-Z]")
 _MATHY = re.compile(r"[=+∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\≈≤≥×·∈→−‖∥⊙⊗]")
 _FUNCTION_WORDS = {"a", "an", "the", "of", "for", "and", "with", "in", "on", "via", "from", "to", "by", "as", "at",
                    "is", "are", "using", "towards", "through", "into"}
@@ -183,7 +185,7 @@ def page_split_blocks(text: str) -> list[Block]:
             blocks.append(Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num")))
             next_equation = int(eq.group("num")) + 1
             continue
-        if CAPTION.match(s) and para:
+        if (CAPTION.match(s) or _RUN_IN.match(s)) and para:
             flush()
         para.append(x)
         if s.endswith((".", ":", "?")) and len(s) < 0.75 * full:

@@ -38,6 +38,9 @@ LEDGER_FILE = Path(__file__).resolve().parent / "ledger.yaml"
 LINK_THRESHOLD = 0.34
 """A claim links to a part when this share of the claim's content words is found in the part's heading and text
 (heading words count double)."""
+HEADING_WEIGHT = 6
+"""How much a production's word in the part's own heading counts against one in its text (the authors' name for
+the part says most about what it is)."""
 GENERIC_HEADING_WORDS = ("field", "fields", "model", "network", "networks", "method", "representation", "rendering",
                          "optimisation", "optimization", "training", "loss", "losses", "scene", "scenes", "radiance",
                          "neural", "overview", "details", "design", "architecture", "sampling", "volume", "efficient")
@@ -403,11 +406,12 @@ class _Reader:
         heading, claims = p.heading, " ".join(p.claims + p.own_claims)
         body = " ".join(p.sentences[:30])
         lhs = " ".join(_lhs_name(e) for e in p.equations)
+        new_lhs = " ".join(_lhs_words(e) for e in p.equations if not e["known"])
         for name, (terms, symbols) in self.r["productions"].items():
             score = 0.0
             for pattern, weight in terms:
-                score += weight * (3 * bool(pattern.search(heading)) + 2 * bool(pattern.search(claims))
-                                   + math.sqrt(len(pattern.findall(body))))
+                score += weight * (HEADING_WEIGHT * bool(pattern.search(heading)) + 2 * bool(pattern.search(claims))
+                                   + math.sqrt(len(pattern.findall(body))) + 3 * bool(pattern.search(new_lhs)))
             score += 2.0 * sum(1 for s in symbols if s and re.search(rf"(?:^|\s){re.escape(s)}(?:\s|$)", lhs))
             scores[name] = round(score, 2)
         best = max(scores, key=lambda k: scores[k]) if scores else "Backbone"
@@ -422,6 +426,13 @@ def _production_of_slot(slot: Optional[str]) -> str:
     from nerfify_ns.grammar import load_grammar
 
     return dict(load_grammar().symbol_paths()).get(slot, "")
+
+
+def _lhs_words(e: dict) -> str:
+    """The words of an equation's left-hand side, subscripts included (\\mathcal{L}_{\\mathrm{reg}} -> 'L reg')."""
+    src = e.get("latex") or e.get("text") or ""
+    lhs = src.split("=", 1)[0] if "=" in src else ""
+    return " ".join(re.findall(r"[A-Za-z]{2,}", re.sub(r"\\[A-Za-z]+", " ", lhs))).lower()
 
 
 def _lhs_name(e: dict) -> str:
