@@ -8,7 +8,8 @@ failure of the equations: the report says what failed and why (``CheckReport.ok`
 Bounded before it runs (a paper must not hang or exhaust our process): the equations' cost
 (``shapes.check_cost``: nested finite ranges, operations) is checked by the lowering, the values the check
 allocates by ``MAX_CHECK_VALUES``, and the gradcheck's work (two evaluations per perturbed value) by
-``GRADCHECK_WORK``, past which it runs in torch's fast mode (random projections).
+``GRADCHECK_WORK``: past it the gradcheck runs in torch's fast mode (random projections: two evaluations per
+input tensor), and past that too it is skipped, saying so.
 
 ``bindings_spec`` is the inputs' layouts (``{"sigma": ("R", "S"), "c": ("R", "S", 3)}``); ``domains``
 gives an input's value range (default (0.1, 0.9): inside the domain of log, sqrt and division, and of
@@ -31,7 +32,7 @@ MAX_CHECK_VALUES = 1_000_000
 """Values (inputs and parameters at the check's sizes) the check may allocate; the binder checks at small
 sizes (a few thousand values)."""
 GRADCHECK_WORK = 500_000
-"""Perturbed values times operations per evaluation past which the gradcheck runs in fast mode."""
+"""Operations the gradcheck may run (evaluations it needs times the equations' operations per evaluation)."""
 
 
 def _describe(err: BaseException) -> str:
@@ -154,8 +155,13 @@ def check_lowering(ir, bindings_spec: dict, sizes: dict | None = None, outputs: 
             ok = False
             report.reason = report.reason or f"'{key}' differs from the interpreter (max relative error {rel:.2e})"
     if ok and gradcheck:
-        work = n_values * evaluation_cost(equations, sizes).operations
-        report.gradcheck = _gradcheck(module, lowered, inputs, equations, fast=work > GRADCHECK_WORK)
+        operations = evaluation_cost(equations, sizes).operations
+        full, fast = 2 * n_values * operations, 2 * (len(inputs) + len(lowered.params) + 1) * operations
+        if full <= GRADCHECK_WORK or fast <= GRADCHECK_WORK:
+            report.gradcheck = _gradcheck(module, lowered, inputs, equations, fast=full > GRADCHECK_WORK)
+        else:
+            report.gradcheck = (f"skipped: a numerical gradient of {operations:,} operations per evaluation over "
+                                f"{n_values:,} values is past the check's budget ({GRADCHECK_WORK:,} operations)")
         if report.gradcheck.startswith("failed"):
             ok = False
             report.reason = f"gradcheck {report.gradcheck}"

@@ -186,10 +186,11 @@ MAX_RANGE_ITERATIONS = 4096
 side added (a spherical-harmonics basis of degree 4 takes 16-25, a positional encoding 10-20). Three nested
 ``\\sum_{k=1}^{4096}`` ask for 7e10 and are refused before the lowering, the interpreter or the check runs."""
 
-MAX_OPERATIONS = 200_000
-"""Operations (IR nodes, a range's body counted once per iteration) in one evaluation of the equations: the
-longest equations the reader takes, a few dozen in one part, stay below 100,000. The check's gradcheck runs
-the module twice per input value, so its work is this times the values it perturbs (``check.py``)."""
+MAX_OPERATIONS = 20_000
+"""Operations (IR nodes, a range's body counted once per iteration) in one evaluation of the equations: a
+part's equations have tens to a few hundred (a spherical-harmonics colour head of degree 4 about 300). The
+check runs the module and the interpreter once and the gradcheck twice per perturbed value, so this bounds
+the time one part's check takes (``check.py``)."""
 
 
 @dataclass(frozen=True)
@@ -258,6 +259,8 @@ def evaluation_cost(equations, sizes: dict | None = None) -> Cost:
     named = named_sizes(sizes or {})
     iterations = operations = 0
     for eq in equations:
+        if not isinstance(eq, Equation):
+            continue
         for side in (eq.rhs, *eq.also):
             i, o = _cost(side, {}, named)
             iterations, operations = iterations + i, operations + o
