@@ -221,8 +221,25 @@ class Paper:
         for line in (agents.warnings if agents is not None else []):
             CONSOLE.print(f"[yellow]warning[/yellow] {_plain(line)}", soft_wrap=True, highlight=False)
         _print_plan(result)
+        _novel_line(result)
         if result.out is not None:
             _conclude(result.outcome, result.out)
+
+
+def _novel_line(result) -> None:
+    """One line: the paper's family and how many of its novel parts were found and built; green only when all were
+    (or there were none), yellow when some were not, red when the family cannot be built at all."""
+    family = getattr(result.derived, "family", None)
+    holes = result.plan.get("holes") or []
+    built = sum(1 for h in holes if h.get("status") in ("implemented",))
+    name = family.headline() if family is not None else "static"
+    if family is not None and not family.buildable:
+        colour, text = "red", f"a {name} paper: {len(holes)} novel part(s) found, none built ({family.why})"
+    else:
+        colour = "green" if built == len(holes) else "yellow"
+        text = f"a {name} paper: {len(holes)} novel part(s) found, {built} built from the paper" + \
+            (f"; {len(holes) - built} stand(s) on the base's part" if built < len(holes) else "")
+    CONSOLE.print(f"[{colour}]novel parts[/{colour}] {_plain(text)}", soft_wrap=True, highlight=False)
 
 
 def _agents(paper: "Paper"):

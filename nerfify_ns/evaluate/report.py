@@ -419,7 +419,7 @@ class _Builder:
         n = len(holes)
         self.add("equations", "Novel parts from the paper's equations", blocks,
                  {"status": "ok", "summary": summary, "holes": n, "counts": counts,
-                  "implemented": sum(h.get("status") == "implemented" for h in holes),
+                  "implemented": sum(_counts_as_implemented(h) for h in holes),
                   "partly": sum(h.get("status") == "partly implemented" for h in holes)})
 
     # ---------------------------------------------------------------- model-backed agents (--llm)
@@ -603,6 +603,22 @@ def _detection_row(d: dict) -> dict:
             "where": where or None}
 
 
+def _counts_as_implemented(hole: dict) -> bool:
+    """A hole counts as a novel part implemented when its record says so and none of its checks says otherwise:
+    no ladder rung took its component out again, and a model's component only when the coder's last round passed
+    the sandboxed ladder (a status alone, which a forged or hand-edited record could carry, is not enough)."""
+    if hole.get("status") != "implemented":
+        return False
+    checks = hole.get("checks") if isinstance(hole.get("checks"), dict) else {}
+    if checks.get("ladder"):
+        return False
+    if _writer(hole) == "model":
+        rounds = checks.get("coder")
+        last = rounds[-1] if isinstance(rounds, list) and rounds else None
+        return isinstance(last, dict) and last.get("status") == "pass"
+    return True
+
+
 def _writer(hole: dict) -> str:
     """Who wrote a hole's code: the equation compiler, a model, a person, or nobody (the base's part)."""
     if hole.get("status") == "not implemented":
@@ -653,10 +669,15 @@ def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
     outcome, err = _read_json(run_dir / "run.json")
     novel = sections.get("equations") or {}
-    novel_line = f"Novel parts: {novel['summary']}. " if novel.get("summary") else ""
+    counts = ({"found": novel["holes"], "built": novel.get("implemented") or 0}
+              if isinstance(novel.get("holes"), int) else None)
+    novel_line = (f"Novel parts: {counts['built']} of {counts['found']} found built and verified. "
+                  if counts and counts.get("found") else
+                  (f"Novel parts: {novel['summary']}. " if novel.get("summary") else ""))
+    partial = bool(counts) and counts.get("built", 0) < counts.get("found", 0)
     if isinstance(outcome, dict) and isinstance(outcome.get("stages"), list):
         stages = [s for s in outcome["stages"] if isinstance(s, dict)]
-        return {"known": True, "ok": bool(outcome.get("ok")),
+        return {"known": True, "ok": bool(outcome.get("ok")), "partial": partial,
                 "headline": novel_line + str(outcome.get("headline") or ""),
                 "until": outcome.get("until"), "command": outcome.get("command"), "failed": outcome.get("failed"),
                 "stages": [{k: s.get(k) for k in ("name", "status", "seconds", "summary", "reason")} for s in stages]}
