@@ -36,37 +36,25 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, check, load_grammar, validate
 from nerfify_ns.knowledge.bases import find_base_statements
 from nerfify_ns.knowledge.cards import Card, HyperparameterMap
-from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, match_target
-from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques, norm_latex
+from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, match_target
+from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
 from nerfify_ns.plan import Hole, Plan, free_method_name
 from nerfify_ns.knowledge.family import Family, detect_family
 from nerfify_ns.synthesis.base_choice import BaseDecision, choose_base, exclusive_cards
-from nerfify_ns.synthesis.ledger import Ledger, Part, read_ledger
+from nerfify_ns.synthesis.ledger import Ledger, read_ledger
 from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 
 __all__ = ["DerivedPlan", "Hole", "TerminalSlot", "HyperparameterError", "derive_plan", "plan_from_paper",
            "terminal_slots", "slot_table", "evaluate", "slug"]
 
-# what kind of part an uncovered equation is, from words in it and around it (first match wins)
-HOLE_KINDS = (
-    ("spatial_distortion", r"\bNDC\b|normali[sz]ed device|projective|ray space|contract|warp"),
-    ("renderer", r"transmittance|composit|render|\bmedi(?:um|a)\b|scatter|backscatter|attenuat|\\int|∫|radiance along"),
-    ("regularizer", r"regulari[sz]|penalt|smoothness|prior\b"),
-    ("loss", r"\bloss\b|\\mathcal\{L\}|ℒ|\bMSE\b|objective|\bmin\b"),
-    ("sampler", r"\bsampl|\bpdf\b|proposal|importance"),
-    ("pos_encoding", r"encoding|\\gamma\(|γ\(|frequenc|fourier"),
-    ("dir_encoding", r"spherical harmonic|view(?:ing)? direction"),
-    ("backbone", r"."),
-)
 # the production (grammar nonterminal) each kind of hole is a part of; its slot and stand-in come from the grammar
 HOLE_SYMBOLS = {
     "spatial_distortion": "SpatialDistortion", "renderer": "Renderer", "regularizer": "Regularizers",
     "loss": "RGBLoss", "sampler": "Sampler", "pos_encoding": "PosEncoding", "dir_encoding": "DirEncoding",
     "backbone": "Backbone", "rgb_head": "RGBHead",
 }
-_MATHY = re.compile(r"\\(?:int|sum|frac|exp|label|sigma|mathbf|hat|left|right|prod)\b")
 
 
 class HyperparameterError(NerfifyError):
@@ -595,87 +583,6 @@ class _Deriver:
                             f"exponential decay of the learning rate to {final.value} over {steps} steps")
 
     # ----------------------------------------------------------------- holes
-    def holes(self, plan: Plan) -> list[Hole]:
-        """The paper's parts no card covers: uncovered equations, grouped by section and kind."""
-        holes: list[Hole] = []
-        taken = set(self.used) | {c.card for c in self.res.taken}
-        doc = self.doc
-        paragraphs = []  # (order, section, text, loc)
-        for i, s in enumerate(doc.sections):
-            for p in s.paragraphs:
-                paragraphs.append((getattr(p.loc, "order", 0) or 0, s.heading, p.text, p.loc, self.roles[i]))
-        equations = [e for e in getattr(doc, "equations", [])
-                     if role_of_section(doc, e.section, self.kb.rules) == "method" and (e.latex.strip() or e.text.strip())]
-        groups: dict[tuple[str, str], dict] = {}
-        previous: Optional[tuple[str, str]] = None  # (section, kind) of the last uncovered equation
-        for e in equations:
-            context = self._eq_context(e, paragraphs)
-            if self._covered(e, context, taken):
-                previous = None
-                continue
-            kind = self._kind(f"{e.latex} {e.text}", strict=True)
-            if kind is None:
-                kind = previous[1] if previous and previous[0] == e.section else \
-                    self._kind(" ".join([*context, e.section]))
-            previous = (e.section, kind)
-            key = (e.section, kind)
-            grp = groups.setdefault(key, {"equations": [], "text": [], "section": e.section, "loc": e.loc})
-            grp["equations"].append({"number": e.number, "latex": e.latex, "text": e.text,
-                                     "where": _where(getattr(e.loc, "page", None), getattr(e.loc, "line", None),
-                                                     e.section)})
-            for t in context:
-                if t not in grp["text"]:
-                    grp["text"].append(t)
-        for (section, kind), grp in groups.items():  # unnumbered equations under "Derivation of Eqs. (10-11)"
-            if not any(e["number"] for e in grp["equations"]):
-                m = re.search(r"Eqs?\.?\s*\(?(\d+)\)?(?:\s*[-\u2013]\s*\(?(\d+)\)?)?", section)
-                if m:
-                    lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
-                    grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [m.group(1)]
-                    grp["text"] = [t for _o, s_, t, _l, _r in paragraphs if s_ == section and len(_MATHY.findall(t)) < 2]
-        if not equations:  # equations the converter left in the running text (e.g. an appendix PDF)
-            by_section: dict[str, list] = {}
-            for order, section, text, loc, role in paragraphs:
-                if role == "method" and len(_MATHY.findall(text)) >= 2:
-                    by_section.setdefault(section, []).append((text, loc))
-            for section, items in by_section.items():
-                whole = " ".join(t for _o, s_, t, _l, _r in paragraphs if s_ == section)
-                kind = self._kind(whole + " " + section)
-                grp = groups.setdefault((section, kind), {"equations": [], "text": [], "section": section,
-                                                          "loc": items[0][1]})
-                for text, loc in items:
-                    label = re.search(r"\\label\s*\{\s*([^}]*)\}", text)
-                    grp["equations"].append({"number": "", "latex": text.strip(), "text": "",
-                                             "label": re.sub(r"\s+", "", label.group(1)) if label else "",
-                                             "where": _where(getattr(loc, "page", None), getattr(loc, "line", None),
-                                                             section)})
-            for (section, kind), grp in groups.items():
-                m = re.search(r"Eqs?\.?\s*\(?(\d+)\)?(?:\s*[-\u2013]\s*\(?(\d+)\)?)?", section)
-                if m:
-                    lo, hi = int(m.group(1)), int(m.group(2) or m.group(1))
-                    grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [m.group(1)]
-                grp["text"] = [t for _o, s, t, _l, _r in paragraphs if s == section and len(_MATHY.findall(t)) < 2]
-        for (section, kind), grp in groups.items():
-            holes.append(self._hole(plan, kind, grp))
-        # a card found in the paper whose equation the grammar's terminal does not implement
-        for name in self.used:
-            c = self.cards[name]
-            if not c.implements_equation and c.equation_slot:
-                d = self.used[name]
-                eqs = [e for e in equations if any(ev.kind == "equation" and ev.quote in (e.latex.strip(), e.text.strip())
-                                                   for ev in d.evidence)]
-                eqs += [e for e in equations if e not in eqs and self._eq_mentions(e, paragraphs, name)]
-                kind = next((k for k in HOLE_SYMBOLS if self._hole_slot(plan, k)[0] == c.equation_slot), "backbone")
-                best = d.best()
-                grp = {"equations": [{"number": e.number, "latex": e.latex, "text": e.text,
-                                      "where": _where(getattr(e.loc, "page", None), getattr(e.loc, "line", None),
-                                                      e.section)} for e in eqs],
-                       "text": [best.quote] if best else [], "section": best.section if best else "",
-                       "loc": None, "why": f"{c.title}: {c.equation.text}; the grammar's "
-                                           f"{'/'.join(c.terminals)} terminal does not compute it"}
-                holes.append(self._hole(plan, kind, grp))
-        return holes
-
     def contribution_holes(self, plan: Plan, ledger: Ledger) -> list[Hole]:
         """One hole per new contribution of the ledger, at the production it changes, with the claim it comes from."""
         holes = []
@@ -707,50 +614,6 @@ class _Deriver:
                     equations=[{k: _short(str(v), 400) for k, v in eq.items()} for eq in grp["equations"]],
                     status="not implemented",
                     stands_in=f"nothing: the base has no {production} (its behaviour without it)", section=grp["section"])
-
-    def _eq_context(self, e: Any, paragraphs: list) -> list[str]:
-        """The two meaningful paragraphs before an equation (nearest first) and the one after it."""
-        order = getattr(e.loc, "order", 0) or 0
-        meaningful = [p for p in paragraphs if p[1] == e.section and len(re.findall(r"[A-Za-z]", p[2])) >= 25]
-        before = sorted((p for p in meaningful if p[0] < order), key=lambda p: -p[0])[:2]
-        after = sorted((p for p in meaningful if p[0] > order), key=lambda p: p[0])[:1]
-        return [p[2] for p in before] + [p[2] for p in after]
-
-    def _eq_mentions(self, e: Any, paragraphs: list, card: str) -> bool:
-        return any(any(v == card for _, _, (v, _a) in find_spans(t, self.kb.card_aliases)) for t in self._eq_context(e, paragraphs)[:1])
-
-    def _covered(self, e: Any, context: list[str], taken: set[str]) -> bool:
-        """Whether a card the plan uses covers equation ``e`` (its fragments, or its name in the
-        equation or in the paragraphs introducing it)."""
-        latex, text = norm_latex(e.latex), norm_latex(e.text)
-        for c in self.cards.values():
-            if c.name not in taken:
-                continue
-            for frag in c.signals.equations:
-                nf = norm_latex(frag)
-                if len(nf) >= 4 and ((latex and nf in latex) or ("\\" not in frag and text and nf.lower() in text.lower())):
-                    return True
-        if find_spans(e.text or "", self.kb.card_aliases):
-            return True
-        near = context[0] if context else ""
-        for _, _, (name, _alias) in find_spans(near, self.kb.card_aliases):
-            if name in taken:
-                return True
-        low = near.lower()
-        for name in taken:
-            c = self.cards.get(name)
-            if c and any(ph in low for ph in c.signals.phrases):
-                return True
-        return False
-
-    @staticmethod
-    def _kind(text: str, strict: bool = False) -> Optional[str]:
-        for kind, pattern in HOLE_KINDS:
-            if strict and kind == "backbone":
-                return None
-            if re.search(pattern, text, re.IGNORECASE if kind != "loss" or not strict else 0):
-                return kind
-        return "backbone"
 
     def _hole_slot(self, plan: Plan, kind: str) -> tuple[str, str, Optional[str]]:
         """(slot, production, the terminal standing in when the plan has none) of a hole of ``kind``, read
