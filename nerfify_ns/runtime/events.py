@@ -24,11 +24,11 @@ from typing import Dict, List, Optional
 Scalars = Dict[str, Dict[int, float]]
 """tag -> step -> value."""
 
-MAX_EVENT_FILE = 64 << 20
+MAX_EVENT_FILE = 256 << 20
 """Event files larger than this, and links, are not read: the run (a plugin's, sandboxed) wrote them, and they are
 parsed in our own process."""
 MAX_RECORD = 4 << 20
-"""Bytes of one event record (Nerfstudio's largest, its config as text, is a few KB; images are not read)."""
+"""Bytes of one event record parsed (scalars take a few dozen; larger ones, images, are skipped unread)."""
 MAX_VALUES = 1_000_000
 """Scalar values kept per reader (a run logging more is cut there; a CPU run logs a few thousand)."""
 
@@ -98,12 +98,12 @@ class _RecordFile:
                 if len(head) < 12:
                     break
                 (length,) = struct.unpack("<Q", head[:8])
-                if length > MAX_RECORD:
-                    self.broken = True  # not a record we read: the rest of the file is not read either
-                    break
                 end = self.offset + 12 + length + 4
                 if end > size:
-                    break  # not written completely yet (or claims more than the file holds)
+                    break  # not written completely yet (or claims more than the file holds): nothing allocated
+                if length > MAX_RECORD:
+                    self.offset = end  # an image or another large summary: skipped unread, never a scalar
+                    continue
                 data = os.pread(fd, length, self.offset + 12)
                 if len(data) < length:
                     break
