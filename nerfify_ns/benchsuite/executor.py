@@ -51,12 +51,26 @@ def task_folder(out: Path, task: Task) -> Path:
 
 def finished(out: Path, task: Task, fingerprint: str) -> Optional[dict]:
     """The task's result when it finished before with the same paper entry (else None)."""
-    path = task_folder(out, task) / RESULT
-    try:
-        result = json.loads(path.read_text()) if path.is_file() else None
-    except (OSError, ValueError):
-        return None
+    result = _read_result(task_folder(out, task) / RESULT)
     return result if result is not None and result.get("fingerprint") == fingerprint else None
+
+
+MAX_RESULT = 16 << 20
+"""Bytes of a task's result.json read back (a few KB when our task process wrote it)."""
+
+
+def _read_result(path: Path) -> Optional[dict]:
+    """A task's result.json (a JSON object within the bounds of :mod:`nerfify_ns.safeio`), else None: a folder
+    with a missing, damaged or oversized result counts as not finished."""
+    from nerfify_ns import safeio
+
+    if not path.is_file():
+        return None
+    try:
+        result = safeio.load_json(path, MAX_RESULT)
+    except safeio.ReadRefused:
+        return None
+    return result if isinstance(result, dict) else None
 
 
 def task_command(suite_path: Path, task: Task, folder: Path) -> List[str]:
@@ -83,9 +97,9 @@ class LocalExecutor:
             env = {**os.environ, **thread_env(needs[task.key][0])}
             proc = run_process(task_command(suite_path, task, folder), folder / "task.log", cwd=folder,
                                timeout=timeout, env=env)
-            result_path = folder / RESULT
-            if result_path.is_file():
-                on_done(task, json.loads(result_path.read_text()))
+            result = _read_result(folder / RESULT)
+            if result is not None:
+                on_done(task, result)
             else:
                 on_done(task, _fail(task, f"the task process ended without a result (exit {proc.returncode}); "
                                           f"see {folder / 'task.log'}"))

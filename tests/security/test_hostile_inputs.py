@@ -80,3 +80,26 @@ def test_an_llff_header_claiming_2_to_the_40_rows(tmp_path):
         np.load(data / "poses_bounds.npy")
     _refused(tmp_path, ["compose", "--method", "nerfacto", "--data", str(data), "--until", "plan", "--out", "out"],
              f"its header claims shape ({2 ** 40}, 17)")
+
+
+def test_a_resumed_bench_reads_task_results_within_bounds(tmp_path):
+    """A bench folder is re-read on resume: a task result that is 10^5 deep, a list, or a FIFO counts as not
+    finished (the task runs again), never a traceback."""
+    import json
+    import os
+
+    from hostile_cli import deep_json
+    from nerfify_ns.benchsuite.executor import finished, task_folder
+    from nerfify_ns.benchsuite.tasks import RESULT, Task
+
+    task = Task("p", "default", "full", 0)
+    folder = task_folder(tmp_path, task)
+    folder.mkdir(parents=True)
+    (folder / RESULT).write_text(json.dumps({"status": "ok", "fingerprint": "f"}))
+    assert finished(tmp_path, task, "f") == {"status": "ok", "fingerprint": "f"}
+    for bad in (deep_json(), "[1, 2]", "{not json"):
+        (folder / RESULT).write_text(bad)
+        assert finished(tmp_path, task, "f") is None
+    (folder / RESULT).unlink()
+    os.mkfifo(folder / RESULT)
+    assert finished(tmp_path, task, "f") is None
