@@ -96,6 +96,52 @@ def flops_per_ray(method: str, plugin: Optional[Path]) -> Optional[float]:
     return float(json.loads(lines[-1])["flops_per_ray"])
 
 
+def step_variants(method: str, plugin: Optional[Path], repeats: int, threads: int) -> Optional[dict]:
+    """:func:`nerfify_ns.bench.step_timing.time_variants` in a fresh subprocess pinned to ``threads``."""
+    rays = int(E2E_ARGS[method][-1])
+    cmd = [sys.executable, "-m", "nerfify_ns.bench.step_timing", "--variants",
+           "nerfacto" if method == PLUGIN else method, "--rays", str(rays), "--repeats", str(repeats)]
+    if method == PLUGIN:
+        cmd += ["--plugin", str(plugin)]
+    env = {**os.environ, "PYTHONWARNINGS": "ignore", "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=7200, env=env)
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        CONSOLE.print(f"[red]{method}: step timing failed: {proc.stderr[-800:]}")
+        return None
+    return json.loads(lines[-1])
+
+
+def steps(args: "Args", peak_gflops: float, table: Table) -> dict:
+    """In-process training steps under stock / before / after, interleaved, per method (see
+    :func:`step_variants`), with each variant's fraction of the fp32 FLOP bound."""
+    out: dict = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        plugin = args.plugin
+        if PLUGIN in args.methods and plugin is None:
+            plugin = build_plugin(Path(tmp) / "plugin")
+        for method in args.methods:
+            load = os.getloadavg()
+            entry = step_variants(method, plugin, args.step_repeats, args.threads)
+            if entry is None:
+                continue
+            entry["load_before"], entry["load_after"] = load, os.getloadavg()
+            fpr = flops_per_ray(method, plugin)
+            entry["flops_per_ray"] = fpr
+            rps = {v: entry[f"{v}_rays_per_s"] for v in ("stock", "before", "after")}
+            for v, value in rps.items():
+                entry[f"{v}_fraction_of_fp32_peak"] = value * fpr / (peak_gflops * 1e9) if fpr else None
+            entry["after_over_stock"], entry["after_over_before"] = rps["after"] / rps["stock"], rps["after"] / rps["before"]
+            out[method] = entry
+            frac = entry["after_fraction_of_fp32_peak"]
+            table.add_row(f"{method} step rays/s ({entry['rays']} rays): stock / before / after", f"{rps['stock']:,.0f}",
+                          f"{rps['before']:,.0f} / {rps['after']:,.0f}",
+                          f"{entry['after_over_stock']:.2f}x stock, {entry['after_over_before']:.2f}x before"
+                          + (f", {100 * frac:.2f}% of fp32 peak" if frac else ""))
+            CONSOLE.print(f"{method}: {json.dumps({k: entry[k] for k in entry if k.endswith('rays_per_s')})}")
+    return out
+
+
 def build_plugin(out: Path) -> Path:
     """The main job's plugin folder: ``ns-nerfify examples/gridlite_paper.md --until plugin``."""
     proc = subprocess.run([str(Path(sys.executable).parent / "ns-nerfify"), str(PLUGIN_PAPER), "--until", "plugin",
@@ -222,7 +268,15 @@ class Args:
     plugin: Optional[Path] = None
     """The main job's plugin folder (default: built from examples/gridlite_paper.md into a temporary folder)."""
     skip_e2e: bool = False
-    """Only run the hash-encoding part."""
+    """Skip the end-to-end ns-train runs."""
+    mode: str = "steps"
+    """``steps``: in-process training steps, the three variants interleaved in one process per method (robust
+    to a shared machine's load); ``e2e``: real ns-train processes (start-up and data loading included); ``both``."""
+    step_repeats: int = 5
+    """Timed steps per variant in ``steps`` mode (after 2 warm-up steps; medians reported)."""
+    threads: int = 1
+    """Torch threads of the ``steps`` subprocesses (pinned; 1 keeps a loaded machine's stragglers out of every
+    parallel op)."""
 
 
 def main(args: Args) -> dict:
@@ -245,7 +299,12 @@ def main(args: Args) -> dict:
     peak = {"fp32": gemm_gflops(torch.float32), "bf16": gemm_gflops(torch.bfloat16)}
     results["gemm_gflops"] = peak
     table.add_row("GEMM peak GFLOP/s (2048^3), fp32 / bf16", "", f"{peak['fp32']:,.0f} / {peak['bf16']:,.0f}", "")
-    if not args.skip_e2e:
+    if args.mode in ("steps", "both"):
+        if args.threads != torch.get_num_threads():
+            torch.set_num_threads(args.threads)
+            peak["fp32_at_step_threads"] = gemm_gflops(torch.float32)
+        results["steps"] = steps(args, peak.get("fp32_at_step_threads", peak["fp32"]), table)
+    if args.mode in ("e2e", "both") and not args.skip_e2e:
         results["training"] = e2e(args, peak["fp32"], table)
     CONSOLE.print(table)
     results["load_after"] = os.getloadavg()

@@ -2,6 +2,7 @@
 
     python -m nerfify_ns.bench.step_timing PLUGIN_DIR BUILTIN_METHOD [--rays 1024] [--repeats 15]
     python -m nerfify_ns.bench.step_timing --flops METHOD [--plugin PLUGIN_DIR] [--rays 1024]
+    python -m nerfify_ns.bench.step_timing --variants METHOD [--plugin PLUGIN_DIR] [--rays 1024] [--repeats 15]
 
 ``ns-train`` rays/s of two separate processes differ by up to ~10% on a shared 2-core machine even
 for computationally identical models (measured: vanilla-nerf 77 vs 68 rays/s, same losses). This
@@ -103,6 +104,86 @@ def time_steps(plugin_dir: str, builtin: str, rays: int, repeats: int, warmup: i
             "throughput_ratio": median["builtin"] / median["generated"]}
 
 
+VARIANTS = ("stock", "before", "after")
+"""``stock``: Nerfstudio's own code paths; ``before``: our runtime without its fused paths (the hash-grid kernel
+only); ``after``: the runtime as shipped (:mod:`nerfify_ns.runtime.fused` too)."""
+
+
+def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", warmup: int = 2) -> Dict[str, object]:
+    """A full training step (callbacks, forward, losses, backward, optimiser step) of one method under the
+    three runtime :data:`VARIANTS`, interleaved in one process, so the machine's load hits all alike.
+
+    Each variant trains its own model (same seed, same ray batch) with its own optimisers (built by the
+    variant's ``OptimizerConfig.setup``); before each step the variant's code paths are switched in:
+    Nerfstudio's hash-encoding fallback or ours, the stock or fused contraction, occupancy-grid update and
+    optimiser, denormals kept or flushed. Must run in a fresh process (it captures the stock code before
+    the runtime patches it)."""
+    import sys
+
+    import torch
+    from nerfacc.estimators.occ_grid import OccGridEstimator
+    from nerfstudio.engine.optimizers import OptimizerConfig, Optimizers
+    from nerfstudio.field_components.encodings import HashEncoding
+    from nerfstudio.field_components.spatial_distortions import SceneContraction
+
+    if "nerfstudio.configs.method_configs" in sys.modules:
+        raise RuntimeError("time_variants must capture Nerfstudio's code before the runtime is activated")
+    stock_hash, stock_setup = HashEncoding.__dict__["pytorch_fwd"], OptimizerConfig.__dict__["setup"]
+    from nerfstudio.configs.method_configs import all_methods
+
+    from nerfify_ns.runtime import activate, hashgrid_ext
+    from nerfify_ns.runtime.fused import fused_optimizer_setup
+
+    activate(force=True)
+    ours_hash = HashEncoding.__dict__["pytorch_fwd"]
+    ours_contraction, ours_update = SceneContraction.forward, OccGridEstimator._update
+    stock_contraction = getattr(ours_contraction, "_nerfify_stock", ours_contraction)
+    stock_update = getattr(ours_update, "_nerfify_stock", ours_update)
+    ext = hashgrid_ext.load()
+
+    def switch(variant: str) -> None:
+        after = variant == "after"
+        HashEncoding.pytorch_fwd = stock_hash if variant == "stock" else ours_hash
+        SceneContraction.forward = ours_contraction if after else stock_contraction
+        OccGridEstimator._update = ours_update if after else stock_update
+        torch.set_flush_denormal(after)
+        if ext is not None and hasattr(ext, "set_flush_denormal_all_threads"):
+            ext.set_flush_denormal_all_threads(after)
+
+    if plugin_dir:
+        from nerfify_ns.synthesis.registry import load_plugin_method
+
+        config = load_plugin_method(plugin_dir).config
+    else:
+        config = all_methods[method]
+    bundle, batch = ray_batch(rays)
+    trainers = {}
+    for variant in VARIANTS:
+        switch(variant)
+        model = build_model(config)
+        OptimizerConfig.setup = fused_optimizer_setup if variant == "after" else stock_setup
+        optimizers = Optimizers(config.optimizers, model.get_param_groups())
+        trainers[variant] = (_step_fn(model, bundle, batch), optimizers)
+    OptimizerConfig.setup = fused_optimizer_setup
+    times: Dict[str, List[float]] = {v: [] for v in VARIANTS}
+    for k in range(warmup + repeats):
+        for variant in VARIANTS[k % 3:] + VARIANTS[:k % 3]:
+            switch(variant)
+            step, optimizers = trainers[variant]
+            seconds = step()
+            start = time.perf_counter()
+            optimizers.optimizer_step_all()
+            optimizers.zero_grad_all()
+            seconds += time.perf_counter() - start
+            if k >= warmup:
+                times[variant].append(seconds)
+    median = {v: statistics.median(t) for v, t in times.items()}
+    return {"method": method, "plugin": plugin_dir or None, "rays": rays, "repeats": repeats,
+            "threads": torch.get_num_threads(), "step_seconds": times,
+            **{f"{v}_median_step_seconds": m for v, m in median.items()},
+            **{f"{v}_rays_per_s": rays / m for v, m in median.items()}}
+
+
 def step_flops(method: str, rays: int, plugin_dir: str = "") -> Dict[str, object]:
     """Floating-point operations of one training step (forward, losses, backward), counted by
     ``torch.utils.flop_counter`` (matrix products and convolutions: the work a FLOP bound is about),
@@ -137,8 +218,12 @@ def main() -> None:
     parser.add_argument("--rays", type=int, default=1024)
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--flops", metavar="METHOD", help="count one training step's FLOPs of METHOD instead")
-    parser.add_argument("--plugin", default="", help="with --flops: the plugin folder METHOD's config comes from")
+    parser.add_argument("--variants", metavar="METHOD", help="time METHOD's step under stock/before/after instead")
+    parser.add_argument("--plugin", default="", help="with --flops/--variants: the plugin folder of METHOD's config")
     ns = parser.parse_args()
+    if ns.variants:
+        print(json.dumps(time_variants(ns.variants, ns.rays, ns.repeats, ns.plugin)))
+        return
     if ns.flops:
         print(json.dumps(step_flops(ns.flops, ns.rays, ns.plugin)))
         return
