@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import List, Optional
 
+from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import DataLike
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD, ProgressHook, TrainRun, ns_eval, ns_train
@@ -65,17 +66,20 @@ def smoke_train(
     iterations: int = 100,
     extra_args: List[str] | None = None,
     evaluate: bool = True,
-    timeout: float = 900,
+    timeout: Optional[float] = None,
     env: Optional[dict] = None,
     on_progress: Optional[ProgressHook] = None,
 ) -> SmokeResult:
     """Train ``method`` for ``iterations`` on ``data`` and evaluate it; raises when it failed.
-    ``on_progress(step, total)`` is called while it trains."""
+    ``on_progress(step, total)`` is called while it trains. ``timeout``: the caller's limit on the training and on
+    the evaluation, seconds (None: none), named with the progress made when it is reached."""
+    limit = Limit(timeout, "the caller's timeout" if timeout is not None else "none")
     run = ns_train(method, data, out_dir, iterations=iterations,
-                   method_args=[*preset_args(method), *(extra_args or [])], timeout=timeout, env=env,
+                   method_args=[*preset_args(method), *(extra_args or [])], timeout=limit.timeout, env=env,
                    on_progress=on_progress)
     if not run.ok or run.last_step + 1 < iterations:
-        reason = "timed out" if run.timed_out else f"exit code {run.returncode}, reached step {run.last_step}"
+        reason = (f"stopped at {run.last_step + 1} of {iterations} iterations: {limit.describe()}" if run.timed_out
+                  else f"exit code {run.returncode}, reached step {run.last_step}")
         raise SmokeTrainError(method, reason, run.log_path)
-    metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=timeout, env=env) if evaluate else None
+    metrics = ns_eval(run.config_path, out_dir / "eval.json", timeout=limit.timeout, env=env) if evaluate else None
     return SmokeResult(run=run, metrics=metrics)
