@@ -16,7 +16,7 @@
 #   scripts/gpu_check.sh --local     the same run with .venv and no install (a dry run of the script on a CPU:
 #                                    the CUDA checks then fail, by design)
 #
-# Environment: OUT (default /tmp/gpu_check_out), GPU_CHECK_ITERS (ns-train iterations, 300),
+# Environment: OUT (default /tmp/gpu_check_out), GPU_CHECK_ITERS (ns-train iterations, 200),
 # GPU_CHECK_BUDGET (seconds for the whole run; a step that no longer fits is skipped, 390), GPU_CHECK_DATA (the
 # scene, default .gpucheck/scene), GPU_CHECK_TESTS (the test selection), GPU_CHECK_STEPS (run only these steps, by
 # name), GPU_CHECK_CAP_FACTOR (multiplies each step's time limit, 1), PYTHON (default
@@ -62,7 +62,7 @@ fi
 
 OUT=${OUT:-/tmp/gpu_check_out}
 mkdir -p "$OUT"
-ITERS=${GPU_CHECK_ITERS:-300}
+ITERS=${GPU_CHECK_ITERS:-200}
 BUDGET=${GPU_CHECK_BUDGET:-390}
 DATA=${GPU_CHECK_DATA:-$PREP/scene}
 # the suite's CUDA-aware tests (grep -rln -i cuda tests)
@@ -313,7 +313,7 @@ tests() {
 export -f tests
 step c_cuda_aware_tests 180 tests
 
-step b_train_nerfacto 120 train nerfacto nerfacto-ref
+step b_train_nerfacto 150 train nerfacto nerfacto-ref
 
 evaluate() {
   ns-eval --load-config "$RUNS"/*/vanilla-nerf-ref/gpu/config.yml --output-path "$OUT/eval-vanilla-nerf.json" || return 1
