@@ -71,7 +71,8 @@ def build(blocks: Iterable[Block], source: str, kind: str, page_count: int = 0,
     doc.sections = [s for s in doc.sections if s.paragraphs or s.title]
     items = [(p.text, p.loc, p.section) for p in doc.paragraphs()]
     doc.hyperparameters = extract_hyperparameters(items + [(line, a.loc, a.section)
-                                                           for a in doc.algorithms for line in a.lines])
+                                                           for a in doc.algorithms for line in a.lines],
+                                                  doc.warnings)
     keys = cite_keys if cite_keys is not None else {r.key for r in doc.references}
     doc.citations = extract_citations(items, keys)
     annotate_equations(doc)

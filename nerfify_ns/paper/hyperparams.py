@@ -164,11 +164,18 @@ def _make(name, unit, m, norm, sentence, loc, section) -> Optional[Hyperparamete
                           loc=loc or Location(), section=section)
 
 
-def extract_hyperparameters(items: Iterable[tuple[str, Location, str]]) -> list[Hyperparameter]:
-    """Hyperparameters of (paragraph text, location, section) items, sentence by sentence."""
+def extract_hyperparameters(items: Iterable[tuple[str, Location, str]],
+                            warnings: Optional[list] = None) -> list[Hyperparameter]:
+    """Hyperparameters of (paragraph text, location, section) items, sentence by sentence. A sentence whose reading
+    raises is skipped, its reason appended to ``warnings`` (the others are read)."""
     out: list[Hyperparameter] = []
     for text, loc, section in items:
         for sentence in split_sentences(text):
             if re.search(r"\d", sentence):
-                out.extend(extract_from_sentence(sentence, loc, section))
+                try:
+                    out.extend(extract_from_sentence(sentence, loc, section))
+                except Exception as err:  # noqa: BLE001 - the per-sentence boundary
+                    if warnings is not None:
+                        warnings.append(f"hyperparameters of a sentence not read ({type(err).__name__}: "
+                                        f"{' '.join(str(err).split())[:120]}): {sentence[:80]}")
     return out

@@ -509,13 +509,21 @@ def annotate_equations(doc) -> None:
 
     for e in doc.equations:
         e.source = e.source or source
+        failed = ""
         if e.latex and not e.latex_raw:
-            norm = normalize_latex(e.latex, lost_backslashes=lost)
+            try:
+                norm = normalize_latex(e.latex, lost_backslashes=lost)
+            except Exception as err:  # noqa: BLE001 - the per-equation boundary: kept as written, said why
+                norm = e.latex
+                failed = f"not normalised ({type(err).__name__}: {' '.join(str(err).split())[:120]})"
             if norm != e.latex:
                 e.latex_raw, e.latex = e.latex, norm
+        if failed:
+            e.notes = list(e.notes or []) + [failed]
         if e.confidence is None:
             if e.latex:
-                e.confidence, e.notes = source_confidence(e.latex, e.source)
+                e.confidence, notes = source_confidence(e.latex, e.source)
+                e.notes = notes + ([failed] if failed else [])
                 e.method = e.method or "source"
             else:
                 e.confidence, e.method = 0.0, e.method or "none"
