@@ -40,7 +40,15 @@ class Match:
         return {"card": self.card, "how": self.how, "card_equation": self.card_equation}
 
 
+def _applied(e: Any) -> list:
+    """The arguments of a symbol applied to expressions (``\\sigma(\\sum_k ...)``, ``S(...)``): a named function of
+    something computed. The point a field is evaluated at (``c(\\mathbf{r}(t), \\mathbf{d})``) is notation: left out."""
+    return [a for a in e.args if not isinstance(a, ir.Symbol)]
+
+
 def _children(e: Any) -> list:
+    if isinstance(e, ir.Symbol):
+        return _applied(e)
     if isinstance(e, ir.BinOp):
         return [e.left, e.right]
     if isinstance(e, ir.Neg):
@@ -115,7 +123,8 @@ class _Canon:
         if isinstance(e, ir.Symbol):
             key = "|".join([e.name, ",".join(e.subscripts), e.superscript or "", ",".join(e.decorations)])
             self.names.setdefault(key, f"v{len(self.names)}")
-            return self.names[key]
+            applied = _applied(e)
+            return self.names[key] + (f"({','.join(self.full(a) for a in applied)})" if applied else "")
         if isinstance(e, ir.BinOp) and e.op in COMMUTATIVE:
             parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and _constant(p))]
             if len(parts) == 1:

@@ -122,6 +122,15 @@ class Part:
     why: str = ""
     production: str = ""
     production_scores: dict = field(default_factory=dict)
+    hole_equations: Optional[list] = None
+    """The equations its hole carries (None: every equation no card has, and those of cards the grammar does not
+    compute; a part new through such a card carries that card's equations only)."""
+
+    def equations_for_hole(self) -> list:
+        if self.hole_equations is not None:
+            return self.hole_equations
+        own = [e for e in self.equations if not e["known"]]
+        return own or list(self.equations)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -329,8 +338,11 @@ class _Reader:
         structural = [e for e in eqs if (not e["known"] and e.get("read")) or (e["known"] and self.unbuilt(e["known"]))]
         takes = not p.own_claims and first and len(borrowed) * 2 > len(first) and not structural
         unbuilt_eqs = [e for e in eqs if e["known"] and self.unbuilt(e["known"])]
-        if not p.claims and not p.own_claims and unbuilt_eqs and not p.appendix:
+        if unbuilt_eqs and not p.appendix:
             self._unbuilt(p, sorted({e["known"] for e in unbuilt_eqs}))
+            if unmatched:
+                p.why += (f"; its other equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
+                          " are recorded with the part, not built")
             return
         if not p.claims and not p.own_claims:
             if self.claimless and not takes and not p.appendix and not (eqs and not unmatched) \
@@ -382,6 +394,7 @@ class _Reader:
     def _unbuilt(self, p: Part, cards: list) -> None:
         card = self.kb.cards[cards[0]]
         p.status, p.covered_by = "new", cards
+        p.hole_equations = [e for e in p.equations if e["known"] in cards]
         p.production = _production_of_slot(card.equation_slot) or card.production
         p.production_scores = {p.production: "the card's equation slot"}
         p.why = (f"its equation is {card.title}'s ({', '.join(cards)}), which the grammar's "
@@ -425,7 +438,12 @@ def _production_of_slot(slot: Optional[str]) -> str:
         return ""
     from nerfify_ns.grammar import load_grammar
 
-    return dict(load_grammar().symbol_paths()).get(slot, "")
+    g = load_grammar()
+    symbol = dict(g.symbol_paths()).get(slot, "")
+    if symbol in g.nonterminals:
+        return symbol
+    # an open production's path holds its terminal: the production is the nonterminal of that terminal
+    return next((name for name, nt in g.nonterminals.items() if getattr(nt, "terminal", None) == symbol), symbol)
 
 
 def _lhs_words(e: dict) -> str:
@@ -451,7 +469,10 @@ def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> L
     claims = reader.claims()
     parts = reader.parts()
     reader.link(claims, parts)
-    reader.claimless = not any(not c.whole_paper for c in claims) and not any(p.own_claims for p in parts)
+    reader.claimless = not claims and not any(p.own_claims for p in parts)
+    if all(p.appendix for p in parts):  # an appendix alone (a supplement): its parts are the method we have
+        for p in parts:
+            p.appendix = False
     for p in parts:
         if p.appendix and not p.own_claims:
             p.status, p.why = "unclaimed", "an appendix part that claims nothing itself (details of the method)"

@@ -587,8 +587,13 @@ class _Deriver:
         """One hole per new contribution of the ledger, at the production it changes, with the claim it comes from."""
         holes = []
         for part in ledger.new:
-            grp = {"equations": [{k: e[k] for k in ("number", "latex", "text", "where")} for e in part.equations],
+            grp = {"equations": [{k: e[k] for k in ("number", "latex", "text", "where")}
+                                 for e in part.equations_for_hole()],
                    "text": part.sentences[:6], "section": part.section, "loc": None}
+            named = re.search(r"Eqs?\.?\s*\(?(\d+)\)?(?:\s*[-\u2013]\s*\(?(\d+)\)?)?", part.section)
+            if named and not any(e["number"] for e in grp["equations"]):  # "Derivation of Eqs. (10-11)"
+                lo, hi = int(named.group(1)), int(named.group(2) or named.group(1))
+                grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [named.group(1)]
             hole = self._hole_at(plan, part.production, grp)
             hole.where = ", ".join(x for x in (f"p.{part.page}" if part.page else (f"l.{part.line}" if part.line else ""),
                                                f"Sec. {part.section}") if x)
