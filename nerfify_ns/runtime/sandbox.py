@@ -496,7 +496,7 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
     """The bwrap command line up to and including ``setpriv ... --`` (``supervise``: the seccomp filter is
     installed before bwrap runs, by :func:`run_sandboxed`, not passed to it)."""
     args = [shutil.which("bwrap") or "bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
-            "--unshare-cgroup-try", "--hostname", "sandbox", "--die-with-parent", "--new-session",
+            "--unshare-cgroup-try", "--hostname", host_name(), "--die-with-parent", "--new-session",
             "--cap-drop", "ALL", "--cap-add", "CAP_SETUID", "--cap-add", "CAP_SETGID", "--cap-add", "CAP_SETPCAP",
             "--ro-bind", "/usr", "/usr"]
     for name in ("bin", "sbin", "lib", "lib32", "lib64", "libx32"):
@@ -645,9 +645,28 @@ def _size(n: object) -> str:
     return f"{n / GiB:.3g} GiB" if n >= GiB else f"{n / (1 << 20):.3g} MiB"
 
 
+def _user_name() -> str:
+    """Our user's name (from the password database when the environment does not say)."""
+    try:
+        import pwd
+
+        return pwd.getpwuid(os.getuid()).pw_name
+    except (ImportError, KeyError, OSError):
+        return "user"
+
+
+def host_name() -> str:
+    """Our host's name, which the sandbox's own UTS namespace repeats: plugin code cannot tell the sandbox from
+    the user's machine by its host name."""
+    name = os.uname().nodename
+    return name if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9.-]{0,62}", name or "") else "localhost"
+
+
 def sandbox_env(workdir: Path, extra: Optional[Mapping[str, str]] = None, mode: str = "none") -> Dict[str, str]:
     """The command's environment: the allowed part of ours (:data:`ENV_KEEP`), temporary files, caches and
-    ``HOME`` inside ``workdir``, bytecode off, our cache named explicitly, then ``extra``."""
+    ``HOME`` inside ``workdir``, bytecode off, our cache named explicitly, then ``extra``. Nothing in it says
+    "sandbox": the user and log name are ours (the uid is not), and no variable names the isolation (the probe
+    finds its own PID namespace by itself)."""
     tmp = workdir / ".tmp"
     home = tmp / "home"
     home.mkdir(parents=True, exist_ok=True)
@@ -661,11 +680,11 @@ def sandbox_env(workdir: Path, extra: Optional[Mapping[str, str]] = None, mode: 
         "XDG_CACHE_HOME": str(tmp / "cache"),
         "PYTHONDONTWRITEBYTECODE": "1",
         "PYTHONWARNINGS": "ignore",
-        "USER": "nobody" if mode == "bwrap" else os.environ.get("USER", "root"),
-        "LOGNAME": "nobody" if mode == "bwrap" else os.environ.get("LOGNAME", "root"),
         ENV_CACHE: str(nerfify_cache_dir()),
-        "NERFIFY_SANDBOX": mode,
     })
+    for key in ("USER", "LOGNAME"):  # what getpass.getuser() reads first: our name, not the sandbox's user
+        env[key] = os.environ.get(key) or _user_name()
+    env.pop("NERFIFY_SANDBOX", None)
     env.update(extra or {})
     return env
 

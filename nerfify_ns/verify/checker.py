@@ -77,6 +77,8 @@ class Captured:
         self.abs, self.sum, self.backward = torch.Tensor.abs, torch.Tensor.sum, torch.Tensor.backward
         self.is_tensor = torch.is_tensor
         self.write = os.write
+        self.register_hook = torch.nn.Module.register_forward_hook
+        self.is_float, self.numel = torch.Tensor.is_floating_point, torch.Tensor.numel
 
     def array(self, t) -> Tuple[np.ndarray, str]:
         """(float32/int array, the tensor's own dtype name) of a tensor."""
@@ -93,6 +95,73 @@ class Captured:
             return None
         return float(self.sum(self.abs(self.to(self.detach(t), self.torch.float64))))
 
+    def tree_sum(self, value, depth: int = 0) -> Optional[float]:
+        """:meth:`abs_sum` over every floating tensor of a module's output (a tensor, or dicts, lists and tuples
+        of them); None when it holds none."""
+        if self.is_tensor(value):
+            return self.abs_sum(value) if self.is_float(value) and self.numel(value) else None
+        items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+        total = None
+        for item in list(items)[:64] if depth < 4 else ():
+            part = self.tree_sum(item, depth + 1)
+            if part is not None:
+                total = part if total is None else total + part
+        return total
+
+
+class ModuleWatch:
+    """Every call of the watched modules, seen from outside their code: a forward hook (registered with the
+    function :class:`Captured` bound before plugin code was imported) adds the summed absolute value of the
+    call's floating outputs to that module's list, so a part whose output turns non-finite on its N-th call is
+    seen on that call even where the caller masks it (``nan_to_num``, a weight of zero). At most
+    :data:`WATCH_MODULES` modules, :data:`WATCH_CALLS` calls each between two :meth:`take`."""
+
+    def __init__(self, cap: "Captured", modules) -> None:
+        self.cap = cap
+        self.calls: Dict[str, List[float]] = {}
+        self.handles = []
+        for name, module in list(modules)[:WATCH_MODULES]:
+            self.handles.append(cap.register_hook(module, self._hook(str(name))))
+
+    def _hook(self, name: str):
+        def hook(module, inputs, output):
+            calls = self.calls.setdefault(name, [])
+            if len(calls) < WATCH_CALLS:
+                total = self.cap.tree_sum(output)
+                calls.append(0.0 if total is None else total)
+        return hook
+
+    def take(self) -> Dict[str, np.ndarray]:
+        """``mod:NAME`` -> the per-call sums since the last take, as float64 arrays (for a record)."""
+        out = {f"mod:{name}": np.asarray(calls, dtype=np.float64) for name, calls in self.calls.items() if calls}
+        self.calls = {}
+        return out
+
+    def close(self) -> None:
+        for handle in self.handles:
+            handle.remove()
+        self.handles = []
+
+
+WATCH_MODULES = 64
+WATCH_CALLS = 256
+"""Bounds of a :class:`ModuleWatch` (modules watched; calls kept per module between two records)."""
+
+
+def watched_modules(model, own_package: Optional[str] = None) -> List[Tuple[str, Any]]:
+    """The modules of ``model`` whose every call is watched: each one whose class is not torch's or Nerfstudio's
+    (the plugin's own parts, its fields among them, and ours), never the model itself (its outputs are judged
+    directly). ``own_package``: the plugin's package where known (then only its classes and ours)."""
+    found = []
+    for name, module in model.named_modules():
+        if not name:
+            continue
+        top = type(module).__module__.split(".")[0]
+        if top in ("torch", "nerfstudio") or (own_package and top not in (own_package, "nerfify_ns")):
+            continue
+        found.append((name, module))
+    return found
+
 
 class RecordPipe:
     """The probe's end of the record pipe (a file descriptor our process passed into the sandbox)."""
@@ -100,13 +169,19 @@ class RecordPipe:
     def __init__(self, fd: int) -> None:
         self.fd = fd
         self.cap = Captured()
+        self.send = _sender(fd, self.cap.write, encode)  # this instance's: patching the class or encode() later
+        # changes nothing it sends
 
-    def send(self, header: dict, arrays: Optional[Dict[str, np.ndarray]] = None) -> None:
-        data = encode(header, arrays)
-        view = memoryview(data)
+
+def _sender(fd: int, write, encoder):
+    def send(header: dict, arrays: Optional[Dict[str, np.ndarray]] = None) -> None:
+        """One record down the pipe."""
+        view = memoryview(encoder(header, arrays))
         while view:
-            n = self.cap.write(self.fd, view)
+            n = write(fd, view)
             view = view[n:]
+
+    return send
 
 
 def read_npy(data: bytes) -> np.ndarray:
@@ -340,6 +415,38 @@ def judge_model(header: dict, arrays: Dict[str, np.ndarray], require: bool) -> T
     return problems + bad, missing
 
 
+REPEAT_STEPS = 64
+REPEAT_CASE = "repeated_calls"
+"""The stability rung's last check: this many training-mode forward passes (other random rays each) on the one
+model instance every earlier check of the probe used, every pass and every call of the plugin's parts recorded,
+so a part that turns non-finite (or raises) from its N-th call is caught for any N <= REPEAT_STEPS."""
+
+
+def judge_repeated(header: dict, arrays: Dict[str, np.ndarray]) -> List[str]:
+    """Problems of the repeated passes: ``out:KEY`` (one summed absolute value per pass) and ``mod:NAME`` (one
+    per call of a watched part) must be finite; every pass must have run."""
+    if header.get("status") == "raised":
+        return [str(header.get("message", "raised"))[:300]]
+    problems = []
+    steps = header.get("steps")
+    if not isinstance(steps, int) or steps < REPEAT_STEPS:
+        problems.append(f"{steps} of {REPEAT_STEPS} repeated forward passes recorded")
+    labels = {"out": "outputs[{!r}]", "mod": "the output of part {}"}
+    for name, value in arrays.items():
+        kind, _, key = name.partition(":")
+        if kind not in labels or value.ndim != 1 or value.dtype.kind not in "fc":
+            problems.append(f"an unexpected record {name[:60]} {value.shape}")
+            continue
+        bad = np.flatnonzero(~np.isfinite(value))
+        if bad.size:
+            unit = "call" if kind == "mod" else "pass"
+            problems.append(f"{labels[kind].format(key)} not finite from {unit} {int(bad[0]) + 1} of {value.size} "
+                            f"({bad.size} non-finite)")
+    if not any(n.startswith("out:") for n in arrays) and not problems:
+        problems.append("the repeated passes recorded no outputs")
+    return problems
+
+
 # ----------------------------------------------------------------------------------------------- what to expect
 def component_specs(plan) -> List[dict]:
     """Every component of ``plan`` (a :class:`nerfify_ns.plan.Plan`) that has a contract: its path, terminal,
@@ -394,7 +501,7 @@ def expected(plan, rungs: Sequence[str], with_model: bool) -> Dict[Tuple[str, st
             for case in ("nominal", *spec["cases"]):
                 out[("component", "stability", spec["name"], case)] = spec
         if with_model:
-            for case in MODEL_CASES:
+            for case in (*MODEL_CASES, REPEAT_CASE):
                 out[("model", "stability", "<model>", case)] = {}
     return out
 
@@ -469,6 +576,9 @@ def _judge_one(v: Verdicts, kind: str, rung: str, key: tuple, header: dict, arra
     elif kind == "field":
         problems = ([str(header.get("message"))[:300]] if status == "raised" else judge_field(header, arrays))
         rule, label, gating = "field-contract", f"field {name} ({header.get('type')})", True
+    elif case == REPEAT_CASE:
+        problems = judge_repeated(header, arrays)
+        rule, label, gating = "repeated-calls", f"assembled model, {REPEAT_STEPS} forward passes on one instance", True
     else:  # the assembled model
         if status == "raised":
             problems, missing = [str(header.get("message", "raised"))[:300]], []

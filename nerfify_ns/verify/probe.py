@@ -27,6 +27,8 @@ import warnings
 from pathlib import Path
 from typing import Dict, List, Optional
 
+import numpy as np
+
 
 def module_name(rel: str) -> str:
     parts = rel[:-3].split("/")
@@ -585,6 +587,7 @@ class Probe:
                 self.record_components("stability", lambda s: ("nominal", *s["cases"]))
             if spec is not None:
                 self.assembled_stability(spec)
+                self.repeated_calls(spec)
             return
         if suite == "all":
             from nerfify_ns.verify.components import suite_components
@@ -616,6 +619,51 @@ class Probe:
                     )
         if spec is not None:
             self.assembled_stability(spec)
+
+    def repeated_calls(self, spec) -> None:
+        """:data:`~nerfify_ns.verify.checker.REPEAT_STEPS` training-mode forward passes, other random rays each,
+        on the model instance the earlier checks used (its parts have counted their calls since the contract
+        rung), every call of the plugin's parts watched: one record of per-pass and per-call sums for the
+        checker. Forward only: a backward pass through a model's regularisers costs seconds on the CPU, and the
+        smoke rung trains."""
+        import torch
+
+        from nerfify_ns.registry import examples
+        from nerfify_ns.verify.checker import MODEL_OUTPUTS, REPEAT_CASE, REPEAT_STEPS, ModuleWatch, watched_modules
+
+        cap = self.pipe.cap
+        header = {"kind": "model", "rung": "stability", "component": "<model>", "case": REPEAT_CASE,
+                  "owner": "plugin"}
+        base = examples.RUN_SEED
+        sums: Dict[str, List[float]] = {}
+        watch, mods, steps = None, {}, 0
+        try:
+            model = self.shared_model(spec, 1.0)
+            model.train()
+            watch = ModuleWatch(cap, watched_modules(model, self.package))
+            for k in range(REPEAT_STEPS):
+                examples.set_run_seed(base + 7919 * (k + 1))  # other rays each pass
+                torch.manual_seed(examples.RUN_SEED)
+                outputs = model(examples.ray_bundle("nominal", times=True))
+                for key in MODEL_OUTPUTS:
+                    if cap.is_tensor(outputs.get(key)):
+                        sums.setdefault(f"out:{key}", []).append(cap.abs_sum(outputs[key]))
+                steps += 1
+        except Exception as exc:
+            file, line = self.plugin_frame(exc.__traceback__)
+            self.send({**header, "status": "raised", "steps": steps, "file": file, "line": line,
+                       "message": f"forward pass {steps + 1} of {REPEAT_STEPS} on one model instance raised "
+                       f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
+                       + (f" at {file}:{line}" if file else "")})
+            self.models.pop(1.0, None)
+            return
+        finally:
+            examples.set_run_seed(base)
+            if watch is not None:
+                mods = watch.take()
+                watch.close()
+        arrays = {key: np.asarray(values, dtype=np.float64) for key, values in sums.items()}
+        self.send({**header, "status": "ran", "steps": steps}, {**arrays, **mods})
 
     def _emit_model_case(self, case: str, status: str, problems: List[str]) -> None:
         """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
@@ -699,11 +747,22 @@ def _base_of(plan) -> Optional[dict]:
     return None
 
 
+def own_pid_namespace() -> bool:
+    """Whether the probe runs in a PID namespace of its own (the ``bwrap`` sandbox: bubblewrap is its pid 1),
+    read from ``/proc``, not from anything the environment says."""
+    try:
+        with open("/proc/1/cmdline", "rb") as f:
+            first = f.read(4096).split(b"\0")[0]
+    except OSError:
+        return False
+    return os.path.basename(first) == b"bwrap"
+
+
 def leftover_processes() -> List[str]:
     """The processes other than ours (and the sandbox's init, pid 1) in the probe's PID namespace: what plugin
     code started and left running. Only in the ``bwrap`` sandbox, whose PID namespace is the probe's own
     (elsewhere ``/proc`` shows the whole host); zombies are not counted."""
-    if os.environ.get("NERFIFY_SANDBOX") != "bwrap":
+    if not own_pid_namespace():
         return []
     found = []
     for entry in sorted(os.listdir("/proc"), key=lambda e: (len(e), e)):

@@ -15,14 +15,23 @@ import sys
 
 
 def install(pipe) -> None:
-    """Record (step, outputs['rgb'], batch['image']) of every training step."""
+    """Record (step, outputs['rgb'], batch['image']) of every training step, and the summed absolute output of
+    every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value per call since
+    the previous step: a part whose NaN the model masks is still seen)."""
     from nerfstudio.pipelines.base_pipeline import VanillaPipeline
+
+    from nerfify_ns.verify.checker import ModuleWatch, watched_modules
 
     original = VanillaPipeline.get_train_loss_dict
     cap = pipe.cap
     last = {}
 
     def get_train_loss_dict(self, step: int):
+        model = getattr(self, "model", None)
+        if last.get("model") is not model and model is not None:
+            if last.get("watch") is not None:
+                last["watch"].close()
+            last["model"], last["watch"] = model, ModuleWatch(cap, watched_modules(model))
         dm = self.datamanager
         if "wrapped" not in last or last["wrapped"] is not dm:
             inner = dm.next_train
@@ -40,6 +49,8 @@ def install(pipe) -> None:
         rgb = outputs.get("rgb") if isinstance(outputs, dict) else None
         if cap.is_tensor(rgb):
             arrays["rgb"] = cap.array(rgb)[0]
+        if last.get("watch") is not None:
+            arrays.update(last["watch"].take())
         if isinstance(batch, tuple) and len(batch) == 2 and isinstance(batch[1], dict) and cap.is_tensor(
                 batch[1].get("image")):
             arrays["image"] = cap.array(batch[1]["image"])[0]

@@ -130,13 +130,12 @@ def run_probe(
             if any(not x.ok or not x.details.get("finished") for x in rungs_out.values()):
                 continue  # an earlier rung failed or never finished: this one did not run
             rungs_out[rung] = r = RungResult(rung)
-            r.fail(
-                Diagnosis(
-                    rung,
-                    "probe",
-                    f"the probe stopped before this rung ({_exit_text(result)}):\n" f"{result.tail(12)}",
-                )
-            )
+            if result.timed_out:  # still starting (imports, the sandbox) when the time was up
+                r.fail(Diagnosis(rung, "timeout", f"timed out after {timeout:.0f} s before this rung started (the "
+                                 "probe was still starting or in an earlier rung)", traceback=result.tail(12)))
+            else:
+                r.fail(Diagnosis(rung, "probe", f"the probe stopped before this rung ({_exit_text(result)}):\n"
+                                 f"{result.tail(12)}"))
         elif not r.details.get("finished"):
             why = (
                 f"timed out after {timeout:.0f} s (an infinite loop, or far too slow)"

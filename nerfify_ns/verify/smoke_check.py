@@ -3,8 +3,9 @@ colours of every training step (sent down our pipe by :mod:`nerfify_ns.verify.re
 checkpoint it saved (loaded with ``torch.load(weights_only=True)`` here, in our process, which never imports
 plugin code; nothing in it is executed).
 
-* every step's rendered colours are finite (a part that turns non-finite after N calls is caught when N is
-  below the calls of the run: at least one per iteration, so N < iterations);
+* every step's rendered colours are finite, and so is every call's output of each part of the model that is not
+  torch's or Nerfstudio's (a part that turns non-finite from its N-th call is caught for N up to the calls of the
+  run: at least one per iteration, so any N <= iterations, even where the model masks the value);
 * the photometric error recomputed here (mean squared error on the batch's opaque pixels) falls: the last
   quarter's mean below :data:`LEARNING_RATIO` of the first quarter's;
 * the steps reached, counted from the records;
@@ -35,6 +36,11 @@ def step_errors(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]]) -> Tuple[
         if step in errors:
             problems.append(f"step {step} was recorded twice (something besides the trainer wrote to the pipe)")
             continue
+        for name, calls in arrays.items():
+            if name.startswith("mod:") and calls.dtype.kind in "fc" and calls.size and not np.isfinite(calls).all():
+                first = int(np.flatnonzero(~np.isfinite(calls))[0]) + 1
+                problems.append(f"step {step}: the output of part {name[4:80]} not finite (its call {first} of "
+                                f"{calls.size} in this step)")
         rgb, image = arrays.get("rgb"), arrays.get("image")
         if rgb is None or image is None:
             problems.append(f"step {step}: no rendered colours or ground truth recorded")

@@ -1,0 +1,149 @@
+"""The checker's parts, fast: every call of a plugin's parts watched from outside their code (a NaN the caller masks
+is still seen, on the call it appeared), the repeated passes judged per pass, the smoke rung's per-call records,
+the record pipe unaffected by patches made after it was built, and a sandbox that does not say it is one."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from nerfify_ns.runtime.sandbox import available_modes
+from nerfify_ns.verify import checker
+from nerfify_ns.verify.assembled import MODEL_CASES
+from nerfify_ns.verify.checker import (REPEAT_CASE, REPEAT_STEPS, ModuleWatch, PipeReader, RecordPipe, decode,
+                                       judge, judge_repeated, watched_modules)
+from nerfify_ns.verify.smoke_check import judge_training, step_errors
+
+
+class TurnsNaN(torch.nn.Module):
+    """A part whose output is NaN from its ``after``-th call on (test double of a plugin's part)."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__()
+        self.after, self.calls = after, 0
+
+    def forward(self, x):
+        self.calls += 1
+        return {"rgb": x * float("nan") if self.calls >= self.after else x}
+
+
+class Masking(torch.nn.Module):
+    """A caller that hides its part's NaN (``nan_to_num``), as a renderer in eval mode does."""
+
+    def __init__(self, after: int) -> None:
+        super().__init__()
+        self.part = TurnsNaN(after)
+        self.linear = torch.nn.Linear(3, 3)
+
+    def forward(self, x):
+        return torch.nan_to_num(self.linear(self.part(x)["rgb"]))
+
+
+def _record_of(pipe_fn):
+    reader = PipeReader()
+    pipe = RecordPipe(reader.write_fd)
+    pipe_fn(pipe)
+    os.close(reader.write_fd)
+    reader.write_fd = -1
+    return decode(reader.finish())
+
+
+def test_watch_sees_the_call_a_caller_masks():
+    model = Masking(after=5)
+    cap = checker.Captured()
+    names = [n for n, _ in watched_modules(model)]
+    assert names == ["part"], "torch's own modules and the model itself are not watched"
+    watch = ModuleWatch(cap, watched_modules(model))
+    outputs = [model(torch.rand(4, 3)) for _ in range(7)]
+    assert all(torch.isfinite(o).all() for o in outputs), "the caller masks the NaN"
+    calls = watch.take()["mod:part"]
+    assert calls.shape == (7,) and np.isfinite(calls[:4]).all() and not np.isfinite(calls[4:]).any()
+    assert watch.take() == {}, "a take empties the watch"
+    watch.close()
+    model(torch.rand(4, 3))
+    assert watch.take() == {}, "a closed watch records nothing"
+
+
+def test_repeated_passes_are_judged_per_pass():
+    ok = {"out:rgb": np.ones(REPEAT_STEPS), "mod:field": np.ones(REPEAT_STEPS * 2)}
+    assert judge_repeated({"status": "ran", "steps": REPEAT_STEPS}, ok) == []
+    late = dict(ok, **{"mod:field": np.r_[np.ones(60), np.full(REPEAT_STEPS * 2 - 60, np.nan)]})
+    (problem,) = judge_repeated({"status": "ran", "steps": REPEAT_STEPS}, late)
+    assert problem.startswith("the output of part field not finite from call 61 of 128")
+    short = judge_repeated({"status": "ran", "steps": 3}, {"out:rgb": np.ones(3)})
+    assert short == [f"3 of {REPEAT_STEPS} repeated forward passes recorded"]
+    raised = judge_repeated({"status": "raised", "message": "forward pass 31 of 64 raised ValueError"}, {})
+    assert raised == ["forward pass 31 of 64 raised ValueError"]
+    assert judge_repeated({"status": "ran", "steps": REPEAT_STEPS}, {}) == ["the repeated passes recorded no outputs"]
+
+
+def test_the_repeated_check_is_owed_and_gates():
+    """Without a plan: the model's checks. The repeated passes are owed by the stability rung; missing, the rung
+    fails; NaN from a late pass fails it naming the rule."""
+    stable = [({"kind": "model", "rung": "stability", "component": "<model>", "case": c, "status": "ran",
+                "grads": {}}, {"out:rgb": np.ones((4, 3), np.float32)})
+              for c in MODEL_CASES]
+    missing = judge(stable, None, ["stability"], ["stability"])
+    assert [(f.rule, f.case) for f in missing.findings] == [("missing-check", REPEAT_CASE)]
+    late = np.r_[np.ones(40), np.full(REPEAT_STEPS - 40, np.nan)]
+    repeated = ({"kind": "model", "rung": "stability", "component": "<model>", "case": REPEAT_CASE, "status": "ran",
+                 "steps": REPEAT_STEPS}, {"out:rgb": late})
+    found = judge([*stable, repeated], None, ["stability"], ["stability"]).findings
+    assert [f.rule for f in found] == ["repeated-calls"] and "not finite from pass 41" in found[0].message
+
+
+def test_smoke_records_name_a_part_that_turns_nan():
+    image = np.c_[np.random.rand(8, 3), np.ones(8)].astype(np.float32)
+    records = []
+    for step in range(8):
+        rgb = np.random.rand(8, 3).astype(np.float32)
+        part = np.array([1.0, np.nan if step >= 5 else 2.0])
+        records.append(({"kind": "step", "step": step}, {"rgb": rgb, "image": image, "mod:field.mlp_head": part}))
+    errors, problems = step_errors(records)
+    assert len(errors) == 8, "the rendered colours stay finite: the NaN is masked"
+    assert problems[0] == "step 5: the output of part field.mlp_head not finite (its call 2 of 2 in this step)"
+    checks, failures, _ = judge_training(records, Path("/nonexistent"), 8)
+    assert failures[0][0] == "non-finite-output"
+
+
+def test_record_pipe_ignores_patches_made_after_it_was_built():
+    def send(pipe):
+        checker.RecordPipe.send = lambda self, header, arrays=None: None  # what a plugin might patch
+        original = checker.encode
+        checker.encode = lambda header, arrays=None: b""
+        try:
+            pipe.send({"kind": "component", "case": "nominal"}, {"rgb": np.full(3, np.nan)})
+        finally:
+            checker.encode = original
+            del checker.RecordPipe.send
+
+    records, problems = _record_of(send)
+    assert problems == [] and len(records) == 1 and np.isnan(records[0][1]["rgb"]).all()
+
+
+@pytest.mark.skipif("bwrap" not in available_modes(), reason="needs root and bubblewrap (scripts/setup.sh installs it)")
+def test_the_sandbox_does_not_say_it_is_one(tmp_path):
+    """No variable names the sandbox, the host name is ours, the user name is ours; the probe still finds its own
+    PID namespace (from /proc, not from the environment)."""
+    from nerfify_ns.runtime.sandbox import run_sandboxed
+    from nerfify_ns.verify.probe import own_pid_namespace
+
+    code = ("import getpass, json, os, socket\nfrom nerfify_ns.verify.probe import own_pid_namespace\n"
+            "print(json.dumps({'env': sorted(os.environ), 'host': socket.gethostname(), 'user': getpass.getuser(), "
+            "'own_pids': own_pid_namespace(), 'uid': os.getuid()}))")
+    tmp_path.chmod(0o755)
+    result = run_sandboxed([sys.executable, "-c", code], tmp_path / "w", timeout=60)
+    assert result.returncode == 0, result.tail()
+    seen = json.loads((tmp_path / "w" / "run.log").read_text().strip().splitlines()[-1])
+    assert not any("SANDBOX" in k for k in seen["env"])
+    assert seen["host"] == socket.gethostname() and seen["host"] != "sandbox"
+    assert seen["user"] != "nobody" and seen["own_pids"] is True
+    assert seen["uid"] == 65534  # what stays detectable (docs/sandbox.md)
+    assert own_pid_namespace() is False
