@@ -8,6 +8,10 @@ aligned by name; cumulative reductions over earlier samples (``\\sum_{j<i}``, ``
 the masked sum/product over the pair of axes (i, j) straight from their definition, where the lowering
 uses cumulative sums in log space; a finite range is a Python loop.
 
+Bounded before it evaluates anything: ``shapes.check_cost`` refuses equations whose finite ranges (nested
+ranges multiplied) or operations are past ``MAX_RANGE_ITERATIONS`` / ``MAX_OPERATIONS``, and the iterations run
+are counted as they run (a range limit read from a binding is known only then).
+
 Bindings follow ``shapes.py`` (``[R, S, ...]`` per sample, ``[R, ...]`` per ray, parameters as shaped);
 without a layout, a symbol used with a sample index is per-sample, a parameter of ``sizes`` is as given,
 a 0-d value is a scalar, and anything else is per ray.

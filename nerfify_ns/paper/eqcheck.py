@@ -9,7 +9,7 @@ then shows the LaTeX as text with that reason. ``render_checks_html(checks)`` fi
 
 Bounded: an equation the equation reader refuses for its size (``equations.normalize.size_refusal``: longer
 than its character limit, nested too deeply, too many big operators), or longer than ``MAX_DRAW_CHARS``, is
-not given to mathtext (its time and memory grow with the input: a 600 KB formula took minutes and GBs); its
+not given to mathtext (its time and memory grow with the input: minutes and GBs for a 600 KB formula); its
 image says why it was not drawn. Text shown as text is escaped, so a
 ``$`` in it never starts mathtext either.
 
@@ -27,7 +27,7 @@ from typing import Iterable, Optional, Union
 
 
 PARTIAL = "equation_check.html.j2"
-MAX_DRAW_CHARS = 1500
+MAX_DRAW_CHARS = 1000
 """The longest equation given to mathtext (its time grows with the length, about 1 s per 1000 characters on
 one core; the longest equations of real papers have 300-800)."""
 _ENVS = {"pmatrix": ("(", ")"), "bmatrix": ("[", "]"), "Bmatrix": (r"\{", r"\}"), "vmatrix": ("|", "|"),

@@ -1,6 +1,6 @@
 """Reading any real paper never ends a run: the dry run of the real CLI over every paper of ../shared/papers and the
-examples (exit 0, 1 or 2, no traceback, bounded time and memory), the MinerU-style numbers that once ended a run
-with a ZeroDivisionError, and a fuzz of the reader with fragments cut at random (fixed seed) from those papers:
+examples (exit 0, 1 or 2, no traceback, bounded time and memory), MinerU-style numbers (spaced digits, whose
+unjoined digits would fold into a division by zero), and a fuzz of the reader with fragments cut at random (fixed seed) from those papers:
 paper ingestion, hyperparameters, notation, equation parsing and the compiler's parts, where only the project's
 own errors (PaperError) and ParseFailures may come out. Only robustness is asserted, never which holes a paper
 gets (the planner changes)."""
@@ -63,8 +63,8 @@ def dry_run(paper: Path, cwd: Path) -> subprocess.CompletedProcess:
 
 # ------------------------------------------------------------------------------------ MinerU's numbers
 def test_mineru_numbers_are_read_and_never_end_a_run(tmp_path):
-    """The sentence that ended a run (``$1 \\times 1 0 ^ { - 2 }$`` folded into 0 ** -2 inside lark) is read as
-    0.01, and a paper's own 0^{-2} is one unread value, not a traceback."""
+    """MinerU's ``$1 \\times 1 0 ^ { - 2 }$`` is read as 0.01 (its digits joined before the constant is folded:
+    1 x 0^{-2} would divide by zero), and a paper's own 0^{-2} is one unread value, not a traceback."""
     from nerfify_ns.synthesis.novel.notation import PaperWords, mentions
 
     paper = tmp_path / "mineru.md"
