@@ -685,7 +685,7 @@ def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
     failed = [k for k, v in sections.items() if v.get("status") in ("fail", "failed")]
     headline = (f"{err}; " if err else "no run.json (not written by ns-nerfify's pipeline); ") + \
         f"parts present: {', '.join(present) or 'none'}"
-    return {"known": False, "ok": not failed, "headline": headline, "until": None, "command": None,
+    return {"known": False, "ok": not failed, "partial": partial, "headline": headline, "until": None, "command": None,
             "failed": {"name": failed[0], "reason": "see its section"} if failed else None, "stages": []}
 
 
