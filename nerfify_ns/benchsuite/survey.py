@@ -149,6 +149,10 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
     row.base = plan.get("base", "")
     note = next((n for n in plan.get("notes", []) if str(n).startswith("base: ")), "")
     row.base_reason = note[6:300]
+    chosen = out / "base.json"
+    if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
+        data = json.loads(chosen.read_text())
+        row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
     row.contributions = plan.get("contributions", [])
     row.holes = plan.get("holes", [])
     for path, custom in _customs(plan):
@@ -187,6 +191,7 @@ def _read_paper(paper: Path, out: Path) -> int:
         return 2
     out.mkdir(parents=True, exist_ok=True)
     (out / "plan.yaml").write_text(Plan.of(result.plan).dump())
+    (out / "base.json").write_text(json.dumps({"base": result.derived.base, "reason": result.derived.base_reason}))
     family = result.derived.family
     if family is not None and not family.buildable:
         print(f"failed plan: a {family.headline()} paper: {family.why}")
