@@ -154,6 +154,7 @@ def run_paper(
             _report(staging, outcome)
             _rewrite_saved_paths(staging, final)
         return PaperResult(final, doc, derived, graph, derived.plan, outcome, implementation=implementation)
+    scene = _scene_for_family(scene, dataset, derived, outcome)
     with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
@@ -162,6 +163,23 @@ def run_paper(
                                agents, deadline)
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
+
+
+def _scene_for_family(scene: str, dataset: Optional[Dataset], derived: DerivedPlan, outcome: Outcome) -> str:
+    """The procedural scene a paper trains on when the user named none: a dynamic paper gets the first catalogued
+    scene with timestamps (its time parts are kept, not pruned for a static scene); otherwise ``scene``."""
+    family = derived.family
+    if dataset is not None or scene != "default" or family is None or not family.scene.get("timestamps"):
+        return scene
+    from nerfify_ns.scenes.catalog import list_scenes, scene_spec
+
+    timed = next((name for name in list_scenes() if (scene_spec(name).get("flags") or {}).get("dynamic")), None)
+    if timed is None:
+        return scene
+    derived.plan.setdefault("notes", []).append(
+        f"a {family.name} paper: trained on the procedural scene '{timed}' (it has timestamps); --scene or --data "
+        "chooses another")
+    return timed
 
 
 def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Callable:
