@@ -223,3 +223,121 @@ def test_fuzz_ingestion_notation_and_the_compiler_with_fragments_of_real_papers(
             assert len(result.records) == 2 and all(r.reason for r in result.records), label
             compiled += 1
     assert compiled > 0
+
+
+# ------------------------------------------------------------------------------------ the boundaries
+def _gatenerf(tmp_path):
+    sys.path.insert(0, str(REPO / "tests" / "synthesis"))
+    from novel_papers import GATENERF
+
+    paper = tmp_path / "gatenerf.md"
+    paper.write_text(GATENERF)
+    return ingest(paper)
+
+
+def _two_parts() -> dict:
+    from nerfify_ns.synthesis.resources import load_reference_plan
+
+    plan = load_reference_plan("vanilla-nerf")
+    plan["holes"] = [
+        {"production": "Backbone", "slot": "model.field.MLPField.backbone", "section": "3.1 Gated embeddings",
+         "equations": [{"number": n} for n in "123"]},
+        {"production": "RGBHead", "slot": "model.field.MLPField.rgb_head", "section": "3.1 Gated embeddings",
+         "equations": [{"number": "3"}]},
+    ]
+    return plan
+
+
+def test_an_exception_inside_a_part_is_that_parts_reason_and_the_next_part_is_compiled(tmp_path, monkeypatch):
+    from nerfify_ns.synthesis.novel import NOT_IMPLEMENTED, implement, implement_holes
+
+    doc = _gatenerf(tmp_path)
+    original = implement._implement_one
+
+    def failing(work):
+        if work.hole["production"] == "Backbone":
+            raise RuntimeError("a compiler bug on this paper")
+        return original(work)
+
+    monkeypatch.setattr(implement, "_implement_one", failing)
+    result = implement_holes(doc, _two_parts())
+    backbone, rgb = result.records
+    assert backbone.status == NOT_IMPLEMENTED
+    assert backbone.reason == "could not compile the part: RuntimeError: a compiler bug on this paper"
+    assert [e["number"] for e in backbone.equations] == ["1", "2", "3"]
+    assert rgb.production == "RGBHead" and rgb.reason and "RuntimeError" not in rgb.reason
+    hole = next(h for h in result.plan["holes"] if h["production"] == "Backbone")
+    assert hole["status"] == NOT_IMPLEMENTED and "RuntimeError" in hole["reason"]
+
+
+def test_an_exception_in_one_form_or_binding_is_recorded_and_the_part_goes_on(tmp_path, monkeypatch):
+    from nerfify_ns.synthesis.novel import implement, implement_holes
+
+    doc = _gatenerf(tmp_path)
+    original = implement._Hole._bind
+
+    def failing(self, key, sym, eq, corrected):
+        if key.startswith("W"):
+            raise KeyError("no such role")
+        return original(self, key, sym, eq, corrected)
+
+    monkeypatch.setattr(implement._Hole, "_bind", failing)
+    plan = _two_parts()
+    plan["holes"] = plan["holes"][:1]
+    (record,) = implement_holes(doc, plan).records
+    assert "could not be bound: KeyError: 'no such role'" in record.reason
+
+
+def test_an_exception_in_one_sentence_or_equation_of_the_paper_is_recorded(tmp_path, monkeypatch):
+    from nerfify_ns.paper import hyperparams, mathnorm
+    from nerfify_ns.synthesis.novel import implement_holes
+    from nerfify_ns.synthesis.novel.notation import PaperWords
+
+    original_sentence, original_latex = hyperparams.extract_from_sentence, mathnorm.normalize_latex
+
+    def sentence(text, loc=None, section=""):
+        if "learning rate" in text:
+            raise ValueError("an unreadable number")
+        return original_sentence(text, loc, section)
+
+    def latex(text, lost_backslashes=None):
+        if r"\tanh" in text:
+            raise RecursionError("maximum recursion depth exceeded")
+        return original_latex(text, lost_backslashes)
+
+    monkeypatch.setattr(hyperparams, "extract_from_sentence", sentence)
+    monkeypatch.setattr(mathnorm, "normalize_latex", latex)
+    doc = _gatenerf(tmp_path)
+    assert any("hyperparameters of a sentence not read (ValueError: an unreadable number)" in w for w in doc.warnings)
+    assert any(h.name == "hidden_dim" for h in doc.hyperparameters)  # the other sentences are read
+    (memory,) = [e for e in doc.equations if e.number == "2"]
+    assert any(n.startswith("not normalised (RecursionError") for n in memory.notes)
+    assert r"\tanh" in memory.latex  # kept as written
+
+    original_read = PaperWords._read_sentence
+
+    def notation(self, text, where, notation):
+        if "gate weight matrix" in text:
+            raise TypeError("a symbol the table cannot take")
+        return original_read(self, text, where, notation)
+
+    monkeypatch.setattr(PaperWords, "_read_sentence", notation)
+    words = PaperWords.read(doc)
+    assert [reason for _, reason, _ in words.unread] == [
+        "could not read the sentence's notation: TypeError: a symbol the table cannot take"]
+    assert words.named  # the other sentences were read
+    plan = _two_parts()
+    plan["holes"] = plan["holes"][:1]
+    notes = implement_holes(doc, plan).plan["notes"]
+    assert any(n.startswith("notation: 1 sentence(s) or value(s) not read") for n in notes)
+
+
+def test_the_check_records_an_exception_of_the_interpreter(monkeypatch):
+    from nerfify_ns.equations import check, parse_equation
+
+    def broken(*args, **kwargs):
+        raise IndexError("an axis the interpreter lost")
+
+    monkeypatch.setattr(check, "interpret", broken)
+    report = check.check_lowering([parse_equation(r"y = x^2")], {"x": ("R",)}, {}, ["y"])
+    assert not report.ok and report.reason == "interpreter: IndexError: an axis the interpreter lost"
