@@ -63,7 +63,12 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
     assert all(a in summary["method_args"] for a in proxy["ns_train_args"])
     saved = Plan.load(tmp_path / "out" / "plan.yaml")
     assert saved["schedule"]["proxy"]["headline"] == proxy["headline"]
-    assert saved["model"]["sampler"]["hierarchical"]["num_importance_samples"] == 128  # the paper's, in the code
+    fine = next(s for s in proxy["settings"] if s["path"].endswith("num_importance_samples"))
+    # the plugin keeps the plan's value (the paper's, or what the scene's pruning made of it), not the proxy's
+    assert saved["model"]["sampler"]["hierarchical"]["num_importance_samples"] == fine.get("plan", fine["paper"])
+    print(f"budgeted vanilla-NeRF run: {wall:.0f} s of a {seconds:.0f} s budget ({share:.2f}x the machine's pace), "
+          f"{summary['iterations_done']} iterations, {summary['psnr']:.2f} dB, colour spread "
+          f"{summary['diagnostics']['colour_spread_ratio']:.2f}x; {proxy['headline']}")
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert proxy["headline"] in report["outcome"]["result"]
 
