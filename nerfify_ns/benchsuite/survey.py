@@ -221,6 +221,39 @@ def survey(target: Path, work: Optional[Path] = None, verify: bool = False) -> l
     return rows
 
 
+CAUSES = (  # why a found part was not built, from its record's reason (first match wins)
+    ("no adapter for its production", r"no adapter for the \w+ production"),
+    ("prose only (no equation to compile)", r"no equation of the paper belongs|names none the reader found"),
+    ("a symbol it cannot bind", r"\bbind|unbound|cannot place|no binding|not a quantity|interface does not give"),
+    ("a width or size not stated", r"\bwidth\b|\bsize\b|sizes"),
+    ("an equation it cannot read", r"cannot read|unreadable|unknown operator|not read|parse"),
+    ("a reduction it cannot lower", r"reduc|sum over|product over"),
+    ("the contract rung", r"contract"),
+    ("the stability rung", r"stabilit|non-?finite"),
+    ("the smoke rung", r"smoke"),
+    ("no form of the part compiled", r"no form of the part compiled"),
+)
+
+
+def cause(reason: str) -> str:
+    """The cause of a part left unbuilt, from its recorded reason (``CAUSES``; 'other' when none matches)."""
+    return next((name for name, pattern in CAUSES if re.search(pattern, reason or "", re.IGNORECASE)), "other")
+
+
+def causes(rows: list[PaperRow]) -> dict:
+    """Histogram: cause -> number of found parts not built (the buildable papers' holes)."""
+    out: dict = {}
+    for r in rows:
+        if r.exit_code == 1 and "failed plan" in r.error:  # a family the grammar cannot build: nothing was tried
+            continue
+        for h in r.holes:
+            if h.get("status") == "implemented":
+                continue
+            c = cause(str(h.get("reason") or h.get("why") or ""))
+            out[c] = out.get(c, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
 def totals(rows: list[PaperRow]) -> dict:
     items = [i for r in rows for i in r.items]
     holes = sum(len(r.holes) for r in rows)
@@ -232,7 +265,7 @@ def totals(rows: list[PaperRow]) -> dict:
             "implemented_share_of_found": round(sum(i["implemented"] for i in items) / found, 3) if found else None,
             "holes": holes, "spurious": spurious, "spurious_share": round(spurious / holes, 3) if holes else 0.0,
             "family_ok": sum(1 for r in rows if r.family_ok), "family_labelled": sum(1 for r in rows if r.family_expected),
-            "tracebacks": sum(1 for r in rows if r.error.startswith("a traceback"))}
+            "tracebacks": sum(1 for r in rows if r.error.startswith("a traceback")), "not_built_causes": causes(rows)}
 
 
 def table(rows: list[PaperRow]) -> str:
@@ -256,6 +289,9 @@ def table(rows: list[PaperRow]) -> str:
     lines.append(f"found {t['found']}/{t['items']} ({t['found_share']}), implemented {t['implemented']} of the found, "
                  f"spurious holes {t['spurious']}/{t['holes']} ({t['spurious_share']}), family "
                  f"{t['family_ok']}/{t['family_labelled']}, tracebacks {t['tracebacks']}")
+    if t["not_built_causes"]:
+        lines.append("why found parts were not built (papers the grammar can build): " + ", ".join(
+            f"{name} {n}" for name, n in t["not_built_causes"].items()))
     return "\n".join(lines)
 
 

@@ -72,3 +72,19 @@ def test_the_survey_of_the_development_suite(tmp_path):
         assert rows[pid]["exit_code"] == 1 and "splatting" in rows[pid]["error"], rows[pid]
     # the measured floor of today's mechanism (docs/novelty.md has the figures): it may only rise
     assert t["found_share"] >= 0.6 and t["spurious_share"] <= 0.3, t
+
+
+@pytest.mark.parametrize("reason, expected", [
+    ("the compiler has no adapter for the FieldWrapper production yet (it places components in: Backbone)",
+     "no adapter for its production"),
+    ("no equation of the paper belongs to this part (the hole names none the reader found)",
+     "prose only (no equation to compile)"),
+    ("'cal L': 'bb P' (the equation of 'cal L_acc'): a probability that the RGBLoss interface does not give",
+     "a symbol it cannot bind"),
+    ("the ladder's smoke rung failed (loss-not-finite: ...)", "the smoke rung"),
+    ("something nobody foresaw", "other"),
+])
+def test_the_cause_of_a_part_not_built_is_read_from_its_reason(reason, expected):
+    from nerfify_ns.benchsuite.survey import cause
+
+    assert cause(reason) == expected
