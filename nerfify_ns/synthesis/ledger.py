@@ -60,6 +60,7 @@ def _rules() -> dict:
         "first_person": re.compile(data["first_person"], re.IGNORECASE),
         "generic": re.compile(data["generic_headings"], re.IGNORECASE),
         "run_in": re.compile(data["run_in"]), "run_in_not": re.compile(data["run_in_not"]),
+        "schedule_phase": comp(data.get("schedule_phase") or []),
         "productions": {name: ([(re.compile(t, re.IGNORECASE), float(w)) for t, w in spec["terms"].items()],
                                list(spec.get("symbols") or []))
                         for name, spec in data["productions"].items()},
@@ -405,6 +406,30 @@ class _Reader:
         c = self.kb.cards.get(card)
         return c is not None and not c.implements_equation and bool(c.equation_slot)
 
+    def schedule_phases(self, parts: list[Part]) -> list[Part]:
+        """Training phases the paper states in the first person in any method or details section (a warm-up that
+        trains one part alone, a freeze after N steps) and that no new part already holds: one ScheduleHook part
+        each (``ledger.yaml: schedule_phase``)."""
+        held = {x for p in parts if p.status == "new" for x in p.sentences}
+        out: list[Part] = []
+        for i, s in enumerate(self.doc.sections):
+            if self.roles[i] not in ("method", "experiments"):
+                continue
+            for paragraph in s.paragraphs:
+                for sentence in split_sentences(paragraph.text):
+                    if sentence in held or not self.r["first_person"].search(sentence) or _borrows(sentence, self.r):
+                        continue
+                    if any(p.search(sentence) for p in self.r["schedule_phase"]):
+                        page, line, _ = _loc(paragraph.loc)
+                        out.append(Part(f"p{len(parts) + len(out) + 1}", f"training phase: {sentence[:80]}",
+                                        s.heading, sentences=[sentence], page=page, line=line, status="new",
+                                        own_claims=[sentence], production="ScheduleHook",
+                                        production_scores={"ScheduleHook": "a training phase the paper states"},
+                                        why="a training phase the paper states (one part trained alone, or frozen, "
+                                            "for a number of steps)"))
+                        held.add(sentence)
+        return out
+
     def _distinctive_link(self, p: Part) -> bool:
         """Whether a claim shares a word of the part's heading that is not a generic heading word."""
         head = _words(p.heading) - _words(" ".join(GENERIC_HEADING_WORDS))
@@ -488,6 +513,7 @@ def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> L
         if p.status == "new" and not p.production:
             reader.production(p)
     _merge(parts)
+    parts += reader.schedule_phases(parts)
     return Ledger(claims, parts)
 
 
