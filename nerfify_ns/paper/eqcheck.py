@@ -10,8 +10,8 @@ then shows the LaTeX as text with that reason. ``render_checks_html(checks)`` fi
 Bounded: an equation the equation reader refuses for its size (``equations.normalize.size_refusal``: longer
 than its character limit, nested too deeply, too many big operators), or longer than ``MAX_DRAW_CHARS``, is
 not given to mathtext (its time and memory grow with the input: minutes and GBs for a 600 KB formula); its
-image says why it was not drawn. Text shown as text is escaped, so a
-``$`` in it never starts mathtext either.
+image says why it was not drawn. Text shown as text is drawn with ``parse_math=False``, so a ``$`` in it
+never starts mathtext either.
 
 Usage: ``python -m nerfify_ns.paper.eqcheck PAPER OUT_DIR`` writes the PNGs and ``equations.html``.
 """
@@ -153,11 +153,6 @@ def _simplify(row: str) -> str:
     return row
 
 
-def _plain(text: str) -> str:
-    """Text matplotlib draws as it is (a ``$`` would start mathtext)."""
-    return text.replace("$", r"\$")
-
-
 def _placeholder(path: Path, latex: str, reason: str, dpi: int) -> None:
     """A small image that says why an equation was not drawn (plain text only)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -165,8 +160,9 @@ def _placeholder(path: Path, latex: str, reason: str, dpi: int) -> None:
 
     fig = Figure(figsize=(8, 0.8), dpi=dpi)
     FigureCanvasAgg(fig)
-    fig.text(0.01, 0.55, _plain(" ".join(latex[:120].split())), fontsize=9, family="monospace", color="#b00020")
-    fig.text(0.01, 0.15, _plain(reason[:150]), fontsize=8, color="#b00020")
+    fig.text(0.01, 0.55, " ".join(latex[:120].split()), fontsize=9, family="monospace", color="#b00020",
+             parse_math=False)
+    fig.text(0.01, 0.15, reason[:150], fontsize=8, color="#b00020", parse_math=False)
     fig.savefig(path, dpi=dpi, facecolor="white")
 
 
@@ -231,8 +227,8 @@ def _render(latex: str, path: Path, dpi: int, fontsize: float) -> tuple[bool, st
             if kind == "math":
                 fig.text(0.01, y + step * 0.25, f"${row}$", fontsize=fontsize)
             else:
-                fig.text(0.01, y + step * 0.25, _plain(row), fontsize=fontsize * 0.7, family="monospace",
-                         color="#b00020")
+                fig.text(0.01, y + step * 0.25, row, fontsize=fontsize * 0.7, family="monospace",
+                         color="#b00020", parse_math=False)
         if not ok:
             fig.text(0.01, 0.02, "mathtext could not draw this equation: shown as LaTeX text", fontsize=9,
                      color="#b00020")
@@ -241,8 +237,8 @@ def _render(latex: str, path: Path, dpi: int, fontsize: float) -> tuple[bool, st
         except Exception as e:  # a failure only at layout time (e.g. a glyph missing from the font)
             fig2 = Figure(figsize=(8, 0.8), dpi=dpi)
             FigureCanvasAgg(fig2)
-            fig2.text(0.01, 0.5, _plain(latex[:200]), fontsize=9, family="monospace", color="#b00020")
-            fig2.text(0.01, 0.1, _plain(f"mathtext failed: {str(e)[:120]}"), fontsize=8, color="#b00020")
+            fig2.text(0.01, 0.5, latex[:200], fontsize=9, family="monospace", color="#b00020", parse_math=False)
+            fig2.text(0.01, 0.1, f"mathtext failed: {str(e)[:120]}", fontsize=8, color="#b00020", parse_math=False)
             fig2.savefig(path, dpi=dpi, bbox_inches="tight", facecolor="white")
             errors.append(f"mathtext failed while drawing: {re.sub(chr(10), ' ', str(e))[:200]}")
             ok = False
