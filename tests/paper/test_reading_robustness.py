@@ -341,3 +341,31 @@ def test_the_check_records_an_exception_of_the_interpreter(monkeypatch):
     monkeypatch.setattr(check, "interpret", broken)
     report = check.check_lowering([parse_equation(r"y = x^2")], {"x": ("R",)}, {}, ["y"])
     assert not report.ok and report.reason == "interpreter: IndexError: an axis the interpreter lost"
+
+
+@pytest.mark.slow
+def test_a_paper_of_bombs_runs_to_its_plan_with_its_equations_drawn(tmp_path):
+    """The real CLI up to the plan (the compiler's records and their images written) on a paper holding three
+    nested 4096-term sums, a 10,000-term sum and 600 KB of nested braces: bounded like any paper, no traceback."""
+    sys.path.insert(0, str(REPO / "tests" / "synthesis"))
+    from novel_papers import GATENERF
+
+    original = r"\mathbf{h}_{o} = [\mathbf{m} \odot \mathbf{h}_a, \mathbf{h}_b] \tag{3}"
+    nested = (r"\mathbf{h}_{o} = \sum_{k=1}^{4096} \sum_{l=1}^{4096} \sum_{n=1}^{4096} [\mathbf{m} \odot "
+              r"\mathbf{h}_a, \mathbf{h}_b] \tag{3}")
+    terms = " + ".join(f"x_{{{i}}}" for i in range(1, 10_001))
+    text = GATENERF.replace(original, nested).replace(
+        "which feeds the density", f"$$\ny = {terms} \\tag{{4}}\n$$\n\n$$\ny = {'{' * 300_000}x{'}' * 300_000} "
+                                   f"\\tag{{5}}\n$$\n\nwhich feeds the density")
+    paper = tmp_path / "bombs.md"
+    paper.write_text(text)
+    if not CLI.is_file():
+        pytest.skip(f"{CLI} not installed (scripts/setup.sh installs the ns-nerfify entry point)")
+    out = tmp_path / "out"
+    start = time.perf_counter()
+    proc = subprocess.run([str(CLI), str(paper), "--until", "plan", "--out", str(out)], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=DRY_RUN_SECONDS, preexec_fn=_limit)
+    assert proc.returncode in (0, 1), proc.stderr[-2000:]
+    assert "Traceback" not in proc.stdout + proc.stderr
+    assert time.perf_counter() - start < DRY_RUN_SECONDS
+    assert (out / "plan.yaml").is_file() or (out / "report.html").is_file()
