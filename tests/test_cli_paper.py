@@ -1,5 +1,5 @@
 """`ns-nerfify PAPER` as a user runs it (a real process): the dry run, and bad input -> one line, a
-non-zero exit code, and no output folder (issue 4, item 7)."""
+non-zero exit code, and no output folder."""
 
 from __future__ import annotations
 
@@ -130,7 +130,7 @@ def test_compose_a_reference_plan_until_the_plugin(tmp_path):
     assert "pruned" in out.stdout and "ns-train nerfify-generated" in out.stdout
     assert "not run: verify, train" in out.stdout and not (plugin / "verify.json").exists()
     assert f"NERFIFY_GENERATED={plugin} ns-train nerfify-generated" in out.stdout
-    assert not env_cache.exists()  # no global "last generated" pointer (issue 16)
+    assert not env_cache.exists()  # no global "last generated" pointer
 
 
 def test_compose_needs_exactly_one_plan_source(tmp_path):

@@ -1,5 +1,5 @@
 """`ns-nerfify PAPER` end to end, as a user runs it, offline: paper -> plan -> plugin -> verification ladder ->
-training with error against time -> evaluation maps -> report.html (issues 4 and 6)."""
+training with error against time -> evaluation maps -> report.html."""
 
 from __future__ import annotations
 
@@ -76,7 +76,7 @@ MINUTE_ITERATIONS = 500
 @pytest.mark.slow
 def test_the_main_job_renders_colour_not_grey(tmp_path):
     """The README's main job on a budget of about one minute of training: the renders carry colour (the foreground's
-    colour spread at least half the ground truth's; the grey renders of issue 14 had 0.00-0.09x, from a colour head
+    colour spread at least half the ground truth's; grey renders measured 0.00-0.09x, from a colour head
     saturated by the paper's learning rate on a CPU-sized ray batch). The ladder is switched off here (its own tests
     cover it) so the minute goes to training; iterations are fixed (MINUTE_ITERATIONS) so the check does not depend
     on the machine's load."""

@@ -1,4 +1,4 @@
-"""``ns-train nerfify-generated`` resolves its plugin explicitly (issue 16, item 5): $NERFIFY_GENERATED, else the
+"""``ns-train nerfify-generated`` resolves its plugin explicitly: $NERFIFY_GENERATED, else the
 newest plugin under the current directory's ``nerfify-out/``; never a global "last generated" file that two
 parallel runs race through. Its first line says which plugin it trains."""
 

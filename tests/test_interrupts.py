@@ -1,4 +1,4 @@
-"""SIGINT and SIGTERM end any command cleanly (issue 16, item 3): every child process group we started is
+"""SIGINT and SIGTERM end any command cleanly: every child process group we started is
 stopped (training, its data workers, the sandboxed smoke rung), the staging folder is removed, one
 ``interrupted:`` line is printed (no traceback), the exit code is 130 or 143, and a rerun works.
 

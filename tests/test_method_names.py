@@ -1,4 +1,4 @@
-"""A plan's method name must be able to name a plugin (issue 16, item 4): a valid project name, an import name
+"""A plan's method name must be able to name a plugin: a valid project name, an import name
 that is a non-keyword identifier, and no clash with a Nerfstudio built-in, another installed plugin or an
 importable module; an earlier build of the same plugin is fine. ``validate`` checks it, so a plan file, a
 reference plan and a paper all get the check."""

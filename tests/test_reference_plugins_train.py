@@ -1,4 +1,4 @@
-"""Done-when of the composer: every reference plan's plugin installs with pip and trains with `ns-train <its
+"""The composer's promise: every reference plan's plugin installs with pip and trains with `ns-train <its
 name> --machine.device-type cpu` for 100 iterations on a generated scene with finite losses (Nerfstudio's own
 trainer, a real subprocess). The plugin is installed into a folder of the test's own on ``PYTHONPATH``, never
 into the shared environment, where a plugin whose files vanish would break every other ``ns-train``.

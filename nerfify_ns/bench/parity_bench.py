@@ -6,7 +6,7 @@
 Parity: for each method, the reference plan's plugin (pruning off) and the built-in method train in
 the same run on the same scene with the same settings and seeds; the benchmark prints held-out PSNR
 (final checkpoint, mean over the test views, mean over the seeds) and the median training throughput
-of both, their difference and ratio against the done-when bounds (0.5 dB, 10%), and writes PSNR
+of both, their difference and ratio against the parity bounds (0.5 dB, 10%), and writes PSNR
 against wall-clock seconds for every run as CSV and a PNG plot. Throughput is judged on an
 interleaved training-step timing of both models in one process (:mod:`.step_timing`): the rays/s of
 two ns-train processes, also printed, move by up to ~10% with the machine's load alone.
@@ -145,7 +145,7 @@ def pruning(scene: Path, out: Path, every: int, seed: int) -> Dict:
 
 
 def _parity_line(r: Dict) -> str:
-    """One method's verdict against the done-when bounds: PSNR within 0.5 dB, throughput within 10%
+    """One method's verdict against the parity bounds: PSNR within 0.5 dB, throughput within 10%
     (judged on the interleaved step timing; the ns-train rays/s of two processes is shown beside it)."""
     t = r["step_timing"]
     timing = (f"step {t['median_step_seconds_builtin']:.3f} s vs {t['median_step_seconds_generated']:.3f} s "

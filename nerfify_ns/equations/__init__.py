@@ -1,4 +1,4 @@
-"""The equation compiler: a paper's LaTeX -> IR -> a verified torch ``nn.Module`` (issue 12, items 2, 4, 5).
+"""The equation compiler: a paper's LaTeX -> IR -> a verified torch ``nn.Module``.
 
 Offline, deterministic, no model. Binding symbols to Nerfstudio quantities and wiring the module into a
 plugin's ``components/`` are the caller's (the binder's, ``nerfify_ns.synthesis.novel``) job; this package

@@ -1,4 +1,4 @@
-"""Hostile papers, in process (issue 16 items 2, 4, 6): LaTeX that names files outside the paper, include and
+"""Hostile papers, in process: LaTeX that names files outside the paper, include and
 macro bombs, archives that inflate, huge bibliographies and texts, pathological shapes, papers not in English.
 Each is refused with its typed one-line error naming the file or limit, fast (well under 10 s), reading nothing
 outside the paper and leaving nothing behind. The same cases through the real CLI: test_paper_hostile_cli.py."""

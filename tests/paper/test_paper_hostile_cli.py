@@ -1,4 +1,4 @@
-"""Hostile papers through the real CLI (issue 16 items 2, 4, 6): `ns-nerfify PAPER` answers one `error:` line and
+"""Hostile papers through the real CLI: `ns-nerfify PAPER` answers one `error:` line and
 exit code 2, fast, writes nothing (no output folder, no staging folder, nothing left in the temporary folder),
 and prints no host content (a secret in its environment, a canary file beside the paper). Paper text made of
 rich markup and terminal escapes is printed as text. Every case of its kind is also tested in process

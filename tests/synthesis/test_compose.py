@@ -115,7 +115,7 @@ def test_bad_plan_files_and_names_get_clear_errors(tmp_path):
 
 
 def test_compose_keeps_no_global_pointer_and_the_env_overrides(tmp_path, monkeypatch):
-    """No "last generated" file (issue 16: parallel runs raced through it): a plugin composed elsewhere is not
+    """No "last generated" file (parallel runs would race through it): a plugin composed elsewhere is not
     what nerfify-generated trains; the newest under ./nerfify-out is, or the folder in the variable."""
     monkeypatch.setenv("NERFIFY_CACHE", str(tmp_path / "cache"))
     monkeypatch.delenv(ENV_GENERATED, raising=False)

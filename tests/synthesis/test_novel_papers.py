@@ -238,7 +238,7 @@ def test_nerfplayer_decomposition_is_reported_with_exact_reasons():
 
 
 def test_counts_of_every_paper():
-    """Numbered equations found and read (the README table), per paper present."""
+    """Numbered equations found and read (the table of docs/novel-parts.md), per paper present."""
     rows = {}
     for path in (BIONERF, GHNERF, SEATHRU_MD, SEATHRU_PDF, NERFPLAYER):
         if path.is_file():

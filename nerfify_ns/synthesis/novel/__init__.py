@@ -1,4 +1,4 @@
-"""A paper's novel parts compiled from its equations into components of the plugin (issue 12, items 3, 6, 7).
+"""A paper's novel parts compiled from its equations into components of the plugin.
 
     from nerfify_ns.synthesis.novel import implement_holes
     result = implement_holes(doc, derived.plan, corrections=read_corrections(path))
