@@ -32,9 +32,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-import yaml
-
 from nerfify_ns.benchsuite.suite import NoveltyItem, PaperEntry, load_suite
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.safeio import load_json, load_yaml
 
 PAPER_SUFFIXES = (".pdf", ".md", ".tex", ".txt")
 TIME_LIMIT = 300
@@ -143,7 +143,11 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
     if not plan_file.is_file():
         row.error = row.error or (lines[-1] if lines else f"exit {done.returncode}, no plan")
         return row
-    plan = yaml.safe_load(plan_file.read_text()) or {}
+    try:
+        plan = load_yaml(plan_file, what="the paper's plan") or {}
+    except NerfifyError as exc:
+        row.error = row.error or f"its plan could not be read: {exc}"
+        return row
     family = plan.get("family") or {}
     row.family = family.get("name", "")
     row.base = plan.get("base", "")
@@ -151,7 +155,7 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
     row.base_reason = note[6:300]
     chosen = out / "base.json"
     if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
-        data = json.loads(chosen.read_text())
+        data = load_json(chosen, what="the base chosen")
         row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
     row.contributions = plan.get("contributions", [])
     row.holes = plan.get("holes", [])
