@@ -25,7 +25,7 @@ import keyword
 import os
 import re
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Dict, FrozenSet, Iterator, List, Optional, Tuple, Union
 
@@ -79,6 +79,8 @@ class Hole:
     """The paper's sentence that claims it (empty when the paper claims it in no sentence)."""
     why: str = ""
     """Why it is new (no card's equation matches, a claim no card covers) and why it lands at its production."""
+    hyperparameters: List[dict] = field(default_factory=list)
+    """The paper's hyperparameters stated in the part's section ({name, value, sentence})."""
 
     def to_dict(self) -> dict:
         return asdict(self)

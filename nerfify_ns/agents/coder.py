@@ -100,8 +100,12 @@ def coder_messages(record: Any, hole: dict, frozen: dict) -> List[dict]:
             f"{', '.join(frozen['constructor_arguments']) or 'no required arguments'} as keyword arguments "
             f"(accept **kwargs for the rest)"
             + (" and it has get_out_dim() returning its output width" if frozen["get_out_dim"] else "") + ".\n\n"
-            f"The paper's text of this part:\n{str(hole.get('text') or '')[:4000]}\n\n"
-            f"Its equations as the equation compiler read them:\n{json.dumps(equations, indent=1)[:6000]}\n\n"
+            + (f"The paper's claim of this part: {str(hole.get('claim'))[:600]}\n\n" if hole.get("claim") else "")
+            + f"The paper's text of this part:\n{str(hole.get('text') or '')[:4000]}\n\n"
+            + (f"The paper's hyperparameters stated with it:\n"
+               f"{json.dumps(hole.get('hyperparameters'), indent=1, default=str)[:2000]}\n\n"
+               if hole.get("hyperparameters") else "")
+            + f"Its equations as the equation compiler read them:\n{json.dumps(equations, indent=1)[:6000]}\n\n"
             f"What the equation compiler made of it: {record.status}; reason: {record.reason}\n"
             + (f"The compiler's partial code:\n{record.source[:4000]}\n" if record.source else ""))
     return [{"role": "system", "content": system}, {"role": "user", "content": user}]

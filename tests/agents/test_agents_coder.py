@@ -153,3 +153,20 @@ def test_bionerf_right_in_the_fourth_round_passes_every_rung_trains_and_replays(
     (replayed,) = again.code(again_impl, work=tmp_path / "work2")
     assert silent.requests == [] and again.ledger.total().calls == 0 and again.ledger.total().cache_hits == 4
     assert replayed["status"] == "accepted" and again_impl.sources["components.backbone_model"] == RIGHT
+
+
+def test_the_coder_is_told_the_parts_claim_sentences_and_hyperparameters():
+    """The model coder receives what the paper says of the part (its claim, its sentences, its hyperparameters from
+    the ledger), not only the equations the compiler read."""
+    from types import SimpleNamespace
+
+    from nerfify_ns.agents.coder import coder_messages
+
+    record = SimpleNamespace(equations=[], status="not implemented", reason="no equation", source="")
+    hole = {"claim": "We propose a small network that blends the two fields per sample.",
+            "text": "The mixer is an MLP with two layers of 32 units.",
+            "hyperparameters": [{"name": "hidden_dim", "value": 32, "sentence": "two layers of 32 units"}]}
+    frozen = {"class": "Mixer", "constructor_arguments": [], "get_out_dim": False}
+    user = coder_messages(record, hole, frozen)[1]["content"]
+    assert "blends the two fields per sample" in user
+    assert "two layers of 32 units" in user and '"hidden_dim"' in user
