@@ -168,7 +168,7 @@ class Implementation:
         partly = sum(r.status == PARTLY for r in self.records)
         if not n:
             return "the paper has no novel part left as a hole"
-        return (f"{done} of {n} novel part(s) of the paper implemented from its equations"
+        return (f"{done} of {n} novel part(s) of the paper implemented from its equations or sentences"
                 + (f", {partly} partly" if partly else "") + f", {n - done - partly} not implemented")
 
 
@@ -769,6 +769,9 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
                 result.hash = digest
                 if cache is not None:
                     cache[digest] = copy.deepcopy(result)
+            from nerfify_ns.synthesis.novel import prose  # a part stated in words: its typed terminals
+
+            result = prose.build(merged, words.sentences, plan, corr, result)
         except Exception as err:  # noqa: BLE001 - the per-part boundary: this part's reason, the run goes on
             result = _failed_part(merged, hid, local_items, err)
         result.seconds = time.perf_counter() - t0
@@ -790,8 +793,9 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             h["reason"] = result.reason
             h["compiled"] = result.component.get("module", "") if result.status != NOT_IMPLEMENTED else ""
             if result.status != NOT_IMPLEMENTED:
-                h["stands_in"] = (f"{result.component['module']}.{result.component['class']} compiled from "
-                                  f"{', '.join(result.component['implements'])}")
+                h["stands_in"] = result.component.get("stands_in") or (
+                    f"{result.component['module']}.{result.component['class']} compiled from "
+                    f"{', '.join(result.component['implements'])}")
             new_holes.append(h)
     plan["holes"] = new_holes
     if words.unread:
@@ -801,8 +805,10 @@ def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None,
             f"{reason}); the rest of the paper was read")
     if records:
         done = sum(r.status == IMPLEMENTED for r in records)
+        worded = sum(r.status == IMPLEMENTED and r.component.get("source") == "prose" for r in records)
         plan.setdefault("notes", []).append(
-            f"equation compiler: {done} of {len(records)} novel part(s) implemented from the paper's equations")
+            f"equation compiler: {done - worded} of {len(records)} novel part(s) implemented from the paper's "
+            "equations" + (f", {worded} from its sentences (typed terminals)" if worded else ""))
     for it in items:
         _parse(it)
     result = Implementation(plan, sources, records, time.perf_counter() - start)
@@ -902,7 +908,7 @@ def _try_alternative(result: HoleResult, hole: dict, items, words, notation, pla
     return result
 
 
-SET_PRODUCTIONS = ("Regularizers",)
+SET_PRODUCTIONS = ("Regularizers", "FieldWrapper", "ScheduleHook")
 """Productions whose slot is a set: the component joins it as a member (``custom_<hole>``)."""
 
 
@@ -921,11 +927,15 @@ def _place(plan: Plan, slot: str, entry: dict, production: str = "", hid: str = 
 def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> Plan:
     """The plan with the compiled components of ``hole_ids`` taken out again (the base's parts stand in), their
     records and holes saying why (a ladder rung failed on them)."""
+    from nerfify_ns.synthesis.novel import prose
+
     plan = implementation.plan
     for r in implementation.records:
         if r.id not in hole_ids or r.status == NOT_IMPLEMENTED:
             continue
-        if r.production in SET_PRODUCTIONS:
+        if prose.revert(plan, r):  # typed terminals built from the paper's sentences
+            pass
+        elif r.production in SET_PRODUCTIONS:
             plan.delete(_member(r.slot, r.production, r.id))
         else:
             plan.set(r.slot, copy.deepcopy(r.replaced))

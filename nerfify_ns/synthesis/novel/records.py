@@ -10,7 +10,9 @@ of the generated component ``equations/<hole>.py`` as it was written. On a rerun
 still match its hash was not edited: its component is taken from ``equations/<hole>.py`` next to the file (not
 recompiled) only when that file still matches ``source_hash``; a component edited (or replaced, or missing its
 recorded digest) is compiled again, and the hole's notes say so. An edited hole is recompiled with the person's
-LaTeX, bindings and sizes. The file is read within the bounds of :mod:`nerfify_ns.safeio` (size, depth, aliases).
+LaTeX, bindings and sizes. A hole built from the paper's sentences (``source: prose``, typed terminals: see
+``prose.py``) is built again on every rerun, with the values a person wrote under ``asked`` or in its ``prose``
+parameters. The file is read within the bounds of :mod:`nerfify_ns.safeio` (size, depth, aliases).
 """
 
 from __future__ import annotations
@@ -42,9 +44,16 @@ class EquationsFileError(NerfifyError):
 
 def editable(record: dict) -> dict:
     """The parts of a hole's record a person edits (images and statuses are not)."""
-    return {"equations": [{"number": e.get("number", ""), "key": e.get("key", ""), "latex": e.get("latex", "")}
-                          for e in record.get("equations") or [] if isinstance(e, dict)],
-            "bindings": record.get("bindings") or {}, "sizes": record.get("sizes") or {}}
+    out = {"equations": [{"number": e.get("number", ""), "key": e.get("key", ""), "latex": e.get("latex", "")}
+                         for e in record.get("equations") or [] if isinstance(e, dict)],
+           "bindings": record.get("bindings") or {}, "sizes": record.get("sizes") or {}}
+    if record.get("source") == "prose":  # a part built from the paper's sentences: its parameters and those asked
+        out["asked"] = {k: (v.get("value") if isinstance(v, dict) else v)
+                        for k, v in (record.get("asked") or {}).items()}
+        out["prose"] = [{"part": p.get("part"), "parameters": {k: (v.get("value") if isinstance(v, dict) else v)
+                                                               for k, v in (p.get("parameters") or {}).items()}}
+                        for p in record.get("prose") or [] if isinstance(p, dict)]
+    return out
 
 
 def editable_hash(record: dict) -> str:
@@ -146,7 +155,14 @@ def read_corrections(path: Path) -> tuple[dict, dict]:
         for key in ("bindings", "sizes"):
             if hole.get(key) is not None and not isinstance(hole[key], dict):
                 raise EquationsFileError(f"--equations {path}: hole {hole['id']}: {key} must be a mapping")
-        if hole.get("hash") and editable_hash(hole) == hole["hash"]:
+        for key in ("asked",):
+            if hole.get(key) is not None and not isinstance(hole[key], dict):
+                raise EquationsFileError(f"--equations {path}: hole {hole['id']}: {key} must be a mapping")
+        if hole.get("prose") is not None and not isinstance(hole["prose"], list):
+            raise EquationsFileError(f"--equations {path}: hole {hole['id']}: prose must be a list")
+        if hole.get("source") == "prose":  # built again from the sentences (cheap, deterministic), with its values
+            edited.append(copy.deepcopy(hole))
+        elif hole.get("hash") and editable_hash(hole) == hole["hash"]:
             source_file = path.parent / FOLDER / f"{hole['id']}.py"
             result = HoleResult(id=hole["id"], slot=str(hole.get("slot", "")),
                                 production=str(hole.get("production", "")), section=str(hole.get("section", "")),

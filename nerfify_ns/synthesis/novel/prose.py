@@ -1,0 +1,639 @@
+"""Parts a paper states in words, built from its sentences into the grammar's typed terminals.
+
+Most of what recent NeRF papers add around the field, on the data side or in the schedule is written in prose:
+"a deformation network maps (x, t) into a canonical space" (D-NeRF Eqs. 2-3), "time-variant latent codes z_t"
+(DyNeRF Eq. 2), "one learnable time offset per camera", "the two fields are blended by their densities" (NeRF-W
+Eq. 10), "the inputs are fed to every layer", "separate branches for density and colour", "we sample rays by
+importance" (DyNeRF's ray importance sampling), "we first train on keyframes" (DyNeRF's hierarchical training),
+"the window is annealed over N iterations" (Nerfies Eq. 9). The equation compiler has nothing to bind them to; the
+grammar has typed terminals for them (``docs/productions.md``). For a hole at FieldWrapper, PixelSampler,
+ScheduleHook or Backbone that the compiler left not implemented:
+
+1. **Statements.** The hole's sentences (its text, its claim and the sentences of its sections) are searched for
+   the statement patterns of each part of ``prose.yaml`` whose production is the hole's; a statement preceded by a
+   negation ("we do not use a deformation network") is none.
+2. **Parameters.** Each parameter of the part's terminal is, in this order: a person's correction
+   (``equations.yaml``), fixed by the statement itself (``sets``, ``captures``), a number the paper states about
+   the part (a pattern of the parameter in a sentence about the part's noun: the hole's sentences first, then the
+   rest of the paper outside the introduction and related work), a named value the paper's sentences choose
+   (``choices``), else the terminal's default, **asked**: listed under ``asked`` in ``equations.yaml`` with its
+   unit, never guessed silently. Every stated value keeps the sentence it comes from.
+3. **Placement.** The terminal joins the hole's set (FieldWrapper, ScheduleHook), is the hole's choice
+   (PixelSampler), or sets the typed options of the terminal at the slot (the backbone); the plan is checked after
+   each part, and a part the grammar refuses there (a time wrapper on a plan without timestamps, a hook whose
+   target the plan lacks) is taken out again, its reason the rule it broke.
+
+The record (``source: prose``) quotes the statement and each stated parameter's sentence. Nothing here knows a
+paper: the patterns are data, the terminals the registry's.
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+from nerfify_ns.synthesis.novel.implement import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, HoleResult
+
+SPEC_FILE = Path(__file__).with_name("prose.yaml")
+PRODUCTIONS = ("FieldWrapper", "PixelSampler", "ScheduleHook", "Backbone")
+GROUP_GAP = 15
+"""Noun mentions closer than this (characters) are one phrase ("deformation field", "time embedding MLP")."""
+MAX_SENTENCE = 2000
+
+
+# ------------------------------------------------------------------------------------------ the spec
+@dataclass
+class ParamRule:
+    name: str
+    unit: str = ""
+    patterns: list = field(default_factory=list)
+    percent: bool = False
+    choices: list = field(default_factory=list)          # (value, compiled pattern)
+    only_when: dict = field(default_factory=dict)
+    noun: Optional[re.Pattern] = None
+    required: str = ""
+
+
+@dataclass
+class Part:
+    name: str
+    production: str
+    terminal: str
+    place: str
+    statements: list
+    noun: Optional[re.Pattern]
+    parameters: dict
+    sets: dict = field(default_factory=dict)
+    captures: list = field(default_factory=list)
+    exact_unless: Optional[re.Pattern] = None
+    approximation: str = ""
+    also: list = field(default_factory=list)
+
+
+@dataclass
+class Spec:
+    negation: re.Pattern
+    window: int
+    out_of_scope: re.Pattern
+    mentions: list                 # every noun pattern (the parts', their parameters', other networks')
+    number_words: dict
+    ordinal_words: dict
+    parts: list
+
+
+def _compile(pattern: str, spec_words: dict) -> re.Pattern:
+    from nerfify_ns.paper.hyperparams import NUMBER
+
+    counts = "|".join(spec_words["number_words"])
+    ordinals = "|".join(spec_words["ordinal_words"])
+    text = (pattern.replace("{int}", r"(?P<num>\d+)(?!\d|\.\d)").replace("{num}", NUMBER)
+            .replace("{count}", rf"(?P<num>\d+|{counts})(?!\d|\.\d)")
+            .replace("{ordinal}", rf"(?P<num>\d+(?:st|nd|rd|th)|{ordinals})"))
+    return re.compile(text, re.IGNORECASE)
+
+
+@lru_cache(maxsize=1)
+def load_spec(path: str = str(SPEC_FILE)) -> Spec:
+    """The parts of ``prose.yaml``, their patterns compiled (numbers in every notation, as the hyperparameter
+    reader reads them)."""
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    words = {"number_words": data["number_words"], "ordinal_words": data["ordinal_words"]}
+    comp = lambda p: _compile(p, words)  # noqa: E731
+    parts, mentions = [], [comp(p) for p in data.get("other_nouns") or []]
+    for entry in data["parts"]:
+        params = {}
+        for name, rule in (entry.get("parameters") or {}).items():
+            rule = rule or {}
+            params[name] = ParamRule(
+                name, str(rule.get("unit", "")), [comp(p) for p in rule.get("patterns") or []],
+                bool(rule.get("percent")), [(value, comp(p)) for value, p in (rule.get("choices") or {}).items()],
+                dict(rule.get("only_when") or {}), comp(rule["noun"]) if rule.get("noun") else None,
+                str(rule.get("required") or ""))
+            if params[name].noun is not None:
+                mentions.append(params[name].noun)
+        part = Part(entry["name"], entry["production"], entry["terminal"], entry["place"],
+                    [comp(p) for p in entry["statements"]], comp(entry["noun"]) if entry.get("noun") else None,
+                    params, dict(entry.get("sets") or {}), list(entry.get("captures") or []),
+                    comp(entry["exact_unless"]) if entry.get("exact_unless") else None,
+                    " ".join(str(entry.get("approximation") or "").split()), list(entry.get("also") or []))
+        if part.noun is not None:
+            mentions.append(part.noun)
+        parts.append(part)
+    return Spec(comp(data["negation"]), int(data["negation_window"]), comp(data["out_of_scope_sections"]),
+                mentions, dict(data["number_words"]), dict(data["ordinal_words"]), parts)
+
+
+# ------------------------------------------------------------------------------------------ sentences
+@dataclass
+class Sentence:
+    text: str          # as the paper writes it
+    flat: str          # inline math flattened, numbers read (what the patterns see)
+    where: str
+    section: str
+    rank: int          # 0: the hole's own sentences, 1: the rest of the method
+    order: int
+
+
+def _flat(text: str) -> str:
+    from nerfify_ns.paper.hyperparams import normalize_math
+
+    try:
+        flat = normalize_math(text[:MAX_SENTENCE])
+    except Exception:  # noqa: BLE001 - a sentence the normaliser cannot read is searched as written
+        flat = " ".join(text[:MAX_SENTENCE].split())
+    return _GLUED.sub(r"\1 ", flat)
+
+
+_GLUED = re.compile(r"(\d[kKM]?)(?=(?:iterations|steps|epochs|frames|layers|units|channels|neurons)\b)")
+"""A number a flattened PDF glued to its unit ("300Kiterations"): separated."""
+
+
+def _same_section(a: str, b: str) -> bool:
+    a, b = (a or "").strip().lower(), (b or "").strip().lower()
+    return bool(a and b) and (a == b or a.endswith(" " + b) or b.endswith(" " + a))
+
+
+def hole_sentences(hole: dict, sentences: list, spec: Spec) -> list[Sentence]:
+    """The hole's own sentences (rank 0: its text, its claim, the sentences of its sections), then the paper's
+    other sentences outside the introduction, related work and conclusions (rank 1), in reading order."""
+    from nerfify_ns.knowledge.sentences import split_sentences
+
+    sections = [s for s in [hole.get("section", "")] + list(hole.get("sections") or []) if s]
+    out: list[Sentence] = []
+    seen: set = set()
+
+    def add(text: str, where: str, section: str, rank: int) -> None:
+        text = " ".join(str(text).split())
+        key = text.lower()
+        if len(text) < 8 or key in seen:
+            return
+        seen.add(key)
+        out.append(Sentence(text, _flat(text), where, section, rank, len(out)))
+
+    own_where = str(hole.get("where") or (f"Sec. {sections[0]}" if sections else ""))
+    for text in split_sentences(str(hole.get("claim") or "")) + split_sentences(str(hole.get("text") or "")):
+        add(text, own_where, sections[0] if sections else "", 0)
+    rest = []
+    for text, where, section in sentences:
+        if any(_same_section(section, s) for s in sections):
+            add(text, where, section, 0)
+        elif not spec.out_of_scope.search(section or ""):
+            rest.append((text, where, section))
+    for text, where, section in rest:
+        add(text, where, section, 1)
+    return out
+
+
+# ------------------------------------------------------------------------------------------ reading
+@dataclass
+class Statement:
+    part: Part
+    sentence: Sentence
+    match: re.Match
+    pattern: int
+
+
+def _negated(spec: Spec, flat: str, start: int) -> bool:
+    before = flat[max(0, start - spec.window):start]
+    before = re.split(r"[;.!?]", before)[-1]
+    return bool(spec.negation.search(before))
+
+
+def statements(part: Part, scope: list[Sentence], spec: Spec) -> list[Statement]:
+    """Every sentence of the hole (rank 0) that states ``part``, with its first match."""
+    found = []
+    for s in scope:
+        if s.rank != 0:
+            continue
+        for k, pattern in enumerate(part.statements):
+            m = next((m for m in pattern.finditer(s.flat) if not _negated(spec, s.flat, m.start())), None)
+            if m is not None:
+                found.append(Statement(part, s, m, k))
+                break
+    return found
+
+
+def _groups(spec: Spec, flat: str) -> list[tuple[int, int]]:
+    """The noun phrases of a sentence: mentions of any part's or network's noun, those closer than GROUP_GAP
+    merged (spans)."""
+    spans = sorted((m.start(), m.end()) for p in spec.mentions for m in p.finditer(flat))
+    groups: list[list[int]] = []
+    for a, b in spans:
+        if groups and a - groups[-1][1] <= GROUP_GAP:
+            groups[-1][1] = max(groups[-1][1], b)
+        else:
+            groups.append([a, b])
+    return [(a, b) for a, b in groups]
+
+
+def _belongs(spec: Spec, noun: Optional[re.Pattern], flat: str, m: re.Match) -> bool:
+    """A number belongs to the part whose noun is in its own match, or in the nearest noun phrase before it (the
+    first one after it when none precedes)."""
+    if noun is None:
+        return False
+    if noun.search(m.group(0)):
+        return True
+    groups = _groups(spec, flat)
+    before = [g for g in groups if g[1] <= m.start()]
+    after = [g for g in groups if g[0] >= m.end()]
+    group = before[-1] if before else (after[0] if after else None)
+    return group is not None and bool(noun.search(flat[group[0]:group[1]]))
+
+
+def _number(spec: Spec, m: re.Match, percent: bool) -> Any:
+    from nerfify_ns.paper.hyperparams import parse_number
+
+    raw = (m.groupdict().get("num") or "").strip()
+    low = raw.lower()
+    if low in spec.number_words:
+        return spec.number_words[low]
+    if low in spec.ordinal_words:
+        return spec.ordinal_words[low]
+    raw = re.sub(r"(?<=\d)(?:st|nd|rd|th)$", "", raw)
+    try:
+        value = parse_number(raw)
+    except (ValueError, OverflowError):
+        return None
+    if isinstance(value, list):
+        return None
+    if percent and "%" in m.string[m.end("num"):m.end("num") + 3]:
+        value = value / 100.0
+    return value
+
+
+def _coerce(spec_param: Any, value: Any) -> tuple[Any, str]:
+    """``value`` as the terminal's parameter takes it, or (None, why not)."""
+    kind = getattr(spec_param, "type", "")
+    lo, hi = (spec_param.range or (None, None)) if spec_param is not None else (None, None)
+    if kind == "bool":
+        return (value, "") if isinstance(value, bool) else (None, f"{value!r} is not true or false")
+    if kind in ("str", "enum"):
+        allowed = getattr(spec_param, "values", ()) or ()
+        if not isinstance(value, str) or (allowed and value not in allowed):
+            return None, f"{value!r} is not one of {', '.join(map(str, allowed))}"
+        return value, ""
+    if isinstance(value, bool):
+        return None, f"{value!r} is not a number"
+    if kind.endswith("_list") and not isinstance(value, list):
+        value = [value]
+    items = value if isinstance(value, list) else [value]
+    out = []
+    for item in items:
+        if not isinstance(item, (int, float)):
+            return None, f"{item!r} is not a number"
+        if "int" in str(kind):
+            if float(item) != int(item):
+                return None, f"{item} is not a whole number"
+            item = int(item)
+        if (lo is not None and item < lo) or (hi is not None and item > hi):
+            return None, f"{item} is outside the terminal's range [{lo}, {hi}]"
+        out.append(item)
+    return (out if isinstance(value, list) else out[0]), ""
+
+
+def _short(text: str, limit: int = 220) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+@dataclass
+class Choice:
+    value: Any
+    source: str                    # statement | paper | correction | asked | not used
+    quote: str = ""
+    where: str = ""
+    unit: str = ""
+    why: str = ""
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in (("value", self.value), ("source", self.source), ("quote", self.quote),
+                                  ("where", self.where), ("unit", self.unit), ("why", self.why)) if v not in ("", None)
+                or k == "value"}
+
+
+class _Reader:
+    def __init__(self, part: Part, found: list[Statement], scope: list[Sentence], spec: Spec, corrected: dict):
+        from nerfify_ns.registry import default_registry
+
+        self.part, self.found, self.scope, self.spec, self.corrected = part, found, scope, spec, corrected
+        self.params = default_registry()[part.terminal].param_specs
+        self.choices: dict[str, Choice] = {}
+        self.problems: list[str] = []
+        self.missing: list[str] = []       # a required parameter the paper's statement does not name
+
+    def quote(self, s: Sentence) -> str:
+        return _short(s.text)
+
+    def run(self) -> dict[str, Choice]:
+        first = self.found[0]
+        names = list(self.part.parameters)
+        for name, value in self.part.sets.items():
+            self.set(name, value, "statement", first.sentence)
+        for cap in self.part.captures:
+            st = next((s for s in self.found if s.pattern == cap.get("pattern")), None)
+            if st is None or cap["param"] in self.choices:
+                continue
+            value = _number(self.spec, st.match, False)
+            if isinstance(value, (int, float)):
+                value = value + int(cap.get("offset", 0))
+                self.set(cap["param"], [value] if cap.get("list") else value, "statement", st.sentence)
+        for name in sorted(names, key=lambda n: bool(self.part.parameters[n].only_when)):
+            if name in self.choices:
+                continue
+            rule = self.part.parameters[name]
+            if rule.only_when and any(self.value(k) != v for k, v in rule.only_when.items()):
+                self.choices[name] = Choice(self.default(name), "not used", unit=rule.unit, why=(
+                    "used only when " + ", ".join(f"{k} is {v}" for k, v in rule.only_when.items())))
+                continue
+            if rule.choices and self.choose(rule):
+                continue
+            if rule.patterns and self.number(rule):
+                continue
+            if rule.required and not self.corrected_value(name):
+                self.missing.append(f"{rule.required} (\"{_short(first.sentence.text, 160)}\", "
+                                    f"{first.sentence.where})")
+                continue
+            self.choices[name] = Choice(self.default(name), "asked", unit=rule.unit,
+                                        why="the paper does not state it: the terminal's default, to be confirmed "
+                                            "in equations.yaml (asked)")
+        for name in self.corrected:  # a person's value where it differs from what was read (or asked)
+            if name in self.params and (name not in self.choices or self.choices[name].value != self.corrected[name]):
+                self.corrected_value(name)
+        return self.choices
+
+    # -------------------------------------------------------------- sources of a value
+    def set(self, name: str, value: Any, source: str, sentence: Optional[Sentence]) -> bool:
+        value, why = _coerce(self.params.get(name), value)
+        if value is None:
+            if sentence is not None:
+                self.problems.append(f"{name}: the paper's value is not usable ({why})")
+            return False
+        rule = self.part.parameters.get(name)
+        self.choices[name] = Choice(value, source, self.quote(sentence) if sentence else "",
+                                    sentence.where if sentence else "", rule.unit if rule else "")
+        return True
+
+    def corrected_value(self, name: str) -> bool:
+        if name not in self.corrected:
+            return False
+        value, why = _coerce(self.params.get(name), self.corrected[name])
+        if value is None:
+            self.problems.append(f"{name}: the value in equations.yaml is not usable ({why})")
+            return False
+        rule = self.part.parameters.get(name)
+        was = self.choices.get(name)
+        if was is not None and was.value == value:
+            return True
+        self.choices[name] = Choice(value, "correction", where="equations.yaml", unit=rule.unit if rule else "",
+                                    why=f"set in equations.yaml (read: {was.value!r}, {was.source})" if was else
+                                    "set in equations.yaml")
+        return True
+
+    def choose(self, rule: ParamRule) -> bool:
+        noun = rule.noun or self.part.noun
+        statement_sentences = [st.sentence for st in self.found]
+        own = [s for s in self.scope if s.rank == 0 and s not in statement_sentences]
+        rest = [] if rule.required else [s for s in self.scope if s.rank > 0 and noun is not None
+                                         and noun.search(s.flat)]
+        pool = statement_sentences + own + rest  # the statements, the hole's sentences, then about its noun
+        for s in pool:
+            for value, pattern in rule.choices:
+                m = pattern.search(s.flat)
+                if m is not None and not _negated(self.spec, s.flat, m.start()):
+                    return self.set(rule.name, value, "paper", s)
+        return False
+
+    def number(self, rule: ParamRule) -> bool:
+        noun = rule.noun or self.part.noun
+        for s in sorted(self.scope, key=lambda x: (x.rank, x.order)):
+            for pattern in rule.patterns:
+                for m in pattern.finditer(s.flat):
+                    if not _belongs(self.spec, noun, s.flat, m):
+                        continue
+                    value = _number(self.spec, m, rule.percent)
+                    if value is None:
+                        continue
+                    coerced, _ = _coerce(self.params.get(rule.name), value)
+                    if coerced is None:  # a number of the sentence the terminal cannot take: not this one
+                        continue
+                    return self.set(rule.name, coerced, "paper", s)
+        return False
+
+    def value(self, name: str) -> Any:
+        return self.choices[name].value if name in self.choices else self.default(name)
+
+    def default(self, name: str) -> Any:
+        spec = self.params.get(name)
+        return copy.deepcopy(spec.default) if spec is not None else None
+
+
+# ------------------------------------------------------------------------------------------ building
+@dataclass
+class ProseResult(HoleResult):
+    """A hole built from the paper's sentences: which terminals, their parameters with the sentence of each, the
+    parameters asked, and the plan paths it placed (with what stood there, to take it out again)."""
+
+    parts: list = field(default_factory=list)
+    asked: dict = field(default_factory=dict)
+    placed: list = field(default_factory=list)       # (path, previous value or None)
+
+    def to_dict(self) -> dict:
+        out = super().to_dict()
+        out["source"] = "prose"
+        out["prose"] = self.parts
+        out["asked"] = self.asked
+        return out
+
+
+def _corrections(corr: dict) -> dict[str, dict]:
+    """part name -> {parameter: value} from a person's equations.yaml (``asked`` and the ``prose`` parts)."""
+    out: dict[str, dict] = {}
+    for entry in corr.get("prose") or []:
+        if isinstance(entry, dict) and isinstance(entry.get("parameters"), dict):
+            for name, choice in entry["parameters"].items():
+                if isinstance(choice, dict) and choice.get("source") in ("correction", "asked", "paper", "statement"):
+                    out.setdefault(str(entry.get("part")), {})[str(name)] = choice.get("value")
+    for key, entry in (corr.get("asked") or {}).items():
+        part, _, name = str(key).partition(".")
+        value = entry.get("value") if isinstance(entry, dict) else entry
+        out.setdefault(part, {})[name] = value
+    return out
+
+
+def _snapshot(plan: Any) -> dict:
+    return copy.deepcopy(dict(plan))
+
+
+def _restore(plan: Any, data: dict) -> None:
+    plan.clear()
+    plan.update(copy.deepcopy(data))
+
+
+def _terminal_at(plan: Any, slot: str) -> Optional[str]:
+    from nerfify_ns.grammar import derive
+
+    try:
+        return derive(plan).used.get(slot)
+    except Exception:  # noqa: BLE001 - a plan the grammar cannot derive has no terminal there
+        return None
+
+
+def _violations(plan: Any) -> list:
+    from nerfify_ns.grammar import check
+
+    return list(check(plan))
+
+
+def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[tuple[str, Any]]:
+    """Write the part into the plan; the paths written with what stood there."""
+    written = []
+    if part.place == "member":
+        path = f"{slot}.{part.terminal}"
+        before = copy.deepcopy(plan.get(path))
+        plan.set(path, {**(before if isinstance(before, dict) else {}), **params})
+        written.append((path, before))
+    elif part.place == "choice":
+        before = copy.deepcopy(plan.get(slot))
+        plan.set(slot, {part.terminal: params})
+        written.append((slot, before))
+    else:  # options of the terminal at the slot
+        node = plan.get(slot)
+        used = _terminal_at(plan, slot)
+        if not isinstance(node, dict) or used != part.terminal:
+            raise ValueError(f"the plan's {slot} is {used or 'absent'}, not the {part.terminal} terminal whose "
+                             "typed options state this")
+        before = copy.deepcopy(node)
+        node.update(params)
+        written.append((slot, before))
+    parent = slot.rsplit(".", 1)[0]
+    for also in part.also:
+        path = f"{parent}.{also['slot']}"
+        if _terminal_at(plan, path) != also["terminal"]:
+            before = copy.deepcopy(plan.get(path))
+            plan.set(path, {also["terminal"]: {}})
+            written.append((path, before))
+            notes.append(" ".join(str(also.get("note", "")).split()) or f"{path}: {also['terminal']}")
+    return written
+
+
+def build(hole: dict, sentences: list, plan: Any, corr: Optional[dict], compiled: HoleResult) -> HoleResult:
+    """The hole built from its sentences (a ProseResult, the plan changed in place), or ``compiled`` unchanged
+    when the compiler implemented it, the hole's production has no typed part, or no sentence states one."""
+    if compiled.status != NOT_IMPLEMENTED or hole.get("production") not in PRODUCTIONS:
+        return compiled
+    spec = load_spec()
+    parts = [p for p in spec.parts if p.production == hole["production"]]
+    if not parts:
+        return compiled
+    scope = hole_sentences(hole, sentences, spec)
+    stated = [(p, found) for p in parts if (found := statements(p, scope, spec))]
+    if not stated:
+        return compiled
+    if stated[0][0].place == "choice":  # one alternative: the first stated in the spec's order
+        stated = stated[:1]
+    corrected = _corrections(corr or {})
+    res = ProseResult(id=compiled.id, slot=compiled.slot, production=compiled.production, section=compiled.section,
+                      equations=compiled.equations, hash=compiled.hash)
+    if compiled.reason:
+        res.notes.append(f"the equation compiler: {_short(compiled.reason, 300)}")
+    slot = hole["slot"]
+    built, refused, approximate = [], [], []
+    for part, found in stated:
+        reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}))
+        choices = reader.run()
+        st = found[0]
+        record = {"part": part.name, "terminal": part.terminal,
+                  "statement": {"quote": _short(st.sentence.text), "where": st.sentence.where,
+                                "matched": _short(st.match.group(0), 120)},
+                  "parameters": {k: c.to_dict() for k, c in choices.items()}}
+        if reader.missing:
+            record["status"] = NOT_IMPLEMENTED
+            record["reason"] = "; ".join(reader.missing)
+            refused.append(record)
+            res.parts.append(record)
+            continue
+        params = {k: c.value for k, c in choices.items() if c.source != "not used"}
+        if part.place == "member" or part.place == "choice":  # the unused ones at their defaults, written out
+            params.update({k: c.value for k, c in choices.items() if c.source == "not used"})
+        before = _snapshot(plan)
+        standing = {str(v) for v in _violations(plan)}
+        notes: list[str] = []
+        try:
+            written = _place(part, slot, params, plan, notes)
+            broken = [v for v in _violations(plan) if str(v) not in standing]
+        except Exception as err:  # noqa: BLE001 - this part's reason; the others are still built
+            written, broken = [], [f"{type(err).__name__}: {err}"]
+        if broken:
+            _restore(plan, before)
+            record["status"] = NOT_IMPLEMENTED
+            record["reason"] = "the grammar refuses it in this plan: " + "; ".join(
+                _short(str(v), 240) for v in broken[:3])
+            refused.append(record)
+            res.parts.append(record)
+            continue
+        res.placed.extend(written)
+        record["placed"] = [p for p, _ in written]
+        record["notes"] = notes + reader.problems
+        exact = part.exact_unless is None or any(part.exact_unless.search(s.flat) for s in scope if s.rank == 0)
+        if not exact:
+            record["approximation"] = part.approximation
+            approximate.append(record)
+        record["status"] = IMPLEMENTED if exact else PARTLY
+        for name, c in choices.items():
+            if c.source == "asked":
+                res.asked[f"{part.name}.{name}"] = {"value": c.value, "terminal": part.terminal,
+                                                     "unit": c.unit, "why": c.why}
+        built.append(record)
+        res.parts.append(record)
+    res.status = (IMPLEMENTED if built and not refused and not approximate else PARTLY if built else NOT_IMPLEMENTED)
+    res.reason = _reason(built, refused, approximate, res.asked)
+    if built:
+        res.component = {"source": "prose", "terminals": [r["terminal"] for r in built],
+                         "implements": [f"{r['statement']['where']}: \"{_short(r['statement']['quote'], 120)}\""
+                                        for r in built],
+                         "evidence": _short("; ".join(r["statement"]["quote"] for r in built), 300),
+                         "stands_in": "built from the paper's sentences: " + ", ".join(
+                             f"{r['terminal']} at {', '.join(r['placed'])}" for r in built)}
+        res.checks["component"] = ("typed terminals of the registry: their contracts are checked by the ladder's "
+                                   "contract rung like every terminal's")
+    return res
+
+
+def _reason(built: list, refused: list, approximate: list, asked: dict) -> str:
+    out = []
+    if built:
+        out.append("built from the paper's sentences: " + "; ".join(
+            f"{r['terminal']} ({_stated(r)})" for r in built))
+    for r in approximate:
+        out.append(f"{r['terminal']}: an approximation ({r['approximation']})")
+    for r in refused:
+        out.append(f"{r['terminal']} not built: {r['reason']}")
+    if asked:
+        out.append(f"{len(asked)} parameter(s) the paper does not state, asked in equations.yaml: "
+                   + ", ".join(sorted(asked)))
+    return "; ".join(out)
+
+
+def _stated(record: dict) -> str:
+    stated = [f"{k} {v['value']}" for k, v in record["parameters"].items() if v["source"] in ("paper", "statement",
+                                                                                            "correction")]
+    return ", ".join(stated) if stated else "stated, no size given"
+
+
+def revert(plan: Any, result: HoleResult) -> bool:
+    """Take a prose-built hole's terminals out of ``plan`` again (what stood at each path is put back)."""
+    placed = getattr(result, "placed", None)
+    if not placed:
+        return False
+    for path, before in reversed(placed):
+        if before is None:
+            plan.delete(path)
+        else:
+            plan.set(path, copy.deepcopy(before))
+    return True
