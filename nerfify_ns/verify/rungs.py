@@ -121,6 +121,10 @@ def run_probe(
             ))
     if reader is not None:
         _apply_checker(info, rungs, rungs_out, records, wire_problems, reader.overflow)
+        failed = [n for n in rungs if n in rungs_out and not rungs_out[n].ok]
+        for later in rungs[rungs.index(failed[0]) + 1:] if failed else ():
+            rungs_out.pop(later, None)  # the probe ran on (the verdicts are ours, made after); the ladder stops at
+            # the first failing rung, so those after it are skipped as before
     # processes left running: named by the probe itself where it has a PID namespace of its own, else counted
     left_named = any(d.rule == "processes" for r in rungs_out.values() for d in r.failures)
     hits = limit_diagnoses("", result, left_running=not left_named)

@@ -1,6 +1,7 @@
 """The hostile part of the broken-plugin corpus (``hostile: true`` in tests/verify/broken_plugins/): plugins that
 try to forge their verdict (patch ``torch.isfinite``/``math.isnan``/``numpy.isfinite`` and write fake probe events
-around a NaN colour head; turn NaN only after 30 calls) or to escape when imported, and then those that swallow
+around a NaN colour head; turn NaN only from the 31st call; are right only where they detect the sandbox) or to
+escape when imported, and then those that swallow
 the failure of ``setns``, ``mount``, a connect to our loopback or a write to ``/dev`` (named by the seccomp
 supervisor). Escapes run the static rung's sandboxed probe (no training): remount the root
 read-write and write outside, write to /dev, join the parent's network namespace and connect to its loopback,
