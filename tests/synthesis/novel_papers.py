@@ -65,7 +65,7 @@ where $\mathbf{W}_1$, $\mathbf{W}_2$ are weight matrices and the hidden features
 """
 """A learned matrix applied to the backbone's own input, whose width is known only when the plugin is built."""
 
-SPARSEFIELD = r"""# SparseField: Sparse Radiance Fields with a Cauchy Prior
+SPARSEFIELD = r"""# SparseField: Sparse Radiance Fields with a Pseudo-Huber Prior
 
 ## Abstract
 
@@ -75,10 +75,11 @@ We use positional encoding, hierarchical sampling and volume rendering as NeRF d
 
 ### 3.2 Sparsity regularization
 
-We penalise density everywhere with a Cauchy prior on the densities along each ray:
+We penalise density everywhere with a pseudo-Huber prior on the densities along each ray:
 
-$$\mathcal{L}_{s} = \lambda \sum_{i} \log\left(1 + \frac{\sigma_i^2}{c}\right) \tag{3}$$
+$$\mathcal{L}_{s} = \lambda \sum_{i} \left(\sqrt{1 + \frac{\sigma_i^2}{c}} - 1\right) \tag{3}$$
 
 where $\lambda = 0.01$ and $c = 0.5$.
 """
-"""A loss on the field's densities (a regulariser), its constants stated in the text."""
+"""A loss on the field's densities (a regulariser no card has: SNeRG's Cauchy prior would be a card's), its constants
+stated in the text."""

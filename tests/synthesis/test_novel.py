@@ -289,13 +289,12 @@ def test_a_loss_on_densities_becomes_a_regulariser_with_the_papers_constants(tmp
     paper.write_text(SPARSEFIELD)
     doc = ingest(paper)
     result = implement_holes(doc, plan_from_paper(doc).plan)
-    record, module = _component(result, "rgb")
+    record, module = _component(result, "regularizers")  # the ledger puts it at Regularizers: no placing needed
     assert record.status == IMPLEMENTED and record.production == "Regularizers", record.reason
     assert record.bindings["lambda"] == {**record.bindings["lambda"], "as": "constant", "value": 0.01}
     assert record.bindings["c"]["value"] == 0.5 and "where $\\lambda = 0.01$" in record.bindings["c"]["evidence"]
-    assert any(n.startswith("placed as Regularizers") for n in record.notes)
     member = [k for k in result.plan.get("model.regularizers") if k.startswith("custom_")]
-    assert member == ["custom_rgb"] and validate(result.plan)
+    assert member == ["custom_regularizers"] and validate(result.plan)
     sigma = torch.rand(4, 6, 1, dtype=torch.float64)
-    want = (0.01 * torch.log(1 + sigma[..., 0] ** 2 / 0.5).sum(1)).mean()  # Eq. 3, per ray, as a mean
+    want = (0.01 * (torch.sqrt(1 + sigma[..., 0] ** 2 / 0.5) - 1).sum(1)).mean()  # Eq. 3, per ray, as a mean
     torch.testing.assert_close(module().double()(sigma), want)
