@@ -14,11 +14,14 @@ from typing import Any, Dict, List
 import yaml
 
 from nerfify_ns.grammar import Grammar, derive, load_grammar, validate
+from nerfify_ns.grammar import check as validate_check
 from nerfify_ns.grammar.validate import expected_param_groups
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.scene_probe import SceneFacts
 
 _FUNCTIONS = {"ceil": math.ceil, "log2": math.log2, "max": max, "min": min}
+SETS = ("regularizers", "field_wrappers", "schedule_hooks")
+"""Set slots of the model: one the pruning empties is removed."""
 
 
 @lru_cache(maxsize=1)
@@ -50,8 +53,9 @@ class _Pruner:
         parent, key = self.plan.parent(path)
         if parent is not None and key in parent:
             self.record(rule, path, "removed", parent.pop(key), None)
-            if parent == {} and path.startswith("model.regularizers."):
-                self.plan["model"].pop("regularizers")
+            for name in SETS:  # a set left empty goes with its last member
+                if parent == {} and path.startswith(f"model.{name}."):
+                    self.plan["model"].pop(name)
 
     def keep(self, rule: dict, path: str) -> None:
         """Record that an optional part the scene needs stays (a real capture's contraction, appearance codes,
@@ -108,6 +112,25 @@ class _Pruner:
                 params[spec["param"]] = capped
                 self.record(rule, f"{path}.{spec['param']}", "clamped", value, capped)
 
+    def drop_orphan_hooks(self) -> None:
+        """A schedule hook whose target went with a pruned part (an anneal of the deformation's window when the
+        deformation was dropped for a static scene) goes too, with the reason."""
+        gone = [r["path"].rsplit(".", 1)[-1] for r in self.records if r["action"] == "removed"]
+        if not gone:
+            return
+        for v in validate_check(self.plan, self.grammar):
+            if not v.path.startswith("model.schedule_hooks.") or v.rule != "param_constraint":
+                continue
+            parent, key = self.plan.parent(v.path)
+            if parent is None or key not in parent:
+                continue
+            before = parent.pop(key)
+            self.records.append({"rule": "schedule_hook_target", "path": v.path, "action": "removed", "from": before,
+                                 "to": None, "reason": "its target went with the pruned part(s) "
+                                                       f"{', '.join(gone)}: {v.message}"})
+            if parent == {}:
+                self.plan["model"].pop("schedule_hooks")
+
     def drop_orphan_optimizers(self) -> None:
         expected = set(expected_param_groups(self.grammar, derive(self.plan, self.grammar)))
         for group in [g for g in self.plan.get("optimizers", {}) if g not in expected]:
@@ -123,6 +146,7 @@ class _Pruner:
             for action in ("remove", "keep", "replace", "set", "clamp"):
                 if action in rule:
                     getattr(self, action)(rule, rule[action])
+        self.drop_orphan_hooks()
         self.drop_orphan_optimizers()
 
 

@@ -411,7 +411,8 @@ class _Reader:
 
     def number(self, rule: ParamRule) -> bool:
         noun = rule.noun or self.part.noun
-        for s in sorted(self.scope, key=lambda x: (x.rank, x.order)):
+        stating = {id(st.sentence) for st in self.found}  # the sentences that state the part first
+        for s in sorted(self.scope, key=lambda x: (x.rank, id(x) not in stating, x.order)):
             for pattern in rule.patterns:
                 for m in pattern.finditer(s.flat):
                     if not _belongs(self.spec, noun, s.flat, m):
@@ -524,25 +525,34 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
 
 def build(hole: dict, sentences: list, plan: Any, corr: Optional[dict], compiled: HoleResult) -> HoleResult:
     """The hole built from its sentences (a ProseResult, the plan changed in place), or ``compiled`` unchanged
-    when the compiler implemented it, the hole's production has no typed part, or no sentence states one."""
-    if compiled.status != NOT_IMPLEMENTED or hole.get("production") not in PRODUCTIONS:
+    when the compiler implemented it or no sentence of the hole states a typed part. A part of the hole's own
+    production is looked for first; a hole the derivation filed under another production (an encoding) whose own
+    sentences state a typed part of one of PRODUCTIONS is placed there, and its record says so."""
+    if compiled.status != NOT_IMPLEMENTED or not hole.get("slot"):
         return compiled
     spec = load_spec()
-    parts = [p for p in spec.parts if p.production == hole["production"]]
-    if not parts:
-        return compiled
     scope = hole_sentences(hole, sentences, spec)
-    stated = [(p, found) for p in parts if (found := statements(p, scope, spec))]
+    slot, production = hole["slot"], hole["production"]
+    stated = _stated_parts(spec, production, scope)
+    refiled = ""
+    for other in [p for p in PRODUCTIONS if p != production] if not stated else []:
+        # the derivation filed the part elsewhere, but its own sentences state a typed part of another production
+        stated = _stated_parts(spec, other, scope)
+        other_slot = _slot_in(plan, other)
+        if stated and other_slot:
+            refiled, slot = other, other_slot
+            break
+        stated = []
     if not stated:
         return compiled
-    if stated[0][0].place == "choice":  # one alternative: the first stated in the spec's order
-        stated = stated[:1]
     corrected = _corrections(corr or {})
     res = ProseResult(id=compiled.id, slot=compiled.slot, production=compiled.production, section=compiled.section,
                       equations=compiled.equations, hash=compiled.hash)
     if compiled.reason:
         res.notes.append(f"the equation compiler: {_short(compiled.reason, 300)}")
-    slot = hole["slot"]
+    if refiled:
+        res.notes.append(f"placed as {refiled} at {slot}: the derivation filed the part under {production}, but its "
+                         f"sentences state a part of {refiled} (below)")
     built, refused, approximate = [], [], []
     for part, found in stated:
         reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}))
@@ -603,6 +613,23 @@ def build(hole: dict, sentences: list, plan: Any, corr: Optional[dict], compiled
         res.checks["component"] = ("typed terminals of the registry: their contracts are checked by the ladder's "
                                    "contract rung like every terminal's")
     return res
+
+
+def _stated_parts(spec: Spec, production: str, scope: list[Sentence]) -> list[tuple[Part, list[Statement]]]:
+    """The parts of ``production`` the hole's sentences state (a choice's first one only, in the spec's order)."""
+    stated = [(p, found) for p in spec.parts if p.production == production and (found := statements(p, scope, spec))]
+    return stated[:1] if stated and stated[0][0].place == "choice" else stated
+
+
+def _slot_in(plan: Any, production: str) -> str:
+    """The plan's slot of ``production``: a path of the grammar that the plan holds, else one whose parent it
+    holds ('' when the plan has neither: the base has no such part)."""
+    from nerfify_ns.grammar import load_grammar
+
+    paths = [p for p, s in load_grammar().symbol_paths() if s == production]
+    held = [p for p in paths if plan.get(p) is not None]
+    parent = [p for p in paths if "." not in p or plan.get(p.rsplit(".", 1)[0]) is not None]
+    return (held or parent or [""])[0]
 
 
 def _reason(built: list, refused: list, approximate: list, asked: dict) -> str:
