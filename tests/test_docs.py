@@ -203,3 +203,11 @@ def test_docstrings_and_comments_name_no_issue_number_or_commit_hash():
     found = [f"{path.relative_to(ROOT)}:{no}: {p}" for path in code_files() for no, text in prose_of(path)
              for p in problems(text)]
     assert not found, "say what the code does, not which issue or commit it came from:\n" + "\n".join(found)
+
+
+def test_the_index_maps_every_page_of_docs():
+    index = ROOT / "docs" / "index.md"
+    linked = {(index.parent / target.partition("#")[0]).resolve()
+              for target in LINK.findall(without_code(index.read_text(encoding="utf-8")))}
+    unlisted = [p.name for p in sorted((ROOT / "docs").glob("*.md")) if p != index and p.resolve() not in linked]
+    assert not unlisted, f"docs/index.md does not link {', '.join(unlisted)}"
