@@ -83,6 +83,8 @@ def code_files() -> list[Path]:
 
 def prose_of(path: Path) -> list[tuple[int, str]]:
     source = path.read_text(encoding="utf-8", errors="replace")
+    if not problems(source):
+        return []  # nothing that reads as an issue or a hash anywhere in the file: no need to parse it
     if path.suffix == ".py":
         try:
             return python_prose(source)
