@@ -499,6 +499,7 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
         before = copy.deepcopy(plan.get(path))
         plan.set(path, {**(before if isinstance(before, dict) else {}), **params})
         written.append((path, before))
+        _order_members(plan.get(slot))
     elif part.place == "choice":
         before = copy.deepcopy(plan.get(slot))
         plan.set(slot, {part.terminal: params})
@@ -521,6 +522,27 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
             written.append((path, before))
             notes.append(" ".join(str(also.get("note", "")).split()) or f"{path}: {also['terminal']}")
     return written
+
+
+def _order_members(members: Any) -> None:
+    """Members of a set applied in order (the field's conditioners): a member whose contract writes the samples'
+    times (a per-camera time offset) before the members that read them, so that what it writes is read; the
+    others keep their order."""
+    from nerfify_ns.registry import default_registry
+
+    if not isinstance(members, dict):
+        return
+    registry = default_registry()
+
+    def writes_times(name: str) -> bool:
+        try:
+            return name in registry.terminals and "times" in registry[name].contract.outputs
+        except Exception:  # noqa: BLE001 - a member without a contract keeps its place
+            return False
+
+    ordered = sorted(members.items(), key=lambda kv: not writes_times(str(kv[0])))
+    members.clear()
+    members.update(ordered)
 
 
 def build(hole: dict, sentences: list, plan: Any, corr: Optional[dict], compiled: HoleResult) -> HoleResult:
