@@ -80,7 +80,8 @@ def to_yaml(implementation: Implementation, doc: Any = None) -> str:
     head = ("# The paper's novel parts as the equation compiler read them (nerfify-ns). Correct a hole's equations\n"
             "# (latex), bindings (as: input|network|parameter|constant, role) or sizes (shape) and rerun:\n"
             "#   ns-nerfify PAPER --equations equations.yaml\n"
-            "# Holes you do not edit are not recompiled (their hash still matches).\n")
+            "# Holes you do not edit are not recompiled (their hash still matches). A part built from the paper's\n"
+            "# sentences (source: prose) lists under `asked` the sizes the paper does not state: set a value, rerun.\n")
     return head + yaml.safe_dump(body, sort_keys=False, width=110, allow_unicode=True)
 
 
