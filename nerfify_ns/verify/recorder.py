@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import sys
 
+RGB_KEYS = ("rgb", "rgb_fine")
+"""Where a model's training outputs hold its rendered colour, in order of preference."""
+
 
 def install(pipe) -> None:
-    """Record (step, outputs['rgb'], batch['image']) of every training step, and the summed absolute output of
+    """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed absolute output of
     every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value per call since
     the previous step: a part whose NaN the model masks is still seen)."""
     from nerfstudio.pipelines.base_pipeline import VanillaPipeline
@@ -46,7 +49,8 @@ def install(pipe) -> None:
         outputs, losses, metrics = original(self, step)
         arrays = {}
         batch = last.get("batch")
-        rgb = outputs.get("rgb") if isinstance(outputs, dict) else None
+        # the model's rendered colour: nerfacto-like models write "rgb", vanilla-nerf and mipnerf "rgb_fine"
+        rgb = next((outputs[k] for k in RGB_KEYS if isinstance(outputs, dict) and k in outputs), None)
         if cap.is_tensor(rgb):
             arrays["rgb"] = cap.array(rgb)[0]
         if last.get("watch") is not None:
