@@ -184,13 +184,40 @@ def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", wa
             **{f"{v}_rays_per_s": rays / m for v, m in median.items()}}
 
 
+def _flop_counter_class():
+    from torch.utils._python_dispatch import TorchDispatchMode
+    from torch.utils.flop_counter import flop_registry
+
+    class FlopCounter(TorchDispatchMode):
+        """Sums torch's FLOP formulas (``flop_registry``: matrix products, convolutions, attention) over the
+        ops dispatched inside it. ``FlopCounterMode`` itself also tracks modules with backward hooks, which
+        fail on modules whose outputs carry no gradient (Instant-NGP's occupancy-grid sampling)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.flops = 0
+
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            kwargs = kwargs or {}
+            out = func(*args, **kwargs)
+            formula = flop_registry.get(func._overloadpacket)
+            if formula is not None:
+                self.flops += int(formula(*args, **kwargs, out_val=out))
+            return out
+
+    return FlopCounter
+
+
+def _FlopCounter():  # noqa: N802 - a class built on first use (torch's dispatch modes import lazily)
+    return _flop_counter_class()()
+
+
 def step_flops(method: str, rays: int, plugin_dir: str = "") -> Dict[str, object]:
     """Floating-point operations of one training step (forward, losses, backward), counted by
     ``torch.utils.flop_counter`` (matrix products and convolutions: the work a FLOP bound is about),
     of a built-in method or, with ``plugin_dir``, the plugin's method; per step and per ray. The
     model is fresh (an Instant-NGP occupancy grid has not pruned yet: its count is an upper bound)."""
     from nerfstudio.configs.method_configs import all_methods
-    from torch.utils.flop_counter import FlopCounterMode
 
     from nerfify_ns.runtime import activate
 
@@ -204,9 +231,10 @@ def step_flops(method: str, rays: int, plugin_dir: str = "") -> Dict[str, object
     bundle, batch = ray_batch(rays)
     step = _step_fn(build_model(config), bundle, batch)
     step()  # the first step builds lazy state (Instant-NGP's grid update runs here at step 0)
-    with FlopCounterMode(display=False) as counter:
+    counter = _FlopCounter()
+    with counter:
         step()
-    flops = counter.get_total_flops()
+    flops = counter.flops
     return {"method": method, "plugin": plugin_dir or None, "rays": rays, "flops_per_step": flops,
             "flops_per_ray": flops / rays}
 
