@@ -82,3 +82,19 @@ RGB_HEAD_FOUR = RGB_HEAD.replace("nn.Linear(64, 3)", "nn.Linear(64, 4)")
 def rgb_answer(code: str) -> str:
     return json.dumps({"code": code, "implements": ["Sec. 3.1"],
                        "sentences": ["a colour MLP with two hidden layers of 64 units predicts RGB with a sigmoid"]})
+
+
+SLOT = "model.field.MLPField.rgb_head"
+
+
+def rgb_head_hole(impl):
+    """GridLite's colour head (Sec. 3.1) as the one hole left for the coder, whatever else the planner found: the
+    test is about the checks, not about which part the paper's reading leaves open."""
+    from nerfify_ns.synthesis.novel.implement import NOT_IMPLEMENTED, HoleResult
+
+    assert isinstance(impl.plan.get(SLOT), dict), "GridLite's plan has an MLP field with a colour head"
+    record = HoleResult("rgb_head", SLOT, "RGBHead", "3.1", NOT_IMPLEMENTED, "set aside for the coder test")
+    impl.records = [record]
+    impl.plan["holes"] = [{"production": "RGBHead", "slot": SLOT, "status": NOT_IMPLEMENTED,
+                           "text": "a colour MLP with two hidden layers of 64 units predicts RGB with a sigmoid"}]
+    return record

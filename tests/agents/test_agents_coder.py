@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from coder_answers import (MISSING_MODULE, NAN_FOR_LARGE, RGB_HEAD, RGB_HEAD_FOUR, RIGHT, SHAPE_MISMATCH, answer,
-                           rgb_answer)
+from coder_answers import (MISSING_MODULE, NAN_FOR_LARGE, RGB_HEAD, RGB_HEAD_FOUR, RIGHT, SHAPE_MISMATCH,
+                           answer, rgb_answer, rgb_head_hole)
 from nerfify_ns.agents import Agents, LLMConfig
 from nerfify_ns.agents.cache import ResponseCache
 from nerfify_ns.agents.providers import ScriptedProvider
@@ -37,6 +37,7 @@ def test_coder_stops_within_its_rounds_with_the_diagnosis(tmp_path):
     from nerfify_ns.pipeline import run_paper
 
     impl = run_paper(EXAMPLE, dry_run=True).implementation
+    rgb_head_hole(impl)
     broken = RGB_HEAD.replace("def forward(self, features):", "def forward(self, features)")
     missing = RGB_HEAD.replace("import torch\n", "import torch\nimport gridlite_colour_tables  # noqa\n", 1)
     agents, provider = scripted([rgb_answer(broken), rgb_answer(missing)], rounds=2)
@@ -64,8 +65,7 @@ def test_coder_feeds_back_the_diagnosis_and_installs_the_node(tmp_path):
 
     run = run_paper(EXAMPLE, dry_run=True)
     impl = run.implementation
-    (record,) = impl.records
-    assert record.status == "not implemented" and record.production == "RGBHead"  # the compiler left it open
+    record = rgb_head_hole(impl)
     agents, provider = scripted([rgb_answer(RGB_HEAD_FOUR), rgb_answer(RGB_HEAD)])
     (result,) = agents.code(impl, work=tmp_path / "work")
     assert result["status"] == "accepted" and [r["status"] for r in result["rounds"]] == ["fail", "pass"]

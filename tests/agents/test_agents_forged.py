@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from coder_answers import RGB_HEAD, rgb_answer
+from coder_answers import RGB_HEAD, rgb_answer, rgb_head_hole
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
@@ -64,22 +64,6 @@ FORGED = (RGB_HEAD.replace("import torch\n", "import json\n\nimport torch\n", 1)
           + FORGE)
 
 
-SLOT = "model.field.MLPField.rgb_head"
-
-
-def _rgb_head_hole(impl):
-    """GridLite's colour head (Sec. 3.1) as the one hole left for the coder, whatever else the planner found: the
-    test is about the checks, not about which part the paper's reading leaves open."""
-    from nerfify_ns.synthesis.novel.implement import NOT_IMPLEMENTED, HoleResult
-
-    assert isinstance(impl.plan.get(SLOT), dict), "GridLite's plan has an MLP field with a colour head"
-    record = HoleResult("rgb_head", SLOT, "RGBHead", "3.1", NOT_IMPLEMENTED, "set aside for the coder test")
-    impl.records = [record]
-    impl.plan["holes"] = [{"production": "RGBHead", "slot": SLOT, "status": NOT_IMPLEMENTED,
-                           "text": "a colour MLP with two hidden layers of 64 units predicts RGB with a sigmoid"}]
-    return record
-
-
 @pytest.mark.slow
 def test_a_forging_model_component_is_rejected_and_not_counted(tmp_path):
     from nerfify_ns.agents import Agents, LLMConfig
@@ -93,7 +77,7 @@ def test_a_forging_model_component_is_rejected_and_not_counted(tmp_path):
     agents = Agents(LLMConfig.parse(f"scripted:{answers}", cache=tmp_path / "c.sqlite", coder_rounds=1))
     run = run_paper(EXAMPLE, dry_run=True)
     impl = run.implementation
-    record = _rgb_head_hole(impl)
+    record = rgb_head_hole(impl)
 
     (result,) = agents.code(impl, work=tmp_path / "work")
 
