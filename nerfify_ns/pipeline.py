@@ -186,12 +186,14 @@ def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Ca
     """When the ladder fails on compiled components, the plan without them (the base's parts stand in, the
     records say which rung and why) and their sources; None when no compiled component is to blame."""
     def fallback(ladder) -> Optional[Tuple[dict, Dict[str, str]]]:
-        compiled = [r for r in implementation.records if r.source and r.status != "not implemented"]
+        compiled = [r for r in implementation.records  # compiled code, or typed parts built from the paper's prose
+                    if (r.source or getattr(r, "placed", None)) and r.status != "not implemented"]
         if not compiled or _smoke_timed_out(ladder):  # out of time is no failure of the compiled parts
             return None
         failures = ladder.failures or []
-        named = [r.id for r in compiled if any(r.component.get("class", "") in f"{f.message} {f.where()}"
-                                               for f in failures)]
+        named = [r.id for r in compiled if any(name and name in f"{f.message} {f.where()}" for f in failures
+                                               for name in (r.component.get("class", ""),
+                                                            *r.component.get("terminals", ())))]
         first = failures[0] if failures else None
         why = f"the ladder's {first.rung} rung failed ({first.rule}: {first.message[:300]})" if first else \
             "the ladder failed"
@@ -367,7 +369,8 @@ def _timed_out(rung) -> bool:
 
 def _smoke_timed_out(ladder) -> bool:
     """The ladder failed only because its smoke rung ran out of time (every other rung passed)."""
-    smoke = ladder.rung("smoke")
+    rung = getattr(ladder, "rung", None)
+    smoke = rung("smoke") if callable(rung) else None
     return smoke is not None and _timed_out(smoke) and all(r.ok for r in ladder.rungs if r is not smoke)
 
 

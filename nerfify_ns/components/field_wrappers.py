@@ -242,6 +242,17 @@ class BlendedField(Field):
         self.blend = blend
         self.last_density: Optional[Tensor] = None
 
+    def __getattr__(self, name: str):
+        """What the blend itself does not have is its first field's (``position_encoding``, ``spatial_distortion``):
+        the plan's regularisers of the field (plane TV, time smoothness) see that field's encoding."""
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            fields = self._modules.get("fields")
+            if fields is None or not len(fields):
+                raise
+            return getattr(fields[0], name)
+
     def _blend(self, ray_samples: RaySamples, densities: List[Tensor], rgbs: List[Tensor]) -> Tuple[Tensor, Tensor]:
         shape = densities[0].shape[:-1]
         positions = ray_samples.frustums.get_positions().reshape(-1, 3)

@@ -42,7 +42,7 @@ def test_the_run_folder_records_and_a_corrupted_equation_leaves_the_base_part(ga
     assert hole["equations"][0]["image"] == "backbone/eq0.png" and (first.out / "equations" / "backbone" / "eq0.png").is_file()
     assert yaml.safe_load((first.out / "plan.yaml").read_text())["model"]["field"]["MLPField"]["backbone"]["custom"]
     report = json.loads((first.out / "report.json").read_text())
-    assert report["outcome"]["headline"].startswith("Novel parts: 1 of 1 novel part(s)")
+    assert report["outcome"]["headline"].startswith("Novel parts: 1 of 1 found built and verified")
     assert report["sections"]["equations"]["implemented"] == 1
 
     good = hole["equations"][1]["latex"]
