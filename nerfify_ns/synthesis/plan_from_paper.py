@@ -290,6 +290,8 @@ class _Deriver:
         self.paths = list(grammar.symbol_paths())
         self.symbols = dict(self.paths)  # path -> the innermost symbol there (an open production's terminal)
         self.slots = slot_table(grammar)
+        self.novel_sentences: set[str] = set()
+        """Sentences of the paper's new parts (the ledger's): never a known card's hyperparameters."""
 
     # ----------------------------------------------------------------- evidence
     def paper_evidence(self, path: str, quote: str, section: str, page, line, card: str = "",
@@ -445,6 +447,8 @@ class _Deriver:
                 continue
             if sentence and not re.search(sentence, h.sentence or "", re.IGNORECASE):
                 continue
+            if h.sentence and any(h.sentence.strip() in s or s in h.sentence for s in self.novel_sentences):
+                continue  # a number of the paper's own new part (its deformation MLP's width) is not a card's
             role = role_of_section(self.doc, h.section, self.kb.rules)
             if role in ("prior", "ignore"):
                 continue
@@ -691,6 +695,7 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb))
     detections = _without_claims(detections, ledger)
     d = _Deriver(doc, detections, graph, g, kb)
+    d.novel_sentences = {x.strip() for p in ledger.new for x in p.sentences if len(x.strip()) > 20}
     decision = d.choose_base() if reference_plans else BaseDecision(
         base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
         "are not consulted)", [], criterion="ablation")
