@@ -252,12 +252,10 @@ def _process_start(pid: int) -> Optional[str]:
 
 def _alive(pid: int, start: Optional[str] = None) -> bool:
     """Whether process ``pid`` runs (and, given ``start``, is the one that started then: not a reused pid)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
+    from nerfify_ns.runtime.process import pid_alive
+
+    if not pid_alive(pid):
         return False
-    except PermissionError:
-        return True
     if start is None:
         return True
     now = _process_start(pid)

@@ -67,6 +67,17 @@ def start_group(cmd: Sequence[str], **popen: object) -> subprocess.Popen:
     return proc
 
 
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists (one of another user's counts as alive)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def _killpg(pgid: int) -> bool:
     try:
         os.killpg(pgid, signal.SIGKILL)

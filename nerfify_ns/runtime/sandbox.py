@@ -63,7 +63,7 @@ from pathlib import Path
 from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 from nerfify_ns.runtime.paths import ENV_CACHE, nerfify_cache_dir
-from nerfify_ns.runtime.process import Poll, ProcessResult, run_process
+from nerfify_ns.runtime.process import Poll, ProcessResult, pid_alive, run_process
 from nerfify_ns.runtime.seccomp import Installer, Supervisor, kill_filter, notify_filter, notify_supported
 from nerfify_ns.safetext import clean
 
@@ -160,16 +160,6 @@ def _under(mount_root: str, mount_point: str, path: str) -> Optional[Path]:
     if root and not (path == root or path.startswith(root + "/")):
         return None
     return Path(mount_point) / path[len(root):].lstrip("/")
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _write(path: Path, value: str) -> None:
@@ -294,7 +284,7 @@ class TreeCgroup:
             return
         for entry in entries:
             m = re.fullmatch(rf"{cls.PREFIX}(\d+)-[0-9a-f]+", entry.name)
-            if m and not _alive(int(m.group(1))):
+            if m and not pid_alive(int(m.group(1))):
                 orphan = cls(version, {"memory": entry, "pids": entry})
                 orphan.kill(grace=3.0, settle=0.0)
                 orphan.remove()
