@@ -242,14 +242,16 @@ class BlendedField(Field):
         self.blend = blend
         self.last_density: Optional[Tensor] = None
 
+    SHARED = ("position_encoding", "spatial_distortion", "direction_encoding")
+    """The parts of its first field a blend answers for (the plan's regularisers of the field, plane TV and time
+    smoothness, read its encoding); nothing else, so Nerfstudio's own buffers (``aabb``) stay the blend's."""
+
     def __getattr__(self, name: str):
-        """What the blend itself does not have is its first field's (``position_encoding``, ``spatial_distortion``):
-        the plan's regularisers of the field (plane TV, time smoothness) see that field's encoding."""
         try:
             return super().__getattr__(name)
         except AttributeError:
             fields = self._modules.get("fields")
-            if fields is None or not len(fields):
+            if name not in self.SHARED or fields is None or not len(fields):
                 raise
             return getattr(fields[0], name)
 
