@@ -36,7 +36,7 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, check, load_grammar, validate
 from nerfify_ns.knowledge.bases import find_base_statements
 from nerfify_ns.knowledge.cards import Card, HyperparameterMap
-from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, match_target
+from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, match_target
 from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
@@ -290,8 +290,9 @@ class _Deriver:
         self.paths = list(grammar.symbol_paths())
         self.symbols = dict(self.paths)  # path -> the innermost symbol there (an open production's terminal)
         self.slots = slot_table(grammar)
-        self.novel_sentences: set[str] = set()
-        """Sentences of the paper's new parts (the ledger's): never a known card's hyperparameters."""
+        self.novel_sentences: dict[str, str] = {}
+        """Sentences of the paper's new parts (the ledger's) -> the production of their part: a number stated there
+        sets no known card's parameter of another production (a deformation MLP's width is not the backbone's)."""
 
     # ----------------------------------------------------------------- evidence
     def paper_evidence(self, path: str, quote: str, section: str, page, line, card: str = "",
@@ -447,8 +448,6 @@ class _Deriver:
                 continue
             if sentence and not re.search(sentence, h.sentence or "", re.IGNORECASE):
                 continue
-            if h.sentence and any(h.sentence.strip() in s or s in h.sentence for s in self.novel_sentences):
-                continue  # a number of the paper's own new part (its deformation MLP's width) is not a card's
             role = role_of_section(self.doc, h.section, self.kb.rules)
             if role in ("prior", "ignore"):
                 continue
@@ -498,7 +497,7 @@ class _Deriver:
     def _apply_map(self, plan: Plan, path: str, c: Card, terminal: str, m: HyperparameterMap) -> bool:
         """Apply one hyperparameter of a card (with its partners and derived parameters) at ``path``."""
         h = self._statement(m)
-        if h is None:
+        if h is None or self._of_another_part(h.sentence or "", c):
             return False
         group = [m] + [p for p in c.hyperparameters_for(terminal) if p.name in m.together]
         statements = [h] + [self._hp(p.name) for p in group[1:]]
@@ -527,6 +526,14 @@ class _Deriver:
         if m.grouped:
             return self._apply(plan, path, {**(current or {}), **values}, h, what)
         return self._apply(plan, f"{path}.{m.param}", values[m.param], h, what)
+
+    def _of_another_part(self, sentence: str, card: Card) -> bool:
+        """Whether ``sentence`` describes a new part of the paper that lands at another production than ``card``'s
+        and does not name the card itself."""
+        sentence = sentence.strip()
+        if not sentence or any(name == card.name for _, _, (name, _a) in find_spans(sentence, self.kb.card_aliases)):
+            return False
+        return any((sentence in s or s in sentence) and p != card.production for s, p in self.novel_sentences.items())
 
     def trainer(self, plan: Plan) -> None:
         """The trainer's hyperparameters (no technique's): ray batch, iterations, optimiser and schedule."""
@@ -695,7 +702,7 @@ def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
     ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb))
     detections = _without_claims(detections, ledger)
     d = _Deriver(doc, detections, graph, g, kb)
-    d.novel_sentences = {x.strip() for p in ledger.new for x in p.sentences if len(x.strip()) > 20}
+    d.novel_sentences = {x.strip(): p.production for p in ledger.new for x in p.sentences if len(x.strip()) > 20}
     decision = d.choose_base() if reference_plans else BaseDecision(
         base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
         "are not consulted)", [], criterion="ablation")
