@@ -224,9 +224,17 @@ class CardEquations:
 
     def match(self, latex: str, text: str = "") -> Optional[Match]:
         """The card whose equation ``latex`` (or, unreadable, ``text``) is, by structure; None when it is new."""
+        return self.read_and_match(latex, text)[1]
+
+    def read_and_match(self, latex: str, text: str = "") -> tuple[bool, Optional[Match]]:
+        """Whether the parser read the equation (its LaTeX, else its text), and the card it matches (see ``match``):
+        both from one parse."""
         parsed = _parsed(latex) if latex else []
         if not parsed and text:
             parsed = _parsed(text)
+        return bool(parsed), self._match(parsed, latex or text)
+
+    def _match(self, parsed: list, source: str) -> Optional[Match]:
         for eq in parsed:
             rhs_c = canonical(eq.rhs)
             for f in self.forms:
@@ -238,7 +246,7 @@ class CardEquations:
                     return Match(f.card, "contains the card's equation", f.latex)
         if parsed:
             return None
-        seq = operators(latex or text)
+        seq = operators(source)
         if len(seq) < MIN_OPERATORS:
             return None
         for name, card_latex, card_seq in self.ops:

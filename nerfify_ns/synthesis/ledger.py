@@ -32,7 +32,7 @@ import yaml
 
 from nerfify_ns.knowledge.citations import find_spans
 from nerfify_ns.knowledge.sentences import section_roles, split_sentences
-from nerfify_ns.synthesis.known import CardEquations, _parsed
+from nerfify_ns.synthesis.known import CardEquations
 
 LEDGER_FILE = Path(__file__).resolve().parent / "ledger.yaml"
 LINK_THRESHOLD = 0.34
@@ -284,13 +284,13 @@ class _Reader:
                     continue
                 _, _, eorder = _loc(e.loc)
                 k = max(j for j in range(len(section_parts)) if j == 0 or orders[j] <= eorder)
-                match = self.index.match(e.latex, e.text)
+                read, match = self.index.read_and_match(e.latex, e.text)
                 section_parts[k].equations.append({
                     "number": e.number, "latex": e.latex, "text": e.text,
                     "where": ", ".join(x for x in (f"p.{e.loc.page}" if getattr(e.loc, "page", None) else "",
                                                    f"Sec. {heading}") if x),
                     "known": match.card if match else None, "how": match.how if match else "",
-                    "read": bool(_parsed(e.latex) or _parsed(e.text))})
+                    "read": read})
             for h in hps:
                 if h.section == heading:
                     section_parts[-1 if len(section_parts) == 1 else 0].hyperparameters.append(
