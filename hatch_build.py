@@ -2,13 +2,13 @@
 
 ``pyproject.toml`` names the data (``project-data``) and where it goes in the wheel (``data-dir``,
 ``nerfify_ns/_data``). Only standard wheels get it: an editable install reads it from the checkout,
-so nothing is copied into site-packages that could go stale (``nerfify_ns/data.py`` finds either).
+so nothing is copied into site-packages that could go stale (``nerfify_ns/package_data.py`` finds either).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Dict
+from typing import Any
 
 from hatchling.builders.hooks.plugin.interface import BuildHookInterface
 
@@ -18,7 +18,7 @@ class ProjectDataHook(BuildHookInterface):
 
     PLUGIN_NAME = "custom"
 
-    def initialize(self, version: str, build_data: Dict[str, Any]) -> None:
+    def initialize(self, version: str, build_data: dict[str, Any]) -> None:
         """Add the project data to the wheel's forced inclusions (standard builds only)."""
         if version != "standard":
             return

@@ -23,8 +23,8 @@ one-shot            the plugin's files are rendered in one pass from the same co
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
-from typing import Iterable, Tuple
 
 from nerfify_ns.errors import NerfifyError
 
@@ -47,7 +47,7 @@ class Ablation:
     """The pipeline stage it changes."""
 
 
-ABLATIONS: Tuple[Ablation, ...] = (
+ABLATIONS: tuple[Ablation, ...] = (
     Ablation("no-reference-plans", "w/o in-context reference plans", "Knowledge sources", "read"),
     Ablation("no-citations", "w/o citation recovery", "Knowledge sources", "read"),
     Ablation("no-verify", "w/o verification ladder (smoke tests)", "Validation & feedback", "verify"),
@@ -80,7 +80,7 @@ class Ablations:
     """Compose the plugin file by file in the DAG's topological order (False: one shot)."""
 
     @classmethod
-    def of(cls, names: Iterable[str]) -> "Ablations":
+    def of(cls, names: Iterable[str]) -> Ablations:
         """The switches for ablation ``names`` (``no-citations``, ...); an unknown name is an :class:`AblationError`
         naming the known ones."""
         off = {}
@@ -94,12 +94,12 @@ class Ablations:
         return cls(**off)
 
     @classmethod
-    def parse(cls, text: str) -> "Ablations":
+    def parse(cls, text: str) -> Ablations:
         """From a comma-separated list (``no-citations,one-shot``)."""
         return cls.of(text.split(","))
 
     @property
-    def names(self) -> Tuple[str, ...]:
+    def names(self) -> tuple[str, ...]:
         """The ablations switched on (stages off), in table order."""
         return tuple(n for n in NAMES if not getattr(self, _FIELD[n]))
 

@@ -27,9 +27,9 @@ import re
 import shutil
 import time
 import uuid
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, List, Optional, Set
 
 from nerfify_ns import interrupts
 from nerfify_ns.errors import NerfifyError
@@ -57,9 +57,9 @@ _LEFTOVER = re.compile(r"^\.(?P<name>.+)\.(?P<kind>partial|killed|old)-(?P<pid>\
 """Staging (``.NAME.partial-PID-HEX``), killed (``.killed-``) and swapped-out (``.old-``) folders of ours."""
 
 
-_staging: Set[Path] = set()
+_staging: set[Path] = set()
 """Staging folders that exist now (removed on an interrupt's clean-up)."""
-_interrupted: List[Path] = []
+_interrupted: list[Path] = []
 """Staging folders removed because of an interrupt (for the interrupt's line)."""
 
 
@@ -69,7 +69,7 @@ def _normal(out: Path) -> Path:
 
 
 def check_target(out: Path, overwrite: bool, exists_error: Callable[[str], Exception] = OutputExistsError,
-                 inputs: Iterable[Optional[Path]] = ()) -> None:
+                 inputs: Iterable[Path | None] = ()) -> None:
     """Refuse an output path we cannot write (:class:`OutputPathError`), an existing non-empty ``out`` (or a
     file there) unless ``overwrite``, and with ``overwrite`` anything but our own output that nothing protects
     (:func:`check_replaceable`; ``inputs``: the run's input files and folders, which it must not remove)."""
@@ -93,7 +93,7 @@ def check_target(out: Path, overwrite: bool, exists_error: Callable[[str], Excep
         check_replaceable(out, inputs)
 
 
-def _protected(out: Path, inputs: Iterable[Optional[Path]]) -> Optional[str]:
+def _protected(out: Path, inputs: Iterable[Path | None]) -> str | None:
     """Why ``out`` must not be replaced whoever wrote it (None when nothing protects it)."""
     real = out.resolve()
     places = [("the root folder", Path("/"))]
@@ -119,7 +119,7 @@ def _protected(out: Path, inputs: Iterable[Optional[Path]]) -> Optional[str]:
     return None
 
 
-def _marker(folder: Path, name: str) -> Optional[dict]:
+def _marker(folder: Path, name: str) -> dict | None:
     """The JSON object of our marker ``name`` in ``folder`` (a regular file, not a link), else None."""
     from nerfify_ns import safeio
 
@@ -139,7 +139,7 @@ def _legacy(folder: Path) -> bool:
     (``nerfify.json`` naming its ``files``), a procedural scene (``scene.json`` beside ``transforms_train.json``)."""
     from nerfify_ns import safeio
 
-    def obj(name: str) -> Optional[dict]:
+    def obj(name: str) -> dict | None:
         path = folder / name
         if path.is_symlink() or not path.is_file():
             return None
@@ -168,7 +168,7 @@ def is_ours(folder: Path) -> bool:
     return _marker(folder, MARKER) is not None or _legacy(folder)
 
 
-def check_replaceable(out: Path, inputs: Iterable[Optional[Path]] = ()) -> None:
+def check_replaceable(out: Path, inputs: Iterable[Path | None] = ()) -> None:
     """Refuse (:class:`OverwriteRefused`) to replace ``out`` unless it is our output folder and nothing protects
     it (``/``, the home or current folder or one that holds them, a folder holding an input)."""
     out = _normal(out)
@@ -212,7 +212,7 @@ def check_writable_dir(folder: Path) -> Path:
     return folder
 
 
-def _make_parents(out: Path) -> List[Path]:
+def _make_parents(out: Path) -> list[Path]:
     """Create the missing parents of ``out``; the folders created, deepest first."""
     missing = [p for p in out.parents if not p.exists()]
     try:
@@ -223,7 +223,7 @@ def _make_parents(out: Path) -> List[Path]:
     return missing
 
 
-def _remove_empty(folders: List[Path]) -> None:
+def _remove_empty(folders: list[Path]) -> None:
     for folder in folders:  # deepest first
         try:
             folder.rmdir()
@@ -240,7 +240,7 @@ def _remove_tree(path: Path) -> None:
         time.sleep(0.05)
 
 
-def _process_start(pid: int) -> Optional[str]:
+def _process_start(pid: int) -> str | None:
     """The start time of process ``pid`` (clock ticks since boot, from /proc), None when it is gone."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
@@ -250,7 +250,7 @@ def _process_start(pid: int) -> Optional[str]:
         return None
 
 
-def _alive(pid: int, start: Optional[str] = None) -> bool:
+def _alive(pid: int, start: str | None = None) -> bool:
     """Whether process ``pid`` runs (and, given ``start``, is the one that started then: not a reused pid)."""
     from nerfify_ns.runtime.process import pid_alive
 
@@ -267,13 +267,13 @@ def _write_marker(folder: Path, name: str, data: dict) -> None:
         json.dump({"tool": TOOL, **data}, f)
 
 
-def clean_leftovers(out: Path) -> List[str]:
+def clean_leftovers(out: Path) -> list[str]:
     """Remove what killed runs left beside ``out``: staging folders (``.NAME.partial-PID-HEX``, ``.killed-``)
     whose marker names a process that is gone, and a swapped-out old output (``.old-``) whose process is gone
     (removed when ``out`` is there, else put back as ``out``). Only folders of ours by name and marker are
     touched. What was done, in words."""
     out = _normal(out)
-    done: List[str] = []
+    done: list[str] = []
     try:
         entries = list(out.parent.iterdir()) if out.parent.is_dir() else []
     except OSError:
@@ -321,7 +321,7 @@ def _publish(staging: Path, out: Path) -> None:
         trash.unlink()
 
 
-def remove_staging() -> Optional[str]:
+def remove_staging() -> str | None:
     """Remove every staging folder still there (an interrupt's clean-up); what was removed, in words."""
     removed = len(_interrupted)
     for staging in list(_staging):
@@ -339,7 +339,7 @@ interrupts.on_cleanup(remove_staging, order=10)
 @contextmanager
 def atomic_dir(
     out: Path, overwrite: bool = False, exists_error: Callable[[str], Exception] = OutputExistsError,
-    inputs: Iterable[Optional[Path]] = (),
+    inputs: Iterable[Path | None] = (),
 ) -> Iterator[Path]:
     """Yield a temporary sibling folder that becomes ``out`` only if the block succeeds (carrying
     :data:`MARKER`). ``overwrite`` replaces only our own output (:func:`check_replaceable`); ``inputs``: the

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Optional, Tuple
 
 from nerfify_ns.errors import NerfifyError
 
@@ -36,7 +35,7 @@ def check_count(option: str, value: object, minimum: int = 1) -> None:
 
 def check_seconds(option: str, value: object) -> None:
     """Raise :class:`BudgetError` unless ``value`` is a finite number of seconds > 0."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
         raise BudgetError(f"{option} must be a positive number of seconds, got {value!r}")
 
 
@@ -61,13 +60,13 @@ class Budget:
 
     iterations: int = 200
     """Training iterations of the evaluation run."""
-    every: Optional[int] = 50
+    every: int | None = 50
     """Checkpoint cadence of the error-against-time curve (each checkpoint is rendered and scored); None: the
     iterations spread over ``checkpoints``."""
-    smoke_iterations: Optional[int] = None
+    smoke_iterations: int | None = None
     """Iterations of the verification ladder's smoke-training rung (None: the base's own, ``smoke_iterations`` in
     ``runtime/smoke_presets.yaml``)."""
-    timeout: Optional[float] = None
+    timeout: float | None = None
     """Time limit of each process of the run (the ladder's, training, rendering), seconds, when the user or a suite
     gives one. None: with ``seconds`` each limit derives from the time left (:func:`smoke_limit`,
     :func:`training_limit`, :func:`check_limit`); without, the check rungs (static, contract, stability) take at most
@@ -77,9 +76,9 @@ class Budget:
     cpu_presets: bool = False
     """Train with the base method's CPU preset (ray batch, sample caps; ``runtime/smoke_presets.yaml``) on top
     of the evaluation's CPU settings."""
-    train_args: Tuple[str, ...] = ()
+    train_args: tuple[str, ...] = ()
     """ns-train arguments of the evaluation run after those (they win)."""
-    seconds: Optional[float] = None
+    seconds: float | None = None
     """Wall-clock budget of the whole run, evaluation included (None: ``iterations`` decide). With it,
     ``iterations`` is an upper bound and the run trains as many as fit (:func:`fit_iterations`), at most the
     plan's own ``trainer.max_num_iterations``."""
@@ -123,7 +122,7 @@ evaluates (training and rendering cost several smoke rungs' worth)."""
 class Limit:
     """A time limit and where it comes from, named in the message when it is reached."""
 
-    seconds: Optional[float]
+    seconds: float | None
     """None: no limit."""
     source: str
 
@@ -139,7 +138,7 @@ class Limit:
 GIVEN = "each process (the budget's timeout)"
 
 
-def smoke_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+def smoke_limit(budget: Budget, seconds_left: float | None) -> Limit:
     """The smoke rung's time limit: the budget's ``timeout`` when given; with a wall-clock budget its share of
     ``seconds_left`` (:data:`SMOKE_SHARE`); otherwise none."""
     if budget.timeout is not None:
@@ -151,7 +150,7 @@ def smoke_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
                           f"({SMOKE_SHARE:.0%} of the {max(seconds_left, 0):.0f} s left when the ladder started)")
 
 
-def check_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+def check_limit(budget: Budget, seconds_left: float | None) -> Limit:
     """Each check process's limit: the time left of a wall-clock budget (at most :data:`CHECK_SECONDS`), else
     :data:`CHECK_SECONDS`; the budget's ``timeout`` when given."""
     if budget.timeout is not None:
@@ -161,7 +160,7 @@ def check_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
     return Limit(CHECK_SECONDS, "a check process of the ladder")
 
 
-def training_limit(budget: "Budget", seconds_left: Optional[float]) -> Limit:
+def training_limit(budget: Budget, seconds_left: float | None) -> Limit:
     """The training's and the rendering's limit: with a wall-clock budget, the time it had left when training
     started (a misestimate is cut off, not left running); without, the budget's ``timeout`` when given (a
     benchmark suite's), else none (``--iterations`` alone runs them all)."""
@@ -206,8 +205,8 @@ class TimeFit:
 
 
 def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_seconds: float,
-                   rays_per_checkpoint: int, rays_per_iteration: int, budget: "Budget",
-                   most: Optional[int] = None, render_cost: float = RENDER_COST) -> TimeFit:
+                   rays_per_checkpoint: int, rays_per_iteration: int, budget: Budget,
+                   most: int | None = None, render_cost: float = RENDER_COST) -> TimeFit:
     """Training iterations that fit ``seconds_left``: a training process (``startup_seconds`` + iterations), a
     rendering process (``startup_seconds`` + each checkpoint's ``rays_per_checkpoint`` rays at
     ``render_cost`` of a training ray, :data:`RENDER_COST` unless the base's preset measured its own) and

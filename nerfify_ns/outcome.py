@@ -22,15 +22,15 @@ import datetime as _dt
 import json
 import logging
 import time
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, List, Optional, Tuple, Type
 
 from nerfify_ns.errors import NerfifyError
 
 LOG = logging.getLogger("nerfify.stages")
 
-STAGES: Dict[str, Tuple[str, ...]] = {
+STAGES: dict[str, tuple[str, ...]] = {
     "paper": ("read", "plan", "plugin", "verify", "train", "patches"),
     "compose": ("plan", "plugin", "verify", "train", "patches"),
     "demo": ("scene", "train"),
@@ -49,10 +49,10 @@ class UntilError(NerfifyError):
 class Progress:
     """What the user sees of a run; every method does nothing here (a quiet run). The CLI shows bars."""
 
-    def start(self, stage: str, label: str, total: Optional[int] = None) -> None:
+    def start(self, stage: str, label: str, total: int | None = None) -> None:
         """A stage begins; ``total`` steps when known (training iterations, checkpoints...)."""
 
-    def advance(self, done: int, total: Optional[int] = None) -> None:
+    def advance(self, done: int, total: int | None = None) -> None:
         """``done`` of ``total`` steps of the current stage (an ``on_progress(step, total)`` hook)."""
 
     def note(self, text: str) -> None:
@@ -77,7 +77,7 @@ class StageRecord:
     status: str = NOT_RUN
     summary: str = ""
     reason: str = ""
-    seconds: Optional[float] = None
+    seconds: float | None = None
 
 
 class Stage:
@@ -98,7 +98,7 @@ class Stage:
         """Mark the stage failed (the run goes on to write its report; later stages are not run)."""
         self.record.status, self.record.reason = FAILED, reason
 
-    def advance(self, done: int, total: Optional[int] = None) -> None:
+    def advance(self, done: int, total: int | None = None) -> None:
         """Progress within the stage; pass as ``on_progress`` to whatever polls a long process."""
         self.progress.advance(done, total)
 
@@ -111,11 +111,11 @@ class Outcome:
     """Every stage of one command's run, in order, with ``--until`` and the first failure."""
 
     command: str
-    until: Optional[str] = None
+    until: str | None = None
     progress: Progress = field(default_factory=Progress)
-    records: List[StageRecord] = field(default_factory=list)
+    records: list[StageRecord] = field(default_factory=list)
     started: str = field(default_factory=lambda: _dt.datetime.now().isoformat(timespec="seconds"))
-    ablations: List[str] = field(default_factory=list)
+    ablations: list[str] = field(default_factory=list)
     """Stages switched off for this run (``nerfify_ns.ablations`` names), written into run.json."""
 
     def __post_init__(self) -> None:
@@ -128,7 +128,7 @@ class Outcome:
         return next(r for r in self.records if r.name == name)
 
     @property
-    def failed(self) -> Optional[StageRecord]:
+    def failed(self) -> StageRecord | None:
         """The stage that failed, if one did."""
         return next((r for r in self.records if r.status == FAILED), None)
 
@@ -155,8 +155,8 @@ class Outcome:
         record.status, record.reason = NOT_RUN, reason
 
     @contextlib.contextmanager
-    def stage(self, name: str, label: str, total: Optional[int] = None,
-              failures: Tuple[Type[BaseException], ...] = ()) -> Iterator[Stage]:
+    def stage(self, name: str, label: str, total: int | None = None,
+              failures: tuple[type[BaseException], ...] = ()) -> Iterator[Stage]:
         """Run stage ``name``: progress shown, time measured, status recorded. An exception of a type in
         ``failures`` fails the stage (the run goes on); any other propagates."""
         record = self.record(name)

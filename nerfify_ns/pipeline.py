@@ -18,17 +18,17 @@ import json
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional, Tuple
+from typing import Any
 
 from nerfify_ns.ablations import FULL, Ablations
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, Limit, check_count, check_limit, smoke_limit
 from nerfify_ns.dataset import Dataset, read_dataset
 from nerfify_ns.errors import NerfifyError
-from nerfify_ns.evaluate.smoke import SmokeResult, SmokeTrainError, smoke_train
-from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
+from nerfify_ns.evaluate.smoke_train import SmokeResult, SmokeTrainError, smoke_train
 from nerfify_ns.grammar import validate
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph
 from nerfify_ns.knowledge.detect import detect_techniques
@@ -37,15 +37,17 @@ from nerfify_ns.outcome import Outcome, Progress, Stage
 from nerfify_ns.paper import Document, clean_markdown, ingest, key_terms_report, require_nerf_paper
 from nerfify_ns.plan import Plan
 from nerfify_ns.runlog import run_log
+from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
 from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.compose import plugin_sources, write_plugin
 from nerfify_ns.synthesis.novel import Implementation, implement_holes
 from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.records import read_corrections, write_records
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
-from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.proxy import smoke_samples
+from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.scene_probe import probe_scene
+
 
 class FamilyError(NerfifyError):
     """A paper whose family the grammar cannot build (Gaussian splatting, surfaces, methods that do not train a
@@ -62,15 +64,15 @@ LOG_FILE = "nerfify.log"
 
 @dataclass
 class PaperResult:
-    out: Optional[Path]
+    out: Path | None
     document: Document
     derived: DerivedPlan
     graph: CitationGraph
     plan: dict
     outcome: Outcome
-    summary: Optional[dict] = None
+    summary: dict | None = None
     """The evaluation's summary (eval/summary.json) when training ran."""
-    implementation: Optional[Implementation] = None
+    implementation: Implementation | None = None
     """What the equation compiler made of the paper's novel parts (equations.yaml)."""
 
 
@@ -80,26 +82,26 @@ class ComposeResult:
     plan: dict
     outcome: Outcome
     files: list
-    summary: Optional[dict] = None
+    summary: dict | None = None
 
 
 def run_paper(
     paper: Path,
-    out: Optional[Path] = None,
+    out: Path | None = None,
     *,
-    data: Optional[Path] = None,
+    data: Path | None = None,
     scene: str = "default",
-    budget: Optional[Budget] = None,
-    until: Optional[str] = None,
+    budget: Budget | None = None,
+    until: str | None = None,
     dry_run: bool = False,
     keep_all: bool = False,
     patch_rounds: int = 0,
     overwrite: bool = False,
     progress: Progress = Progress(),
-    kb: Optional[KnowledgeBase] = None,
-    equations: Optional[Path] = None,
+    kb: KnowledgeBase | None = None,
+    equations: Path | None = None,
     ablations: Ablations = FULL,
-    agents: Optional[Any] = None,
+    agents: Any | None = None,
 ) -> PaperResult:
     """Paper -> plan with evidence -> the paper's novel parts compiled from its equations -> (unless dry_run) the
     stages of :func:`_build`, up to ``until``. ``kb``: the knowledge base every stage reads (default: the
@@ -165,7 +167,7 @@ def run_paper(
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
 
 
-def _scene_for_family(scene: str, dataset: Optional[Dataset], derived: DerivedPlan, outcome: Outcome) -> str:
+def _scene_for_family(scene: str, dataset: Dataset | None, derived: DerivedPlan, outcome: Outcome) -> str:
     """The procedural scene a paper trains on when the user named none: a dynamic paper gets the first catalogued
     scene with timestamps (its time parts are kept, not pruned for a static scene); otherwise ``scene``."""
     family = derived.family
@@ -185,7 +187,7 @@ def _scene_for_family(scene: str, dataset: Optional[Dataset], derived: DerivedPl
 def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Callable:
     """When the ladder fails on compiled components, the plan without them (the base's parts stand in, the
     records say which rung and why) and their sources; None when no compiled component is to blame."""
-    def fallback(ladder) -> Optional[Tuple[dict, Dict[str, str]]]:
+    def fallback(ladder) -> tuple[dict, dict[str, str]] | None:
         compiled = [r for r in implementation.records  # compiled code, or typed parts built from the paper's prose
                     if (r.source or getattr(r, "placed", None)) and r.status != "not implemented"]
         if not compiled or _smoke_timed_out(ladder):  # out of time is no failure of the compiled parts
@@ -208,15 +210,15 @@ def run_compose(
     plan: dict,
     out: Path,
     *,
-    data: Optional[Path] = None,
+    data: Path | None = None,
     scene: str = "default",
-    budget: Optional[Budget] = None,
-    until: Optional[str] = None,
+    budget: Budget | None = None,
+    until: str | None = None,
     keep_all: bool = False,
     patch_rounds: int = 0,
     overwrite: bool = False,
     progress: Progress = Progress(),
-    sources: Optional[Dict[str, str]] = None,
+    sources: dict[str, str] | None = None,
 ) -> ComposeResult:
     """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
     the code of the plan's custom components (``components.<name>`` -> source)."""
@@ -235,10 +237,10 @@ def run_compose(
     return ComposeResult(final, plan, outcome, files, summary)
 
 
-def _build(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool, budget: Budget,
-           patch_rounds: int, outcome: Outcome, sources: Optional[Dict[str, str]] = None,
-           fallback: Optional[Callable] = None, ablations: Ablations = FULL,
-           agents: Optional[Any] = None, deadline: Optional[float] = None) -> Tuple[dict, Optional[dict]]:
+def _build(plan: dict, folder: Path, data: Dataset | None, scene: str, keep_all: bool, budget: Budget,
+           patch_rounds: int, outcome: Outcome, sources: dict[str, str] | None = None,
+           fallback: Callable | None = None, ablations: Ablations = FULL,
+           agents: Any | None = None, deadline: float | None = None) -> tuple[dict, dict | None]:
     """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
     passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
     the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
@@ -337,11 +339,11 @@ class TrainingRun:
     """ns-train arguments of the fitted schedule (``nerfify_ns.synthesis.schedule``)."""
     limit: Limit
     """The training's and the rendering's time limit and where it comes from (none without a budget)."""
-    budget: Optional[dict] = None
+    budget: dict | None = None
     """How the wall-clock budget became iterations (None without a budget)."""
-    schedule: Optional[dict] = None
+    schedule: dict | None = None
     """The plan's ``schedule`` record when the schedule was scaled."""
-    proxy: Optional[dict] = None
+    proxy: dict | None = None
     """The CPU proxy the run trains (``schedule.proxy``), or None: the paper's settings."""
 
 
@@ -349,11 +351,11 @@ UNMEASURED_ITERATIONS = 200
 """Iterations of a budgeted run when nothing measured the plugin's speed (the ladder switched off)."""
 
 
-def _smoke_timing(ladder, samples: Optional[dict] = None) -> dict:
+def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     """What the ladder's smoke rung measured of the plugin's speed (``verify.smoke.step_timing``), with its ray
     batch and the sample counts it trained with (``samples``, by plan path; none: the plan's); empty when the rung
     did not run or measured nothing. A rung stopped by its time limit measured its first steps."""
-    from nerfify_ns.verify.smoke import SMOKE_ARGS
+    from nerfify_ns.verify.smoke_rung import SMOKE_ARGS
 
     smoke = next((r for r in ladder.rungs if r.name == "smoke" and (r.status == "pass" or _timed_out(r))), None)
     if smoke is None or not smoke.details.get("seconds_per_iteration"):
@@ -398,7 +400,7 @@ def _rays(args) -> int:
 
 
 def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timing: dict,
-                  deadline: Optional[float], proxy_scene: Optional[dict] = None) -> TrainingRun:
+                  deadline: float | None, proxy_scene: dict | None = None) -> TrainingRun:
     """The evaluation run: ``budget.iterations`` without a deadline, and no time limit; with one, as many
     iterations as fit the time left (the smoke rung's measured speed, scaled to the evaluation's ray batch), at most
     the plan's own ``trainer.max_num_iterations``, and the budget's limit. With ``budget.proxy`` a run that cannot fit
@@ -463,7 +465,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     return TrainingRun(iterations, every, args, limit, record, schedule, proxy)
 
 
-def _proxy_budget(plan: dict, budget: Budget, data: Optional[Dataset]) -> Tuple[Budget, Optional[dict]]:
+def _proxy_budget(plan: dict, budget: Budget, data: Dataset | None) -> tuple[Budget, dict | None]:
     """``budget`` with the CPU proxy's smaller procedural scene for the plan's base (``proxy.yaml``), and that
     scene's record; unchanged for a given dataset or a budget that fits the base's full scene."""
     from nerfify_ns.synthesis.proxy import proxy_scene, with_scene
@@ -481,8 +483,8 @@ def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
     return summary
 
 
-def _plan_for_scene(plan: dict, folder: Path, data: Optional[Dataset], scene: str, keep_all: bool,
-                    budget: Budget, stage: Stage) -> Tuple[dict, Dataset]:
+def _plan_for_scene(plan: dict, folder: Path, data: Dataset | None, scene: str, keep_all: bool,
+                    budget: Budget, stage: Stage) -> tuple[dict, Dataset]:
     """Render (or take) the scene, prune the plan for it unless ``keep_all``, write ``plan.yaml``."""
     if data is None:
         stage.note(f"rendering scene '{scene}'")
@@ -495,7 +497,7 @@ def _plan_for_scene(plan: dict, folder: Path, data: Optional[Dataset], scene: st
     return plan, data
 
 
-def _regenerate(plan: dict, folder: Path, sources: Optional[Dict[str, str]]) -> None:
+def _regenerate(plan: dict, folder: Path, sources: dict[str, str] | None) -> None:
     """The plugin written again from ``plan`` into ``folder`` (its earlier files removed first)."""
     meta = folder / "nerfify.json"
     if meta.is_file():
@@ -504,7 +506,7 @@ def _regenerate(plan: dict, folder: Path, sources: Optional[Dict[str, str]]) -> 
     write_plugin(plan, folder, sources=sources)
 
 
-def _read_data(data: Optional[Path]) -> Optional[Dataset]:
+def _read_data(data: Path | None) -> Dataset | None:
     """The dataset at ``data`` read and checked once (None when no --data was given: a scene is rendered)."""
     return None if data is None else read_dataset(data)
 
@@ -542,7 +544,7 @@ def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int]
     return hook
 
 
-def _judge_evaluation(summary: dict, stage: Stage, run: Optional["TrainingRun"] = None) -> None:
+def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = None) -> None:
     """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR (and the
     CPU proxy the run trained, when it did)."""
     if summary.get("status") != "ok":
@@ -598,7 +600,7 @@ def run_demo(
     *,
     method: str = "nerfacto",
     scene: str = "default",
-    data: Optional[Path] = None,
+    data: Path | None = None,
     iterations: int = 100,
     overwrite: bool = False,
     progress: Progress = Progress(),

@@ -25,9 +25,10 @@ import keyword
 import os
 import re
 import sys
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Dict, FrozenSet, Iterator, List, Optional, Tuple, Union
+from typing import Any
 
 import yaml
 
@@ -50,7 +51,7 @@ class PlanFileError(NerfifyError):
     """A plan file that cannot be read as a YAML mapping."""
 
 
-def split_path(path: str) -> List[str]:
+def split_path(path: str) -> list[str]:
     """``"model.sampler.proposal"`` -> ``["model", "sampler", "proposal"]`` (empty parts dropped)."""
     return [part for part in str(path).split(".") if part]
 
@@ -68,7 +69,7 @@ class Hole:
     slot: str
     contract: dict
     text: str
-    equations: List[dict]
+    equations: list[dict]
     status: str = "not implemented"
     stands_in: str = ""
     section: str = ""
@@ -79,7 +80,7 @@ class Hole:
     """The paper's sentence that claims it (empty when the paper claims it in no sentence)."""
     why: str = ""
     """Why it is new (no card's equation matches, a claim no card covers) and why it lands at its production."""
-    hyperparameters: List[dict] = field(default_factory=list)
+    hyperparameters: list[dict] = field(default_factory=list)
     """The paper's hyperparameters stated in the part's section ({name, value, sentence})."""
 
     def to_dict(self) -> dict:
@@ -107,7 +108,7 @@ class Plan(dict):
 
     # ------------------------------------------------------------------ construction and files
     @classmethod
-    def of(cls, value: Union["Plan", dict]) -> "Plan":
+    def of(cls, value: Plan | dict) -> Plan:
         """``value`` itself when it already is a Plan, else a deep copy of the mapping as a Plan."""
         if isinstance(value, Plan):
             return value
@@ -116,7 +117,7 @@ class Plan(dict):
         return cls(copy.deepcopy(value))
 
     @classmethod
-    def load(cls, path: Union[str, Path]) -> "Plan":
+    def load(cls, path: str | Path) -> Plan:
         """Read a plan from YAML (or JSON); anything else raises PlanFileError naming the file."""
         from nerfify_ns import safeio
 
@@ -129,7 +130,7 @@ class Plan(dict):
             raise PlanFileError(f"{path} is not a plan (a YAML mapping; see method_configs/ for examples)")
         return cls(data)
 
-    def copy(self) -> "Plan":  # type: ignore[override]
+    def copy(self) -> Plan:  # type: ignore[override]
         """A deep copy (plans nest mappings; a shallow copy would share them)."""
         return Plan(copy.deepcopy(dict(self)))
 
@@ -179,17 +180,17 @@ class Plan(dict):
             raise PlanPathError(f"{path}: not in the plan")
         return parent.pop(key)
 
-    def parent(self, path: str) -> Tuple[Optional[dict], str]:
+    def parent(self, path: str) -> tuple[dict | None, str]:
         """(the mapping holding the last key of ``path`` or None, that key)."""
         try:
             return self._parent(path, create=False)
         except PlanPathError:
             return None, split_path(path)[-1] if split_path(path) else ""
 
-    def expand(self, pattern: str) -> List[str]:
+    def expand(self, pattern: str) -> list[str]:
         """Concrete paths matching ``pattern``: ``*`` matches every key of a mapping; a last part that
         is absent is kept (so ``set`` can add it)."""
-        results: List[Tuple[List[str], Any]] = [([], self)]
+        results: list[tuple[list[str], Any]] = [([], self)]
         parts = split_path(pattern)
         for i, key in enumerate(parts):
             found = []
@@ -202,12 +203,12 @@ class Plan(dict):
             results = found
         return [".".join(p) for p, _ in results]
 
-    def leaves(self, root: str = "") -> Iterator[Tuple[str, Any]]:
+    def leaves(self, root: str = "") -> Iterator[tuple[str, Any]]:
         """Every (path, value) under ``root`` whose value is not a non-empty mapping."""
         node = self.get(root) if root else self
         yield from _leaves(node, root)
 
-    def _parent(self, path: str, *, create: bool) -> Tuple[dict, str]:
+    def _parent(self, path: str, *, create: bool) -> tuple[dict, str]:
         parts = split_path(path)
         if not parts:
             raise PlanPathError("an empty plan path")
@@ -234,20 +235,20 @@ class Plan(dict):
         return str(dict.get(self, "base", ""))
 
     @property
-    def evidence(self) -> Dict[str, str]:
+    def evidence(self) -> dict[str, str]:
         """Plan path -> where in the paper (or the base, a card, a citation) the value comes from."""
         return self.setdefault("evidence", {})
 
     @property
-    def holes(self) -> List[dict]:
+    def holes(self) -> list[dict]:
         return self.setdefault("holes", [])
 
     @property
-    def pruned(self) -> List[dict]:
+    def pruned(self) -> list[dict]:
         return self.setdefault("pruned", [])
 
     @property
-    def notes(self) -> List[str]:
+    def notes(self) -> list[str]:
         return self.setdefault("notes", [])
 
     def evidence_for(self, path: str) -> str:
@@ -265,7 +266,7 @@ class Plan(dict):
         return {k: copy.deepcopy(v) for k, v in self.items() if k not in ANNOTATION_KEYS}
 
 
-def _leaves(node: Any, prefix: str) -> Iterator[Tuple[str, Any]]:
+def _leaves(node: Any, prefix: str) -> Iterator[tuple[str, Any]]:
     if isinstance(node, dict) and node:
         for key, value in node.items():
             yield from _leaves(value, f"{prefix}.{key}" if prefix else str(key))
@@ -276,7 +277,7 @@ def _leaves(node: Any, prefix: str) -> Iterator[Tuple[str, Any]]:
 def _plain(value: Any) -> Any:
     if isinstance(value, dict):
         return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     return copy.deepcopy(value)
 
@@ -301,7 +302,7 @@ def _normalise(distribution: str) -> str:
     return re.sub(r"[-_.]+", "-", distribution).lower()
 
 
-def _source_of(module: str) -> Optional[Path]:
+def _source_of(module: str) -> Path | None:
     """The source file of an installed module, found without importing it."""
     try:
         spec = importlib.util.find_spec(module)
@@ -310,11 +311,11 @@ def _source_of(module: str) -> Optional[Path]:
     return Path(spec.origin) if spec is not None and spec.origin and os.path.isfile(spec.origin) else None
 
 
-def _assigned_keys(tree: ast.AST, target: str) -> List[str]:
+def _assigned_keys(tree: ast.AST, target: str) -> list[str]:
     """String keys of ``target[...] = ...`` assignments and of a ``target = {...}`` dict literal."""
     keys = []
     for node in ast.walk(tree):
-        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+        if isinstance(node, ast.Assign | ast.AnnAssign):
             targets = node.targets if isinstance(node, ast.Assign) else [node.target]
             for t in targets:
                 if (isinstance(t, ast.Subscript) and isinstance(t.value, ast.Name) and t.value.id == target
@@ -327,7 +328,7 @@ def _assigned_keys(tree: ast.AST, target: str) -> List[str]:
 
 
 @functools.lru_cache(maxsize=1)
-def nerfstudio_builtin_methods() -> FrozenSet[str]:
+def nerfstudio_builtin_methods() -> frozenset[str]:
     """The method names Nerfstudio itself defines (its ``method_configs`` and the external methods it offers to
     install), read from its source without importing it (no torch for a dry run); plus those of
     $NERFSTUDIO_METHOD_CONFIGS."""
@@ -349,7 +350,7 @@ def nerfstudio_builtin_methods() -> FrozenSet[str]:
 
 
 @functools.lru_cache(maxsize=1)
-def installed_plugins() -> Tuple[Tuple[str, str, str], ...]:
+def installed_plugins() -> tuple[tuple[str, str, str], ...]:
     """(method, entry point value, distribution) of every installed Nerfstudio plugin."""
     from importlib.metadata import entry_points
 
@@ -372,13 +373,13 @@ def _nerfify_plugin_package(origin: Path, package: str) -> bool:
 
 
 @functools.lru_cache(maxsize=1)
-def _packages_distributions() -> Dict[str, List[str]]:
+def _packages_distributions() -> dict[str, list[str]]:
     from importlib.metadata import packages_distributions
 
     return packages_distributions()
 
 
-def _module_owner(package: str) -> Optional[str]:
+def _module_owner(package: str) -> str | None:
     """What an importable top-level module ``package`` is, when it is not an earlier build of our plugin of
     that name (None: nothing, or that earlier build)."""
     if package in sys.builtin_module_names or package in getattr(sys, "stdlib_module_names", ()):
@@ -402,7 +403,7 @@ def _module_owner(package: str) -> Optional[str]:
     return f"an installed module{where}"
 
 
-def method_name_problems(method: str) -> List[Tuple[str, str]]:
+def method_name_problems(method: str) -> list[tuple[str, str]]:
     """(rule, message) for each reason ``method`` cannot name a plugin: its distribution ``nerfify-<method>`` is
     not a valid project name, its import package is a Python keyword (rule ``method_name``), or it shadows
     a Nerfstudio built-in method, another installed plugin or an importable module (rule ``method_shadows``).

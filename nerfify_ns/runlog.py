@@ -19,8 +19,8 @@ import contextlib
 import io
 import logging
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, List, Optional
 
 LOGGER = logging.getLogger("nerfify")
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -34,7 +34,7 @@ class HeldRecords(logging.Handler):
     def __init__(self, capacity: int = HELD_RECORDS) -> None:
         super().__init__(logging.DEBUG)
         self.capacity = capacity
-        self.records: List[logging.LogRecord] = []
+        self.records: list[logging.LogRecord] = []
 
     def emit(self, record: logging.LogRecord) -> None:
         """Hold ``record``; drop the oldest beyond ``capacity``."""
@@ -48,7 +48,7 @@ class HeldRecords(logging.Handler):
             target.handle(record)
 
 
-_held: Optional[HeldRecords] = None
+_held: HeldRecords | None = None
 
 
 def quiet_console(level: int = logging.INFO) -> None:

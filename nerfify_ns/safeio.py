@@ -20,7 +20,7 @@ import os
 import stat
 import struct
 from pathlib import Path
-from typing import Any, Optional, Tuple, Union
+from typing import Any, Union
 
 import yaml
 from yaml.events import AliasEvent
@@ -61,7 +61,7 @@ def _show(path: PathLike) -> str:
 # ------------------------------------------------------------------------------------------ bytes and text
 
 
-def read_bytes(path: PathLike, limit: int = MAX_TEXT, *, what: Optional[str] = None,
+def read_bytes(path: PathLike, limit: int = MAX_TEXT, *, what: str | None = None,
                follow_links: bool = True) -> bytes:
     """The bytes of the regular file ``path`` when it holds at most ``limit`` of them; a file that grows while it
     is read is cut at ``limit + 1`` bytes and refused. ``follow_links=False`` refuses a symbolic link."""
@@ -94,7 +94,7 @@ def read_bytes(path: PathLike, limit: int = MAX_TEXT, *, what: Optional[str] = N
         os.close(fd)
 
 
-def read_text(path: PathLike, limit: int = MAX_TEXT, *, what: Optional[str] = None,
+def read_text(path: PathLike, limit: int = MAX_TEXT, *, what: str | None = None,
               errors: str = "replace") -> str:
     """The text of ``path`` (UTF-8; undecodable bytes replaced unless ``errors='strict'``), at most ``limit`` bytes."""
     data = read_bytes(path, limit, what=what)
@@ -132,7 +132,7 @@ def _depth_ok(value: Any, limit: int) -> bool:
     return True
 
 
-def parse_json(text: Union[str, bytes], *, what: str = "the JSON", max_depth: int = MAX_DEPTH) -> Any:
+def parse_json(text: str | bytes, *, what: str = "the JSON", max_depth: int = MAX_DEPTH) -> Any:
     """``text`` as JSON, nested at most ``max_depth`` deep; :class:`ReadRefused` when it is not JSON or is
     deeper (the parser's own recursion limit stops a 10^5-deep document early; it is caught, not shown)."""
     try:
@@ -146,7 +146,7 @@ def parse_json(text: Union[str, bytes], *, what: str = "the JSON", max_depth: in
     return value
 
 
-def load_json(path: PathLike, limit: int = MAX_JSON, *, what: Optional[str] = None,
+def load_json(path: PathLike, limit: int = MAX_JSON, *, what: str | None = None,
               max_depth: int = MAX_DEPTH) -> Any:
     """The JSON in ``path``, read within ``limit`` bytes and ``max_depth`` levels."""
     name = what or _show(path)
@@ -210,7 +210,7 @@ def parse_yaml(text: str, *, what: str = "the YAML", max_depth: int = MAX_DEPTH,
         loader.dispose()
 
 
-def load_yaml(path: PathLike, limit: int = MAX_YAML, *, what: Optional[str] = None, max_depth: int = MAX_DEPTH,
+def load_yaml(path: PathLike, limit: int = MAX_YAML, *, what: str | None = None, max_depth: int = MAX_DEPTH,
               max_nodes: int = MAX_NODES) -> Any:
     """The YAML in ``path``, read within ``limit`` bytes, ``max_depth`` levels and ``max_nodes`` nodes."""
     name = what or _show(path)
@@ -224,7 +224,7 @@ def load_yaml(path: PathLike, limit: int = MAX_YAML, *, what: Optional[str] = No
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def image_header(data: bytes) -> Optional[Tuple[str, int, int]]:
+def image_header(data: bytes) -> tuple[str, int, int] | None:
     """(mime type, width, height) of a PNG or JPEG from its first bytes; None for anything else (or a JPEG whose
     size is not found in its first 64 KB)."""
     if data[:8] == PNG_MAGIC and data[12:16] == b"IHDR" and len(data) >= 24:
@@ -245,7 +245,7 @@ def image_header(data: bytes) -> Optional[Tuple[str, int, int]]:
 
 
 def read_image_bytes(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int = MAX_PIXELS,
-                     what: Optional[str] = None) -> Tuple[str, bytes]:
+                     what: str | None = None) -> tuple[str, bytes]:
     """(mime type, bytes) of a PNG or JPEG file at most ``limit`` bytes whose header declares at most
     ``max_pixels`` pixels; nothing is decoded."""
     name = what or _show(path)
@@ -259,7 +259,7 @@ def read_image_bytes(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int 
     return mime, data
 
 
-def open_image(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int = MAX_PIXELS, what: Optional[str] = None):
+def open_image(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int = MAX_PIXELS, what: str | None = None):
     """A PIL image of ``path`` (not decoded yet) whose size was checked against ``max_pixels`` from its header."""
     import io
 
@@ -298,7 +298,7 @@ def inside(root: PathLike, relative: Any, *, what: str = "path") -> Path:
 # ------------------------------------------------------------------------------------------ numpy files
 
 
-def npy_header(path: PathLike, limit: int, *, what: Optional[str] = None) -> Tuple[tuple, Any, bool]:
+def npy_header(path: PathLike, limit: int, *, what: str | None = None) -> tuple[tuple, Any, bool]:
     """(shape, dtype, fortran_order) of the ``.npy`` file ``path``, checked before any array is built: a plain
     numeric dtype (no objects, no pickles), a file of at most ``limit`` bytes, and exactly the bytes its header's
     shape needs (a header claiming 2^40 rows in a small file is refused here, not by a failed allocation)."""

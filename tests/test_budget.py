@@ -2,8 +2,15 @@
 
 import pytest
 
-from nerfify_ns.budget import (MIN_ITERATIONS, POST_SECONDS, RENDER_COST, Budget, BudgetError, fit_iterations,
-                               parse_duration)
+from nerfify_ns.budget import (
+    MIN_ITERATIONS,
+    POST_SECONDS,
+    RENDER_COST,
+    Budget,
+    BudgetError,
+    fit_iterations,
+    parse_duration,
+)
 from nerfify_ns.cli import paper_budget
 
 

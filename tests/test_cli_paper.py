@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pymupdf
 import pytest
-
 from paper_pdfs import text_pdf, two_column_pdf
 
 ROOT = Path(__file__).resolve().parents[1]

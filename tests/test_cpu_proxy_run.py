@@ -48,9 +48,8 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
     from nerfify_ns.budget import PAPER_BUDGET
     from nerfify_ns.pipeline import run_compose
     from nerfify_ns.plan import Plan
-    from nerfify_ns.synthesis.resources import load_reference_plan
-
     from nerfify_ns.synthesis.proxy import proxy_scene
+    from nerfify_ns.synthesis.resources import load_reference_plan
 
     plan = Plan.of(load_reference_plan("vanilla-nerf"))
     # the paper command's budget (the proxy allowed) and its scene, on the share of the machine this test has: a

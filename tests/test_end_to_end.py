@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 from nerfify_ns.grammar import check
-from nerfify_ns.synthesis.registry import resolve_generated
+from nerfify_ns.synthesis.plugin_lookup import resolve_generated
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "gridlite_paper.md"

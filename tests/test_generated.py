@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD
-from nerfify_ns.synthesis.registry import newest_plugin, resolve_generated
+from nerfify_ns.synthesis.plugin_lookup import newest_plugin, resolve_generated
 
 NS_TRAIN = Path(sys.executable).with_name("ns-train")
 

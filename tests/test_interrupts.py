@@ -16,8 +16,8 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable, List, Tuple
 
 import pytest
 
@@ -26,7 +26,7 @@ CLI = Path(sys.executable).with_name("ns-nerfify")
 EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
 
 
-def processes_in(folder: Path) -> List[Tuple[int, str]]:
+def processes_in(folder: Path) -> list[tuple[int, str]]:
     """Live processes (zombies aside) whose working directory or command line points into ``folder``."""
     found, root = [], str(folder)
     for entry in Path("/proc").iterdir():
@@ -59,13 +59,13 @@ def wait_for(condition: Callable[[], object], timeout: float, what: str, proc: s
     pytest.fail(f"timed out after {timeout} s waiting for {what}")
 
 
-def start(args: List[str], cwd: Path) -> subprocess.Popen:
+def start(args: list[str], cwd: Path) -> subprocess.Popen:
     """The CLI in a session of its own (the signal goes to it alone, as ``kill PID`` sends it)."""
     return subprocess.Popen([str(CLI), *args], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
 
 
-def training_in(folder: Path, marker: str) -> Callable[[], List[Tuple[int, str]]]:
+def training_in(folder: Path, marker: str) -> Callable[[], list[tuple[int, str]]]:
     return lambda: [p for p in processes_in(folder) if "ns-train" in p[1] and marker in p[1]]
 
 

@@ -18,7 +18,6 @@ import sysconfig
 import zipfile
 from importlib import metadata
 from pathlib import Path
-from typing import Dict, List, Set
 
 import pytest
 
@@ -29,7 +28,7 @@ DATA_IN_WHEEL = "nerfify_ns/_data"
 pytestmark = pytest.mark.slow
 
 
-def _run(cmd: List[str], *, cwd: Path, env: Dict[str, str], timeout: float = 300) -> str:
+def _run(cmd: list[str], *, cwd: Path, env: dict[str, str], timeout: float = 300) -> str:
     """Run ``cmd``; fail the test with its output unless it exits 0."""
     result = subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True,
                             timeout=timeout)
@@ -38,7 +37,7 @@ def _run(cmd: List[str], *, cwd: Path, env: Dict[str, str], timeout: float = 300
     return result.stdout
 
 
-def _clean_env(tmp: Path) -> Dict[str, str]:
+def _clean_env(tmp: Path) -> dict[str, str]:
     """The environment of a user outside the repository: no PYTHONPATH, no active venv, own cache."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON") and k != "VIRTUAL_ENV"}
     env["NERFIFY_CACHE"] = str(tmp / "cache")
@@ -46,7 +45,7 @@ def _clean_env(tmp: Path) -> Dict[str, str]:
     return env
 
 
-def _git_files(*paths: str) -> List[str]:
+def _git_files(*paths: str) -> list[str]:
     """Files under ``paths`` that git tracks or would track (what .gitignore does not exclude)."""
     out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "--", *paths],
                          cwd=ROOT, capture_output=True, text=True, check=True).stdout
@@ -82,7 +81,7 @@ def test_wheel_carries_project_data_and_every_package_file(wheel):
     assert not [n for n in names if n.split("/")[0] in PROJECT_DATA], "project data outside the package"
 
 
-def _own_entries(dist: metadata.Distribution) -> Set[str]:
+def _own_entries(dist: metadata.Distribution) -> set[str]:
     """Top-level site-packages entries that belong to ``dist`` (its RECORD)."""
     return {f.parts[0] for f in dist.files or [] if f.parts and f.parts[0] != ".."}
 
@@ -137,7 +136,7 @@ def installed(wheel, tmp_path_factory) -> Path:
 LOCATE = """
 import json, sys, nerfify_ns
 from importlib.metadata import entry_points
-from nerfify_ns import data
+from nerfify_ns import package_data as data
 from nerfify_ns.grammar.spec import load_grammar
 from nerfify_ns.synthesis.resources import reference_plans
 (ep,) = [e for e in entry_points(group="nerfstudio.method_configs") if e.name == "nerfify-generated"]

@@ -5,8 +5,8 @@ import sys
 
 import pytest
 
-from nerfify_ns.evaluate.smoke import SmokeTrainError
 from nerfify_ns.atomic import MARKER, OutputExistsError, OverwriteRefused, atomic_dir
+from nerfify_ns.evaluate.smoke_train import SmokeTrainError
 from nerfify_ns.pipeline import run_demo
 
 
@@ -112,7 +112,7 @@ def test_a_budget_spent_before_training_fails_the_train_stage_in_one_line(tiny_s
 
     from nerfify_ns import verify
     from nerfify_ns.cli import CONSOLE, Compose
-    from nerfify_ns.verify.report import LadderReport, RungResult
+    from nerfify_ns.verify.verdicts import LadderReport, RungResult
 
     def passing_ladder(plugin_dir, **kwargs):
         smoke = RungResult("smoke", details={"seconds_per_iteration": 0.5, "startup_seconds": 15.0})

@@ -13,8 +13,8 @@ import sys
 
 import pytest
 
-from nerfify_ns.runtime.presets import generated_smoke_args
 from nerfify_ns.runtime.launch import ns_train
+from nerfify_ns.runtime.presets import generated_smoke_args
 from nerfify_ns.synthesis.compose import compose
 from nerfify_ns.synthesis.prune import prune_plan
 from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans

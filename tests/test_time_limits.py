@@ -7,10 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from nerfify_ns.budget import (CHECK_SECONDS, SMOKE_SHARE, Budget, Limit, check_limit, smoke_limit,
-                               training_limit)
+from nerfify_ns.budget import CHECK_SECONDS, SMOKE_SHARE, Budget, Limit, check_limit, smoke_limit, training_limit
 from nerfify_ns.cli import paper_budget
-from nerfify_ns.verify.report import Diagnosis, LadderReport, RungResult
+from nerfify_ns.verify.verdicts import Diagnosis, LadderReport, RungResult
 
 
 def test_iterations_alone_have_no_time_limit():

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
-from typing import Dict, Optional, Tuple
 
 import yaml
 
@@ -19,8 +18,8 @@ class Backend:
 
     name: str
     sdk: str
-    base_url: Optional[str]
-    key_env: Optional[str]
+    base_url: str | None
+    key_env: str | None
     key_required: bool
     structured: str
     strict_schema: bool
@@ -34,7 +33,7 @@ def _table() -> dict:
     return yaml.safe_load(resources.files("nerfify_ns.agents").joinpath("backends.yaml").read_text())
 
 
-def backends() -> Dict[str, Backend]:
+def backends() -> dict[str, Backend]:
     """Every backend of the table, by name."""
     out = {}
     for name, row in _table()["backends"].items():
@@ -44,7 +43,7 @@ def backends() -> Dict[str, Backend]:
     return out
 
 
-def price(model: str) -> Optional[Tuple[float, float]]:
+def price(model: str) -> tuple[float, float] | None:
     """(input, output) USD per million tokens of ``model`` when its list price is known, else None."""
     row = (_table().get("prices") or {}).get(model)
     return (float(row[0]), float(row[1])) if row else None

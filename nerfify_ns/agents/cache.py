@@ -13,7 +13,6 @@ import json
 import sqlite3
 import time
 from pathlib import Path
-from typing import Optional
 
 from nerfify_ns.agents.providers import Response
 
@@ -29,16 +28,16 @@ def cache_key(data: dict) -> str:
 class ResponseCache:
     """``get(key)`` / ``put(key, response)`` over one sqlite file (``None`` path: a cache that keeps nothing)."""
 
-    def __init__(self, path: Optional[Path]) -> None:
+    def __init__(self, path: Path | None) -> None:
         self.path = Path(path) if path is not None else None
-        self._db: Optional[sqlite3.Connection] = None
+        self._db: sqlite3.Connection | None = None
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(str(self.path), timeout=30)
             self._db.execute(SCHEMA)
             self._db.commit()
 
-    def get(self, key: str) -> Optional[Response]:
+    def get(self, key: str) -> Response | None:
         if self._db is None:
             return None
         row = self._db.execute("SELECT text, finish, input_tokens, output_tokens, model FROM responses "

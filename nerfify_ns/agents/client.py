@@ -13,8 +13,9 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, List, Optional
+from typing import Any
 
 from nerfify_ns.agents.cache import ResponseCache, cache_key
 from nerfify_ns.agents.config import LLMConfig
@@ -23,7 +24,7 @@ from nerfify_ns.agents.providers import Provider, Request, Response
 from nerfify_ns.agents.usage import Ledger
 
 LOG = logging.getLogger("nerfify.agents")
-Check = Callable[[Any], List[str]]
+Check = Callable[[Any], list[str]]
 
 
 @dataclass
@@ -31,7 +32,7 @@ class Answer:
     value: Any
     response: Response
     attempts: int
-    notes: List[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 def parse_json(text: str) -> tuple:
@@ -70,7 +71,7 @@ class Client:
         if hit is not None:
             self.ledger.hit(scope)
             return hit
-        last: Optional[ProviderError] = None
+        last: ProviderError | None = None
         for attempt in range(self.config.retries + 1):
             self.ledger.before_call(scope)
             try:
@@ -89,15 +90,15 @@ class Client:
         tries = f" ({self.config.retries + 1} tries)" if last is not None and last.retry and self.config.retries else ""
         raise ProviderError(last.kind, f"{last}{tries}", retry=False)
 
-    def ask(self, scope: str, messages: List[dict], *, schema: Optional[dict] = None, grammar: Optional[str] = None,
-            check: Optional[Check] = None, max_tokens: Optional[int] = None, schema_name: str = "answer",
+    def ask(self, scope: str, messages: list[dict], *, schema: dict | None = None, grammar: str | None = None,
+            check: Check | None = None, max_tokens: int | None = None, schema_name: str = "answer",
             reask: bool = True) -> Answer:
         """A JSON answer that passes ``check`` (a list of problems; empty = accepted). A truncated answer raises
         at once (the same request would be cut again); an invalid one is re-asked with its problems, at most
         ``retries`` times, then :class:`InvalidAnswer`."""
         messages = list(messages)
-        notes: List[str] = []
-        problems: List[str] = []
+        notes: list[str] = []
+        problems: list[str] = []
         limit = max_tokens or self.config.max_tokens
         for attempt in range(self.config.retries + 1):
             request = Request(messages=messages, schema=schema, schema_name=schema_name,

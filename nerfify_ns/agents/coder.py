@@ -28,7 +28,7 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import Any
 
 from nerfify_ns.agents.client import Client
 from nerfify_ns.agents.errors import AgentError, InvalidAnswer
@@ -63,7 +63,7 @@ class CoderResult:
     production: str
     status: str                   # accepted | rejected | error | skipped
     reason: str
-    rounds: List[CoderRound] = field(default_factory=list)
+    rounds: list[CoderRound] = field(default_factory=list)
     component: dict = field(default_factory=dict)
     endpoint_failed: bool = False
     """The endpoint, a truncated answer or the budget failed (not the model's code): later asks would too."""
@@ -86,7 +86,7 @@ def frozen_interface(record: Any) -> dict:
             "get_out_dim": interface.out_dim}
 
 
-def coder_messages(record: Any, hole: dict, frozen: dict) -> List[dict]:
+def coder_messages(record: Any, hole: dict, frozen: dict) -> list[dict]:
     """The coder's prompt for one hole."""
     equations = [{"number": e.get("number"), "latex": e.get("latex"), "as read": e.get("reading"),
                   "status": e.get("status")} for e in record.equations if isinstance(e, dict)]
@@ -112,7 +112,7 @@ def coder_messages(record: Any, hole: dict, frozen: dict) -> List[dict]:
 
 
 def answer_problems(frozen: dict):
-    def check(value: Any) -> List[str]:
+    def check(value: Any) -> list[str]:
         if not isinstance(value, dict) or not isinstance(value.get("code"), str) or not value["code"].strip():
             return ["the answer must be a JSON object with a non-empty string `code`"]
         if f"class {frozen['class']}" not in value["code"]:
@@ -143,7 +143,7 @@ def _hole_of(plan: dict, record: Any) -> dict:
 
 def code_hole(client: Client, implementation: Any, record: Any, work: Path, *, rounds: int = 3,
               smoke: bool = False, scene: Any = None, timeout: float = 300,
-              smoke_iterations: Optional[int] = None) -> CoderResult:
+              smoke_iterations: int | None = None) -> CoderResult:
     """One hole: ask, install, check in the sandbox, feed back (see the module docstring). On acceptance the
     implementation (plan, sources, record) is updated in place."""
     import time
@@ -226,14 +226,14 @@ def code_hole(client: Client, implementation: Any, record: Any, work: Path, *, r
 
 
 def code_holes(client: Client, implementation: Any, work: Path, *, rounds: int = 3, smoke: bool = False,
-               scene: Any = None, timeout: float = 300, only: Optional[List[str]] = None) -> List[CoderResult]:
+               scene: Any = None, timeout: float = 300, only: list[str] | None = None) -> list[CoderResult]:
     """Every hole the compiler did not fully implement and whose production has an interface, in the plan's
     order (``only``: these hole ids). A spent budget stops the loop with what was done so far."""
     from nerfify_ns.agents.errors import BudgetExceeded
     from nerfify_ns.registry.terminals.custom import INTERFACES
     from nerfify_ns.synthesis.novel import IMPLEMENTED
 
-    results: List[CoderResult] = []
+    results: list[CoderResult] = []
     for record in list(implementation.records):
         if only is not None and record.id not in only:
             continue

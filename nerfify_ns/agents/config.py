@@ -5,7 +5,6 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Optional
 
 from nerfify_ns.agents.backends import Backend, backends
 from nerfify_ns.agents.errors import LLMSetupError
@@ -23,7 +22,7 @@ class LLMConfig:
     scripted."""
     model: str
     """The model's name at the endpoint (for ``scripted``: the answers file)."""
-    base_url: Optional[str] = None
+    base_url: str | None = None
     """The endpoint (OpenAI-compatible servers: ``http://HOST:PORT/v1``); default: the backend's."""
     timeout: float = 120.0
     """Seconds one request may take in all (connecting, sending, the whole answer however slowly it arrives)
@@ -40,13 +39,13 @@ class LLMConfig:
     """Sampling temperature (0: greedy, reproducible where the backend allows)."""
     seed: int = 0
     """Sampling seed sent where the backend honours one."""
-    run_tokens: Optional[int] = 200_000
+    run_tokens: int | None = 200_000
     """Token budget of the whole run (input + output, cache hits excluded); None: no limit."""
-    stage_tokens: Optional[int] = None
+    stage_tokens: int | None = None
     """Token budget of each stage (planner, coder, critic); None: only the run's."""
-    run_usd: Optional[float] = None
+    run_usd: float | None = None
     """Money budget of the run in USD, where the model's price is known; None: no limit."""
-    cache: Optional[Path] = None
+    cache: Path | None = None
     """The response cache (sqlite); default ``$NERFIFY_LLM_CACHE`` or ``~/.cache/nerfify-ns/llm-cache.sqlite``."""
     constrained: bool = True
     """Send the grammar's constraint (JSON Schema or GBNF) where the backend takes one; off: validate only."""
@@ -54,7 +53,7 @@ class LLMConfig:
     """Rounds of the coder per hole (answer, ladder, diagnosis back), before it stops with the diagnosis."""
 
     @classmethod
-    def parse(cls, spec: str, base_url: Optional[str] = None, **settings) -> "LLMConfig":
+    def parse(cls, spec: str, base_url: str | None = None, **settings) -> LLMConfig:
         """``BACKEND:MODEL`` (``openai:gpt-4o-mini``, ``llamacpp:smollm2``, ``anthropic:claude-3-5-haiku-latest``);
         a bare ``openai:`` model with a ``base_url`` is an OpenAI-compatible server."""
         backend, sep, model = (spec or "").partition(":")
@@ -73,7 +72,7 @@ class LLMConfig:
         return backends()[self.backend]
 
     @property
-    def endpoint(self) -> Optional[str]:
+    def endpoint(self) -> str | None:
         return self.base_url or self.info.base_url
 
     def check(self) -> None:
@@ -106,7 +105,7 @@ class LLMConfig:
     def cache_path(self) -> Path:
         return Path(self.cache or os.environ.get("NERFIFY_LLM_CACHE") or DEFAULT_CACHE).expanduser()
 
-    def with_(self, **changes) -> "LLMConfig":
+    def with_(self, **changes) -> LLMConfig:
         return replace(self, **changes)
 
     def describe(self) -> dict:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import base64
 import json
 from pathlib import Path
-from typing import Any, List
+from typing import Any
 
 from nerfify_ns.agents.client import Client
 from nerfify_ns.agents.errors import AgentError
@@ -69,21 +69,21 @@ class ModelCritic:
         self.name = f"model ({client.config.backend}:{client.config.model}) + deterministic"
         self._answer: dict = {}
 
-    def _messages(self, artifacts: Any, findings: List[Any]) -> List[dict]:
+    def _messages(self, artifacts: Any, findings: list[Any]) -> list[dict]:
         text = ("A NeRF method was trained with this plan:\n" + json.dumps(dict(artifacts.plan), default=str)[:6000]
                 + "\n\nWhat its evaluation shows:\n" + json.dumps(summarize(artifacts), default=str)[:6000]
                 + "\n\nThe deterministic critic's findings:\n"
                 + json.dumps([f.to_json() for f in findings]) + "\n\nPropose at most "
                 f"{MAX_PATCHES} plan patches (edits op set/add/remove at dot paths of the plan) that should raise "
                 "held-out PSNR, each with its reason; name further findings if you see them.")
-        content: List[dict] = [{"type": "text", "text": text}]
+        content: list[dict] = [{"type": "text", "text": text}]
         if self.images:
             for panel in sorted(Path(artifacts.eval_dir).glob("*_errors.png"))[:MAX_IMAGES]:
                 content.append({"type": "image", "png_base64": base64.b64encode(panel.read_bytes()).decode()})
         return [{"role": "system", "content": "You are the critic of a NeRF training run. Reply with JSON only."},
                 {"role": "user", "content": content if len(content) > 1 else text}]
 
-    def diagnose(self, artifacts: Any) -> List[Any]:
+    def diagnose(self, artifacts: Any) -> list[Any]:
         from nerfify_ns.evaluate.patch_loop import Finding
 
         findings = list(self.base.diagnose(artifacts))
@@ -101,7 +101,7 @@ class ModelCritic:
                 findings.append(Finding(f"model:{f['name']}", float(f["severity"]), str(f["evidence"])[:500], "model"))
         return findings
 
-    def propose(self, plan: dict, findings: List[Any], artifacts: Any) -> List[Any]:
+    def propose(self, plan: dict, findings: list[Any], artifacts: Any) -> list[Any]:
         """The model's patches as :class:`PlanPatch` (the loop validates, applies and measures them)."""
         from nerfify_ns.evaluate.patch_loop import Edit, Finding, PlanPatch
 
@@ -115,7 +115,7 @@ class ModelCritic:
         return out
 
 
-def _problems(value: Any) -> List[str]:
+def _problems(value: Any) -> list[str]:
     if not isinstance(value, dict):
         return ["the answer must be a JSON object {findings, patches}"]
     problems = []
@@ -127,6 +127,6 @@ def _problems(value: Any) -> List[str]:
             if not isinstance(e, dict) or e.get("op") not in ("set", "add", "remove") or not isinstance(e.get("path"), str):
                 problems.append(f"bad edit {e!r}: op must be set, add or remove, path a dot path")
     for f in value.get("findings") or []:
-        if not isinstance(f, dict) or not isinstance(f.get("name"), str) or not isinstance(f.get("severity"), (int, float)):
+        if not isinstance(f, dict) or not isinstance(f.get("name"), str) or not isinstance(f.get("severity"), int | float):
             problems.append(f"bad finding {f!r}: needs name, severity, evidence")
     return problems

@@ -18,7 +18,6 @@ import sys
 import time
 import urllib.request
 from pathlib import Path
-from typing import Optional
 
 from nerfify_ns.agents.errors import AgentError
 
@@ -52,8 +51,8 @@ class LlamaServer:
     """``python -m llama_cpp.server`` on 127.0.0.1 (see the module docstring). One thread by default: with two on
     a loaded 2-core machine its threads spin against each other (2 s per token instead of 0.05 s here)."""
 
-    def __init__(self, model: Optional[Path] = None, *, n_ctx: int = 4096, threads: int = 1,
-                 start_timeout: float = 120.0, log: Optional[Path] = None) -> None:
+    def __init__(self, model: Path | None = None, *, n_ctx: int = 4096, threads: int = 1,
+                 start_timeout: float = 120.0, log: Path | None = None) -> None:
         if importlib.util.find_spec("llama_cpp") is None:
             raise LlamaServerUnavailable("llama-cpp-python is not installed (scripts/setup.sh --dev builds it once "
                                          "and keeps the wheel in ~/.cache/nerfify-ns/wheels)")
@@ -61,13 +60,13 @@ class LlamaServer:
         self.port = _free_port()
         self.n_ctx, self.threads, self.start_timeout = n_ctx, threads, start_timeout
         self.log = log
-        self.process: Optional[subprocess.Popen] = None
+        self.process: subprocess.Popen | None = None
 
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}/v1"
 
-    def __enter__(self) -> "LlamaServer":
+    def __enter__(self) -> LlamaServer:
         from nerfify_ns.runtime.process import start_group
 
         out = open(self.log, "wb") if self.log else subprocess.DEVNULL

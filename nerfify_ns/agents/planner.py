@@ -23,7 +23,7 @@ from __future__ import annotations
 import copy
 import json
 from dataclasses import dataclass, field
-from typing import Any, List, Optional
+from typing import Any
 
 from nerfify_ns.agents.client import Client
 from nerfify_ns.agents.errors import AgentError, InvalidAnswer
@@ -54,10 +54,10 @@ class Disagreement:
 class PlannerResult:
     plan: dict
     used_model: bool
-    disagreements: List[Disagreement] = field(default_factory=list)
+    disagreements: list[Disagreement] = field(default_factory=list)
     warning: str = ""
-    notes: List[str] = field(default_factory=list)
-    model_plan: Optional[dict] = None
+    notes: list[str] = field(default_factory=list)
+    model_plan: dict | None = None
     endpoint_failed: bool = False
 
     def to_dict(self) -> dict:
@@ -67,7 +67,7 @@ class PlannerResult:
                 "model_plan": self.model_plan}
 
 
-def plan_problems(value: Any) -> List[str]:
+def plan_problems(value: Any) -> list[str]:
     """What our grammar says against ``value`` as a plan (empty: valid)."""
     from nerfify_ns.grammar import check
 
@@ -91,7 +91,7 @@ def planner_constraint(backend_structured: str) -> tuple:
     return to_json_schema(), None
 
 
-def _reference_plans(derived: Any, limit: int) -> List[dict]:
+def _reference_plans(derived: Any, limit: int) -> list[dict]:
     from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
 
     names = []
@@ -111,7 +111,7 @@ def _reference_plans(derived: Any, limit: int) -> List[dict]:
     return out
 
 
-def planner_messages(doc: Any, derived: Any, *, context_chars: int = 6000, examples: int = 2) -> List[dict]:
+def planner_messages(doc: Any, derived: Any, *, context_chars: int = 6000, examples: int = 2) -> list[dict]:
     """The planner's prompt: instructions, the paper, the detections (cards, quotes), reference plans."""
     from nerfify_ns.paper import clean_markdown
 
@@ -164,7 +164,7 @@ def merge_plans(deterministic: dict, model: dict, doc: Any) -> tuple:
 
     det, mod = Plan.of(copy.deepcopy(dict(deterministic))), Plan.of(copy.deepcopy(dict(model)))
     mine, theirs = _decisions(det), _decisions(mod)
-    found: List[Disagreement] = []
+    found: list[Disagreement] = []
     for path in sorted(set(mine) | set(theirs), key=lambda p: (p.count("."), p)):
         a, b = mine.get(path), theirs.get(path)
         if a == b:

@@ -25,9 +25,10 @@ import importlib
 import json
 import threading
 import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterator, List, Optional, Union
+from typing import Any, Union
 
 from nerfify_ns.agents.config import LLMConfig
 from nerfify_ns.agents.errors import LLMSetupError, ProviderError
@@ -38,13 +39,13 @@ class Request:
     """What is sent: messages (``{role, content}``; content a string or a list of ``{type: text|image}`` parts,
     an image as ``{type: image, png_base64}``), the constraint (JSON Schema and/or GBNF), sampling settings."""
 
-    messages: List[dict]
-    schema: Optional[dict] = None
+    messages: list[dict]
+    schema: dict | None = None
     schema_name: str = "answer"
-    grammar: Optional[str] = None
+    grammar: str | None = None
     max_tokens: int = 1024
     temperature: float = 0.0
-    seed: Optional[int] = None
+    seed: int | None = None
     stage: str = ""
     """Which agent asks (not sent; the scripted model answers per stage)."""
 
@@ -108,7 +109,7 @@ def _llamacpp_gbnf(req: Request, strict: bool) -> dict:
     return _llamacpp_json_schema(req, strict)
 
 
-SHAPES: Dict[str, Callable[[Request, bool], dict]] = {
+SHAPES: dict[str, Callable[[Request, bool], dict]] = {
     "openai_json_schema": _openai_json_schema,
     "vllm_structured": _vllm,
     "ollama_format": _ollama,
@@ -119,7 +120,7 @@ SHAPES: Dict[str, Callable[[Request, bool], dict]] = {
 """How the constraint is put into an OpenAI-SDK request, per structured mode of the capability table."""
 
 
-def _openai_messages(messages: List[dict]) -> List[dict]:
+def _openai_messages(messages: list[dict]) -> list[dict]:
     out = []
     for m in messages:
         content = m["content"]
@@ -150,8 +151,8 @@ class BodyTooLarge(Exception):
 
 
 class _CallLimits(threading.local):
-    deadline: Optional[float] = None
-    budget: Optional[int] = None
+    deadline: float | None = None
+    budget: int | None = None
     received: int = 0
 
 
@@ -169,7 +170,7 @@ def call_limits(seconds: float, max_bytes: int) -> Iterator[None]:
         _limits.deadline, _limits.budget, _limits.received = None, None, 0
 
 
-def _left(timeout: Optional[float], error: type) -> Optional[float]:
+def _left(timeout: float | None, error: type) -> float | None:
     """The wait allowed now: the smaller of ``timeout`` and what is left of the call's deadline (``error``
     raised once it passed)."""
     if _limits.deadline is None:
@@ -188,7 +189,7 @@ def _limited_backend(httpcore: Any) -> Any:
         def __init__(self, inner: Any) -> None:
             self.inner = inner
 
-        def read(self, max_bytes: int, timeout: Optional[float] = None) -> bytes:
+        def read(self, max_bytes: int, timeout: float | None = None) -> bytes:
             data = self.inner.read(max_bytes, _left(timeout, httpcore.ReadTimeout))
             if _limits.budget is not None:
                 _limits.received += len(data)
@@ -196,14 +197,14 @@ def _limited_backend(httpcore: Any) -> Any:
                     raise BodyTooLarge(f"the response is over {_limits.budget} bytes")
             return data
 
-        def write(self, buffer: bytes, timeout: Optional[float] = None) -> None:
+        def write(self, buffer: bytes, timeout: float | None = None) -> None:
             self.inner.write(buffer, _left(timeout, httpcore.WriteTimeout))
 
         def close(self) -> None:
             self.inner.close()
 
-        def start_tls(self, ssl_context: Any, server_hostname: Optional[str] = None,
-                      timeout: Optional[float] = None) -> Any:
+        def start_tls(self, ssl_context: Any, server_hostname: str | None = None,
+                      timeout: float | None = None) -> Any:
             return Stream(self.inner.start_tls(ssl_context, server_hostname, _left(timeout, httpcore.ConnectTimeout)))
 
         def get_extra_info(self, info: str) -> Any:
@@ -213,12 +214,12 @@ def _limited_backend(httpcore: Any) -> Any:
         def __init__(self, inner: Any) -> None:
             self.inner = inner
 
-        def connect_tcp(self, host: str, port: int, timeout: Optional[float] = None, local_address: Any = None,
+        def connect_tcp(self, host: str, port: int, timeout: float | None = None, local_address: Any = None,
                         socket_options: Any = None) -> Any:
             return Stream(self.inner.connect_tcp(host, port, _left(timeout, httpcore.ConnectTimeout), local_address,
                                                  socket_options))
 
-        def connect_unix_socket(self, path: str, timeout: Optional[float] = None, socket_options: Any = None) -> Any:
+        def connect_unix_socket(self, path: str, timeout: float | None = None, socket_options: Any = None) -> Any:
             return Stream(self.inner.connect_unix_socket(path, _left(timeout, httpcore.ConnectTimeout),
                                                          socket_options))
 
@@ -232,7 +233,7 @@ def limited_http_client(sdk: Any, timeout: float) -> Any:
     """An HTTP client for ``sdk`` (the openai or anthropic module) whose connections go through the limited
     backend, that asks for an uncompressed body and refuses a compressed one (never inflated)."""
     base = importlib.import_module(f"{sdk.__name__}._base_client")
-    httpx = getattr(base, "httpx2", None) or getattr(base, "httpx")
+    httpx = getattr(base, "httpx2", None) or base.httpx
     httpcore = importlib.import_module("httpcore2" if httpx.__name__ == "httpx2" else "httpcore")
 
     class Transport(httpx.HTTPTransport):
@@ -258,7 +259,7 @@ def limited_http_client(sdk: Any, timeout: float) -> Any:
     return httpx.Client(transport=Transport(), timeout=timeout, follow_redirects=False)
 
 
-def _cause(exc: BaseException, kind: type) -> Optional[BaseException]:
+def _cause(exc: BaseException, kind: type) -> BaseException | None:
     seen = 0
     while exc is not None and seen < 20:
         if isinstance(exc, kind):
@@ -316,7 +317,7 @@ class OpenAIProvider(Provider):
 
     def complete(self, request: Request) -> Response:
         info, openai = self.config.info, self.openai
-        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": _openai_messages(request.messages),
+        kwargs: dict[str, Any] = {"model": self.config.model, "messages": _openai_messages(request.messages),
                                   "max_tokens": request.max_tokens, "temperature": request.temperature}
         if info.seed and request.seed is not None:
             kwargs["seed"] = request.seed
@@ -352,7 +353,7 @@ class AnthropicProvider(Provider):
         self.where = config.endpoint or "the Anthropic API"
 
     @staticmethod
-    def _messages(messages: List[dict]) -> tuple:
+    def _messages(messages: list[dict]) -> tuple:
         system = "\n\n".join(m["content"] for m in messages if m["role"] == "system")
         out = []
         for m in messages:
@@ -370,7 +371,7 @@ class AnthropicProvider(Provider):
         anthropic = self.anthropic
         system, messages = self._messages(request.messages)
         # no temperature: the SDK's messages API (anthropic 2.x) takes none; its sampling is the model's
-        kwargs: Dict[str, Any] = {"model": self.config.model, "messages": messages, "max_tokens": request.max_tokens}
+        kwargs: dict[str, Any] = {"model": self.config.model, "messages": messages, "max_tokens": request.max_tokens}
         if system:
             kwargs["system"] = system
         if request.schema and self.config.constrained:
@@ -392,7 +393,7 @@ class AnthropicProvider(Provider):
 
 
 # ------------------------------------------------------------------------------------------ scripted
-Answer = Union[str, dict, Callable[[Request], Union[str, dict]]]
+Answer = Union[str, dict, Callable[[Request], str | dict]]
 MAX_SCRIPT = 8 << 20
 """Bytes of a scripted answers file."""
 MAX_SCRIPT_NODES = 200_000
@@ -407,13 +408,13 @@ class ScriptedProvider(Provider):
 
     name = "scripted"
 
-    def __init__(self, answers: Union[List[Answer], Dict[str, List[Answer]]]) -> None:
+    def __init__(self, answers: list[Answer] | dict[str, list[Answer]]) -> None:
         self.answers = answers if isinstance(answers, dict) else {"*": list(answers)}
-        self.used: Dict[str, int] = {}
-        self.requests: List[Request] = []
+        self.used: dict[str, int] = {}
+        self.requests: list[Request] = []
 
     @classmethod
-    def from_file(cls, path: Union[str, Path]) -> "ScriptedProvider":
+    def from_file(cls, path: str | Path) -> ScriptedProvider:
         from nerfify_ns import safeio
 
         path = Path(path)
@@ -421,7 +422,7 @@ class ScriptedProvider(Provider):
             data = safeio.load_yaml(path, MAX_SCRIPT, what="the file", max_nodes=MAX_SCRIPT_NODES)
         except safeio.ReadRefused as exc:
             raise LLMSetupError(f"scripted answers {path}: cannot read it ({_first_line(exc, 200)})") from None
-        if not isinstance(data, (list, dict)):
+        if not isinstance(data, list | dict):
             raise LLMSetupError(f"scripted answers {path}: expected a list, or a mapping stage -> list")
         return cls(data)
 
@@ -453,7 +454,7 @@ class ScriptedProvider(Provider):
 
 def make_provider(config: LLMConfig) -> Provider:
     """The provider of ``config``'s backend (its SDK imported now, not before)."""
-    factories: Dict[str, Callable[[LLMConfig], Provider]] = {
+    factories: dict[str, Callable[[LLMConfig], Provider]] = {
         "openai": OpenAIProvider, "anthropic": AnthropicProvider,
         "scripted": lambda c: ScriptedProvider.from_file(c.model)}
     return factories[config.info.sdk](config)

@@ -14,7 +14,7 @@ import json
 import logging
 import tempfile
 from pathlib import Path
-from typing import Any, List, Optional
+from typing import Any
 
 from nerfify_ns.agents.cache import ResponseCache
 from nerfify_ns.agents.client import Client
@@ -29,23 +29,23 @@ FILE = "agents.json"
 class Agents:
     """The model-backed agents of one run (see the module docstring)."""
 
-    def __init__(self, config: LLMConfig, provider: Optional[Provider] = None,
-                 cache: Optional[ResponseCache] = None, *, context_chars: int = 6000, examples: int = 2) -> None:
+    def __init__(self, config: LLMConfig, provider: Provider | None = None,
+                 cache: ResponseCache | None = None, *, context_chars: int = 6000, examples: int = 2) -> None:
         self.config = config
         self.provider = provider or make_provider(config)
         self.cache = cache if cache is not None else ResponseCache(config.cache_path())
         self.ledger = Ledger(config.model, config.costs_nothing, config.run_tokens, config.stage_tokens, config.run_usd)
         self.client = Client(config, self.provider, self.cache, self.ledger)
         self.context_chars, self.examples = context_chars, examples
-        self.warnings: List[str] = []
+        self.warnings: list[str] = []
         self.down: str = ""
-        self.skipped: List[str] = []
-        self.planner: Optional[dict] = None
-        self.coder: List[dict] = []
+        self.skipped: list[str] = []
+        self.planner: dict | None = None
+        self.coder: list[dict] = []
         self.critic_used = False
 
     @classmethod
-    def from_config(cls, config: LLMConfig) -> "Agents":
+    def from_config(cls, config: LLMConfig) -> Agents:
         return cls(config)
 
     # ------------------------------------------------------------------ warnings
@@ -75,8 +75,8 @@ class Agents:
                 self.down = result.warning
         return result.plan
 
-    def code(self, implementation: Any, *, work: Optional[Path] = None, scene: Any = None, smoke: bool = False,
-             timeout: float = 300) -> List[dict]:
+    def code(self, implementation: Any, *, work: Path | None = None, scene: Any = None, smoke: bool = False,
+             timeout: float = 300) -> list[dict]:
         """The coder on every hole the compiler left; updates ``implementation`` in place."""
         from nerfify_ns.agents.coder import code_holes
 

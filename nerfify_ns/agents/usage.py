@@ -5,7 +5,6 @@ call, so a spent budget stops the agents cleanly with what was done so far."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Dict, Optional
 
 from nerfify_ns.agents.backends import price
 from nerfify_ns.agents.errors import BudgetExceeded
@@ -18,14 +17,14 @@ class Spent:
     failures: int = 0
     input_tokens: int = 0
     output_tokens: int = 0
-    cost_usd: Optional[float] = 0.0
+    cost_usd: float | None = 0.0
     """None when the model's price is not known (a local model's is 0)."""
 
     @property
     def tokens(self) -> int:
         return self.input_tokens + self.output_tokens
 
-    def add(self, other: "Spent") -> None:
+    def add(self, other: Spent) -> None:
         self.calls += other.calls
         self.cache_hits += other.cache_hits
         self.failures += other.failures
@@ -47,15 +46,15 @@ class Ledger:
 
     model: str
     local: bool
-    run_tokens: Optional[int] = None
-    stage_tokens: Optional[int] = None
-    run_usd: Optional[float] = None
-    scopes: Dict[str, Spent] = field(default_factory=dict)
+    run_tokens: int | None = None
+    stage_tokens: int | None = None
+    run_usd: float | None = None
+    scopes: dict[str, Spent] = field(default_factory=dict)
 
     def _scope(self, scope: str) -> Spent:
         return self.scopes.setdefault(scope, Spent(cost_usd=self._unit_cost(0, 0)))
 
-    def _unit_cost(self, tokens_in: int, tokens_out: int) -> Optional[float]:
+    def _unit_cost(self, tokens_in: int, tokens_out: int) -> float | None:
         if self.local:
             return 0.0
         known = price(self.model)
@@ -97,7 +96,7 @@ class Ledger:
         self._scope(scope).failures += 1
 
     def to_dict(self) -> dict:
-        stages: Dict[str, Spent] = {}
+        stages: dict[str, Spent] = {}
         for name, spent in self.scopes.items():
             stages.setdefault(name.split(":", 1)[0], Spent()).add(spent)
         return {"total": self.total().to_dict(), "stages": {k: v.to_dict() for k, v in stages.items()},

@@ -4,7 +4,7 @@ A leaf package: it imports only torch, nerfstudio and the standard library.
 """
 
 from nerfify_ns.components.kplanes import KPlanesDensityField, MultiScaleKPlanes
-from nerfify_ns.components.losses import CharbonnierLoss, charbonnier_loss
+from nerfify_ns.components.photometric_losses import CharbonnierLoss, charbonnier_loss
 from nerfify_ns.components.regularizers import (
     density_sparsity,
     plane_l1_to_one,

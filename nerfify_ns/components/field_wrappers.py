@@ -31,7 +31,7 @@ Imports only torch and nerfstudio: generated plugins import this module.
 from __future__ import annotations
 
 import math
-from typing import Dict, List, Optional, Sequence, Tuple
+from collections.abc import Sequence
 
 import torch
 from nerfstudio.cameras.rays import RaySamples
@@ -42,7 +42,7 @@ from torch import Tensor, nn
 __all__ = ["Sinusoids", "DeformationNetwork", "TimeEmbedding", "FrameCodes", "CameraTimeOffset", "FieldBlend",
            "BlendedField", "condition", "mlp"]
 
-Conditioned = Tuple[Tensor, Tensor, Tensor]
+Conditioned = tuple[Tensor, Tensor, Tensor]
 
 
 class Sinusoids(nn.Module):
@@ -70,7 +70,7 @@ class Sinusoids(nn.Module):
 
 def mlp(in_dim: int, width: int, layers: int, out_dim: int) -> nn.Sequential:
     """``layers`` hidden ReLU layers of ``width`` units, then a linear output of ``out_dim``."""
-    modules: List[nn.Module] = []
+    modules: list[nn.Module] = []
     dim = in_dim
     for _ in range(layers):
         modules += [nn.Linear(dim, width), nn.ReLU()]
@@ -177,8 +177,8 @@ class CameraTimeOffset(nn.Module):
         return positions, shifted, positions.new_zeros(*positions.shape[:-1], 0)
 
 
-def condition(wrappers: Sequence[nn.Module], positions: Tensor, times: Optional[Tensor],
-              camera_indices: Optional[Tensor]) -> Tuple[Tensor, Tensor, Optional[Tensor]]:
+def condition(wrappers: Sequence[nn.Module], positions: Tensor, times: Tensor | None,
+              camera_indices: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
     """Apply the conditioners in order to samples of any leading shape ``[..., 3]``: (positions [..., 3], times
     [..., 1], the features they add [..., F] or None). Missing times are 0, missing camera indices 0."""
     shape = positions.shape[:-1]
@@ -218,7 +218,7 @@ class FieldBlend(nn.Module):
         x, t = _float(positions), _float(times)
         return torch.softmax(self.mixer.to(x.dtype)(torch.cat([self.encoding(x), t], dim=-1)), dim=-1)
 
-    def forward(self, densities: Tensor, rgbs: Tensor, positions: Tensor, times: Tensor) -> Tuple[Tensor, Tensor]:
+    def forward(self, densities: Tensor, rgbs: Tensor, positions: Tensor, times: Tensor) -> tuple[Tensor, Tensor]:
         if self.mode == "mixer":
             w = self.weights(positions, times).unsqueeze(-1).to(densities)  # [N, K, 1]
             return (w * densities).sum(dim=-2), (w * rgbs).sum(dim=-2).clamp(0.0, 1.0)
@@ -240,7 +240,7 @@ class BlendedField(Field):
             raise ValueError(f"{len(fields)} fields for a blend of {blend.num_fields}")
         self.fields = nn.ModuleList(fields)
         self.blend = blend
-        self.last_density: Optional[Tensor] = None
+        self.last_density: Tensor | None = None
 
     SHARED = ("position_encoding", "spatial_distortion", "direction_encoding")
     """The parts of its first field a blend answers for (the plan's regularisers of the field, plane TV and time
@@ -255,7 +255,7 @@ class BlendedField(Field):
                 raise
             return getattr(fields[0], name)
 
-    def _blend(self, ray_samples: RaySamples, densities: List[Tensor], rgbs: List[Tensor]) -> Tuple[Tensor, Tensor]:
+    def _blend(self, ray_samples: RaySamples, densities: list[Tensor], rgbs: list[Tensor]) -> tuple[Tensor, Tensor]:
         shape = densities[0].shape[:-1]
         positions = ray_samples.frustums.get_positions().reshape(-1, 3)
         times = (ray_samples.times.reshape(-1, 1) if ray_samples.times is not None
@@ -265,17 +265,17 @@ class BlendedField(Field):
                                   torch.stack(rgbs, dim=-2).reshape(-1, k, 3), positions, times.to(positions))
         return density.reshape(*shape, 1), rgb.reshape(*shape, 3)
 
-    def forward(self, ray_samples: RaySamples, compute_normals: bool = False) -> Dict[FieldHeadNames, Tensor]:
+    def forward(self, ray_samples: RaySamples, compute_normals: bool = False) -> dict[FieldHeadNames, Tensor]:
         outputs = [f(ray_samples) for f in self.fields]
         density, rgb = self._blend(ray_samples, [o[FieldHeadNames.DENSITY] for o in outputs],
                                    [o[FieldHeadNames.RGB] for o in outputs])
         self.last_density = density
         return {FieldHeadNames.DENSITY: density, FieldHeadNames.RGB: rgb}
 
-    def get_density(self, ray_samples: RaySamples) -> Tuple[Tensor, None]:
+    def get_density(self, ray_samples: RaySamples) -> tuple[Tensor, None]:
         densities = [f.get_density(ray_samples)[0] for f in self.fields]
         zeros = [torch.zeros(*d.shape[:-1], 3, dtype=d.dtype, device=d.device) for d in densities]
         return self._blend(ray_samples, densities, zeros)[0], None
 
-    def get_outputs(self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None) -> Dict:
+    def get_outputs(self, ray_samples: RaySamples, density_embedding: Tensor | None = None) -> dict:
         return {FieldHeadNames.RGB: self.forward(ray_samples)[FieldHeadNames.RGB]}

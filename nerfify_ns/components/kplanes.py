@@ -19,7 +19,8 @@ Imports only torch and nerfstudio: generated plugins import this module.
 from __future__ import annotations
 
 import itertools
-from typing import List, Literal, Optional, Sequence, Tuple
+from collections.abc import Sequence
+from typing import Literal
 
 import torch
 import torch.nn.functional as F
@@ -67,7 +68,7 @@ class MultiScaleKPlanes(nn.Module):
         resolutions: Sequence[int] = (64, 128, 256, 512),
         num_components: int = 32,
         reduce: Literal["product", "sum"] = "product",
-        time_resolution: Optional[int] = None,
+        time_resolution: int | None = None,
         init_a: float = 0.1,
         init_b: float = 0.5,
     ) -> None:
@@ -86,7 +87,7 @@ class MultiScaleKPlanes(nn.Module):
         self.reduce = reduce
         self.time_resolution = None if time_resolution is None else int(time_resolution)
         self.in_dim = 3 if time_resolution is None else 4
-        self.plane_pairs: List[Tuple[int, int]] = list(itertools.combinations(range(self.in_dim), 2))
+        self.plane_pairs: list[tuple[int, int]] = list(itertools.combinations(range(self.in_dim), 2))
 
         self.grids = nn.ModuleList()
         for res in resolutions:
@@ -105,24 +106,24 @@ class MultiScaleKPlanes(nn.Module):
     def get_out_dim(self) -> int:
         return len(self.resolutions) * self.num_components
 
-    def planes(self) -> List[Tensor]:
+    def planes(self) -> list[Tensor]:
         """Every plane of every scale, scale-major, in ``plane_pairs`` order."""
         return [plane for planes in self.grids for plane in planes]
 
     @property
-    def spatial_planes(self) -> List[Tensor]:
+    def spatial_planes(self) -> list[Tensor]:
         """Planes over two spatial axes (input of ``plane_tv``, K-Planes Eq. 4)."""
-        return [p for planes in self.grids for pair, p in zip(self.plane_pairs, planes)
+        return [p for planes in self.grids for pair, p in zip(self.plane_pairs, planes, strict=False)
                 if TIME_AXIS not in pair]
 
     @property
-    def time_planes(self) -> List[Tensor]:
+    def time_planes(self) -> list[Tensor]:
         """Space-time planes [1, C, T, n] (input of ``time_smoothness`` / ``plane_l1_to_one``, Eq. 5-6)."""
-        return [p for planes in self.grids for pair, p in zip(self.plane_pairs, planes)
+        return [p for planes in self.grids for pair, p in zip(self.plane_pairs, planes, strict=False)
                 if TIME_AXIS in pair]
 
     # ------------------------------------------------------------------ forward
-    def _coordinates(self, positions: Tensor, times: Optional[Tensor]) -> Tensor:
+    def _coordinates(self, positions: Tensor, times: Tensor | None) -> Tensor:
         if times is not None:
             if self.in_dim != 4:
                 raise ValueError("times given to a static (3D) MultiScaleKPlanes; set time_resolution")
@@ -138,14 +139,14 @@ class MultiScaleKPlanes(nn.Module):
             raise ValueError(f"expected {what}, got {tuple(positions.shape)}")
         return positions
 
-    def forward(self, positions: Tensor, times: Optional[Tensor] = None) -> Tensor:
+    def forward(self, positions: Tensor, times: Tensor | None = None) -> Tensor:
         coords = self._coordinates(positions, times)
         batch_shape = coords.shape[:-1]
         flat = coords.reshape(-1, self.in_dim)
         scales = []
         for planes in self.grids:
-            feature: Optional[Tensor] = None
-            for pair, plane in zip(self.plane_pairs, planes):
+            feature: Tensor | None = None
+            for pair, plane in zip(self.plane_pairs, planes, strict=False):
                 value = sample_plane(plane, flat[:, list(pair)])
                 if feature is None:
                     feature = value
@@ -184,8 +185,8 @@ class KPlanesDensityField(Field):
         aabb: Tensor,
         resolution: int = 128,
         num_components: int = 8,
-        spatial_distortion: Optional[SpatialDistortion] = None,
-        time_resolution: Optional[int] = None,
+        spatial_distortion: SpatialDistortion | None = None,
+        time_resolution: int | None = None,
         average_init_density: float = 1.0,
         reduce: Literal["product", "sum"] = "product",
     ) -> None:
@@ -199,23 +200,23 @@ class KPlanesDensityField(Field):
         )
         self.linear = nn.Linear(self.encoding.get_out_dim(), 1)
 
-    def planes(self) -> List[Tensor]:
+    def planes(self) -> list[Tensor]:
         return self.encoding.planes()
 
     @property
-    def spatial_planes(self) -> List[Tensor]:
+    def spatial_planes(self) -> list[Tensor]:
         return self.encoding.spatial_planes
 
     @property
-    def time_planes(self) -> List[Tensor]:
+    def time_planes(self) -> list[Tensor]:
         return self.encoding.time_planes
 
-    def density_fn(self, positions: Tensor, times: Optional[Tensor] = None) -> Tensor:
+    def density_fn(self, positions: Tensor, times: Tensor | None = None) -> Tensor:
         if times is None:
             return super().density_fn(positions)
         return self._density(positions, times)
 
-    def _density(self, positions: Tensor, times: Optional[Tensor]) -> Tensor:
+    def _density(self, positions: Tensor, times: Tensor | None) -> Tensor:
         if self.spatial_distortion is not None:
             positions = self.spatial_distortion(positions) / 2.0  # ball of radius 2 -> [-1, 1]
         else:
@@ -231,9 +232,9 @@ class KPlanesDensityField(Field):
         density = self.average_init_density * trunc_exp(raw.clamp(max=MAX_LOG_DENSITY))
         return density * inside.to(density.dtype)
 
-    def get_density(self, ray_samples: RaySamples) -> Tuple[Tensor, None]:
+    def get_density(self, ray_samples: RaySamples) -> tuple[Tensor, None]:
         positions = ray_samples.frustums.get_positions()
         return self._density(positions, ray_samples.times), None
 
-    def get_outputs(self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None) -> dict:
+    def get_outputs(self, ray_samples: RaySamples, density_embedding: Tensor | None = None) -> dict:
         return {}

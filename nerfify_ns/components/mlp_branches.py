@@ -11,7 +11,7 @@ Imports only torch and nerfstudio: generated plugins import this module.
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from collections.abc import Sequence
 
 import torch
 from nerfstudio.field_components.mlp import MLP
@@ -25,7 +25,7 @@ class BranchedMLP(nn.Module):
     ``density_width``) and colour branch (``color_layers`` x ``color_width``), both ReLU."""
 
     def __init__(self, in_dim: int, num_layers: int = 8, layer_width: int = 256,
-                 skip_connections: Optional[Sequence[int]] = (4,), density_layers: int = 1, density_width: int = 128,
+                 skip_connections: Sequence[int] | None = (4,), density_layers: int = 1, density_width: int = 128,
                  color_layers: int = 1, color_width: int = 128, implementation: str = "torch") -> None:
         super().__init__()
         skips = tuple(s for s in (skip_connections or ()) if 0 < s < num_layers - 1) or None

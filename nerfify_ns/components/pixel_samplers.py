@@ -23,7 +23,6 @@ Imports only torch and nerfstudio: generated plugins import this module.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Type
 
 import torch
 from nerfstudio.data.pixel_samplers import PixelSampler, PixelSamplerConfig
@@ -80,7 +79,7 @@ class ViewSelection(nn.Module):
         return keep.float().view(-1, 1, 1).expand(*images.shape[:3]).clone()
 
 
-def draw_pixels(weights: Tensor, count: int, generator: Optional[torch.Generator] = None) -> Tensor:
+def draw_pixels(weights: Tensor, count: int, generator: torch.Generator | None = None) -> Tensor:
     """``count`` pixel indices [count, 3] (image, row, column) drawn with probability proportional to
     ``weights`` [B, H, W] (uniformly where the weights are all zero or not finite)."""
     b, h, w = weights.shape
@@ -100,7 +99,7 @@ def draw_pixels(weights: Tensor, count: int, generator: Optional[torch.Generator
 class MapPixelSamplerConfig(PixelSamplerConfig):
     """Configuration of :class:`MapPixelSampler` (a plugin subclasses it to name its own map)."""
 
-    _target: Type = field(default_factory=lambda: MapPixelSampler)
+    _target: type = field(default_factory=lambda: MapPixelSampler)
 
 
 class MapPixelSampler(PixelSampler):
@@ -114,13 +113,13 @@ class MapPixelSampler(PixelSampler):
         super().__init__(config, **kwargs)
         self.weight_map = self.make_map()
         self.active = None
-        self._cache: Dict[int, Tensor] = {}
+        self._cache: dict[int, Tensor] = {}
 
     def make_map(self) -> nn.Module:
         """The map of pixel probabilities (the plan's PixelSampler)."""
         return UniformMap()
 
-    def weights(self, batch: Dict) -> Tensor:
+    def weights(self, batch: dict) -> Tensor:
         """The map of the batch's images (cached per image tensor: a map is a function of the images)."""
         images = batch["image"]
         key = id(images)
@@ -133,7 +132,7 @@ class MapPixelSampler(PixelSampler):
             self._cache = {key: w}
         return self._cache[key]
 
-    def collate_image_dataset_batch(self, batch: Dict, num_rays_per_batch: int, keep_full_image: bool = False):
+    def collate_image_dataset_batch(self, batch: dict, num_rays_per_batch: int, keep_full_image: bool = False):
         images = batch["image"]
         device = images.device
         weights = self.weights(batch)

@@ -23,7 +23,8 @@ Imports only torch and nerfstudio: generated plugins import this module.
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, List, Optional, Tuple
+from collections.abc import Iterable
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -39,9 +40,9 @@ def _progress(steps: Tensor, start: int, end: int) -> Tensor:
     return ((s - start) / float(end - start)).clamp(0.0, 1.0)
 
 
-def named_parts(model: nn.Module, name: str) -> List[Tuple[str, nn.Module]]:
+def named_parts(model: nn.Module, name: str) -> list[tuple[str, nn.Module]]:
     """The outermost modules of ``model`` whose qualified name is ``name`` or ends with ``.<name>``."""
-    found: List[Tuple[str, nn.Module]] = []
+    found: list[tuple[str, nn.Module]] = []
     for qualified, module in model.named_modules():
         if qualified == name or qualified.endswith("." + name):
             if not any(qualified.startswith(outer + ".") for outer, _ in found):
@@ -93,7 +94,7 @@ class Anneal(ScheduleHook):
             s = (1 - torch.cos(math.pi * s)) / 2
         return (a + (b - a) * s).float()
 
-    def _targets(self, model: nn.Module) -> List[Tuple[str, nn.Module]]:
+    def _targets(self, model: nn.Module) -> list[tuple[str, nn.Module]]:
         parts = named_parts(model, self.part) if self.part else [("", model)]
         return [(name, m) for name, m in parts if hasattr(m, self.attribute)]
 
@@ -112,7 +113,7 @@ class Anneal(ScheduleHook):
                 with torch.no_grad():
                     current.fill_(value)
             else:
-                setattr(module, self.attribute, type(current)(value) if isinstance(current, (int, float)) else value)
+                setattr(module, self.attribute, type(current)(value) if isinstance(current, int | float) else value)
 
 
 class Freeze(ScheduleHook):
@@ -126,7 +127,7 @@ class Freeze(ScheduleHook):
     def forward(self, steps: Tensor) -> Tensor:
         return ((steps >= self.start_step) & (steps < self.end_step)).float()
 
-    def _params_of(self, model: nn.Module) -> List[nn.Parameter]:
+    def _params_of(self, model: nn.Module) -> list[nn.Parameter]:
         return [p for _, part in named_parts(model, self.module) for p in part.parameters()]
 
     def check(self, model: nn.Module) -> None:
@@ -183,7 +184,7 @@ class ImageCurriculum(ScheduleHook):
             sampler.active = lambda index: index < count
 
 
-def training_callbacks(hooks: Iterable[ScheduleHook], model: nn.Module, attributes: Optional[Any]) -> list:
+def training_callbacks(hooks: Iterable[ScheduleHook], model: nn.Module, attributes: Any | None) -> list:
     """Nerfstudio TrainingCallbacks running each hook before every ``hook.every``-th training iteration."""
     from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
 

@@ -26,7 +26,7 @@ __all__ = ["FORMATS", "DataLike", "Dataparser", "Dataset", "DatasetError", "Form
            "as_dataset", "dataparser_for", "read_dataset"]
 
 
-def read_dataset(path: Union[str, Path]) -> Dataset:
+def read_dataset(path: str | Path) -> Dataset:
     """The dataset in the folder ``path``: its format detected (the first row of ``FORMATS`` that matches),
     read and checked. Raises :class:`DatasetError` (one line) when it cannot be trained on."""
     root = Path(path).expanduser()

@@ -9,8 +9,6 @@ place. Each failure is a one-line :class:`DatasetError` naming the frame and wha
 
 from __future__ import annotations
 
-from typing import Dict
-
 import numpy as np
 
 from nerfify_ns.dataset.formats import BY_NAME, show
@@ -42,7 +40,7 @@ def check_dataset(ds: Dataset) -> Dataset:
         if not ds.split(split):
             raise DatasetError(f"{ds.root}: no {needed} view among its {len(ds.frames)} images; the held-out "
                                f"views come from {SPLIT_RULES[ds.format]}")
-    channels: Dict[int, Frame] = {}
+    channels: dict[int, Frame] = {}
     for frame in ds.frames:
         _check_frame(ds, frame, channels)
     centres = ds.poses()[:, :3, 3]
@@ -53,7 +51,7 @@ def check_dataset(ds: Dataset) -> Dataset:
     return ds
 
 
-def _check_frame(ds: Dataset, frame: Frame, channels: Dict[int, Frame]) -> None:
+def _check_frame(ds: Dataset, frame: Frame, channels: dict[int, Frame]) -> None:
     where = _where(ds, frame)
     intr = frame.intrinsics
     try:

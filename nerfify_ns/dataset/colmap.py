@@ -15,11 +15,10 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
-MODELS: Dict[int, Tuple[str, int]] = {
+MODELS: dict[int, tuple[str, int]] = {
     0: ("SIMPLE_PINHOLE", 3), 1: ("PINHOLE", 4), 2: ("SIMPLE_RADIAL", 4), 3: ("RADIAL", 5), 4: ("OPENCV", 8),
     5: ("OPENCV_FISHEYE", 8), 6: ("FULL_OPENCV", 12), 7: ("FOV", 5), 8: ("SIMPLE_RADIAL_FISHEYE", 4),
     9: ("RADIAL_FISHEYE", 5), 10: ("THIN_PRISM_FISHEYE", 12),
@@ -42,9 +41,9 @@ class ColmapCamera:
     model: str
     width: int
     height: int
-    params: Tuple[float, ...]
+    params: tuple[float, ...]
 
-    def intrinsics(self) -> Tuple[float, float, float, float, Tuple[Tuple[str, float], ...]]:
+    def intrinsics(self) -> tuple[float, float, float, float, tuple[tuple[str, float], ...]]:
         """fx, fy, cx, cy and the named distortion coefficients of a supported model."""
         p = self.params
         if self.model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
@@ -56,15 +55,15 @@ class ColmapCamera:
             fx, fy, cx, cy = p[:4]
             names = {"PINHOLE": (), "OPENCV": ("k1", "k2", "p1", "p2"),
                      "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4")}[self.model]
-            dist = tuple(zip(names, p[4:]))
+            dist = tuple(zip(names, p[4:], strict=False))
         return fx, fy, cx, cy, tuple((k, float(v)) for k, v in dist)
 
 
 @dataclass(frozen=True)
 class ColmapImage:
     id: int
-    qvec: Tuple[float, float, float, float]
-    tvec: Tuple[float, float, float]
+    qvec: tuple[float, float, float, float]
+    tvec: tuple[float, float, float]
     camera_id: int
     name: str
 
@@ -142,13 +141,13 @@ def _read_bytes(path: Path) -> bytes:
     return path.read_bytes()
 
 
-def _model(model_id: int) -> Tuple[str, int]:
+def _model(model_id: int) -> tuple[str, int]:
     if model_id not in MODELS:
         raise ColmapFormatError(f"has unknown camera model id {model_id}")
     return MODELS[model_id]
 
 
-def read_cameras_binary(path: Path) -> Dict[int, ColmapCamera]:
+def read_cameras_binary(path: Path) -> dict[int, ColmapCamera]:
     r = _Reader(_read_bytes(path))
     cameras = {}
     for _ in range(r.count(24, "cameras")):
@@ -158,7 +157,7 @@ def read_cameras_binary(path: Path) -> Dict[int, ColmapCamera]:
     return cameras
 
 
-def read_images_binary(path: Path) -> Dict[int, ColmapImage]:
+def read_images_binary(path: Path) -> dict[int, ColmapImage]:
     r = _Reader(_read_bytes(path))
     images = {}
     for _ in range(r.count(64 + 1 + 8, "images")):
@@ -170,20 +169,20 @@ def read_images_binary(path: Path) -> Dict[int, ColmapImage]:
     return images
 
 
-def _text_lines(path: Path) -> List[str]:
+def _text_lines(path: Path) -> list[str]:
     return _read_bytes(path).decode("utf-8", errors="replace").splitlines()
 
 
-def _parse(values: List[str], kinds: str, line_no: int) -> list:
+def _parse(values: list[str], kinds: str, line_no: int) -> list:
     if len(values) < len(kinds):
         raise ColmapFormatError(f"line {line_no} has {len(values)} fields, {len(kinds)} expected")
     try:
-        return [int(v) if k == "i" else float(v) for k, v in zip(kinds, values)]
+        return [int(v) if k == "i" else float(v) for k, v in zip(kinds, values, strict=False)]
     except ValueError:
         raise ColmapFormatError(f"line {line_no} has a field that is not a number") from None
 
 
-def read_cameras_text(path: Path) -> Dict[int, ColmapCamera]:
+def read_cameras_text(path: Path) -> dict[int, ColmapCamera]:
     cameras = {}
     for no, line in enumerate(_text_lines(path), 1):
         line = line.strip()
@@ -201,7 +200,7 @@ def read_cameras_text(path: Path) -> Dict[int, ColmapCamera]:
     return cameras
 
 
-def read_images_text(path: Path) -> Dict[int, ColmapImage]:
+def read_images_text(path: Path) -> dict[int, ColmapImage]:
     """Two lines per image (the header, then its 2D points, possibly empty), comments skipped, as COLMAP's
     own reader (and Nerfstudio's copy of it) does."""
     lines = _text_lines(path)
@@ -221,7 +220,7 @@ def read_images_text(path: Path) -> Dict[int, ColmapImage]:
     return images
 
 
-def read_model(folder: Path) -> Tuple[Dict[int, ColmapCamera], Dict[int, ColmapImage], str]:
+def read_model(folder: Path) -> tuple[dict[int, ColmapCamera], dict[int, ColmapImage], str]:
     """Cameras and images of the model in ``folder`` (text files first, as Nerfstudio reads them)."""
     for ext in ("txt", "bin"):
         cameras, images = folder / f"cameras.{ext}", folder / f"images.{ext}"
@@ -239,11 +238,11 @@ def _wrap(reader, path: Path):
         raise ColmapFormatError(f"{path.name} {exc}") from None
 
 
-def reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
+def reprojection_error(folder: Path) -> tuple[float, int] | None:
     """Mean reprojection error (pixels) over the model's 3D points and their count, from ``points3D.bin`` or
     ``points3D.txt`` (each point stores its mean error); None when there are no points or no such file.
     Binary record: ``uint64 id, float64 xyz[3], uint8 rgb[3], float64 error, uint64 n, n x (int32, int32)``."""
-    errors: List[float] = []
+    errors: list[float] = []
     if (folder / "points3D.txt").is_file():
         for no, line in enumerate(_text_lines(folder / "points3D.txt"), 1):
             parts = line.split()
@@ -265,9 +264,9 @@ def reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
 class Observations:
     """Where the model's 3D points are seen: one row per observation (a 2D point with a 3D point)."""
 
-    image_names: Tuple[str, ...]
+    image_names: tuple[str, ...]
     """Image name by image index."""
-    camera_sizes: Tuple[Tuple[int, int], ...]
+    camera_sizes: tuple[tuple[int, int], ...]
     """(width, height) of each image's camera (the size the 2D points are measured in)."""
     image: np.ndarray
     """Image index of each observation."""
@@ -275,7 +274,7 @@ class Observations:
     """``(N, 2)`` pixel coordinates (COLMAP's: the top-left corner of the image at 0, pixel centres at +0.5)."""
     point: np.ndarray
     """3D point id of each observation."""
-    points: Dict[int, np.ndarray]
+    points: dict[int, np.ndarray]
     """3D point positions by id (world coordinates of the model)."""
     centres: np.ndarray
     """``(M, 3)`` camera centres of the images (world coordinates of the model)."""
@@ -284,7 +283,7 @@ class Observations:
 MAX_OBSERVATIONS = 5_000_000
 
 
-def read_observations(folder: Path) -> Optional[Observations]:
+def read_observations(folder: Path) -> Observations | None:
     """The observations of a binary model's triangulated points (``images.bin`` 2D points with a 3D point id,
     ``points3D.bin`` positions); None when the model is text, has no points, or does not read."""
     try:
@@ -324,7 +323,7 @@ def read_observations(folder: Path) -> Optional[Observations]:
                         np.concatenate(point_rows), points, np.array(centres))
 
 
-def write_model_text(folder: Path, cameras: List[ColmapCamera], images: List[ColmapImage]) -> None:
+def write_model_text(folder: Path, cameras: list[ColmapCamera], images: list[ColmapImage]) -> None:
     """Write ``cameras.txt``, ``images.txt`` and an empty ``points3D.txt`` (tests and conversions)."""
     folder.mkdir(parents=True, exist_ok=True)
     cam_lines = ["# Camera list with one line of data per camera:",
@@ -341,7 +340,7 @@ def write_model_text(folder: Path, cameras: List[ColmapCamera], images: List[Col
     (folder / "points3D.txt").write_text("# 3D point list (empty)\n")
 
 
-def write_model_binary(folder: Path, cameras: List[ColmapCamera], images: List[ColmapImage]) -> None:
+def write_model_binary(folder: Path, cameras: list[ColmapCamera], images: list[ColmapImage]) -> None:
     """Write ``cameras.bin``, ``images.bin`` and an empty ``points3D.bin``."""
     folder.mkdir(parents=True, exist_ok=True)
     out = [struct.pack("<Q", len(cameras))]

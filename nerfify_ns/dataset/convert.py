@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -86,14 +85,14 @@ def _save_mask(frame: Frame, dest: Path) -> None:
     Image.fromarray(np.where(alpha > 0, 255, 0).astype(np.uint8), mode="L").save(dest)
 
 
-def _names(frames: List[Frame], suffix: str) -> List[str]:
+def _names(frames: list[Frame], suffix: str) -> list[str]:
     """Unique, order-preserving file names: ``0007_train_r_3.png``."""
     return [f"{i:04d}_{f.split or 'x'}_{f.stem}{suffix}" for i, f in enumerate(frames)]
 
 
 def export_dataset(dataset: Dataset, fmt: str, out: Path, *, rgb: bool = False, masks: bool = False,
                    per_frame_intrinsics: bool = False, binary: bool = True, keep_split: bool = False,
-                   bounds: Optional[tuple] = None) -> Path:
+                   bounds: tuple | None = None) -> Path:
     """Write ``dataset`` (every frame, images copied) into the new folder ``out`` as ``fmt``.
 
     ``rgb``: composite RGBA images on white and save RGB; ``masks`` (Nerfstudio): a mask per frame from the
@@ -109,7 +108,7 @@ def export_dataset(dataset: Dataset, fmt: str, out: Path, *, rgb: bool = False, 
     if fmt in ("blender", "dnerf"):
         return _export_blender(dataset, frames, out, timed=fmt == "dnerf", rgb=rgb)
     names = _names(frames, ".png" if rgb or frames[0].image.suffix.lower() == ".png" else frames[0].image.suffix)
-    for frame, name in zip(frames, names):
+    for frame, name in zip(frames, names, strict=False):
         _save_image(frame, out / "images" / name, rgb)
     if fmt == "nerfstudio":
         _export_nerfstudio(frames, names, out, masks=masks, per_frame=per_frame_intrinsics, keep_split=keep_split)
@@ -123,15 +122,15 @@ def export_dataset(dataset: Dataset, fmt: str, out: Path, *, rgb: bool = False, 
     return out
 
 
-def _export_nerfstudio(frames: List[Frame], names: List[str], out: Path, *, masks: bool, per_frame: bool,
+def _export_nerfstudio(frames: list[Frame], names: list[str], out: Path, *, masks: bool, per_frame: bool,
                        keep_split: bool) -> None:
     intr = [_intrinsics_json(f.intrinsics) for f in frames]
     top = not per_frame and all(i == intr[0] for i in intr)
-    meta: Dict[str, object] = {"camera_model": _camera_model(frames[0].intrinsics)}
+    meta: dict[str, object] = {"camera_model": _camera_model(frames[0].intrinsics)}
     if top:
         meta.update(intr[0])
     rows = []
-    for frame, name, cam in zip(frames, names, intr):
+    for frame, name, cam in zip(frames, names, intr, strict=False):
         row = {"file_path": f"images/{name}", "transform_matrix": frame.c2w.tolist(), **({} if top else cam)}
         if masks:
             mask = f"masks/{Path(name).with_suffix('.png').name}"
@@ -141,14 +140,14 @@ def _export_nerfstudio(frames: List[Frame], names: List[str], out: Path, *, mask
     meta["frames"] = rows
     if keep_split:
         for split in SPLITS:
-            meta[f"{split}_filenames"] = [f"images/{n}" for f, n in zip(frames, names) if f.split == split]
+            meta[f"{split}_filenames"] = [f"images/{n}" for f, n in zip(frames, names, strict=False) if f.split == split]
     (out / "transforms.json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
-def _export_colmap(frames: List[Frame], names: List[str], folder: Path, binary: bool) -> None:
-    cameras: Dict[tuple, colmap_io.ColmapCamera] = {}
+def _export_colmap(frames: list[Frame], names: list[str], folder: Path, binary: bool) -> None:
+    cameras: dict[tuple, colmap_io.ColmapCamera] = {}
     images = []
-    for i, (frame, name) in enumerate(zip(frames, names), 1):
+    for i, (frame, name) in enumerate(zip(frames, names, strict=False), 1):
         intr = frame.intrinsics
         key = (intr.fx, intr.fy, intr.cx, intr.cy, intr.width, intr.height)
         if key not in cameras:
@@ -163,7 +162,7 @@ def _export_colmap(frames: List[Frame], names: List[str], folder: Path, binary: 
     writer(folder, list(cameras.values()), images)
 
 
-def _export_llff(frames: List[Frame], out: Path, near_far: tuple) -> None:
+def _export_llff(frames: list[Frame], out: Path, near_far: tuple) -> None:
     rows = []
     for frame in frames:
         c2w, intr = frame.c2w, frame.intrinsics
@@ -174,7 +173,7 @@ def _export_llff(frames: List[Frame], out: Path, near_far: tuple) -> None:
     np.save(out / "poses_bounds.npy", np.array(rows, dtype=np.float64))
 
 
-def _export_blender(dataset: Dataset, frames: List[Frame], out: Path, *, timed: bool, rgb: bool) -> Path:
+def _export_blender(dataset: Dataset, frames: list[Frame], out: Path, *, timed: bool, rgb: bool) -> Path:
     import math
 
     for split in SPLITS:

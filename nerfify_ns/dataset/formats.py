@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -89,7 +89,7 @@ def frames_of(meta: dict, where: str) -> list:
 
 def number(value, what: str, where: str, *, positive: bool = False) -> float:
     """A finite (``positive``: > 0) number, else a :class:`DatasetError` naming ``where`` and ``what``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, bool) or not isinstance(value, int | float):
         raise DatasetError(f"{where}: {what} is {value!r}, not a number")
     value = float(value)
     if not math.isfinite(value) or (positive and value <= 0):
@@ -128,7 +128,7 @@ def checked_pose(m: np.ndarray, where: str, key: str) -> np.ndarray:
     return m
 
 
-def nerfstudio_split(names: Sequence[str], fraction: float = NERFSTUDIO_TRAIN_FRACTION) -> List[str]:
+def nerfstudio_split(names: Sequence[str], fraction: float = NERFSTUDIO_TRAIN_FRACTION) -> list[str]:
     """Nerfstudio's ``get_train_eval_split_fraction`` over frames sorted by file name: train or test each."""
     n = len(names)
     n_train = math.ceil(n * fraction)
@@ -136,7 +136,7 @@ def nerfstudio_split(names: Sequence[str], fraction: float = NERFSTUDIO_TRAIN_FR
     return ["train" if i in train else "test" for i in range(n)]
 
 
-def interval_split(n: int, interval: int) -> List[str]:
+def interval_split(n: int, interval: int) -> list[str]:
     """Nerfstudio's ``get_train_eval_split_interval``: index ``i % interval == 0`` is held out."""
     return ["test" if i % interval == 0 else "train" for i in range(n)]
 
@@ -144,7 +144,7 @@ def interval_split(n: int, interval: int) -> List[str]:
 # ------------------------------------------------------------------------------------------ Blender, D-NeRF
 
 
-def _blender_json(root: Path) -> Optional[dict]:
+def _blender_json(root: Path) -> dict | None:
     path = root / "transforms_train.json"
     if not path.is_file() or path.stat().st_size > MAX_JSON_BYTES:
         return None
@@ -155,7 +155,7 @@ def _blender_json(root: Path) -> Optional[dict]:
     return meta if isinstance(meta, dict) else None
 
 
-def detect_dnerf(root: Path) -> Optional[str]:
+def detect_dnerf(root: Path) -> str | None:
     meta = _blender_json(root)
     frames = meta.get("frames") if meta else None
     if isinstance(frames, list) and frames and any(isinstance(f, dict) and "time" in f for f in frames):
@@ -163,7 +163,7 @@ def detect_dnerf(root: Path) -> Optional[str]:
     return None
 
 
-def detect_blender(root: Path) -> Optional[str]:
+def detect_blender(root: Path) -> str | None:
     if (root / "transforms_train.json").is_file():
         return "transforms_train/val/test.json with camera_angle_x (Blender synthetic)"
     return None
@@ -179,8 +179,8 @@ def read_blender(root: Path, evidence: str, *, timed: bool = False) -> Dataset:
     if missing:
         raise DatasetError(f"{root}: a {'D-NeRF' if timed else 'Blender'} dataset needs transforms_train.json, "
                            f"transforms_val.json and transforms_test.json; missing {', '.join(missing)}")
-    frames: List[Frame] = []
-    size: Optional[Tuple[int, int]] = None
+    frames: list[Frame] = []
+    size: tuple[int, int] | None = None
     angle = None
     for split in SPLITS:
         name = f"transforms_{split}.json"
@@ -219,7 +219,7 @@ def read_blender(root: Path, evidence: str, *, timed: bool = False) -> Dataset:
             intr = Intrinsics(focal, focal, w / 2.0, h / 2.0, w, h)
             frames.append(Frame(file_path, image, c2w, intr, split, time=time))
     scene = root / "scene.json"
-    meta_out: Dict[str, object] = {"camera_angle_x": angle,
+    meta_out: dict[str, object] = {"camera_angle_x": angle,
                                    "declares_size": "the first image (a Blender dataset has one image size)"}
     if scene.is_file():
         try:
@@ -236,7 +236,7 @@ def read_dnerf(root: Path, evidence: str) -> Dataset:
 # ------------------------------------------------------------------------------------------ Nerfstudio
 
 
-def detect_nerfstudio(root: Path) -> Optional[str]:
+def detect_nerfstudio(root: Path) -> str | None:
     if (root / "transforms.json").is_file():
         return "transforms.json (Nerfstudio format)"
     return None
@@ -251,7 +251,7 @@ def _intrinsic(meta: dict, frame: dict, key: str, where: str):
                        f"{', '.join(INTRINSIC_KEYS)} at the top or on every frame)")
 
 
-def _distortion(meta: dict, frame: dict, where: str) -> Tuple[Tuple[str, float], ...]:
+def _distortion(meta: dict, frame: dict, where: str) -> tuple[tuple[str, float], ...]:
     source = frame if any(k in frame for k in (*DISTORTION_KEYS, "distortion_params")) else meta
     if "distortion_params" in source:
         values = source["distortion_params"]
@@ -294,13 +294,13 @@ def read_nerfstudio(root: Path, evidence: str) -> Dataset:
                            "(Nerfstudio needs a mask on every frame or none)")
     order = sorted(range(len(rows)), key=lambda i: rows[i][0])
     rows = [rows[i] for i in order]
-    for a, b in zip(rows, rows[1:]):
+    for a, b in zip(rows, rows[1:], strict=False):
         if a[0] == b[0]:
             raise DatasetError(f"{b[5]}: names the same image as another frame")
     splits = _listed_splits(meta, [r[0] for r in rows], root, where)
     if splits is None:
         splits = nerfstudio_split([str(r[0]) for r in rows])
-    frames = [Frame(r[1], r[0], r[2], r[3], s, mask=r[4]) for r, s in zip(rows, splits)]
+    frames = [Frame(r[1], r[0], r[2], r[3], s, mask=r[4]) for r, s in zip(rows, splits, strict=False)]
     per_frame = any(k in f for f in raw for k in INTRINSIC_KEYS)
     declares = "its frame (w, h)" if per_frame else "transforms.json (w, h)"
     details = [f"camera_model {model}" if "camera_model" in meta else "no camera_model (perspective)",
@@ -313,7 +313,7 @@ def read_nerfstudio(root: Path, evidence: str) -> Dataset:
                     "reprojection_error": _reprojection_error(model_dir) if model_dir.is_dir() else None})
 
 
-def _listed_splits(meta: dict, images: List[Path], root: Path, where: str) -> Optional[List[str]]:
+def _listed_splits(meta: dict, images: list[Path], root: Path, where: str) -> list[str] | None:
     """Splits from ``train_filenames``/``val_filenames``/``test_filenames`` (None when there are none)."""
     keys = [f"{s}_filenames" for s in SPLITS]
     if not any(k in meta for k in keys):
@@ -322,9 +322,9 @@ def _listed_splits(meta: dict, images: List[Path], root: Path, where: str) -> Op
     if missing:
         raise DatasetError(f"{where} lists {', '.join(k for k in keys if k in meta)} but not {', '.join(missing)} "
                            "(Nerfstudio needs every split's list once one is given)")
-    members: Dict[str, set] = {}
+    members: dict[str, set] = {}
     known = set(images)
-    for split, key in zip(SPLITS, keys):
+    for split, key in zip(SPLITS, keys, strict=False):
         names = meta[key]
         if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
             raise DatasetError(f"{where}: {key} is not a list of file names")
@@ -340,7 +340,7 @@ def _listed_splits(meta: dict, images: List[Path], root: Path, where: str) -> Op
 # ------------------------------------------------------------------------------------------ COLMAP
 
 
-def _colmap_dir(root: Path) -> Optional[Path]:
+def _colmap_dir(root: Path) -> Path | None:
     for rel in COLMAP_MODEL_DIRS:
         folder = root / rel
         if any((folder / f"cameras.{ext}").is_file() and (folder / f"images.{ext}").is_file()
@@ -349,7 +349,7 @@ def _colmap_dir(root: Path) -> Optional[Path]:
     return None
 
 
-def detect_colmap(root: Path) -> Optional[str]:
+def detect_colmap(root: Path) -> str | None:
     folder = _colmap_dir(root)
     if folder is None or not (root / "images").is_dir():
         return None
@@ -408,7 +408,7 @@ def read_colmap(root: Path, evidence: str) -> Dataset:
         raise DatasetError(f"{root}: {rel}/cameras.{ext} mixes camera models {', '.join(sorted(models))} "
                            "(Nerfstudio's colmap dataparser needs one)")
     splits = _colmap_lists(root, frames) or interval_split(len(frames), COLMAP_EVAL_INTERVAL)
-    for frame, split in zip(frames, splits):
+    for frame, split in zip(frames, splits, strict=False):
         frame.split = split
     details = f"{evidence}{', masks/' if masks.is_dir() else ''}"
     return Dataset("colmap", root, frames, details,
@@ -416,7 +416,7 @@ def read_colmap(root: Path, evidence: str) -> Dataset:
                     "reprojection_error": _reprojection_error(folder)})
 
 
-def _reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
+def _reprojection_error(folder: Path) -> tuple[float, int] | None:
     """The COLMAP model's mean reprojection error and point count (pose quality), None when unknown; a model
     whose points cannot be read is not refused for it (runs do not read the points)."""
     try:
@@ -425,7 +425,7 @@ def _reprojection_error(folder: Path) -> Optional[Tuple[float, int]]:
         return None
 
 
-def _colmap_lists(root: Path, frames: List[Frame]) -> Optional[List[str]]:
+def _colmap_lists(root: Path, frames: list[Frame]) -> list[str] | None:
     names = {"train": "train_list.txt", "val": "val_list.txt", "test": "test_list.txt"}
     present = {s: root / n for s, n in names.items() if (root / n).is_file()}
     if not present and not (root / "validation_list.txt").is_file():
@@ -450,13 +450,13 @@ def _colmap_lists(root: Path, frames: List[Frame]) -> Optional[List[str]]:
 # ------------------------------------------------------------------------------------------ LLFF
 
 
-def detect_llff(root: Path) -> Optional[str]:
+def detect_llff(root: Path) -> str | None:
     if (root / "poses_bounds.npy").is_file():
         return "poses_bounds.npy + images/ (LLFF forward-facing)"
     return None
 
 
-def llff_images(root: Path) -> List[Path]:
+def llff_images(root: Path) -> list[Path]:
     folder = root / "images"
     if not folder.is_dir():
         return []
@@ -489,7 +489,7 @@ def read_llff(root: Path, evidence: str) -> Dataset:
                            f"({', '.join(IMAGE_SUFFIXES)}); one image per pose, sorted by name, is expected")
     frames = []
     splits = interval_split(len(images), LLFF_HOLDOUT)
-    for i, (row, image) in enumerate(zip(array, images)):
+    for i, (row, image) in enumerate(zip(array, images, strict=False)):
         fwhere = f"{where} pose {i} ({image.name})"
         if not np.isfinite(row).all():
             raise DatasetError(f"{fwhere}: has non-finite entries (NaN or inf)")
@@ -519,14 +519,14 @@ class Format:
     name: str
     title: str
     looks_for: str
-    detect: Callable[[Path], Optional[str]]
+    detect: Callable[[Path], str | None]
     read: Callable[[Path, str], Dataset]
     dataparser: str
     converted: bool = False
     """Nerfstudio cannot read it directly: runs get a Nerfstudio transforms.json written from the dataset."""
 
 
-FORMATS: Tuple[Format, ...] = (
+FORMATS: tuple[Format, ...] = (
     Format("dnerf", "D-NeRF", "transforms_train.json", detect_dnerf, read_dnerf, "dnerf-data"),
     Format("blender", "Blender synthetic", "transforms_train.json", detect_blender, read_blender, "blender-data"),
     Format("nerfstudio", "Nerfstudio", "transforms.json", detect_nerfstudio, read_nerfstudio, "nerfstudio-data"),
@@ -542,13 +542,13 @@ CONVERTED_NAME = "nerfstudio-data"
 def looked_for() -> str:
     """What detection looks for, one entry per marker file: ``transforms_train.json (D-NeRF or Blender
     synthetic), ...``."""
-    titles: Dict[str, List[str]] = {}
+    titles: dict[str, list[str]] = {}
     for f in FORMATS:
         titles.setdefault(f.looks_for, []).append(f.title)
     return ", ".join(f"{marker} ({' or '.join(names)})" for marker, names in titles.items())
 
 
-def dataparser_for(dataset: Dataset, workdir: Optional[Path] = None) -> Dataparser:
+def dataparser_for(dataset: Dataset, workdir: Path | None = None) -> Dataparser:
     """The Nerfstudio dataparser (subcommand, arguments, ``--data``) reading ``dataset`` the way its reader
     did; formats Nerfstudio cannot read are converted to a Nerfstudio ``transforms.json`` in ``workdir``."""
     fmt = BY_NAME[dataset.format]

@@ -11,7 +11,6 @@ import struct
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
 
 MIN_SIDE = 8
 """Smallest image side (pixels) we train on: a 1x1 or 4x4 image is degenerate."""
@@ -42,7 +41,7 @@ class ImageInfo:
         return MODES.get(self.mode, 0)
 
 
-def png_size(path: Path) -> Optional[tuple]:
+def png_size(path: Path) -> tuple | None:
     """(width, height) from a PNG's IHDR chunk, None when the file is not a PNG."""
     with open(path, "rb") as f:
         head = f.read(24)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +55,7 @@ class Intrinsics:
     height: int
     model: str = "PINHOLE"
     """The camera model as the format names it (COLMAP's and Nerfstudio's ``camera_model`` names)."""
-    distortion: Tuple[Tuple[str, float], ...] = ()
+    distortion: tuple[tuple[str, float], ...] = ()
     """Distortion coefficients by name (``k1``, ``k2``, ``p1``, ...), as the format gives them."""
 
     def matrix(self) -> np.ndarray:
@@ -69,7 +69,7 @@ class Dataparser:
 
     name: str
     """The dataparser's ``ns-train`` subcommand (``blender-data``, ``nerfstudio-data``, ``colmap``, ``dnerf-data``)."""
-    args: Tuple[str, ...]
+    args: tuple[str, ...]
     """Its arguments (after the subcommand)."""
     data: Path
     """What ``--data`` gets: the dataset folder, or a converted copy of its cameras (LLFF)."""
@@ -85,8 +85,8 @@ class Frame:
     c2w: np.ndarray
     intrinsics: Intrinsics
     split: str
-    mask: Optional[Path] = None
-    time: Optional[float] = None
+    mask: Path | None = None
+    time: float | None = None
 
     @property
     def stem(self) -> str:
@@ -102,22 +102,22 @@ class Dataset:
     """One of :data:`nerfify_ns.dataset.formats.FORMATS` (``blender``, ``dnerf``, ``nerfstudio``, ``colmap``,
     ``llff``)."""
     root: Path
-    frames: List[Frame]
+    frames: list[Frame]
     evidence: str
     """What identified the format (the files found)."""
-    meta: Dict[str, Any] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
     """Format-specific facts: ``camera_angle_x`` (Blender), ``bounds`` (LLFF near/far per image), ``scene``
     (our procedural scenes' ``scene.json``), ``colmap_path`` (COLMAP model folder), ..."""
 
-    def split(self, name: str) -> List[Frame]:
+    def split(self, name: str) -> list[Frame]:
         return [f for f in self.frames if f.split == name]
 
     @property
-    def train_frames(self) -> List[Frame]:
+    def train_frames(self) -> list[Frame]:
         return self.split("train")
 
     @property
-    def eval_frames(self) -> List[Frame]:
+    def eval_frames(self) -> list[Frame]:
         """The frames Nerfstudio renders and scores for its test split, in its order."""
         return self.split("test")
 
@@ -130,17 +130,17 @@ class Dataset:
         return bool(self.frames) and all(f.time is not None for f in self.frames)
 
     @property
-    def image_size(self) -> Tuple[int, int]:
+    def image_size(self) -> tuple[int, int]:
         """(height, width) of the first training image."""
         first = (self.train_frames or self.frames)[0].intrinsics
         return first.height, first.width
 
-    def poses(self, frames: Optional[List[Frame]] = None) -> np.ndarray:
+    def poses(self, frames: list[Frame] | None = None) -> np.ndarray:
         """Camera-to-world matrices ``(N, 4, 4)`` of ``frames`` (default: all)."""
         chosen = self.frames if frames is None else frames
         return np.stack([f.c2w for f in chosen]) if chosen else np.zeros((0, 4, 4))
 
-    def folders(self) -> List[Path]:
+    def folders(self) -> list[Path]:
         """The folders a run reads: the dataset's own and any outside it that holds one of its images or masks
         (a sandbox makes these readable)."""
         out = [self.root]
@@ -155,7 +155,7 @@ class Dataset:
         counts = ", ".join(f"{len(self.split(s))} {s}" for s in SPLITS if self.split(s))
         return f"{self.format} ({self.evidence}; {len(self.frames)} images: {counts})"
 
-    def dataparser(self, workdir: Optional[Path] = None) -> Dataparser:
+    def dataparser(self, workdir: Path | None = None) -> Dataparser:
         """The Nerfstudio dataparser that reads this dataset, the ONE choice every run uses (smoke rung,
         training, evaluation renders, patch loop, benchmarks). Formats Nerfstudio cannot read directly (LLFF)
         are converted into ``workdir`` (a Nerfstudio ``transforms.json`` naming the original images)."""

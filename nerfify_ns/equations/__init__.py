@@ -59,12 +59,28 @@ Modules, in the order of the pipeline:
 from .check import CheckReport, check_lowering
 from .compile import Compiled, compile_equations
 from .interpret import interpret
-from .ir import (Apply, BinOp, Cases, Compare, Concat, Conventions, Equation, Expectation, Index, Integral, Neg,
-                 Norm, Number, ParseFailure, Reduce, Symbol)
+from .ir import (
+                 Apply,
+                 BinOp,
+                 Cases,
+                 Compare,
+                 Concat,
+                 Conventions,
+                 Equation,
+                 Expectation,
+                 Index,
+                 Integral,
+                 Neg,
+                 Norm,
+                 Number,
+                 ParseFailure,
+                 Reduce,
+                 Symbol,
+)
 from .lower import Lowered, LoweringError, lower, lower_module
 from .parser import parse_equation, parse_equations, parse_expression
-from .render import show
 from .shapes import CompileError, ParamSpec, ShapeError
+from .show import show
 
 __all__ = [
     "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Compiled", "Concat", "Conventions", "Equation",

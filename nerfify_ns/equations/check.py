@@ -136,7 +136,7 @@ def check_lowering(ir, bindings_spec: dict, sizes: dict | None = None, outputs: 
         report.reason = f"interpreter: {_describe(err)}"
         return report
     ok = True
-    for key, tensor in zip(outputs, got):
+    for key, tensor in zip(outputs, got, strict=False):
         a, b = tensor.detach().numpy(), np.asarray(want[key], dtype=np.float64)
         if a.shape != b.shape:
             report.outputs.append(OutputCheck(key, a.shape, float("inf"), float("inf"), False))
@@ -183,7 +183,7 @@ def _gradcheck(module, lowered, inputs, equations, fast: bool = False) -> str:
     n_in = len(xs)
 
     def fn(*tensors):
-        state = dict(zip(names, tensors[n_in:]))
+        state = dict(zip(names, tensors[n_in:], strict=False))
         out = functional_call(module, state, tuple(tensors[:n_in]))
         out = out if isinstance(out, tuple) else (out,)
         return torch.cat([o.reshape(-1) for o in out])

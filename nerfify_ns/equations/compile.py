@@ -8,8 +8,8 @@ exists and passed its checks, ``Compiled.reason`` why not.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable
 
 from .check import CheckReport, check_lowering
 from .ir import Equation, ParseFailure

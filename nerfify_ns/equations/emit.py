@@ -6,7 +6,7 @@ only through ``render.safe_comment`` in comments.
 
 from __future__ import annotations
 
-from .render import safe_comment
+from .show import safe_comment
 
 PRELUDE = '''import math
 

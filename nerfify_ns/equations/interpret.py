@@ -23,10 +23,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Expr, Integral, Neg, Norm, Number,
-                 ParseFailure, Reduce, Symbol)
-from .shapes import (MAX_RANGE, MAX_RANGE_ITERATIONS, RAY, SAMPLE, CompileError, ShapeError, check_cost,
-                     check_layout, is_bound_variable, named_sizes, param_specs, sample_indexed_keys, schedule)
+from .ir import (
+    Apply,
+    BinOp,
+    Cases,
+    Compare,
+    Concat,
+    Equation,
+    Expectation,
+    Expr,
+    Integral,
+    Neg,
+    Norm,
+    Number,
+    ParseFailure,
+    Reduce,
+    Symbol,
+)
+from .shapes import (
+    MAX_RANGE,
+    MAX_RANGE_ITERATIONS,
+    RAY,
+    SAMPLE,
+    CompileError,
+    ShapeError,
+    check_cost,
+    check_layout,
+    is_bound_variable,
+    named_sizes,
+    param_specs,
+    sample_indexed_keys,
+    schedule,
+)
 
 _IMPLICIT = "@S"
 
@@ -216,7 +244,7 @@ class _Eval:
         arrays, axes = self.align(*items)
         vals, cs = arrays[:len(values)], arrays[len(values):]
         result = vals[-1]
-        for val, cond in zip(reversed(vals[:-1]), reversed(cs)):
+        for val, cond in zip(reversed(vals[:-1]), reversed(cs), strict=False):
             result = np.where(cond, val, result)
         shape = np.broadcast_shapes(*[a.shape for a in arrays])
         return Val(np.broadcast_to(result, shape).copy(), axes)
@@ -279,7 +307,7 @@ class _Eval:
 
 
 def _as_equations(ir) -> list[Equation]:
-    items = ir if isinstance(ir, (list, tuple)) else [ir]
+    items = ir if isinstance(ir, list | tuple) else [ir]
     for item in items:
         if isinstance(item, ParseFailure):
             raise CompileError(f"an equation that was not read: {item}")

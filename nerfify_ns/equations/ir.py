@@ -249,9 +249,9 @@ def children(expr: Expr) -> tuple[Expr, ...]:
     """The direct sub-expressions of a node (the quadrature of an integral, not its reading)."""
     if isinstance(expr, Symbol):
         return expr.args
-    if isinstance(expr, (BinOp, Compare)):
+    if isinstance(expr, BinOp | Compare):
         return (expr.left, expr.right)
-    if isinstance(expr, (Neg, Norm)):
+    if isinstance(expr, Neg | Norm):
         return (expr.arg,)
     if isinstance(expr, Apply):
         return expr.args

@@ -24,13 +24,41 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Expr, Integral, Neg, Norm, Number,
-                 ParseFailure, Reduce, Symbol)
 from .emit import assemble
+from .ir import (
+    Apply,
+    BinOp,
+    Cases,
+    Compare,
+    Concat,
+    Equation,
+    Expectation,
+    Expr,
+    Integral,
+    Neg,
+    Norm,
+    Number,
+    ParseFailure,
+    Reduce,
+    Symbol,
+)
 from .naming import Names, class_name_ok
-from .render import safe_comment, show
-from .shapes import (MAX_RANGE, RAY, SAMPLE, CompileError, ParamSpec, ShapeError, check_cost, check_layout,
-                     is_bound_variable, named_sizes, param_specs, resolve_dims, schedule)
+from .shapes import (
+    MAX_RANGE,
+    RAY,
+    SAMPLE,
+    CompileError,
+    ParamSpec,
+    ShapeError,
+    check_cost,
+    check_layout,
+    is_bound_variable,
+    named_sizes,
+    param_specs,
+    resolve_dims,
+    schedule,
+)
+from .show import safe_comment, show
 
 _IMPLICIT = "@S"
 MAX_LIMIT = 1 << 40
@@ -85,7 +113,7 @@ def _broadcast(a: tuple[int, ...], b: tuple[int, ...], where: str) -> tuple[int,
     n = max(len(a), len(b))
     a, b = (1,) * (n - len(a)) + a, (1,) * (n - len(b)) + b
     out = []
-    for x, y in zip(a, b):
+    for x, y in zip(a, b, strict=False):
         if x != y and 1 not in (x, y):
             raise ShapeError(f"{where}: feature shapes {a} and {b} do not combine")
         out.append(max(x, y))
@@ -329,7 +357,7 @@ class _Lower:
         conds = [self.lo(c) for _, c in e.branches[:-1]]  # the last case is the fallback
         axes, fr, feat = self._joint(*values, *conds)
         result = values[-1]
-        for value, cond in zip(reversed(values[:-1]), reversed(conds)):
+        for value, cond in zip(reversed(values[:-1]), reversed(conds), strict=False):
             if not cond.tensor:  # a condition on numbers only (0.5 > k): a 0-d tensor, so shapes stay known
                 ref = self._dtype_ref()
                 cond = _C(f"torch.as_tensor({cond.code}, device={ref}.device)", _ATOM, _T((), ()))
@@ -465,7 +493,7 @@ class _Lower:
 
 
 def _as_equations(ir) -> list[Equation]:
-    items = ir if isinstance(ir, (list, tuple)) else [ir]
+    items = ir if isinstance(ir, list | tuple) else [ir]
     for item in items:
         if isinstance(item, ParseFailure):
             raise LoweringError(f"an equation that was not read: {item}")

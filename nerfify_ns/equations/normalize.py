@@ -212,7 +212,7 @@ _DROP_ENVS = ("equation", "equation*", "align", "align*", "aligned", "split", "g
 
 def _unicode(m: Mapped) -> Mapped:
     out, origin = [], []
-    for i, ch in zip(m.origin, m.text):
+    for i, ch in zip(m.origin, m.text, strict=False):
         if ch in _UNICODE:
             new = _UNICODE[ch]
         elif ch in "\n\r\t\f\v":
@@ -415,7 +415,7 @@ def _top_level_commas(m: Mapped) -> list[Mapped]:
     if not cuts:
         return [m]
     bounds = [-1, *cuts, len(text)]
-    chunks = [m.slice(a + 1, b).strip() for a, b in zip(bounds, bounds[1:])]
+    chunks = [m.slice(a + 1, b).strip() for a, b in zip(bounds, bounds[1:], strict=False)]
     if sum(1 for c in chunks if _RELATION.search(c.text)) >= 2:
         return [c for c in chunks if c.text]
     out, origin, last = [], [], 0

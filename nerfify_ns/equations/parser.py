@@ -30,7 +30,7 @@ from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput
 
 from .ir import DEFAULT_CONVENTIONS, Conventions, Equation, Expr, ParseFailure, depth
 from .normalize import MAX_CHARS, Mapped, NormalizeError, normalize
-from .reader import APPROX_RELATIONS, DEFINE_RELATIONS, ReadError, Reader, Word
+from .reader import APPROX_RELATIONS, DEFINE_RELATIONS, Reader, ReadError, Word
 
 MAX_IR_DEPTH = 120
 MAX_EQUATIONS = 64

@@ -14,8 +14,22 @@ from dataclasses import dataclass
 
 from lark import Token, Transformer, v_args
 
-from .ir import FUNCTIONS, Apply, BinOp, Cases, Compare, Concat, Expectation, Expr, Integral, Neg, Norm, Number, \
-    Reduce, Symbol
+from .ir import (
+    FUNCTIONS,
+    Apply,
+    BinOp,
+    Cases,
+    Compare,
+    Concat,
+    Expectation,
+    Expr,
+    Integral,
+    Neg,
+    Norm,
+    Number,
+    Reduce,
+    Symbol,
+)
 
 FUNCTION_WORDS = {
     "exp": "exp", "log": "log", "ln": "log", "sin": "sin", "cos": "cos", "tan": "tan", "tanh": "tanh",
@@ -114,7 +128,7 @@ def _is_label_sup(sarg: _SArg) -> bool:
 
 def _as_point(expr) -> bool:
     """Is an argument a point (a symbol, a field at a point, a number) rather than an expression?"""
-    return isinstance(expr, (Symbol, Number))
+    return isinstance(expr, Symbol | Number)
 
 
 def _product(items: list[tuple[str | None, object, int]]) -> Expr:
@@ -124,8 +138,7 @@ def _product(items: list[tuple[str | None, object, int]]) -> Expr:
     if first_op is not None:
         raise ReadError("an operator without a left operand", pos, first_op)
     for op, value, pos in items[1:]:
-        if not isinstance(value, (Symbol, Number, BinOp, Neg, Apply, Reduce, Integral, Concat, Cases,
-                                  Expectation, Norm)):
+        if not isinstance(value, Symbol | Number | BinOp | Neg | Apply | Reduce | Integral | Concat | Cases | Expectation | Norm):
             raise ReadError("cannot be read here", pos, type(value).__name__)
         result = BinOp(ops[op], result, value)
     return result
@@ -202,7 +215,7 @@ class Reader(Transformer):
         if sign == "-":
             result = Number(-result.value, result.text and "-" + result.text) if isinstance(result, Number) \
                 else Neg(result)
-        for op, term in zip(children[1::2], children[2::2]):
+        for op, term in zip(children[1::2], children[2::2], strict=False):
             result = BinOp(str(op), result, self._expr(term))
         return result
 
@@ -417,7 +430,7 @@ class Reader(Transformer):
         child = children[0]
         if isinstance(child, Token):
             pieces = self._token_primary(child)
-            expr = self._expr(pieces[0][0]) if len(pieces) == 1 and not isinstance(pieces[0][0], (_Func,)) \
+            expr = self._expr(pieces[0][0]) if len(pieces) == 1 and not isinstance(pieces[0][0], _Func) \
                 else None
             if len(pieces) > 1:
                 expr = _product([(None, v, p) for v, p in pieces])

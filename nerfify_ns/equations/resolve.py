@@ -24,8 +24,25 @@ from __future__ import annotations
 import re
 from dataclasses import replace
 
-from .ir import (Apply, BinOp, Cases, Compare, Concat, Conventions, Equation, Expectation, Expr, Index, Integral,
-                 Neg, Norm, Number, Reduce, Symbol, walk)
+from .ir import (
+    Apply,
+    BinOp,
+    Cases,
+    Compare,
+    Concat,
+    Conventions,
+    Equation,
+    Expectation,
+    Expr,
+    Index,
+    Integral,
+    Neg,
+    Norm,
+    Number,
+    Reduce,
+    Symbol,
+    walk,
+)
 
 _INDEX_LABEL = re.compile(r"([A-Za-z]'*)([+-][0-9]{1,2})?")
 
@@ -238,7 +255,7 @@ def _lhs_free(lhs: Symbol, rhs: Expr, c: Conventions) -> str | None:
             return m.group(1)
     limits = set()
     for node in walk(rhs):
-        for bound in ((node.upper,) if isinstance(node, (Integral, Reduce)) else ()):
+        for bound in ((node.upper,) if isinstance(node, Integral | Reduce) else ()):
             if isinstance(bound, Symbol) and _plain(bound):
                 limits.add(bound.name)
         if isinstance(node, Reduce) and node.condition is not None and isinstance(node.condition.right, Symbol):
@@ -255,7 +272,7 @@ def resolve(equation: Equation, conventions: Conventions) -> Equation:
     """Fill sample indices, reduction axes and integral quadratures (see the module docstring)."""
     lhs = equation.lhs
     if not isinstance(lhs, Symbol):
-        from .render import show
+        from .show import show
 
         raise ResolveError("the left side is not a symbol", show(lhs)[:40])
     free = _lhs_free(lhs, equation.rhs, conventions)

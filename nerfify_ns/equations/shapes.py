@@ -47,7 +47,7 @@ def param_specs(sizes: dict) -> dict[str, ParamSpec]:
     for key, value in (sizes or {}).items():
         if isinstance(value, ParamSpec):
             out[key] = value
-        elif isinstance(value, (tuple, list)):
+        elif isinstance(value, tuple | list):
             out[key] = ParamSpec(tuple(int(v) for v in value))
     return out
 

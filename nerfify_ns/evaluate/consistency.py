@@ -25,9 +25,9 @@ depth jumps.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -49,10 +49,10 @@ class DepthView:
     c2w: Array  # (4, 4) camera-to-world, OpenGL axes
     focal: float  # pixels
     name: str = ""
-    fx: Optional[float] = None
-    fy: Optional[float] = None
-    cx: Optional[float] = None
-    cy: Optional[float] = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
 
     def __post_init__(self) -> None:
         depth = np.asarray(self.depth, dtype=np.float64)
@@ -69,7 +69,7 @@ class DepthView:
         self.cy = float(0.5 * h if self.cy is None else self.cy)
 
     @classmethod
-    def of_frame(cls, depth: ArrayLike, frame, *, valid: Optional[ArrayLike] = None) -> "DepthView":
+    def of_frame(cls, depth: ArrayLike, frame, *, valid: ArrayLike | None = None) -> DepthView:
         """The view of a dataset frame (:class:`nerfify_ns.dataset.Frame`: its camera-to-world and
         intrinsics, rescaled when the depth map is not the image's size); distortion is ignored."""
         d = np.array(depth, dtype=np.float64).reshape(np.shape(depth)[:2])
@@ -87,9 +87,9 @@ class DepthView:
         c2w: ArrayLike,
         camera_angle_x: float,
         *,
-        valid: Optional[ArrayLike] = None,
+        valid: ArrayLike | None = None,
         name: str = "",
-    ) -> "DepthView":
+    ) -> DepthView:
         d = np.array(depth, dtype=np.float64).reshape(np.shape(depth)[:2])
         if valid is not None:
             d[~np.asarray(valid, dtype=bool).reshape(d.shape)] = np.inf
@@ -122,19 +122,19 @@ class DepthView:
 
 
 def views_from_frames(
-    frames: Sequence, depths: Sequence[ArrayLike], valid: Optional[Sequence[ArrayLike]] = None
-) -> List[DepthView]:
+    frames: Sequence, depths: Sequence[ArrayLike], valid: Sequence[ArrayLike] | None = None
+) -> list[DepthView]:
     """DepthViews for dataset frames (:class:`nerfify_ns.dataset.Frame`, any format) and their rendered depth
     maps, in order."""
     if len(depths) != len(frames):
         raise ValueError(f"{len(frames)} frames but {len(depths)} depth maps were given")
     return [DepthView.of_frame(d, f, valid=None if valid is None else valid[i])
-            for i, (d, f) in enumerate(zip(depths, frames))]
+            for i, (d, f) in enumerate(zip(depths, frames, strict=False))]
 
 
 def views_from_transforms(
-    transforms: Path, depths: Sequence[ArrayLike], valid: Optional[Sequence[ArrayLike]] = None
-) -> List[DepthView]:
+    transforms: Path, depths: Sequence[ArrayLike], valid: Sequence[ArrayLike] | None = None
+) -> list[DepthView]:
     """DepthViews for the frames of a ``transforms_*.json`` and rendered depth maps, in frame order."""
     meta = json.loads(Path(transforms).read_text())
     frames = meta["frames"]
@@ -148,11 +148,11 @@ def views_from_transforms(
             valid=None if valid is None else valid[i],
             name=Path(f["file_path"]).name,
         )
-        for i, (d, f) in enumerate(zip(depths, frames))
+        for i, (d, f) in enumerate(zip(depths, frames, strict=False))
     ]
 
 
-def scene_views(root: Path, split: str, *, clean: bool = False) -> List[DepthView]:
+def scene_views(root: Path, split: str, *, clean: bool = False) -> list[DepthView]:
     """The exact depth maps a generated scene wrote for ``split`` (``clean``: floater-free depth
     where a view has it)."""
     root = Path(root)
@@ -189,7 +189,7 @@ class ViewConsistency:
 
 @dataclass
 class ConsistencyReport:
-    views: List[ViewConsistency] = field(default_factory=list)
+    views: list[ViewConsistency] = field(default_factory=list)
 
     @property
     def mean_score(self) -> float:
@@ -260,7 +260,7 @@ def check_view(
 
 
 def check_consistency(
-    targets: Sequence[DepthView], references: Optional[Sequence[DepthView]] = None, **kwargs
+    targets: Sequence[DepthView], references: Sequence[DepthView] | None = None, **kwargs
 ) -> ConsistencyReport:
     """Check every target view against ``references`` (default: the other targets)."""
     refs = list(targets) if references is None else list(references)

@@ -23,9 +23,10 @@ import csv
 import json
 import re
 import sys
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Sequence, Union
+from typing import Union
 
 from nerfify_ns.dataset import DataLike
 from nerfify_ns.errors import NerfifyError
@@ -45,19 +46,19 @@ class CurvePoint:
     step: int  # iterations done
     train_seconds: float
     psnr: float
-    loss: Optional[float]
+    loss: float | None
 
 
 @dataclass
 class Curve:
-    points: List[CurvePoint]
+    points: list[CurvePoint]
     eval_seconds: float = 0.0  # the evaluation subprocess, measured apart from training
     train_wall_seconds: float = 0.0  # the whole ns-train process (startup included)
-    csv_path: Optional[Path] = None
-    checkpoints: List[Path] = field(default_factory=list)
+    csv_path: Path | None = None
+    checkpoints: list[Path] = field(default_factory=list)
 
 
-def curve_train_args(every: int) -> List[str]:
+def curve_train_args(every: int) -> list[str]:
     """ns-train arguments: keep a checkpoint every ``every`` steps, no evaluation while training,
     raw (unaveraged) iteration times in the events."""
     if every < 1:
@@ -87,9 +88,9 @@ def train_for_curve(
     every: int,
     method_args: Sequence[str] = (),
     timeout: float = 900,
-    env: Optional[dict] = None,
-    on_progress: Optional[ProgressHook] = None,
-    sandbox: Optional[Sequence[Path]] = None,
+    env: dict | None = None,
+    on_progress: ProgressHook | None = None,
+    sandbox: Sequence[Path] | None = None,
 ) -> TrainRun:
     """``ns_train`` with :func:`curve_train_args` appended to ``method_args`` (``sandbox``: as for ``ns_train``)."""
     return ns_train(
@@ -111,9 +112,9 @@ def _buffer_size(run_dir: Path) -> int:
     return int(match.group(1)) if match else 20
 
 
-def undo_running_mean(means: Dict[int, float], buffer: int) -> Dict[int, float]:
+def undo_running_mean(means: dict[int, float], buffer: int) -> dict[int, float]:
     """Per-step values from Nerfstudio's running mean over the last ``buffer`` steps (steps 0..n)."""
-    durations: Dict[int, float] = {}
+    durations: dict[int, float] = {}
     for step in sorted(means):
         n = min(step + 1, buffer)
         earlier = sum(durations.get(s, 0.0) for s in range(step - n + 1, step))
@@ -121,7 +122,7 @@ def undo_running_mean(means: Dict[int, float], buffer: int) -> Dict[int, float]:
     return durations
 
 
-def step_seconds(run_dir: Path) -> Dict[int, float]:
+def step_seconds(run_dir: Path) -> dict[int, float]:
     """Cumulative training seconds at the end of each step, from the run's events."""
     means = read_scalars(run_dir).get(ITER_TIME_TAG, {})
     if not means:
@@ -134,7 +135,7 @@ def step_seconds(run_dir: Path) -> Dict[int, float]:
     return cumulative
 
 
-def checkpoints(run_dir: Path) -> List[Path]:
+def checkpoints(run_dir: Path) -> list[Path]:
     """The run's checkpoints, by step."""
     return sorted((Path(run_dir) / "nerfstudio_models").glob("step-*.ckpt"))
 
@@ -145,10 +146,10 @@ def evaluate_checkpoints(
     out_json: Path,
     *,
     timeout: float = 600,
-    env: Optional[dict] = None,
-    save_dir: Optional[Path] = None,
-    sandbox: Optional[Sequence[Path]] = None,
-) -> tuple[List[dict], float]:
+    env: dict | None = None,
+    save_dir: Path | None = None,
+    sandbox: Sequence[Path] | None = None,
+) -> tuple[list[dict], float]:
     """Render and score every checkpoint in one subprocess; returns its results and wall seconds. ``sandbox``:
     the checkpoints are a generated plugin's (its code runs to load them), so the subprocess runs in the
     sandbox with these folders (the plugin, the data) readable and ``out_json``'s folder writable."""
@@ -186,11 +187,11 @@ def record_curve(
     run: TrainRun,
     out_dir: Path,
     *,
-    label: Optional[str] = None,
+    label: str | None = None,
     timeout: float = 600,
-    env: Optional[dict] = None,
-    save_dir: Optional[Path] = None,
-    sandbox: Optional[Sequence[Path]] = None,
+    env: dict | None = None,
+    save_dir: Path | None = None,
+    sandbox: Sequence[Path] | None = None,
 ) -> Curve:
     """Evaluate every checkpoint of a finished run and write ``out_dir/curve.csv`` (``sandbox``: as for
     :func:`evaluate_checkpoints`)."""
@@ -231,10 +232,10 @@ def run_curve(
     *,
     iterations: int,
     every: int,
-    label: Optional[str] = None,
+    label: str | None = None,
     method_args: Sequence[str] = (),
     timeout: float = 900,
-    env: Optional[dict] = None,
+    env: dict | None = None,
 ) -> Curve:
     """Train with checkpoints, then evaluate them: the whole PSNR-against-time measurement."""
     run = train_for_curve(
@@ -266,7 +267,7 @@ def write_curve_csv(points: Iterable[CurvePoint], path: Path) -> Path:
     return path
 
 
-def read_curve_csv(path: Path) -> List[CurvePoint]:
+def read_curve_csv(path: Path) -> list[CurvePoint]:
     with open(path, newline="") as f:
         return [
             CurvePoint(
@@ -286,7 +287,7 @@ CurveSource = Union[str, Path, Curve, Sequence[CurvePoint]]
 def plot_curves(
     sources: Sequence[CurveSource],
     out_png: Path,
-    labels: Optional[Sequence[str]] = None,
+    labels: Sequence[str] | None = None,
     title: str = "Held-out PSNR against training time",
 ) -> Path:
     """One figure, two panels (PSNR vs training seconds, PSNR vs iterations), one line per run.
@@ -301,11 +302,11 @@ def plot_curves(
 
     if labels is not None and len(labels) != len(sources):
         raise ValueError("give one label per source")
-    series: Dict[str, List[CurvePoint]] = {}
+    series: dict[str, list[CurvePoint]] = {}
     for i, source in enumerate(sources):
         points = (
             read_curve_csv(Path(source))
-            if isinstance(source, (str, Path))
+            if isinstance(source, str | Path)
             else source.points
             if isinstance(source, Curve)
             else list(source)

@@ -16,9 +16,9 @@ Per test view (prediction against white-composited ground truth):
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import List, Optional, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -58,7 +58,7 @@ class ViewErrors:
     psnr_map: Array  # (H, W) local PSNR in dB, capped at PSNR_CAP
     ssim_map: Array  # (H, W) local SSIM, NaN on the uncovered border
     threshold: float
-    regions: List[Region] = field(default_factory=list)
+    regions: list[Region] = field(default_factory=list)
     psnr: float = float("nan")
     ssim: float = float("nan")
 
@@ -111,7 +111,7 @@ def worst_regions(
     min_area: int = 4,
     max_regions: int = 5,
     smooth: int = 5,
-) -> tuple[List[Region], float]:
+) -> tuple[list[Region], float]:
     """Ranked bad regions of an error map and the threshold used (see the module docstring)."""
     local = ndimage.uniform_filter(error, size=smooth, mode="reflect") if smooth > 1 else error
     threshold = max(_otsu(local), 10.0 ** (-floor_psnr / 10.0))
@@ -186,7 +186,7 @@ def _draw_box(img: NDArray[np.uint8], box: tuple, color: tuple, width: int) -> N
 
 
 def render_panel(
-    pred: ArrayLike, gt: ArrayLike, view: ViewErrors, *, scale: Optional[int] = None
+    pred: ArrayLike, gt: ArrayLike, view: ViewErrors, *, scale: int | None = None
 ) -> NDArray[np.uint8]:
     """ground truth | prediction | error heatmap with the ranked boxes (rank 1 in cyan), uint8."""
     p, g = as_rgb(pred), as_rgb(gt)
@@ -210,15 +210,15 @@ def save_panel(path: Path, pred: ArrayLike, gt: ArrayLike, view: ViewErrors) -> 
 
 
 def analyze_views(
-    preds: Sequence[ArrayLike], gts: Sequence[ArrayLike], out_dir: Path, names: Optional[Sequence[str]] = None
-) -> List[dict]:
+    preds: Sequence[ArrayLike], gts: Sequence[ArrayLike], out_dir: Path, names: Sequence[str] | None = None
+) -> list[dict]:
     """Analyse every view, write ``<name>_errors.png`` panels and ``error_maps.json``; returns summaries."""
     out_dir = Path(out_dir)
     names = list(names) if names is not None else [f"view_{i:03d}" for i in range(len(preds))]
     if not (len(preds) == len(gts) == len(names)):
         raise ValueError("need as many predictions, ground truths and names")
     summaries = []
-    for name, pred, gt in zip(names, preds, gts):
+    for name, pred, gt in zip(names, preds, gts, strict=False):
         view = analyze_view(pred, gt)
         panel = save_panel(out_dir / f"{name}_errors.png", pred, gt, view)
         summaries.append({"view": name, "panel": panel.name, **view.summary()})

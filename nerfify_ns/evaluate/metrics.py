@@ -18,8 +18,8 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Optional, Sequence, Tuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,7 +64,7 @@ def as_rgb(image: ArrayLike, background: Sequence[float] = WHITE) -> Array:
     return img
 
 
-def _pair(pred: ArrayLike, gt: ArrayLike) -> Tuple[Array, Array]:
+def _pair(pred: ArrayLike, gt: ArrayLike) -> tuple[Array, Array]:
     p, g = to_float(pred), to_float(gt)
     if p.shape != g.shape:
         raise ValueError(f"prediction {p.shape} and ground truth {g.shape} differ in shape")
@@ -90,7 +90,7 @@ def mean_psnr(preds: Sequence[ArrayLike], gts: Sequence[ArrayLike]) -> float:
     """Mean of per-image PSNRs over a set (the NeRF papers' reported number)."""
     if len(preds) != len(gts) or not preds:
         raise ValueError("need the same, non-zero number of predictions and ground truths")
-    return float(np.mean([psnr(p, g) for p, g in zip(preds, gts)]))
+    return float(np.mean([psnr(p, g) for p, g in zip(preds, gts, strict=False)]))
 
 
 def foreground_mask(gt: ArrayLike) -> NDArray[np.bool_]:
@@ -101,7 +101,7 @@ def foreground_mask(gt: ArrayLike) -> NDArray[np.bool_]:
     return np.ones(img.shape[:2], dtype=bool)
 
 
-def colour_spread(image: ArrayLike, mask: Optional[ArrayLike] = None) -> Optional[float]:
+def colour_spread(image: ArrayLike, mask: ArrayLike | None = None) -> float | None:
     """Mean over the pixels of ``mask`` (all when None) of the standard deviation of R, G, B (RGBA is composited
     on white first); None for an empty mask."""
     rgb = as_rgb(image)
@@ -162,7 +162,7 @@ def ssim(pred: ArrayLike, gt: ArrayLike, **kwargs: float) -> float:
 def mean_ssim(preds: Sequence[ArrayLike], gts: Sequence[ArrayLike]) -> float:
     if len(preds) != len(gts) or not preds:
         raise ValueError("need the same, non-zero number of predictions and ground truths")
-    return float(np.mean([ssim(p, g) for p, g in zip(preds, gts)]))
+    return float(np.mean([ssim(p, g) for p, g in zip(preds, gts, strict=False)]))
 
 
 _lpips_cache: dict = {}
@@ -180,7 +180,7 @@ def _lpips_model(weights: Path):
     return _lpips_cache[key]
 
 
-def lpips(pred: ArrayLike, gt: ArrayLike) -> Optional[float]:
+def lpips(pred: ArrayLike, gt: ArrayLike) -> float | None:
     """LPIPS (AlexNet) of one RGB pair in [0, 1]; ``None`` when no real local weights exist."""
     from nerfify_ns.runtime.lpips import find_lpips_weights
 

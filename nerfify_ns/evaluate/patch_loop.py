@@ -39,11 +39,12 @@ import json
 import math
 import shutil
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Protocol, Sequence, Tuple, Union, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import yaml
@@ -110,9 +111,9 @@ class PlanPatch:
 
     rule: str
     finding: Finding
-    edits: List[Edit]
+    edits: list[Edit]
     reason: str
-    before: Dict[str, Any] = field(default_factory=dict)  # path -> value before (None if absent)
+    before: dict[str, Any] = field(default_factory=dict)  # path -> value before (None if absent)
 
     def to_json(self) -> dict:
         return {
@@ -132,12 +133,12 @@ class RunArtifacts:
     plan: dict
     scene: Path
     summary: dict = field(default_factory=dict)
-    error_maps: List[dict] = field(default_factory=list)
-    consistency: Optional[dict] = None
-    curve: List[CurvePoint] = field(default_factory=list)
+    error_maps: list[dict] = field(default_factory=list)
+    consistency: dict | None = None
+    curve: list[CurvePoint] = field(default_factory=list)
 
     @classmethod
-    def load(cls, eval_dir: Path, plan: dict, scene: Path) -> "RunArtifacts":
+    def load(cls, eval_dir: Path, plan: dict, scene: Path) -> RunArtifacts:
         eval_dir = Path(eval_dir)
 
         def read(name: str):
@@ -165,7 +166,7 @@ class Critic(Protocol):
 
     name: str
 
-    def diagnose(self, artifacts: RunArtifacts) -> List[Finding]:
+    def diagnose(self, artifacts: RunArtifacts) -> list[Finding]:
         ...
 
 
@@ -177,7 +178,7 @@ def _default_rules_text() -> str:
     return resources.files("nerfify_ns.evaluate").joinpath("patch_rules.yaml").read_text()
 
 
-def load_rules(path: Optional[Path] = None) -> dict:
+def load_rules(path: Path | None = None) -> dict:
     """The rule table (``patch_rules.yaml`` by default): ``{critic: {...}, rules: [...]}``."""
     text = Path(path).read_text() if path is not None else _default_rules_text()
     table = yaml.safe_load(text)
@@ -202,15 +203,15 @@ class DeterministicCritic:
 
     name = "deterministic"
 
-    def __init__(self, thresholds: Optional[dict] = None) -> None:
+    def __init__(self, thresholds: dict | None = None) -> None:
         self.t = thresholds if thresholds is not None else load_rules()["critic"]
 
-    def _on(self, name: str) -> Optional[dict]:
+    def _on(self, name: str) -> dict | None:
         return self.t.get(name) if name in self.t else None
 
-    def diagnose(self, artifacts: RunArtifacts) -> List[Finding]:
+    def diagnose(self, artifacts: RunArtifacts) -> list[Finding]:
         s = artifacts.summary
-        out: List[Finding] = []
+        out: list[Finding] = []
         losses = s.get("losses") or {}
         if self._on("divergence") is not None:
             psnr = s.get("psnr")
@@ -255,7 +256,7 @@ class DeterministicCritic:
         if t is not None and artifacts.error_maps:
             sizes = [_view_pixels(artifacts, v) for v in artifacts.error_maps]
             fractions = [sum(r["area"] for r in v.get("regions", [])) / max(n, 1)
-                         for v, n in zip(artifacts.error_maps, sizes)]
+                         for v, n in zip(artifacts.error_maps, sizes, strict=False)]
             frac = float(np.mean(fractions))
             if frac >= t.get("min_area_fraction", 0.1):
                 worst = min((r["local_psnr"] for v in artifacts.error_maps for r in v.get("regions", [])),
@@ -335,7 +336,7 @@ def apply_patch(plan: dict, patch: PlanPatch) -> Plan:
     return patched
 
 
-def scene_bounds(scene: DataLike) -> Dict[str, Optional[float]]:
+def scene_bounds(scene: DataLike) -> dict[str, float | None]:
     """``scene_near`` / ``scene_far`` of the dataset: a generated scene's ``scene.json``, LLFF's per-image
     bounds (their extremes); ``None`` when unknown."""
     dataset = as_dataset(scene)
@@ -363,16 +364,16 @@ def _format_reason(template: str, evidence: str, env: dict) -> str:
 
 
 def propose_patches(plan: dict, findings: Sequence[Finding], rules: Sequence[dict],
-                    scene: DataLike) -> List[PlanPatch]:
+                    scene: DataLike) -> list[PlanPatch]:
     """Candidate patches for ``findings``: applicable, changing the plan, each set of edits once.
     Ordered round-robin over the findings (most severe first): the first rule of every finding,
     then the second ones, ..., so a short candidate budget covers every finding."""
     env = scene_bounds(scene)
     plan = Plan.of(plan)
-    per_finding: List[List[PlanPatch]] = []
+    per_finding: list[list[PlanPatch]] = []
     seen = set()
     for finding in findings:
-        patches: List[PlanPatch] = []
+        patches: list[PlanPatch] = []
         per_finding.append(patches)
         for rule in rules:
             names = rule["diagnosis"] if isinstance(rule["diagnosis"], list) else [rule["diagnosis"]]
@@ -394,14 +395,14 @@ def propose_patches(plan: dict, findings: Sequence[Finding], rules: Sequence[dic
             seen.add(key)
             patches.append(PlanPatch(rule["name"], finding, edits,
                                      _format_reason(rule["reason"], finding.evidence, env)))
-    ordered: List[PlanPatch] = []
+    ordered: list[PlanPatch] = []
     for rank in range(max((len(p) for p in per_finding), default=0)):
         ordered.extend(p[rank] for p in per_finding if rank < len(p))
     return ordered
 
 
-def _concrete_edits(plan: Plan, rule: dict, env: dict) -> List[Edit]:
-    edits: List[Edit] = []
+def _concrete_edits(plan: Plan, rule: dict, env: dict) -> list[Edit]:
+    edits: list[Edit] = []
     for spec in rule["edits"]:
         paths = plan.expand(spec["path"]) if "*" in spec["path"] else [spec["path"]]
         for path in paths:
@@ -444,19 +445,19 @@ def _write_plan(path: Path, plan: dict) -> Path:
 class Measurement:
     """The current best plan, measured: PSNR of each seed's run, their mean and spread."""
 
-    psnrs: List[Optional[float]]
-    eval_dirs: List[Path]
+    psnrs: list[float | None]
+    eval_dirs: list[Path]
 
     @property
-    def finite(self) -> List[float]:
+    def finite(self) -> list[float]:
         return [p for p in self.psnrs if p is not None and math.isfinite(p)]
 
     @property
-    def mean(self) -> Optional[float]:
+    def mean(self) -> float | None:
         return float(np.mean(self.finite)) if self.finite else None
 
     @property
-    def noise(self) -> Optional[float]:
+    def noise(self) -> float | None:
         return float(max(self.finite) - min(self.finite)) if len(self.finite) >= 2 else None
 
 
@@ -465,18 +466,18 @@ class PatchLoopResult:
     out_dir: Path
     best_plan: dict
     best_plan_path: Path
-    best_psnr: Optional[float]
+    best_psnr: float | None
     history: dict
     history_path: Path
 
     @property
-    def entries(self) -> List[dict]:
+    def entries(self) -> list[dict]:
         return self.history["entries"]
 
-    def kept(self) -> List[dict]:
+    def kept(self) -> list[dict]:
         return [e for e in self.entries if e["decision"] == "kept"]
 
-    def rejected(self) -> List[dict]:
+    def rejected(self) -> list[dict]:
         return [e for e in self.entries if e["decision"] == "rejected"]
 
 
@@ -493,21 +494,21 @@ class PatchLoop:
         out_dir: Path,
         *,
         iterations: int,
-        every: Optional[int] = None,
+        every: int | None = None,
         rounds: int = 3,
         repeats: int = 2,
         seeds: Sequence[int] = (0, 1, 2, 3),
         max_candidates: int = 3,
         noise_floor: float = 0.1,
-        target_psnr: Optional[float] = None,
-        critic: Optional[Critic] = None,
-        rules: Union[None, Path, dict] = None,
-        only_rules: Optional[Sequence[str]] = None,
+        target_psnr: float | None = None,
+        critic: Critic | None = None,
+        rules: None | Path | dict = None,
+        only_rules: Sequence[str] | None = None,
         method_args: Sequence[str] = CPU_ARGS,
-        env: Optional[dict] = None,
+        env: dict | None = None,
         timeout: float = 900,
         progress: Progress = lambda message: None,
-        sources: Optional[Dict[str, str]] = None,
+        sources: dict[str, str] | None = None,
     ) -> None:
         if repeats < 2:
             raise PatchLoopError("repeats must be >= 2: noise is the spread of repeated runs of one config")
@@ -543,7 +544,7 @@ class PatchLoop:
         summary["wall_seconds"] = time.perf_counter() - started
         return summary
 
-    def _measure(self, plan: dict, folder: Path, have: Dict[int, Tuple[Optional[float], Path]]) -> Measurement:
+    def _measure(self, plan: dict, folder: Path, have: dict[int, tuple[float | None, Path]]) -> Measurement:
         psnrs, dirs = [], []
         for seed in self.seeds[: self.repeats]:
             if seed not in have:
@@ -579,10 +580,10 @@ class PatchLoop:
             "stopped": None,
             "best_plan": "best_plan.yaml",
         }
-        have: Dict[int, Tuple[Optional[float], Path]] = {}
+        have: dict[int, tuple[float | None, Path]] = {}
         tried: set = set()
         stopped = f"round budget ({self.rounds}) spent"
-        measurement: Optional[Measurement] = None
+        measurement: Measurement | None = None
         for rnd in range(self.rounds):
             folder = self.out / "rounds" / f"r{rnd:02d}"
             _write_plan(folder / "plan.yaml", best)
@@ -620,7 +621,7 @@ class PatchLoop:
             patches = [p for p in propose_patches(best, diagnoses, self.rules, self.dataset)]
             propose = getattr(self.critic, "propose", None)  # a critic of its own patches (a model's), tried alike
             patches += list(propose(best, diagnoses, artifacts)) if callable(propose) else []
-            candidates: List[Tuple[PlanPatch, dict]] = []
+            candidates: list[tuple[PlanPatch, dict]] = []
             for patch in patches:
                 try:
                     patched = apply_patch(best, patch)
@@ -694,9 +695,9 @@ class PatchLoop:
         self.progress(f"stopped: {stopped}")
         return PatchLoopResult(self.out, best, best_path, history.get("best_psnr"), history, path)
 
-    def _entry(self, rnd: int, patch: PlanPatch, mean: Optional[float], measurement: Measurement,
-               noise: Optional[float], threshold: float, summary: Optional[dict], decision: str, reason: str,
-               folder: Optional[Path]) -> dict:
+    def _entry(self, rnd: int, patch: PlanPatch, mean: float | None, measurement: Measurement,
+               noise: float | None, threshold: float, summary: dict | None, decision: str, reason: str,
+               folder: Path | None) -> dict:
         psnr = summary.get("psnr") if summary else None
         return {
             "round": rnd,

@@ -18,15 +18,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import List, Optional, Sequence
 
 import numpy as np
 
 
 def evaluate_checkpoints(
-    config_path: Path, checkpoints: Sequence[Path], save_dir: Optional[Path] = None
-) -> List[dict]:
+    config_path: Path, checkpoints: Sequence[Path], save_dir: Path | None = None
+) -> list[dict]:
     """Per-checkpoint ``{checkpoint, step, psnr, ssim, per_view_psnr, render_seconds}``."""
     from PIL import Image
 
@@ -128,7 +128,7 @@ def _save_render(out: Path, stem: str, rgb: np.ndarray, outputs: dict, scale: fl
             np.save(out / f"{stem}_{key}.npy", value / scale if key == "depth" else value)
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("config", type=Path)
     parser.add_argument("out", type=Path)

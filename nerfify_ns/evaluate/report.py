@@ -32,11 +32,12 @@ import itertools
 import json
 import math
 import re
+from collections.abc import Callable, Sequence
 from contextvars import ContextVar
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any
 
 import jinja2
 import yaml
@@ -60,7 +61,7 @@ class ReportError(NerfifyError):
 # ------------------------------------------------------------------------------------ reading
 
 
-_ROOT: ContextVar[Optional[Path]] = ContextVar("nerfify_report_root", default=None)
+_ROOT: ContextVar[Path | None] = ContextVar("nerfify_report_root", default=None)
 """The run folder being reported: every file read must resolve inside it."""
 MAX_YAML_NODES = 200_000
 """Nodes a run folder's YAML may expand to (ours hold a few thousand)."""
@@ -103,7 +104,7 @@ def _refused(exc: safeio.ReadRefused) -> ReportError:
     return ReportError(f"{root}: {exc}" if root is not None else str(exc))
 
 
-def _read_json(path: Path) -> Tuple[Any, Optional[str]]:
+def _read_json(path: Path) -> tuple[Any, str | None]:
     """The JSON in ``path`` (None when absent) and an error text when it does not parse; a file over a limit
     (size, depth) or outside the run folder is a :class:`ReportError`."""
     if not _present(path):
@@ -117,7 +118,7 @@ def _read_json(path: Path) -> Tuple[Any, Optional[str]]:
         raise _refused(exc) from None
 
 
-def _read_yaml(path: Path) -> Tuple[Any, Optional[str]]:
+def _read_yaml(path: Path) -> tuple[Any, str | None]:
     """The YAML in ``path`` (None when absent) and an error text when it does not parse; a file over a limit
     (size, depth, the nodes its aliases expand to) or outside the run folder is a :class:`ReportError`."""
     if not _present(path):
@@ -131,7 +132,7 @@ def _read_yaml(path: Path) -> Tuple[Any, Optional[str]]:
         raise _refused(exc) from None
 
 
-def _read_text(path: Path, limit: int = safeio.MAX_TEXT) -> Optional[str]:
+def _read_text(path: Path, limit: int = safeio.MAX_TEXT) -> str | None:
     """The text of ``path`` (None when absent), read within ``limit`` bytes, inside the run folder."""
     if not _present(path):
         return None
@@ -142,7 +143,7 @@ def _read_text(path: Path, limit: int = safeio.MAX_TEXT) -> Optional[str]:
         raise _refused(exc) from None
 
 
-def _data_uri(path: Path) -> Optional[str]:
+def _data_uri(path: Path) -> str | None:
     """``path`` as a base64 ``data:`` URI when it is a PNG or JPEG image inside the run folder, within the image
     limits of :mod:`nerfify_ns.safeio` (checked from its header; nothing is decoded)."""
     if not _present(path):
@@ -159,7 +160,7 @@ def _data_uri(path: Path) -> Optional[str]:
 
 # ------------------------------------------------------------------------------------ blocks (the template renders them)
 
-Block = Dict[str, Any]
+Block = dict[str, Any]
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -173,7 +174,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
             return str(value)
         return f"{value:.{digits}g}" if abs(value) < 1e-3 or abs(value) >= 1e5 else f"{value:.{digits}f}".rstrip(
             "0").rstrip(".")
-    if isinstance(value, (dict, list)):
+    if isinstance(value, dict | list):
         return json.dumps(value, default=str, ensure_ascii=False)
     return str(value)
 
@@ -184,8 +185,8 @@ def cell(value: Any) -> dict:
     return {"text": text, "cls": STATUS_CLASSES.get(text)}
 
 
-def table(rows: Sequence[dict], columns: Optional[Sequence[str]] = None,
-          headers: Optional[Sequence[str]] = None) -> Block:
+def table(rows: Sequence[dict], columns: Sequence[str] | None = None,
+          headers: Sequence[str] | None = None) -> Block:
     """A table block of ``rows`` (the first :data:`MAX_ROWS`); '(none)' when there are none."""
     if not rows:
         return text_block("(none)", "muted")
@@ -199,7 +200,7 @@ def kv_table(mapping: dict) -> Block:
     return table([{"key": k, "value": v} for k, v in mapping.items()], ["key", "value"])
 
 
-def text_block(text: str, cls: Optional[str] = None) -> Block:
+def text_block(text: str, cls: str | None = None) -> Block:
     """A paragraph (``cls``: muted, fail, notrun...)."""
     return {"kind": "p", "text": text, "cls": cls}
 
@@ -221,12 +222,12 @@ def not_run(what: str) -> Block:
     return text_block(f"{what}: {NOT_RUN}", "notrun")
 
 
-def error(text: Optional[str]) -> List[Block]:
+def error(text: str | None) -> list[Block]:
     """A red line for a file that did not parse (nothing when ``text`` is empty)."""
     return [text_block(text, "fail")] if text else []
 
 
-def figure(path: Path, caption: str, images: List[str]) -> Block:
+def figure(path: Path, caption: str, images: list[str]) -> Block:
     """An inlined image (its name added to ``images``), or "not run" when the file is absent."""
     uri = _data_uri(path)
     if uri is None:
@@ -242,11 +243,11 @@ class _Builder:
     def __init__(self, run_dir: Path) -> None:
         self.run = run_dir
         self.eval = run_dir / "eval"
-        self.images: List[str] = []
-        self.sections: List[dict] = []  # {id, title, blocks}
-        self.data: Dict[str, dict] = {}
+        self.images: list[str] = []
+        self.sections: list[dict] = []  # {id, title, blocks}
+        self.data: dict[str, dict] = {}
 
-    def add(self, key: str, title: str, blocks: List[Block], data: dict) -> None:
+    def add(self, key: str, title: str, blocks: list[Block], data: dict) -> None:
         self.sections.append({"id": key, "title": title, "blocks": blocks})
         self.data[key] = data
 
@@ -255,7 +256,7 @@ class _Builder:
         plan, err = _read_yaml(self.run / "plan.yaml")
         paper_md = self.run / "paper.md"
         evidence, err_ev = _read_json(self.run / "evidence.json")
-        blocks: List[Block] = error(err)
+        blocks: list[Block] = error(err)
         data: dict = {"status": "ok" if isinstance(plan, dict) else NOT_RUN, "paper_md": NOT_RUN,
                       "evidence": NOT_RUN}
         if isinstance(plan, dict):
@@ -326,7 +327,7 @@ class _Builder:
         meta, _ = _read_json(self.run / "nerfify.json")
         plugin = self.run if isinstance(meta, dict) else self.run / "plugin"
         plan, _ = _read_yaml(self.run / "plan.yaml")
-        blocks: List[Block] = []
+        blocks: list[Block] = []
         data: dict = {"status": "ok" if plugin.is_dir() else NOT_RUN}
         if plugin.is_dir():
             files = sorted(map(str, meta["files"]))[:MAX_LISTED] if isinstance(meta, dict) else sorted(
@@ -627,7 +628,7 @@ def _writer(hole: dict) -> str:
     return {"compiler": "equation compiler", "model": "model", "hand": "a person"}.get(source or "", source or "-")
 
 
-def _spent(spent: Optional[dict]) -> str:
+def _spent(spent: dict | None) -> str:
     if not spent:
         return "-"
     cost = spent.get("cost_usd")
@@ -635,10 +636,10 @@ def _spent(spent: Optional[dict]) -> str:
             + ("cost unknown" if cost is None else f"{cost:.4f} USD"))
 
 
-def parse_markdown_tables(text: str) -> List[dict]:
+def parse_markdown_tables(text: str) -> list[dict]:
     """Rows of the first pipe table in a markdown text (backticks stripped from cells)."""
-    rows: List[dict] = []
-    header: Optional[List[str]] = None
+    rows: list[dict] = []
+    header: list[str] | None = None
     for line in text.splitlines():
         line = line.strip()
         if not line.startswith("|"):
@@ -649,7 +650,7 @@ def parse_markdown_tables(text: str) -> List[dict]:
         if header is None:
             header = cells
         elif not all(re.fullmatch(r":?-{2,}:?", c) for c in cells if c):
-            rows.append(dict(zip(header, cells)))
+            rows.append(dict(zip(header, cells, strict=False)))
     return rows
 
 
@@ -664,7 +665,7 @@ SECTIONS: Sequence[Callable[[_Builder], None]] = (
 # ------------------------------------------------------------------------------------ the outcome (the report's top)
 
 
-def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
+def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     """The run's outcome from ``run.json`` (written by the pipeline): the stages that ran, the one that failed
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
     outcome, err = _read_json(run_dir / "run.json")
@@ -689,14 +690,14 @@ def read_outcome(run_dir: Path, sections: Dict[str, dict]) -> dict:
             "failed": {"name": failed[0], "reason": "see its section"} if failed else None, "stages": []}
 
 
-def headline_views(run_dir: Path, images: List[str]) -> Tuple[List[Block], Optional[str]]:
+def headline_views(run_dir: Path, images: list[str]) -> tuple[list[Block], str | None]:
     """What the report opens with: ground truth | render | error of the best and of the worst test view (by PSNR),
     and one line of the result (PSNR, the foreground's colour spread against the ground truth's, iterations and
     seconds, the budget). Nothing when the evaluation did not run."""
     views, _ = _read_json(run_dir / "eval" / "error_maps.json")
     summary, _ = _read_json(run_dir / "eval" / "summary.json")
-    blocks: List[Block] = []
-    scored = [v for v in views or [] if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), (int, float))]
+    blocks: list[Block] = []
+    scored = [v for v in views or [] if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), int | float)]
     if scored:
         ranked = sorted(scored, key=lambda v: v["psnr"], reverse=True)
         for label, v in (("best", ranked[0]), ("worst", ranked[-1]))[: 1 if len(ranked) == 1 else 2]:
@@ -737,7 +738,7 @@ def _template() -> jinja2.Template:
     return env.from_string(source)
 
 
-def render_html(title: str, run_dir: Path, outcome: dict, sections: List[dict]) -> str:
+def render_html(title: str, run_dir: Path, outcome: dict, sections: list[dict]) -> str:
     """The report page from its parts (the template does the markup and escaping)."""
     return _template().render(title=title, run_dir=str(run_dir), outcome=outcome, sections=sections,
                               stamp=_dt.datetime.now().isoformat(timespec="seconds"))
@@ -769,7 +770,7 @@ def _shaped(part: str, build: Callable[[], Any]) -> Any:
                           f"shaped as nerfify-ns writes it ({type(exc).__name__}: {str(exc)[:160]})") from None
 
 
-def write_report(run_dir: Path) -> Tuple[Path, Path]:
+def write_report(run_dir: Path) -> tuple[Path, Path]:
     """Write ``report.html`` and ``report.json`` into ``run_dir``; returns their paths."""
     run_dir = Path(run_dir).absolute()
     if not run_dir.is_dir():

@@ -26,16 +26,16 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import List, Optional, Sequence
 
 import numpy as np
 from PIL import Image
 from scipy import ndimage
 
 from nerfify_ns.budget import Limit
-from nerfify_ns.errors import NerfifyError
 from nerfify_ns.dataset import DataLike, as_dataset
+from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.consistency import check_consistency, views_from_frames
 from nerfify_ns.evaluate.curve import CurveError, CurveSource, plot_curves, record_curve, train_for_curve
 from nerfify_ns.evaluate.error_maps import analyze_views
@@ -54,12 +54,12 @@ class RunEvalError(NerfifyError):
 def _json_default(value):
     if isinstance(value, Path):
         return str(value)
-    if isinstance(value, (np.floating, np.integer)):
+    if isinstance(value, np.floating | np.integer):
         return value.item()
     raise TypeError(f"not JSON serialisable: {type(value)}")
 
 
-def _finite(value: Optional[float]) -> Optional[float]:
+def _finite(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
@@ -72,7 +72,7 @@ def write_json(path: Path, payload) -> Path:
     return path
 
 
-def scene_test_frames(scene: DataLike) -> List[dict]:
+def scene_test_frames(scene: DataLike) -> list[dict]:
     """The views Nerfstudio renders for the dataset's test split, in its order (name = image stem, under which
     the renders are saved; gt = the image)."""
     return [{"name": f.stem, "gt": f.image} for f in as_dataset(scene).eval_frames]
@@ -93,7 +93,7 @@ def loss_stats(losses: dict) -> dict:
         "first": _finite(float(np.mean(values[:k]))) if finite else None,
         "last": _finite(float(np.mean(values[-k:]))) if finite else None,
         "min": _finite(min(good)) if good else None,
-        "first_nonfinite_step": None if finite else next(s for s, v in zip(steps, values) if not math.isfinite(v)),
+        "first_nonfinite_step": None if finite else next(s for s, v in zip(steps, values, strict=False) if not math.isfinite(v)),
     }
 
 
@@ -136,12 +136,12 @@ def image_diagnostics(pred: np.ndarray, gt_rgba: np.ndarray) -> dict:
     }
 
 
-def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+def _mean(values: Sequence[float | None]) -> float | None:
     good = [v for v in values if v is not None and math.isfinite(v)]
     return float(np.mean(good)) if good and len(good) == len(values) else None
 
 
-def _final_ssim(out_dir: Path) -> Optional[float]:
+def _final_ssim(out_dir: Path) -> float | None:
     """Mean SSIM of the last checkpoint from the render subprocess (float renders, like the PSNR)."""
     path = out_dir / "checkpoint_eval.json"
     if not path.is_file():
@@ -159,13 +159,13 @@ def evaluate_run(
     every: int,
     label: str = "generated",
     method_args: Sequence[str] = CPU_ARGS,
-    seed: Optional[int] = None,
+    seed: int | None = None,
     compare: Sequence[CurveSource] = (),
-    compare_labels: Optional[Sequence[str]] = None,
-    env: Optional[dict] = None,
-    timeout: Optional[float] = None,
-    limit: Optional[Limit] = None,
-    on_progress: Optional[ProgressHook] = None,
+    compare_labels: Sequence[str] | None = None,
+    env: dict | None = None,
+    timeout: float | None = None,
+    limit: Limit | None = None,
+    on_progress: ProgressHook | None = None,
 ) -> dict:
     """Train the plugin in ``plugin_dir`` on ``scene`` (a dataset or its folder, any format the dataset reader
     reads, through its Nerfstudio dataparser) and evaluate it into ``out_dir``.
@@ -250,7 +250,7 @@ def evaluate_run(
     report = check_consistency(views_from_frames(test_frames, depths, valid))
     report.save(out_dir)
     consistency = report.summary()
-    per_view = [image_diagnostics(to_float(p), g) for p, g in zip(preds, gts)]
+    per_view = [image_diagnostics(to_float(p), g) for p, g in zip(preds, gts, strict=False)]
     diagnostics = {
         key: _mean([v[key] for v in per_view])
         for key in ("colour_spread", "colour_spread_gt", "background_fraction", "background_error_share",
@@ -258,13 +258,13 @@ def evaluate_run(
     }
     if diagnostics["colour_spread"] is not None and diagnostics["colour_spread_gt"]:
         diagnostics["colour_spread_ratio"] = diagnostics["colour_spread"] / diagnostics["colour_spread_gt"]
-    lpips_values = [lpips(p, as_rgb(g)) for p, g in zip(preds, gts)]
+    lpips_values = [lpips(p, as_rgb(g)) for p, g in zip(preds, gts, strict=False)]
     last = curve.points[-1]
     summary.update(
         status="ok",
         reason="",
         psnr=_finite(last.psnr),
-        ssim=_final_ssim(out_dir) or _mean([ssim(as_rgb(p), as_rgb(g)) for p, g in zip(preds, gts)]),
+        ssim=_final_ssim(out_dir) or _mean([ssim(as_rgb(p), as_rgb(g)) for p, g in zip(preds, gts, strict=False)]),
         lpips=_mean(lpips_values) if all(v is not None for v in lpips_values) else None,
         per_view_psnr=[_finite(v["psnr"]) for v in error_maps],
         seconds=last.train_seconds,
@@ -272,7 +272,7 @@ def evaluate_run(
         consistency={k: consistency[k] for k in ("mean_score", "inconsistent_fraction")},
         worst_regions=sum(len(v["regions"]) for v in error_maps),
         diagnostics=diagnostics,
-        per_view_diagnostics=[{"view": n, **d} for n, d in zip(names, per_view)],
+        per_view_diagnostics=[{"view": n, **d} for n, d in zip(names, per_view, strict=False)],
         paths={
             "curve_csv": "curve.csv",
             "curve_png": "curve.png",

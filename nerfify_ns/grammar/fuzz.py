@@ -5,7 +5,7 @@
     sampler.coverage.report()          # terminals sampled, parameters seen at both edges
 
 Every plan the grammar accepts must compose and pass the static and contract rungs (the benchmark
-``nerfify_ns.bench.grammar_fuzz`` checks that over hundreds of plans; a failure is a bug in the grammar
+``nerfify_ns.benchmarks.grammar_fuzz`` checks that over hundreds of plans; a failure is a bug in the grammar
 or in the composer). A sample starts as a random walk (each choice and optional slot at random, each
 parameter at its low edge, its high edge, its default or a random value), then the grammar's own
 violations are settled one at a time: a scene flag set as a duty needs it, a required loss added, the
@@ -20,7 +20,7 @@ import copy
 import random
 from collections import defaultdict
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Set, Tuple
+from typing import Any
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar.spec import CUSTOM, Grammar, Param
@@ -40,8 +40,8 @@ class FuzzError(NerfifyError):
 class Coverage:
     """What the samples covered: terminals used, and each parameter's edges (low/high) or values."""
 
-    terminals: Set[str] = field(default_factory=set)
-    edges: Dict[Tuple[str, str], Set[str]] = field(default_factory=lambda: defaultdict(set))
+    terminals: set[str] = field(default_factory=set)
+    edges: dict[tuple[str, str], set[str]] = field(default_factory=lambda: defaultdict(set))
 
     def add(self, plan: Plan, grammar: Grammar) -> None:
         for path, name in derive(plan, grammar).used.items():
@@ -52,7 +52,7 @@ class Coverage:
                 if pname in given:
                     self.edges[(name, pname)].add(edge_of(param, given[pname]))
 
-    def missing(self, grammar: Grammar) -> Dict[str, List[str]]:
+    def missing(self, grammar: Grammar) -> dict[str, list[str]]:
         """Terminals never sampled, and parameters not seen at both edges (or every value of an enum)."""
         missing_terminals = sorted(set(grammar.terminals) - self.terminals - {CUSTOM})
         missing_edges = []
@@ -74,7 +74,7 @@ class Coverage:
                 "missing_terminals": missing["terminals"], "missing_edges": missing["edges"]}
 
 
-def required_edges(param: Param) -> Set[str]:
+def required_edges(param: Param) -> set[str]:
     if param.type in ("int", "float", "int_list", "float_list"):
         return {"low", "high"}
     if param.type == "bool":
@@ -99,11 +99,11 @@ def edge_of(param: Param, value: Any) -> str:
     return "inside"
 
 
-def _bounds(param: Param) -> Tuple[float, float]:
+def _bounds(param: Param) -> tuple[float, float]:
     """Finite bounds of a number parameter: its range, or the default times 1e-3 and 1e3 where open."""
     default = param.default if not isinstance(param.default, list) else (param.default or [1])[0]
     low, high = param.range or (None, None)
-    default = default if isinstance(default, (int, float)) and not isinstance(default, bool) else 1
+    default = default if isinstance(default, int | float) and not isinstance(default, bool) else 1
     low = low if low is not None else (default / 1e3 if default > 0 else -1e3)
     high = high if high is not None else (default * 1e3 if default > 0 else 1e3)
     return low, high
@@ -144,13 +144,13 @@ class PlanSampler:
         value = {"low": low, "high": high}.get(kind)
         return float(value) if value is not None else float(self.rng.uniform(low, min(high, max(low * 10, 1.0))))
 
-    def _list(self, param: Param, kind: str) -> List[Any]:
+    def _list(self, param: Param, kind: str) -> list[Any]:
         lo_len, hi_len = param.length or (1, 4)
         length = {"low": lo_len, "high": min(hi_len, 6)}.get(kind, self.rng.randint(lo_len, min(hi_len, 4)))
         item = param.type.split("_")[0]
         return [self._number(param, kind if kind in ("low", "high") else "random", item) for _ in range(length)]
 
-    def terminal(self, name: str) -> Dict[str, Any]:
+    def terminal(self, name: str) -> dict[str, Any]:
         term = self.g.terminals[name]
         return {pname: self.value(param, name) for pname, param in term.params.items() if self.rng.random() < 0.7}
 
@@ -247,9 +247,9 @@ class PlanSampler:
         return nt is not None and nt.kind == "sequence" and any(s.name == key and s.optional for s in nt.slots)
 
     # ------------------------------------------------------------------ samples
-    def sample(self, method: Optional[str] = None) -> Plan:
+    def sample(self, method: str | None = None) -> Plan:
         """One valid plan (its method name says which sample of which seed it is)."""
-        for attempt in range(MAX_ATTEMPTS):
+        for _attempt in range(MAX_ATTEMPTS):
             plan = Plan(self.symbol(self.g.start))
             plan["method"] = method or f"fuzz-{self.seed}"
             if self.settle(plan):

@@ -17,8 +17,9 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any
 
 from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, GrammarSpecError, Param, load_grammar
 from nerfify_ns.grammar.validate import ANNOTATIONS, duties_at
@@ -47,19 +48,19 @@ def _lit(text: str) -> str:
 
 
 # ------------------------------------------------------------------------- canonical JSON
-def _ordered(value: dict, order: Sequence[str]) -> List[str]:
+def _ordered(value: dict, order: Sequence[str]) -> list[str]:
     known = [k for k in order if k in value]
     return known + [k for k in value if k not in order]
 
 
-def _param_value(param: Optional[Param], value: Any) -> Any:
+def _param_value(param: Param | None, value: Any) -> Any:
     if param is not None and param.type in ("int", "int_list"):
         fix = lambda v: int(v) if isinstance(v, float) and v.is_integer() else v  # noqa: E731
         return [fix(v) for v in value] if isinstance(value, list) else fix(value)
     return value
 
 
-def _canonical(g: Grammar, symbol: Optional[str], value: Any) -> Any:
+def _canonical(g: Grammar, symbol: str | None, value: Any) -> Any:
     """``value`` re-ordered as the grammar orders ``symbol`` (unknown keys kept, at the end)."""
     if not isinstance(value, dict) or symbol is None:
         return value
@@ -71,7 +72,7 @@ def _canonical(g: Grammar, symbol: Optional[str], value: Any) -> Any:
         slots = {s.name: s.symbol for s in nt.slots}
         return {k: _canonical(g, slots.get(k), value[k]) for k in _ordered(value, list(slots))}
     if nt.kind in ("choice", "set"):
-        def member(k: str) -> Optional[str]:
+        def member(k: str) -> str | None:
             return k if k in nt.alternatives else (CUSTOM if nt.custom and CUSTOM_MEMBER.match(str(k)) else None)
         return {k: _canonical(g, member(k), value[k]) for k in _ordered(value, nt.alternatives)}
     if nt.kind == "open":
@@ -83,7 +84,7 @@ def _canonical(g: Grammar, symbol: Optional[str], value: Any) -> Any:
     return value
 
 
-def canonical_json(plan: dict, grammar: Optional[Grammar] = None) -> str:
+def canonical_json(plan: dict, grammar: Grammar | None = None) -> str:
     """The compact JSON of ``plan`` in grammar order: what the GBNF grammar derives."""
     g = grammar or load_grammar()
     slots = [s.name for s in g.nonterminals[g.start].slots]
@@ -133,7 +134,7 @@ def _scalar(param: Param, kind: str) -> str:
     return "unumber" if lo is not None and lo >= 0 else "number"
 
 
-def _list(item: str, length: Optional[Tuple[int, int]]) -> str:
+def _list(item: str, length: tuple[int, int] | None) -> str:
     lo, hi = length or (0, 16)
     optional = ""
     for _ in range(hi - max(lo, 1)):
@@ -144,7 +145,7 @@ def _list(item: str, length: Optional[Tuple[int, int]]) -> str:
     return f"\"[\" {required} {optional} \"]\""
 
 
-def param_rule(param: Param, item_rule: Optional[str] = None) -> str:
+def param_rule(param: Param, item_rule: str | None = None) -> str:
     """GBNF of a parameter value; lists refer to ``item_rule`` (the rule of one item) when given."""
     if param.type == "bool":
         return "boolean"
@@ -166,25 +167,26 @@ def param_rule(param: Param, item_rule: Optional[str] = None) -> str:
 class _Effects:
     """What a context fixes: chosen alternatives, required/forbidden items, scene constants, groups."""
 
-    ctx: Tuple[Tuple[str, Any], ...]
+    ctx: tuple[tuple[str, Any], ...]
     required: frozenset
     forbidden: frozenset
-    scene: Tuple[Tuple[str, Any], ...]
+    scene: tuple[tuple[str, Any], ...]
     groups: frozenset
 
     def choice(self, path: str) -> Any:
         return dict(self.ctx).get(path, "*")
 
 
-def _slot_paths(g: Grammar) -> Dict[str, Tuple[str, bool]]:
+def _slot_paths(g: Grammar) -> dict[str, tuple[str, bool]]:
     """Every choice/enum/optional-terminal slot path -> (symbol, optional)."""
-    out: Dict[str, Tuple[str, bool]] = {}
+    out: dict[str, tuple[str, bool]] = {}
 
     def walk(symbol: str, path: str) -> None:
         if symbol in g.terminals:
             return
         nt = g.nonterminals[symbol]
-        join = (lambda key: f"{path}.{key}" if path else key)
+        def join(key):
+            return f'{path}.{key}' if path else key
         if nt.kind == "sequence":
             for slot in nt.slots:
                 out[join(slot.name)] = (slot.symbol, slot.optional)
@@ -196,14 +198,14 @@ def _slot_paths(g: Grammar) -> Dict[str, Tuple[str, bool]]:
     return out
 
 
-def _options(g: Grammar, symbol: str, optional: bool) -> List[Any]:
+def _options(g: Grammar, symbol: str, optional: bool) -> list[Any]:
     if symbol in g.terminals:
         return [symbol, ABSENT] if optional else [symbol]
     alts = list(g.nonterminals[symbol].alternatives)
     return alts + ([ABSENT] if optional else [])
 
 
-def _decision_paths(g: Grammar) -> List[str]:
+def _decision_paths(g: Grammar) -> list[str]:
     slots = _slot_paths(g)
     referenced = {"base"} | {d["requires_terminal"]["slot"] for t in g.terminals.values()
                              for d in t.duties if "requires_terminal" in d}
@@ -226,7 +228,7 @@ def _decision_paths(g: Grammar) -> List[str]:
     return sorted(decisions, key=lambda p: (p.count("."), p))
 
 
-def _active(path: str, ctx: Dict[str, Any], decisions: List[str]) -> bool:
+def _active(path: str, ctx: dict[str, Any], decisions: list[str]) -> bool:
     parts = path.split(".")
     for i in range(1, len(parts)):
         prefix = ".".join(parts[:i])
@@ -235,7 +237,7 @@ def _active(path: str, ctx: Dict[str, Any], decisions: List[str]) -> bool:
     return True
 
 
-def _holds(g: Grammar, duty: dict, ctx: Dict[str, Any], scene: Optional[Dict[str, Any]] = None) -> Optional[bool]:
+def _holds(g: Grammar, duty: dict, ctx: dict[str, Any], scene: dict[str, Any] | None = None) -> bool | None:
     """Whether a base/terminal duty holds under ``ctx`` (None for duties that become effects); a scene duty holds
     when ``scene`` (the flags a context pins) gives every flag it names the value it needs."""
     (rule, arg), = duty.items()
@@ -250,25 +252,25 @@ def _holds(g: Grammar, duty: dict, ctx: Dict[str, Any], scene: Optional[Dict[str
     return None
 
 
-def _contexts(g: Grammar) -> List[_Effects]:
+def _contexts(g: Grammar) -> list[_Effects]:
     slots = _slot_paths(g)
     decisions = _decision_paths(g)
-    contexts: List[Dict[str, Any]] = [{}]
+    contexts: list[dict[str, Any]] = [{}]
     for path in decisions:
         symbol, optional = slots[path]
         contexts = [{**ctx, path: option} for ctx in contexts
                     for option in (_options(g, symbol, optional) if _active(path, ctx, decisions) else [ABSENT])]
-    pins: List[Dict[str, Any]] = [{}]
+    pins: list[dict[str, Any]] = [{}]
     for flag, values in _scene_splits(g, slots, decisions).items():
         pins = [{**pin, flag: value} for pin in pins for value in values]
     return [e for e in (_effects(g, ctx, slots, decisions, pin) for ctx in contexts for pin in pins)
             if e is not None]
 
 
-def _scene_splits(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: List[str]) -> Dict[str, List[Any]]:
+def _scene_splits(g: Grammar, slots: dict[str, tuple[str, bool]], decisions: list[str]) -> dict[str, list[Any]]:
     """Scene flags that dependent items (set members) need: each context is split over their values, so a member
     that needs a flag is allowed exactly where the context pins the flag to that value."""
-    flags: Dict[str, List[Any]] = {}
+    flags: dict[str, list[Any]] = {}
     for _, terminal in _dependent_items(g, slots, decisions):
         for duty in g.terminals[terminal].duties:
             for flag in duty.get("requires_scene") or {}:
@@ -277,7 +279,7 @@ def _scene_splits(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: Lis
     return flags
 
 
-def _dependent_items(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: List[str]) -> List[Tuple[str, str]]:
+def _dependent_items(g: Grammar, slots: dict[str, tuple[str, bool]], decisions: list[str]) -> list[tuple[str, str]]:
     """(path, terminal) of optional terminal slots and set members that are not decisions but have duties."""
     items = [(p, s) for p, (s, opt) in slots.items() if opt and s in g.terminals and p not in decisions and g.terminals[s].duties]
     for path, (symbol, _) in slots.items():
@@ -286,8 +288,8 @@ def _dependent_items(g: Grammar, slots: Dict[str, Tuple[str, bool]], decisions: 
     return items
 
 
-def _effects(g: Grammar, ctx: Dict[str, Any], slots, decisions,
-             pinned: Optional[Dict[str, Any]] = None) -> Optional[_Effects]:
+def _effects(g: Grammar, ctx: dict[str, Any], slots, decisions,
+             pinned: dict[str, Any] | None = None) -> _Effects | None:
     required, forbidden, scene, groups = set(), set(), dict(pinned or {}), set()
     for path, choice in ctx.items():
         if choice is ABSENT or choice not in g.terminals:
@@ -325,8 +327,8 @@ class _Emitter:
         self.structure_only = structure_only
         """A model's plan: terminals without parameters (their defaults; a scene's duty flags stay), no custom
         components (a planner chooses among known techniques)."""
-        self.rules: Dict[str, str] = {}
-        self.by_body: Dict[str, str] = {}
+        self.rules: dict[str, str] = {}
+        self.by_body: dict[str, str] = {}
 
     def rule(self, hint: str, body: str) -> str:
         if body in self.by_body:
@@ -341,7 +343,7 @@ class _Emitter:
         self.by_body[body] = name
         return name
 
-    def obj(self, hint: str, members: List[Tuple[str, str, bool]]) -> str:
+    def obj(self, hint: str, members: list[tuple[str, str, bool]]) -> str:
         """An object with members in order; (key, rule, required); commas placed exactly."""
         members = [(f"{_lit(json.dumps(k) + ':')} {r}", req) for k, r, req in members]
         if not members:
@@ -356,7 +358,7 @@ class _Emitter:
         inner = f"( {' | '.join(options)} ){'?' if all_optional else ''}"
         return self.rule(hint, f'"{{" {inner} "}}"')
 
-    def custom_set(self, symbol: str, members: List[Tuple[str, str, bool]], fx: _Effects) -> str:
+    def custom_set(self, symbol: str, members: list[tuple[str, str, bool]], fx: _Effects) -> str:
         """A set's object: its optional members in order, then any number of custom members
         (``"custom"`` or ``"custom_<name>"``)."""
         key = self.rule("custom-key", '"\\"custom" ( "_" [a-z0-9_]+ )? "\\":"')
@@ -392,7 +394,8 @@ class _Emitter:
         if symbol in self.g.terminals:
             return self.terminal(symbol, fx)
         nt = self.g.nonterminals[symbol]
-        join = (lambda key: f"{path}.{key}" if path else key)
+        def join(key):
+            return f'{path}.{key}' if path else key
         chosen = fx.choice(path)
         if nt.kind == "enum":
             alts = nt.alternatives if chosen == "*" else [chosen]
@@ -443,7 +446,7 @@ EVIDENCE_ITEMS = 8
 """The most evidence entries a model's plan may carry (``to_gbnf(annotations=False)``)."""
 
 
-def to_gbnf(grammar: Optional[Grammar] = None, *, annotations: bool = True, max_string: Optional[int] = None,
+def to_gbnf(grammar: Grammar | None = None, *, annotations: bool = True, max_string: int | None = None,
             structure_only: bool = False) -> str:
     """The GBNF grammar of canonical plan JSON (root rule ``root``). For a model's decoding
     (``nerfify_ns.agents.planner``): ``annotations=False`` keeps only ``method``, the derivation and an

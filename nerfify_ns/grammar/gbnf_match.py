@@ -12,7 +12,6 @@ from __future__ import annotations
 import re
 import sys
 from dataclasses import dataclass
-from typing import Dict, FrozenSet, List, Optional, Tuple
 
 from nerfify_ns.errors import NerfifyError
 
@@ -25,9 +24,9 @@ class GbnfSyntaxError(NerfifyError):
 class _Node:
     kind: str  # lit | cls | ref | seq | alt | rep
     value: object = None
-    items: Tuple["_Node", ...] = ()
+    items: tuple[_Node, ...] = ()
     lo: int = 0
-    hi: Optional[int] = None
+    hi: int | None = None
 
 
 _ESCAPES = {"n": "\n", "t": "\t", "r": "\r", "\\": "\\", '"': '"', "]": "]", "[": "[", "-": "-", "/": "/"}
@@ -66,7 +65,7 @@ class _Parser:
         return options[0] if len(options) == 1 else _Node("alt", items=tuple(options))
 
     def sequence(self) -> _Node:
-        items: List[_Node] = []
+        items: list[_Node] = []
         while True:
             self.ws()
             if self.pos >= len(self.text) or self.text[self.pos] in "|)":
@@ -129,11 +128,11 @@ class _Parser:
         return node
 
 
-def _rules(text: str) -> Dict[str, _Node]:
-    rules: Dict[str, _Node] = {}
+def _rules(text: str) -> dict[str, _Node]:
+    rules: dict[str, _Node] = {}
     chunks = re.split(r"(?m)^([a-zA-Z0-9-]+)\s*::=", "\n".join(
         line for line in text.splitlines() if not line.lstrip().startswith("#")))
-    for name, body in zip(chunks[1::2], chunks[2::2]):
+    for name, body in zip(chunks[1::2], chunks[2::2], strict=False):
         parser = _Parser(body.strip())
         node = parser.alternation()
         if parser.pos != len(parser.text):
@@ -161,7 +160,7 @@ class GbnfGrammar:
             stack.extend(node.items)
 
     def accepts(self, text: str) -> bool:
-        memo: Dict[Tuple[str, int], FrozenSet[int]] = {}
+        memo: dict[tuple[str, int], frozenset[int]] = {}
         limit = sys.getrecursionlimit()
         sys.setrecursionlimit(max(limit, 20000))
         try:
@@ -169,7 +168,7 @@ class GbnfGrammar:
         finally:
             sys.setrecursionlimit(limit)
 
-    def _ends(self, node: _Node, pos: int, text: str, memo) -> FrozenSet[int]:
+    def _ends(self, node: _Node, pos: int, text: str, memo) -> frozenset[int]:
         kind = node.kind
         if kind == "lit":
             return frozenset([pos + len(node.value)]) if text.startswith(node.value, pos) else frozenset()

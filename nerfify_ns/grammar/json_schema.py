@@ -7,7 +7,7 @@ accepts exactly the plans ``validate`` accepts (see tests/test_grammar_exports.p
 
 from __future__ import annotations
 
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Param, Terminal, load_grammar
 from nerfify_ns.grammar.validate import ANNOTATIONS, IDENTIFIER, METHOD_NAME, MODULE, duties_at
@@ -15,8 +15,8 @@ from nerfify_ns.grammar.validate import ANNOTATIONS, IDENTIFIER, METHOD_NAME, MO
 _JSON_TYPES = {str: "string", dict: "object", list: "array"}
 
 
-def _number(param: Param, kind: str) -> Dict[str, Any]:
-    schema: Dict[str, Any] = {"type": kind}
+def _number(param: Param, kind: str) -> dict[str, Any]:
+    schema: dict[str, Any] = {"type": kind}
     lo, hi = param.range or (None, None)
     if lo is not None:
         schema["minimum"] = lo
@@ -25,7 +25,7 @@ def _number(param: Param, kind: str) -> Dict[str, Any]:
     return schema
 
 
-def param_schema(param: Param) -> Dict[str, Any]:
+def param_schema(param: Param) -> dict[str, Any]:
     if param.type == "int":
         return _number(param, "integer")
     if param.type == "float":
@@ -44,13 +44,13 @@ def param_schema(param: Param) -> Dict[str, Any]:
     if param.type == "mapping":
         return {"type": "object", "propertyNames": {"pattern": IDENTIFIER.pattern}}
     item = _number(param, "integer" if param.type == "int_list" else "number")
-    schema: Dict[str, Any] = {"type": "array", "items": item}
+    schema: dict[str, Any] = {"type": "array", "items": item}
     if param.length:
         schema["minItems"], schema["maxItems"] = param.length
     return schema
 
 
-def _terminal_schema(term: Terminal) -> Dict[str, Any]:
+def _terminal_schema(term: Terminal) -> dict[str, Any]:
     schema = {"type": "object", "description": term.doc, "additionalProperties": False,
               "properties": {name: param_schema(p) for name, p in term.params.items()}}
     if term.name == CUSTOM:  # a module inside the plugin and a class name (validate checks the same)
@@ -60,11 +60,11 @@ def _terminal_schema(term: Terminal) -> Dict[str, Any]:
     return schema
 
 
-def _ref(symbol: str) -> Dict[str, str]:
+def _ref(symbol: str) -> dict[str, str]:
     return {"$ref": f"#/$defs/{symbol}"}
 
 
-def _nonterminal_schema(g: Grammar, name: str) -> Dict[str, Any]:
+def _nonterminal_schema(g: Grammar, name: str) -> dict[str, Any]:
     nt = g.nonterminals[name]
     if nt.kind == "enum":
         return {"enum": list(nt.alternatives), "description": nt.doc}
@@ -88,7 +88,7 @@ def _nonterminal_schema(g: Grammar, name: str) -> Dict[str, Any]:
     return schema
 
 
-def _at(path: str, leaf: Dict[str, Any]) -> Dict[str, Any]:
+def _at(path: str, leaf: dict[str, Any]) -> dict[str, Any]:
     """A schema requiring ``path`` to exist and satisfy ``leaf`` at its end."""
     schema = leaf
     for key in reversed(path.split(".")):
@@ -96,27 +96,27 @@ def _at(path: str, leaf: Dict[str, Any]) -> Dict[str, Any]:
     return schema
 
 
-def _used(g: Grammar, terminal: str) -> Dict[str, Any]:
+def _used(g: Grammar, terminal: str) -> dict[str, Any]:
     """Predicate: ``terminal`` appears somewhere in the plan (as a slot, alternative or enum value)."""
     options = [_at(path, {}) for path in g.terminal_paths(terminal)]
     options += [_at(path, {"const": terminal}) for path in _enum_paths(g, terminal)]
     return {"anyOf": options} if options else {"not": {}}
 
 
-def _enum_paths(g: Grammar, terminal: str) -> List[str]:
+def _enum_paths(g: Grammar, terminal: str) -> list[str]:
     return [path for path, symbol in g.symbol_paths()
             if symbol in g.nonterminals and g.nonterminals[symbol].kind == "enum"
             and terminal in g.nonterminals[symbol].alternatives]
 
 
-def _choice_in(g: Grammar, slot: str, any_of: List[str]) -> Dict[str, Any]:
+def _choice_in(g: Grammar, slot: str, any_of: list[str]) -> dict[str, Any]:
     symbol = g.slot_symbol(slot)
     if symbol in g.nonterminals and g.nonterminals[symbol].kind == "enum":
         return _at(slot, {"enum": any_of})
     return {"anyOf": [_at(f"{slot}.{alt}", {}) for alt in any_of]}
 
 
-def _duty_schema(g: Grammar, duty: dict) -> Dict[str, Any]:
+def _duty_schema(g: Grammar, duty: dict) -> dict[str, Any]:
     (rule, arg), = duty.items()
     if rule == "requires_base":
         return _choice_in(g, "base", list(arg))
@@ -136,7 +136,7 @@ def _duty_schema(g: Grammar, duty: dict) -> Dict[str, Any]:
     raise ValueError(f"unknown duty {rule}")
 
 
-def _custom_duties(g: Grammar) -> List[Dict[str, Any]]:
+def _custom_duties(g: Grammar) -> list[dict[str, Any]]:
     """Duties of custom components, per production (e.g. a custom sampler only under some bases); in a set, any
     member named ``custom`` or ``custom_<name>`` carries them."""
     clauses = []
@@ -155,7 +155,7 @@ def _custom_duties(g: Grammar) -> List[Dict[str, Any]]:
     return clauses
 
 
-def _duties(g: Grammar) -> List[Dict[str, Any]]:
+def _duties(g: Grammar) -> list[dict[str, Any]]:
     clauses = [{"if": _used(g, name), "then": _duty_schema(g, duty)}
                for name, term in g.terminals.items() for duty in term.duties]
     clauses += _custom_duties(g)
@@ -167,10 +167,10 @@ def _duties(g: Grammar) -> List[Dict[str, Any]]:
     return clauses
 
 
-def to_json_schema(grammar: Optional[Grammar] = None) -> Dict[str, Any]:
+def to_json_schema(grammar: Grammar | None = None) -> dict[str, Any]:
     """The JSON Schema of plans the grammar derives."""
     g = grammar or load_grammar()
-    defs: Dict[str, Any] = {name: _terminal_schema(t) for name, t in g.terminals.items()}
+    defs: dict[str, Any] = {name: _terminal_schema(t) for name, t in g.terminals.items()}
     defs.update({name: _nonterminal_schema(g, name) for name in g.nonterminals})
     start = g.nonterminals[g.start]
     properties = {s.name: _ref(s.symbol) for s in start.slots}

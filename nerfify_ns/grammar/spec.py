@@ -12,10 +12,11 @@ registry's definition (code, harness) where the grammar was built from the regis
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional, Tuple
+from typing import Any
 
 import yaml
 
@@ -43,22 +44,22 @@ class Terminal:
     name: str
     doc: str
     implementation: str
-    params: Dict[str, Param]
-    card: Optional[str] = None
-    contract: Dict[str, Any] = field(default_factory=dict)
-    duties: Tuple[Dict[str, Any], ...] = ()
-    param_groups: Tuple[str, ...] = ()
-    config: Dict[str, Dict[str, str]] = field(default_factory=dict)
-    config_class: Optional[str] = None
-    input_domain: Optional[str] = None
+    params: dict[str, Param]
+    card: str | None = None
+    contract: dict[str, Any] = field(default_factory=dict)
+    duties: tuple[dict[str, Any], ...] = ()
+    param_groups: tuple[str, ...] = ()
+    config: dict[str, dict[str, str]] = field(default_factory=dict)
+    config_class: str | None = None
+    input_domain: str | None = None
     production: str = ""
-    definition: Optional[TerminalDef] = field(default=None, compare=False, repr=False)
+    definition: TerminalDef | None = field(default=None, compare=False, repr=False)
 
-    def defaults(self) -> Dict[str, Any]:
+    def defaults(self) -> dict[str, Any]:
         return {name: p.default for name, p in self.params.items()}
 
     @classmethod
-    def from_definition(cls, d: TerminalDef) -> "Terminal":
+    def from_definition(cls, d: TerminalDef) -> Terminal:
         return cls(name=d.name, doc=d.doc, implementation=d.implementation, params=d.param_specs, card=d.card,
                    contract=d.contract.to_data() if not d.contract.empty else {}, duties=tuple(d.duties),
                    param_groups=tuple(d.param_groups), config={k: dict(v) for k, v in d.config.items()},
@@ -79,17 +80,17 @@ class Nonterminal:
     name: str
     kind: str
     doc: str
-    slots: Tuple[Slot, ...] = ()
-    alternatives: Tuple[str, ...] = ()
-    keys: Tuple[str, ...] = ()
-    value: Optional[str] = None
-    terminal: Optional[str] = None
+    slots: tuple[Slot, ...] = ()
+    alternatives: tuple[str, ...] = ()
+    keys: tuple[str, ...] = ()
+    value: str | None = None
+    terminal: str | None = None
     """The terminal of an ``open`` nonterminal."""
     custom: bool = False
     """A set that also holds custom components."""
 
     @property
-    def members(self) -> Tuple[str, ...]:
+    def members(self) -> tuple[str, ...]:
         """The terminals a set may hold (stored as its alternatives)."""
         return self.alternatives
 
@@ -102,26 +103,26 @@ class Nonterminal:
 class Grammar:
     start: str
     version: int
-    nonterminals: Dict[str, Nonterminal]
-    terminals: Dict[str, Terminal]
+    nonterminals: dict[str, Nonterminal]
+    terminals: dict[str, Terminal]
     source: str = ""
-    interfaces: Dict[str, Any] = field(default_factory=dict, compare=False)
+    interfaces: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def is_terminal(self, symbol: str) -> bool:
         return symbol in self.terminals
 
-    def symbol_paths(self) -> Iterator[Tuple[str, str]]:
+    def symbol_paths(self) -> Iterator[tuple[str, str]]:
         """Every (plan path, symbol) the grammar can derive, e.g. ("model.sampler.proposal", "proposal")."""
         yield from _walk(self, self.start, "")
 
-    def terminal_paths(self, terminal: str) -> List[str]:
+    def terminal_paths(self, terminal: str) -> list[str]:
         return [path for path, symbol in self.symbol_paths() if symbol == terminal]
 
-    def slot_symbol(self, path: str) -> Optional[str]:
+    def slot_symbol(self, path: str) -> str | None:
         """The symbol a plan path holds (None for unknown paths)."""
         return next((symbol for p, symbol in self.symbol_paths() if p == path), None)
 
-    def production_at(self, path: str) -> Optional[str]:
+    def production_at(self, path: str) -> str | None:
         """The production a terminal (or ``custom``) at ``path`` fills: the nonterminal whose alternative,
         member or open terminal it is (``model.sampler.custom`` -> ``Sampler``)."""
         parent = path.rsplit(".", 1)[0] if "." in path else ""
@@ -141,12 +142,13 @@ class Grammar:
         return path
 
 
-def _walk(grammar: Grammar, symbol: str, path: str) -> Iterator[Tuple[str, str]]:
+def _walk(grammar: Grammar, symbol: str, path: str) -> Iterator[tuple[str, str]]:
     yield path, symbol
     if grammar.is_terminal(symbol):
         return
     nt = grammar.nonterminals[symbol]
-    join = (lambda key: f"{path}.{key}" if path else key)
+    def join(key):
+        return f"{path}.{key}" if path else key
     if nt.kind == "sequence":
         for slot in nt.slots:
             yield from _walk(grammar, slot.symbol, join(slot.name))
@@ -214,7 +216,7 @@ def _check_references(grammar: Grammar) -> None:
             raise GrammarSpecError(f"{nt.name} accepts custom components but the grammar has no 'custom' terminal")
 
 
-def grammar_from_data(raw: dict, source: str = "", interfaces: Optional[dict] = None) -> Grammar:
+def grammar_from_data(raw: dict, source: str = "", interfaces: dict | None = None) -> Grammar:
     grammar = Grammar(
         start=raw["start"], version=raw.get("version", 0), source=source,
         nonterminals={k: _nonterminal(k, v) for k, v in raw["nonterminals"].items()},
@@ -243,7 +245,7 @@ def grammar_from_registry(registry: Registry) -> Grammar:
 
 
 @lru_cache(maxsize=4)
-def load_grammar(path: Optional[str] = None) -> Grammar:
+def load_grammar(path: str | None = None) -> Grammar:
     """The project's grammar, built from the terminal registry; or the exported grammar in ``path``."""
     if path is None:
         return grammar_from_registry(default_registry())

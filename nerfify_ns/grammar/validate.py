@@ -9,16 +9,16 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from pathlib import Path
+from typing import Any
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar.spec import CUSTOM, CUSTOM_MEMBER, Grammar, Nonterminal, Param, Terminal, load_grammar
 from nerfify_ns.plan import method_name_problems
 
 METHOD_NAME = re.compile(r"^[a-z][a-z0-9-]{1,62}\Z")  # \Z: "$" would also match before a final newline
-ANNOTATIONS: Dict[str, type] = {
+ANNOTATIONS: dict[str, type] = {
     "method": str, "description": str, "paper": dict, "evidence": dict, "pruned": list, "holes": list,
     "notes": list, "repairs": list, "schedule": dict, "family": dict, "contributions": list,
 }
@@ -45,7 +45,7 @@ class Violation:
 class PlanError(NerfifyError):
     """The plan is not a derivation of the grammar."""
 
-    def __init__(self, violations: List[Violation]) -> None:
+    def __init__(self, violations: list[Violation]) -> None:
         self.violations = violations
         more = f" (and {len(violations) - 1} more)" if len(violations) > 1 else ""
         super().__init__(f"invalid plan: {violations[0]}{more}")
@@ -55,9 +55,9 @@ class PlanError(NerfifyError):
 class Derivation:
     """What a plan derives: the alternative chosen at each choice and the terminals used."""
 
-    choices: Dict[str, str] = field(default_factory=dict)
-    used: Dict[str, str] = field(default_factory=dict)
-    violations: List[Violation] = field(default_factory=list)
+    choices: dict[str, str] = field(default_factory=dict)
+    used: dict[str, str] = field(default_factory=dict)
+    violations: list[Violation] = field(default_factory=list)
 
     def fail(self, path: str, production: str, rule: str, message: str) -> None:
         self.violations.append(Violation(path, production, rule, message))
@@ -73,10 +73,10 @@ def _is_int(value: Any) -> bool:
 
 
 def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def _scalar_ok(param: Param, kind: str, value: Any) -> Optional[str]:
+def _scalar_ok(param: Param, kind: str, value: Any) -> str | None:
     """None if ``value`` has ``kind``; otherwise what it should be."""
     checks = {"int": _is_int, "float": _is_number, "bool": lambda v: isinstance(v, bool),
               "str": lambda v: isinstance(v, str), "enum": lambda v: v in param.values}
@@ -94,7 +94,7 @@ def _json_like(value: Any, depth: int = 0) -> bool:
     """A value a plan may carry in a mapping parameter: numbers, strings, booleans, lists and mappings."""
     if depth > 8:
         return False
-    if value is None or isinstance(value, (bool, str)) or _is_number(value):
+    if value is None or isinstance(value, bool | str) or _is_number(value):
         return True
     if isinstance(value, list):
         return all(_json_like(v, depth + 1) for v in value)
@@ -247,7 +247,7 @@ def scene_flag(g: Grammar, plan: dict, flag: str) -> Any:
     return scene.get(flag, g.terminals["scene"].params[flag].default)
 
 
-def _duty_holds(g: Grammar, d: Derivation, plan: dict, duty: dict) -> Optional[str]:
+def _duty_holds(g: Grammar, d: Derivation, plan: dict, duty: dict) -> str | None:
     """None if ``duty`` holds; else (rule, message)."""
     (rule, arg), = duty.items()
     if rule == "requires_base":
@@ -265,7 +265,7 @@ def _duty_holds(g: Grammar, d: Derivation, plan: dict, duty: dict) -> Optional[s
     raise ValueError(f"unknown duty {rule}")
 
 
-def expected_param_groups(g: Grammar, d: Derivation) -> List[str]:
+def expected_param_groups(g: Grammar, d: Derivation) -> list[str]:
     """The optimiser groups the model will have: the union of its terminals' param_groups."""
     groups = [grp for term in d.used.values() for grp in g.terminals[term].param_groups]
     return list(dict.fromkeys(groups))
@@ -336,7 +336,7 @@ def _check_annotations(d: Derivation, plan: dict, installed: bool = True) -> dic
     return derivation
 
 
-def derive(plan: Any, grammar: Optional[Grammar] = None, *, installed: bool = True) -> Derivation:
+def derive(plan: Any, grammar: Grammar | None = None, *, installed: bool = True) -> Derivation:
     """Check ``plan`` against the grammar and return what it derives with every violation found.
     ``installed=False`` leaves out the one check that looks at the Python environment (that the method's
     name shadows no installed module), for callers that check many edits of one plan and that name once."""
@@ -351,11 +351,11 @@ def derive(plan: Any, grammar: Optional[Grammar] = None, *, installed: bool = Tr
     return d
 
 
-def check(plan: Any, grammar: Optional[Grammar] = None) -> List[Violation]:
+def check(plan: Any, grammar: Grammar | None = None) -> list[Violation]:
     return derive(plan, grammar).violations
 
 
-def validate(plan: Any, grammar: Optional[Grammar] = None) -> Derivation:
+def validate(plan: Any, grammar: Grammar | None = None) -> Derivation:
     """Accept a derivation of the grammar (returned) or raise PlanError naming the broken rules."""
     d = derive(plan, grammar)
     if d.violations:

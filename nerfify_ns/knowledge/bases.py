@@ -14,8 +14,9 @@ TensoRF") and contrast clauses ("unlike nerfacto, we ...") do not.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any, Optional, Sequence
+from typing import Any
 
 from nerfify_ns.knowledge.citations import _marker_keys, find_spans
 from nerfify_ns.knowledge.kb import KnowledgeBase
@@ -34,8 +35,8 @@ class BaseStatement:
     bases: list[str]          # reference plan names, in the order the sentence names them
     quote: str
     section: str
-    page: Optional[int]
-    line: Optional[int]
+    page: int | None
+    line: int | None
     role: str
     pattern: str
 
@@ -50,12 +51,12 @@ class BaseStatement:
 
 @dataclass
 class _Named:
-    base: Optional[str]       # the model this target names (None: a citation of some other work)
+    base: str | None       # the model this target names (None: a citation of some other work)
     start: int
     end: int
 
 
-def _named_models(sentence: str, kb: KnowledgeBase, ref_bases: dict[str, Optional[str]],
+def _named_models(sentence: str, kb: KnowledgeBase, ref_bases: dict[str, str | None],
                   ref_keys: set[str]) -> list[_Named]:
     """Every model name, model paper alias and citation marker of ``sentence``, in order."""
     out: list[_Named] = []
@@ -90,7 +91,7 @@ def _about_own_method(role: str, ctx: SentenceContext) -> bool:
 
 
 def _bases_in(sentence: str, tokenized: str, named: list[_Named], ctx: SentenceContext,
-              kb: KnowledgeBase) -> Optional[tuple[list[str], str]]:
+              kb: KnowledgeBase) -> tuple[list[str], str] | None:
     """(models named, pattern) of the first statement pattern that matches, or None."""
     for name, regex in kb.bases.statements:
         for m in regex.finditer(tokenized):
@@ -102,8 +103,8 @@ def _bases_in(sentence: str, tokenized: str, named: list[_Named], ctx: SentenceC
     return None
 
 
-def find_base_statements(doc: Any, kb: Optional[KnowledgeBase] = None,
-                         units: Optional[Sequence[Unit]] = None) -> list[BaseStatement]:
+def find_base_statements(doc: Any, kb: KnowledgeBase | None = None,
+                         units: Sequence[Unit] | None = None) -> list[BaseStatement]:
     """Every sentence in which the paper says which model it builds on, the paper's method sections first
     (``units``: the paper's sentences when the caller has read them already)."""
     kb = KnowledgeBase.of(kb)

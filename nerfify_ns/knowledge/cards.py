@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Optional
+from typing import Any
 
 import yaml
 
@@ -26,16 +27,16 @@ class PaperRef:
 
     title: str
     authors: tuple[str, ...]
-    year: Optional[int]
-    venue: Optional[str]
-    arxiv: Optional[str]
+    year: int | None
+    venue: str | None
+    arxiv: str | None
 
 
 @dataclass(frozen=True)
 class Equation:
     """The technique's key equation: where it is in the paper, LaTeX and a plain-text form."""
 
-    ref: Optional[str]
+    ref: str | None
     latex: str
     text: str
     canonical: tuple[str, ...] = ()
@@ -101,17 +102,17 @@ class Card:
     requires: tuple[str, ...]
     notes: str = ""
     related_papers: tuple[str, ...] = ()
-    path: Optional[Path] = field(default=None, compare=False)
+    path: Path | None = field(default=None, compare=False)
     hyperparameters: Mapping[str, tuple[HyperparameterMap, ...]] = field(default_factory=dict, compare=False)
     implements_equation: bool = True
-    equation_slot: Optional[str] = None
+    equation_slot: str | None = None
 
     @property
     def terminal(self) -> str:
         """The primary grammar terminal (the first of ``terminals``)."""
         return self.terminals[0]
 
-    def params_for(self, terminal: Optional[str] = None) -> dict[str, Any]:
+    def params_for(self, terminal: str | None = None) -> dict[str, Any]:
         """The paper's parameter values for ``terminal`` (default: the primary one); {} if none."""
         terminal = terminal or self.terminal
         if terminal not in self.terminals:
@@ -121,7 +122,7 @@ class Card:
             return dict(self.parameters)
         return dict(self.parameters.get(terminal) or {})
 
-    def hyperparameters_for(self, terminal: Optional[str] = None) -> tuple[HyperparameterMap, ...]:
+    def hyperparameters_for(self, terminal: str | None = None) -> tuple[HyperparameterMap, ...]:
         """How the paper's hyperparameters set ``terminal``'s parameters (in order of priority)."""
         return tuple(self.hyperparameters.get(terminal or self.terminal, ()))
 
@@ -286,12 +287,12 @@ def _default_cards() -> dict[str, Card]:
     return KnowledgeBase.default().cards
 
 
-def load_cards(directory: Optional[Path] = None) -> dict[str, Card]:
+def load_cards(directory: Path | None = None) -> dict[str, Card]:
     """Every card, by name: the default knowledge base's (a copy), or those of ``directory`` (read now)."""
     return read_cards(directory) if directory is not None else dict(_default_cards())
 
 
-def card(name: str, cards: Optional[Mapping[str, Card]] = None) -> Card:
+def card(name: str, cards: Mapping[str, Card] | None = None) -> Card:
     """The card called ``name`` (of ``cards``, default: the default knowledge base); raises ``UnknownCardError``."""
     cards = _default_cards() if cards is None else cards
     try:
@@ -301,7 +302,7 @@ def card(name: str, cards: Optional[Mapping[str, Card]] = None) -> Card:
         raise UnknownCardError(f"no knowledge card named {name!r}; known cards: {known}") from None
 
 
-def cards_for_terminal(terminal: str, cards: Optional[Mapping[str, Card]] = None) -> list[Card]:
+def cards_for_terminal(terminal: str, cards: Mapping[str, Card] | None = None) -> list[Card]:
     """Cards covering grammar terminal ``terminal`` (primary terminal first)."""
     cards = _default_cards() if cards is None else cards
     found = [c for c in cards.values() if terminal in c.terminals]
@@ -318,7 +319,7 @@ class AliasMatch:
     end: int
 
 
-def match_aliases(text: str, cards: Optional[Iterable[Card]] = None) -> list[AliasMatch]:
+def match_aliases(text: str, cards: Iterable[Card] | None = None) -> list[AliasMatch]:
     """Every card alias occurring in ``text`` (whole words, case-insensitive, hyphen/space tolerant,
     optional plural), ordered by position; overlapping hits are all kept."""
     hits: list[AliasMatch] = []
@@ -330,7 +331,7 @@ def match_aliases(text: str, cards: Optional[Iterable[Card]] = None) -> list[Ali
     return hits
 
 
-def find_by_alias(text: str, cards: Optional[Iterable[Card]] = None) -> list[Card]:
+def find_by_alias(text: str, cards: Iterable[Card] | None = None) -> list[Card]:
     """The cards whose aliases occur in ``text``, each once, in order of first occurrence.
 
     Where aliases overlap the longest wins ("integrated positional encoding" is not also

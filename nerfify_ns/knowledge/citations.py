@@ -22,9 +22,10 @@ from __future__ import annotations
 import json
 import re
 from collections import deque
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Optional, Sequence
+from typing import Any
 
 import networkx as nx
 
@@ -47,36 +48,36 @@ _APPENDIX = re.compile(r"\s*(?:[-:(]\s*)?(?:appendix|appendices|supplementary(?:
 
 
 # ------------------------------------------------------------------------------------------ data
-def load_patterns(path: Optional[str] = None) -> PatternSet:
+def load_patterns(path: str | None = None) -> PatternSet:
     """The compositional citation patterns: the default knowledge base's, or those of the file ``path``."""
     return read_patterns(path) if path is not None else KnowledgeBase.default().patterns
 
 
-def builds_on(path: Optional[str] = None) -> dict[str, tuple[str, ...]]:
+def builds_on(path: str | None = None) -> dict[str, tuple[str, ...]]:
     """``builds_on`` of every known paper (papers.yaml): the known papers its method derives from."""
     if path is not None:
         return {k: p.builds_on for k, p in read_papers(path).items()}
     return KnowledgeBase.default().builds_on
 
 
-def productions_of(c: Card, kb: Optional[KnowledgeBase] = None) -> list[str]:
+def productions_of(c: Card, kb: KnowledgeBase | None = None) -> list[str]:
     """The card productions a card fills (its own, plus those of its extra terminals)."""
     return KnowledgeBase.of(kb).productions_of(c)
 
 
-def match_reference(ref: Any, kb: Optional[KnowledgeBase] = None) -> Optional[KnownPaper]:
+def match_reference(ref: Any, kb: KnowledgeBase | None = None) -> KnownPaper | None:
     """The known paper a ``Reference`` points to: arXiv id, title, then a known title inside the raw entry."""
     return KnowledgeBase.of(kb).match_reference(ref)
 
 
-def match_target(doc: Any, kb: Optional[KnowledgeBase] = None) -> Optional[KnownPaper]:
+def match_target(doc: Any, kb: KnowledgeBase | None = None) -> KnownPaper | None:
     """The known paper the document itself is, if any (an appendix or supplement counts as its paper)."""
     title = _APPENDIX.sub("", getattr(doc, "title", "") or "").strip()
     return KnowledgeBase.of(kb).match_paper(title=title) if title else None
 
 
 # ------------------------------------------------------------------------------------------ aliases
-def card_aliases(kb: Optional[KnowledgeBase] = None) -> AliasTable:
+def card_aliases(kb: KnowledgeBase | None = None) -> AliasTable:
     """(prefilter word, pattern, (card, alias)) for every card alias."""
     return KnowledgeBase.of(kb).card_aliases
 
@@ -94,8 +95,8 @@ class CitationUse:
 
     sentence: str
     section: str
-    page: Optional[int]
-    line: Optional[int]
+    page: int | None
+    line: int | None
     relation: str                 # adopts | follows | builds_on
     pattern: str
     keys: list[str]               # reference keys cited
@@ -115,7 +116,7 @@ class _Target:
     end: int
 
 
-def _marker_keys(inner: str, ref_keys: set[str]) -> Optional[list[str]]:
+def _marker_keys(inner: str, ref_keys: set[str]) -> list[str] | None:
     parts = [p.strip() for p in re.split(r"[,;]", inner) if p.strip()]
     keys: list[str] = []
     for p in parts:
@@ -131,7 +132,7 @@ def _marker_keys(inner: str, ref_keys: set[str]) -> Optional[list[str]]:
     return keys if all(re.fullmatch(r"[1-9]\d{0,3}", k) for k in keys) else None
 
 
-def _targets(sentence: str, ref_keys: set[str], ref_papers: dict[str, Optional[str]],
+def _targets(sentence: str, ref_keys: set[str], ref_papers: dict[str, str | None],
              kb: KnowledgeBase) -> list[_Target]:
     """The citation targets of ``sentence``: markers ([7], [3, 5], [key]) and known papers named by an alias."""
     out: list[_Target] = []
@@ -168,7 +169,7 @@ def _card_hits(text: str, kb: KnowledgeBase) -> list[str]:
     return seen
 
 
-def find_citation_uses(doc: Any, kb: Optional[KnowledgeBase] = None) -> list[CitationUse]:
+def find_citation_uses(doc: Any, kb: KnowledgeBase | None = None) -> list[CitationUse]:
     """Every sentence where the paper takes something from a cited work (see citation_patterns.yaml).
 
     Sentences about someone else's work (related work, "X et al. [3] proposed ..."), comparisons with
@@ -234,8 +235,8 @@ class Component:
     relation: str               # detected | adopts | follows | builds_on | registry
     quote: str = ""             # the sentence that says so ("" when it comes from the registry)
     section: str = ""
-    page: Optional[int] = None
-    line: Optional[int] = None
+    page: int | None = None
+    line: int | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -261,8 +262,8 @@ class Resolution:
 class CitationGraph:
     """The target paper's dependency graph (networkx DiGraph, edges target -> dependency)."""
 
-    def __init__(self, graph: nx.DiGraph, uses: list[CitationUse], target_paper: Optional[str],
-                 direct: list[tuple[str, Any]], kb: Optional[KnowledgeBase] = None):
+    def __init__(self, graph: nx.DiGraph, uses: list[CitationUse], target_paper: str | None,
+                 direct: list[tuple[str, Any]], kb: KnowledgeBase | None = None):
         self.kb = KnowledgeBase.of(kb)
         self.graph = graph
         self.uses = uses
@@ -278,7 +279,7 @@ class CitationGraph:
     def transitive(self) -> list[str]:
         return [n for n, d in self.graph.nodes(data=True) if d.get("kind") == "transitive"]
 
-    def resolve(self, needed: Optional[Iterable[str]] = None) -> Resolution:
+    def resolve(self, needed: Iterable[str] | None = None) -> Resolution:
         """Fill every needed production from the paper and its dependencies, following ``builds_on``
         transitively (breadth first); what no paper reached provides is reported missing."""
         kb = self.kb
@@ -325,7 +326,7 @@ class CitationGraph:
         # 3. what the works the paper follows or builds on as a whole provide (and the paper itself, when
         #    the registry knows it), then the papers those build on (papers.yaml builds_on), breadth first.
         #    A work only named for one component ("the proposal sampler of [3]") gives that component.
-        queue: deque[tuple[str, list[str], str, Optional[CitationUse]]] = deque()
+        queue: deque[tuple[str, list[str], str, CitationUse | None]] = deque()
         for u in self.uses:
             if not u.components:
                 for p in u.papers:
@@ -355,13 +356,13 @@ class CitationGraph:
     def _label(self, res: Resolution) -> None:
         """Write the components taken onto the graph (nodes of transitive papers added on the way)."""
         g = self.graph
-        for u, v, d in g.edges(data=True):
+        for _u, _v, d in g.edges(data=True):
             d["components"] = list(d.get("explicit", []))
         for comp in res.taken:
             if comp.paper == TARGET:
                 continue
             path = comp.path
-            for a, b in zip(path, path[1:]):
+            for a, b in zip(path, path[1:], strict=False):
                 if b not in g:
                     p = self.kb.papers.get(b)
                     g.add_node(b, kind="transitive", title=p.title if p else b, year=p.year if p else None,
@@ -442,13 +443,13 @@ class CitationGraph:
 def _plain(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, set)):
+    if isinstance(obj, list | tuple | set):
         return [_plain(v) for v in obj]
     return obj
 
 
 def build_citation_graph(doc: Any, detections: Sequence[Any] = (),
-                         needed: Optional[Iterable[str]] = None, kb: Optional[KnowledgeBase] = None,
+                         needed: Iterable[str] | None = None, kb: KnowledgeBase | None = None,
                          follow: bool = True) -> CitationGraph:
     """The target paper's citation graph, resolved for ``needed`` productions (default: a field, a
     sampler, a renderer and a loss; see citation_patterns.yaml).

@@ -20,8 +20,9 @@ weak is ``uncertain``; ``used`` needs a confidence of at least ``used_threshold`
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any, Optional, Sequence
+from typing import Any
 
 from nerfify_ns.knowledge.cards import Card
 from nerfify_ns.knowledge.citations import find_citation_uses, find_spans
@@ -38,8 +39,8 @@ class Evidence:
 
     quote: str
     section: str
-    page: Optional[int]
-    line: Optional[int]
+    page: int | None
+    line: int | None
     kind: str            # alias | equation | hyperparameter | citation | phrase
     detail: str          # the alias, equation fragment, hyperparameter or cited paper that matched
     role: str            # the section's role: method, prior, experiments, abstract, title, conclusion
@@ -82,7 +83,7 @@ class Detection:
     def mentions(self) -> list[Evidence]:
         return [e for e in self.evidence if not e.usage]
 
-    def best(self) -> Optional[Evidence]:
+    def best(self) -> Evidence | None:
         """The strongest evidence of use (or the first mention)."""
         uses = sorted(self.uses, key=lambda e: -e.weight)
         return uses[0] if uses else (self.evidence[0] if self.evidence else None)
@@ -105,16 +106,16 @@ class SceneCue:
     value: Any
     quote: str
     section: str
-    page: Optional[int]
-    line: Optional[int]
+    page: int | None
+    line: int | None
     cue: str
 
     def to_dict(self) -> dict:
         return asdict(self)
 
 
-def detect_scene(doc: Any, kb: Optional[KnowledgeBase] = None,
-                 units: Optional[Sequence[Unit]] = None) -> dict[str, SceneCue]:
+def detect_scene(doc: Any, kb: KnowledgeBase | None = None,
+                 units: Sequence[Unit] | None = None) -> dict[str, SceneCue]:
     """The scene facts the paper states about its own method (detect.yaml ``scene_cues``), first statement each;
     related work, mentions of other work and contrast clauses state nothing (``units``: the paper's
     sentences when the caller has read them already)."""
@@ -152,7 +153,7 @@ def _ctx_weight(role: str, rules: Rules) -> float:
 
 
 # ------------------------------------------------------------------------------------------ detection
-def detect_techniques(doc: Any, kb: Optional[KnowledgeBase] = None) -> list[Detection]:
+def detect_techniques(doc: Any, kb: KnowledgeBase | None = None) -> list[Detection]:
     """Every card of ``kb`` the paper uses or mentions, strongest first (see the module docstring)."""
     kb = KnowledgeBase.of(kb)
     rules = kb.rules

@@ -16,7 +16,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -100,7 +100,7 @@ def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
         raise KnowledgeError(f"{path}: cannot read the paper families ({exc}); fix families.yaml") from exc
 
 
-_DEFAULT: Optional[FamilyRules] = None
+_DEFAULT: FamilyRules | None = None
 
 
 def family_rules() -> FamilyRules:
@@ -110,7 +110,7 @@ def family_rules() -> FamilyRules:
     return _DEFAULT
 
 
-def _score(units: list, cues: tuple, weights: dict, evidence: Optional[list] = None) -> float:
+def _score(units: list, cues: tuple, weights: dict, evidence: list | None = None) -> float:
     """Sum over sentences of each matching cue's weight times the sentence's place weight, sub-linear in the
     number of sentences per cue (one cue repeated fifty times is not fifty cues)."""
     total = 0.0
@@ -127,7 +127,7 @@ def _score(units: list, cues: tuple, weights: dict, evidence: Optional[list] = N
     return total
 
 
-def detect_family(doc: Any, rules: Optional[Rules] = None, family: Optional[FamilyRules] = None) -> Family:
+def detect_family(doc: Any, rules: Rules | None = None, family: FamilyRules | None = None) -> Family:
     """The family of ``doc`` (see the module docstring)."""
     fr = family or family_rules()
     units = list(sentences(doc, rules))

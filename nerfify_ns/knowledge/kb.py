@@ -24,10 +24,18 @@ import dataclasses
 import re
 from functools import cached_property
 from pathlib import Path
-from typing import Any, ClassVar, Optional
+from typing import Any, ClassVar
 
-from nerfify_ns.knowledge.cards import CARDS_DIR, AliasMatch, Card, card, cards_for_terminal, find_by_alias, \
-    match_aliases, read_cards
+from nerfify_ns.knowledge.cards import (
+    CARDS_DIR,
+    AliasMatch,
+    Card,
+    card,
+    cards_for_terminal,
+    find_by_alias,
+    match_aliases,
+    read_cards,
+)
 from nerfify_ns.knowledge.errors import KnowledgeError
 from nerfify_ns.knowledge.papers import PAPERS_FILE, KnownPaper, _match_paper, find_papers_by_alias, read_papers
 from nerfify_ns.knowledge.patterns import BASES_FILE, PATTERNS_FILE, BaseRules, PatternSet, read_bases, read_patterns
@@ -53,10 +61,10 @@ def first_word(alias: str) -> str:
 class KnowledgeBase:
     """Cards, known papers, detection rules, citation patterns and base models, read once (see module doc)."""
 
-    _default: ClassVar[Optional["KnowledgeBase"]] = None
+    _default: ClassVar[KnowledgeBase | None] = None
 
     def __init__(self, cards: dict[str, Card], papers: dict[str, KnownPaper], rules: Rules, patterns: PatternSet,
-                 bases: BaseRules, sources: Optional[dict[str, Path]] = None):
+                 bases: BaseRules, sources: dict[str, Path] | None = None):
         self.cards = cards
         self.papers = {k: _known_cards_only(p, cards) for k, p in papers.items()}
         self.rules = dataclasses.replace(rules, hyperparameter_cards={
@@ -65,12 +73,12 @@ class KnowledgeBase:
         self.patterns = patterns
         self.bases = bases
         self.sources = dict(sources or {})
-        self._references: dict[tuple[str, str, str], Optional[str]] = {}
-        self._sources_of_cards: dict[str, Optional[str]] = {}
+        self._references: dict[tuple[str, str, str], str | None] = {}
+        self._sources_of_cards: dict[str, str | None] = {}
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def load(cls, folder: Optional[Path | str] = None) -> "KnowledgeBase":
+    def load(cls, folder: Path | str | None = None) -> KnowledgeBase:
         """The knowledge base in ``folder`` (default: the package's own); files it lacks come from the package.
 
         Raises ``KnowledgeError`` for a missing folder or one holding none of the knowledge-base files,
@@ -90,14 +98,14 @@ class KnowledgeBase:
                    bases=read_bases(sources["bases"]), sources=sources)
 
     @classmethod
-    def default(cls) -> "KnowledgeBase":
+    def default(cls) -> KnowledgeBase:
         """The package's knowledge base, loaded on first use and kept (the stage functions' default)."""
         if cls._default is None:
             cls._default = cls.load()
         return cls._default
 
     @classmethod
-    def of(cls, kb: Optional["KnowledgeBase"]) -> "KnowledgeBase":
+    def of(cls, kb: KnowledgeBase | None) -> KnowledgeBase:
         """``kb`` itself, or the default knowledge base when None."""
         return kb if kb is not None else cls.default()
 
@@ -160,14 +168,14 @@ class KnowledgeBase:
     def titles(self) -> tuple[tuple[str, str], ...]:
         return tuple((p.key, p.normalized_title) for p in self.papers.values())
 
-    def match_paper(self, title: Optional[str] = None, arxiv: Optional[str] = None) -> Optional[KnownPaper]:
+    def match_paper(self, title: str | None = None, arxiv: str | None = None) -> KnownPaper | None:
         """The known paper with this arXiv id or title (see ``papers.match_paper``)."""
         return _match_paper(title, arxiv, self.papers)
 
     def find_papers_by_alias(self, text: str) -> list[KnownPaper]:
         return find_papers_by_alias(text, self.papers)
 
-    def match_reference(self, ref: Any) -> Optional[KnownPaper]:
+    def match_reference(self, ref: Any) -> KnownPaper | None:
         """The known paper a ``Reference`` points to: arXiv id, title, then a known title inside the raw entry
         (memoised on this object)."""
         args = (getattr(ref, "title", "") or "", getattr(ref, "arxiv", "") or "", getattr(ref, "raw", "") or "")
@@ -177,7 +185,7 @@ class KnowledgeBase:
         key = self._references[args]
         return self.papers[key] if key else None
 
-    def _match_reference(self, title: str, arxiv: str, raw: str) -> Optional[KnownPaper]:
+    def _match_reference(self, title: str, arxiv: str, raw: str) -> KnownPaper | None:
         found = self.match_paper(title=title or None, arxiv=arxiv or None)
         if found is not None:
             return found
@@ -186,13 +194,13 @@ class KnowledgeBase:
             if found is not None:
                 return found
         key = f" {normalize_title(raw)} "
-        best: Optional[tuple[str, str]] = None
+        best: tuple[str, str] | None = None
         for pkey, ptitle in self.titles:
             if len(ptitle) >= 20 and f" {ptitle} " in key and (best is None or len(ptitle) > len(best[1])):
                 best = (pkey, ptitle)
         return self.papers.get(best[0]) if best else None
 
-    def card_source(self, c: Card) -> Optional[str]:
+    def card_source(self, c: Card) -> str | None:
         """The known paper that introduced card ``c`` (memoised on this object)."""
         if c.name not in self._sources_of_cards:
             p = self.match_paper(title=c.paper.title, arxiv=c.paper.arxiv or None)
@@ -200,7 +208,7 @@ class KnowledgeBase:
         return self._sources_of_cards[c.name]
 
     # ------------------------------------------------------------------ base models
-    def base_for_paper(self, key: str) -> Optional[str]:
+    def base_for_paper(self, key: str) -> str | None:
         """The base model whose code a known paper is (bases.yaml ``papers``), or None."""
         return next((m.name for m in self.bases.models if key in m.papers), None)
 
@@ -217,7 +225,7 @@ def _known_cards_only(p: KnownPaper, cards: dict[str, Card]) -> KnownPaper:
     return dataclasses.replace(p, provides=tuple(c for c in p.provides if c in cards))
 
 
-def knowledge_base(kb: Optional[KnowledgeBase] = None, folder: Optional[Path | str] = None) -> KnowledgeBase:
+def knowledge_base(kb: KnowledgeBase | None = None, folder: Path | str | None = None) -> KnowledgeBase:
     """``kb``, else the one in ``folder``, else the default (for entry points that take either)."""
     if kb is not None:
         return kb

@@ -5,7 +5,6 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 import yaml
 
@@ -31,9 +30,9 @@ class KnownPaper:
     key: str
     title: str
     authors: tuple[str, ...]
-    year: Optional[int]
-    venue: Optional[str]
-    arxiv: Optional[str]
+    year: int | None
+    venue: str | None
+    arxiv: str | None
     aliases: tuple[str, ...] = ()
     provides: tuple[str, ...] = ()
     notes: str = field(default="", compare=False)
@@ -109,7 +108,7 @@ def read_papers(path: Path | str = PAPERS_FILE) -> dict[str, KnownPaper]:
     return {p.key: p for p in papers}
 
 
-def load_papers(path: Optional[Path] = None) -> dict[str, KnownPaper]:
+def load_papers(path: Path | None = None) -> dict[str, KnownPaper]:
     """Every known paper, by key: the default knowledge base's (``path`` given: that file, read now)."""
     if path is not None:
         return read_papers(path)
@@ -118,8 +117,8 @@ def load_papers(path: Optional[Path] = None) -> dict[str, KnownPaper]:
     return dict(KnowledgeBase.default().papers)
 
 
-def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
-                papers: Optional[dict[str, KnownPaper]] = None) -> Optional[KnownPaper]:
+def match_paper(title: str | None = None, arxiv: str | None = None,
+                papers: dict[str, KnownPaper] | None = None) -> KnownPaper | None:
     """The known paper a reference points to, or ``None``.
 
     Tried in order: the arXiv id (any form: "arXiv:2111.12077v2", a URL, old-style "cs.CV/0502076");
@@ -130,7 +129,7 @@ def match_paper(title: Optional[str] = None, arxiv: Optional[str] = None,
     return _match_paper(title, arxiv, papers)
 
 
-def _match_paper(title: Optional[str], arxiv: Optional[str], papers: dict[str, KnownPaper]) -> Optional[KnownPaper]:
+def _match_paper(title: str | None, arxiv: str | None, papers: dict[str, KnownPaper]) -> KnownPaper | None:
     wanted = normalize_arxiv_id(arxiv) if arxiv else None
     if wanted:
         for p in papers.values():
@@ -159,7 +158,7 @@ def _match_paper(title: Optional[str], arxiv: Optional[str], papers: dict[str, K
     return None
 
 
-def find_papers_by_alias(text: str, papers: Optional[dict[str, KnownPaper]] = None) -> list[KnownPaper]:
+def find_papers_by_alias(text: str, papers: dict[str, KnownPaper] | None = None) -> list[KnownPaper]:
     """Known papers named in running text by an alias ("as in Mip-NeRF 360"), in order of first
     mention; overlapping aliases resolve to the longest ("Mip-NeRF 360" is not also "Mip-NeRF")."""
     papers = load_papers() if papers is None else papers

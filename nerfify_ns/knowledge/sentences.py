@@ -9,9 +9,10 @@ imports nothing from the paper package, it only reads those attributes.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any
 
 import yaml
 
@@ -40,7 +41,7 @@ class Rules:
     scene_cues: tuple = ()   # (flag, value, (pattern, ...)) per scene fact a paper can state
 
 
-def load_rules(path: Optional[str] = None) -> Rules:
+def load_rules(path: str | None = None) -> Rules:
     """The detection rules: the default knowledge base's, or those of the file ``path`` (read now)."""
     if path is not None:
         return read_rules(path)
@@ -49,7 +50,7 @@ def load_rules(path: Optional[str] = None) -> Rules:
     return KnowledgeBase.default().rules
 
 
-def _rules(rules: Optional[Rules]) -> Rules:
+def _rules(rules: Rules | None) -> Rules:
     return rules if rules is not None else load_rules()
 
 
@@ -91,7 +92,7 @@ def split_sentences(text: str) -> list[str]:
     return [s.strip() for s in out if s.strip()]
 
 
-def section_roles(doc: Any, rules: Optional[Rules] = None) -> dict[int, str]:
+def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
     """The role of every section of ``doc`` (by index): prior, method, experiments, conclusion, ignore."""
     rules = _rules(rules)
     roles: dict[int, str] = {}
@@ -155,7 +156,7 @@ class SentenceContext:
         return float(weights.get(self.role, 1.0))
 
 
-def read_sentence(sentence: str, role: str, rules: Optional[Rules] = None) -> SentenceContext:
+def read_sentence(sentence: str, role: str, rules: Rules | None = None) -> SentenceContext:
     """How ``sentence`` (in a section of ``role``) speaks about techniques, by the cues of ``rules``."""
     rules = _rules(rules)
     return SentenceContext(role=role, prior=any(p.search(sentence) for p in rules.prior),
@@ -172,19 +173,19 @@ class Unit:
     text: str
     section: str
     role: str
-    page: Optional[int]
-    line: Optional[int]
+    page: int | None
+    line: int | None
     order: int
     context: SentenceContext
 
 
-def _loc(loc: Any) -> tuple[Optional[int], Optional[int], int]:
+def _loc(loc: Any) -> tuple[int | None, int | None, int]:
     if loc is None:
         return None, None, 0
     return getattr(loc, "page", None), getattr(loc, "line", None), getattr(loc, "order", 0) or 0
 
 
-def sentences(doc: Any, rules: Optional[Rules] = None) -> Iterator[Unit]:
+def sentences(doc: Any, rules: Rules | None = None) -> Iterator[Unit]:
     """Every sentence of the title, abstract, headings and paragraphs, in reading order, with its role."""
     rules = _rules(rules)
     if doc.title:
@@ -207,7 +208,7 @@ def sentences(doc: Any, rules: Optional[Rules] = None) -> Iterator[Unit]:
                 yield Unit(s, sec.heading, role, page, line, order, read_sentence(s, role, rules))
 
 
-def role_of_section(doc: Any, heading: str, rules: Optional[Rules] = None) -> str:
+def role_of_section(doc: Any, heading: str, rules: Rules | None = None) -> str:
     """The role of the section called ``heading`` ("method" when unknown)."""
     roles = section_roles(doc, rules)
     for i, s in enumerate(doc.sections):

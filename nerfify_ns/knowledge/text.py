@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import unicodedata
-from typing import Optional
 
 __all__ = ["normalize_text", "normalize_title", "normalize_arxiv_id", "alias_pattern",
            "longest_non_overlapping", "strip_latex"]
@@ -37,7 +36,7 @@ def normalize_title(title: str) -> str:
     return normalize_text(title)
 
 
-def normalize_arxiv_id(value: Optional[str]) -> Optional[str]:
+def normalize_arxiv_id(value: str | None) -> str | None:
     """Canonical arXiv id from an id, a URL or a citation string; ``None`` when there is none.
 
     New-style ids lose their version ("arXiv:2111.12077v3" -> "2111.12077"); old-style ids lose the

@@ -5,13 +5,32 @@ Imports nothing from other nerfify_ns subpackages except ``nerfify_ns.errors`` (
 
 from nerfify_ns.paper.clean import clean_markdown, key_terms_report
 from nerfify_ns.paper.document import (
-    Algorithm, Caption, Citation, Document, Equation, Hyperparameter, Location, Paragraph, Reference,
-    ResultTable, Section,
+    Algorithm,
+    Caption,
+    Citation,
+    Document,
+    Equation,
+    Hyperparameter,
+    Location,
+    Paragraph,
+    Reference,
+    ResultTable,
+    Section,
 )
 from nerfify_ns.paper.errors import (
-    CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, MissingLatexFileError,
-    NotANerfPaperError, NotEnglishError, OutsidePaperError, PaperError, PaperLimitError, ScannedPdfError,
-    UnsafeArchiveError, UnsupportedInputError,
+    CorruptPdfError,
+    EmptyDocumentError,
+    EncryptedPdfError,
+    InputTooLargeError,
+    MissingLatexFileError,
+    NotANerfPaperError,
+    NotEnglishError,
+    OutsidePaperError,
+    PaperError,
+    PaperLimitError,
+    ScannedPdfError,
+    UnsafeArchiveError,
+    UnsupportedInputError,
 )
 from nerfify_ns.paper.hyperparams import extract_from_sentence, extract_hyperparameters, parse_number
 from nerfify_ns.paper.ingest import DEFAULT_LIMITS, Limits, ingest

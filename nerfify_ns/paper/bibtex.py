@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, Optional
 
 from nerfify_ns.paper.document import Reference
 from nerfify_ns.paper.errors import PaperLimitError
@@ -52,7 +52,7 @@ def strip_tex(s: str) -> str:
     return re.sub(r"\s+", " ", s).strip()
 
 
-def bib_entries(text: str, max_entries: Optional[int] = None, source: str = "") -> Iterator[tuple[str, dict]]:
+def bib_entries(text: str, max_entries: int | None = None, source: str = "") -> Iterator[tuple[str, dict]]:
     """(key, fields) of every @entry of a .bib text (@string/@comment/@preamble skipped), in one linear scan;
     more than ``max_entries`` entries raise PaperLimitError naming ``source``."""
     pos, n = 0, 0
@@ -80,7 +80,7 @@ def bib_entries(text: str, max_entries: Optional[int] = None, source: str = "") 
         yield m.group(2), fields
 
 
-def parse_bib(text: str, max_entries: Optional[int] = None, source: str = "") -> dict[str, Reference]:
+def parse_bib(text: str, max_entries: int | None = None, source: str = "") -> dict[str, Reference]:
     """Every @entry of a .bib text, by key (@string/@comment/@preamble skipped)."""
     return {key: _reference(key, fields) for key, fields in bib_entries(text, max_entries, source)}
 
@@ -107,7 +107,7 @@ def _reference(key: str, fields: dict) -> Reference:
                      year=int(year.group(0)) if year else None, venue=venue, arxiv=arxiv, doi=doi)
 
 
-def parse_bbl(text: str, max_entries: Optional[int] = None, source: str = "") -> list[Reference]:
+def parse_bbl(text: str, max_entries: int | None = None, source: str = "") -> list[Reference]:
     """The \\bibitem entries of a .bbl (or a thebibliography environment)."""
     refs = []
     items = []
@@ -116,7 +116,7 @@ def parse_bbl(text: str, max_entries: Optional[int] = None, source: str = "") ->
         if max_entries is not None and len(items) > max_entries:
             raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} references (the "
                                   "limit); pass the paper's own .bbl")
-    for n, (m, nxt) in enumerate(zip(items, [*items[1:], None]), start=1):
+    for n, (m, nxt) in enumerate(zip(items, [*items[1:], None], strict=False), start=1):
         body = text[m.end(): nxt.start() if nxt else len(text)]
         body = body.split("\\end{thebibliography}", 1)[0]
         body = re.sub(r"\\newblock\s*", " ", body)

@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable, Optional
 
 from nerfify_ns.paper.document import (
-    Algorithm, Caption, Citation, Document, Equation, Location, Paragraph, Reference, ResultTable, Section,
+    Algorithm,
+    Caption,
+    Citation,
+    Document,
+    Equation,
+    Location,
+    Paragraph,
+    Reference,
+    ResultTable,
+    Section,
 )
 from nerfify_ns.paper.hyperparams import extract_hyperparameters, split_sentences
 from nerfify_ns.paper.mathnorm import annotate_equations
@@ -53,8 +62,8 @@ def heading_level(number: str, default: int = 1) -> int:
 
 
 def build(blocks: Iterable[Block], source: str, kind: str, page_count: int = 0,
-          references: Optional[list[Reference]] = None, title: str = "", authors: Optional[list[str]] = None,
-          cite_keys: Optional[set] = None) -> Document:
+          references: list[Reference] | None = None, title: str = "", authors: list[str] | None = None,
+          cite_keys: set | None = None) -> Document:
     """The Document of ``blocks``; ``references`` (e.g. from BibTeX) replaces a parsed reference section."""
     doc = Document(source=source, kind=kind, title=title, authors=list(authors or []), page_count=page_count)
     state = _State(doc)
@@ -84,7 +93,7 @@ class _State:
 
     def __init__(self, doc: Document):
         self.doc = doc
-        self.section: Optional[Section] = None
+        self.section: Section | None = None
         self.in_refs = False
         self.in_abstract = False
         self.ref_text: list[str] = []

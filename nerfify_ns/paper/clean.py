@@ -90,7 +90,7 @@ def key_terms(text: str, limit: int = 25, corpus: str = "", min_count: int = 2) 
     names = re.findall(r"\b[A-Za-z]*[A-Z][a-z]*[A-Z][\w\-]*\b|\b[A-Z]{2,}[a-z]?s?\b", text)
     words = re.findall(r"[A-Za-z][A-Za-z\-]+", text)
     bigrams = Counter()
-    for a, b in zip(words, words[1:]):
+    for a, b in zip(words, words[1:], strict=False):
         if a.lower() in _STOP or b.lower() in _STOP or len(a) < 4 or len(b) < 4:
             continue
         if a[0].isupper() and not a.isupper() and b[0].islower():

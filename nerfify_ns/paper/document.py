@@ -5,8 +5,9 @@ from __future__ import annotations
 import dataclasses
 import re
 import unicodedata
+from collections.abc import Iterator
 from dataclasses import dataclass, field
-from typing import Any, Iterator, Optional, Union
+from typing import Any, Union
 
 Number = Union[int, float]
 
@@ -15,7 +16,7 @@ def _plain(obj: Any) -> Any:
     """Recursively turn dataclasses / tuples into JSON-able dicts and lists."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return {f.name: _plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, (list, tuple)):
+    if isinstance(obj, list | tuple):
         return [_plain(x) for x in obj]
     if isinstance(obj, dict):
         return {str(k): _plain(v) for k, v in obj.items()}
@@ -32,9 +33,9 @@ class _Dictable:
 class Location(_Dictable):
     """Where something is: page (PDF, 1-based) or line (text sources, 1-based), file, and reading order."""
 
-    page: Optional[int] = None
-    line: Optional[int] = None
-    file: Optional[str] = None
+    page: int | None = None
+    line: int | None = None
+    file: str | None = None
     order: int = 0
 
     def __str__(self) -> str:
@@ -93,9 +94,9 @@ class Equation(_Dictable):
     section: str = ""
     source: str = ""
     method: str = ""
-    page: Optional[int] = None
-    bbox: Optional[list[float]] = None
-    confidence: Optional[float] = None
+    page: int | None = None
+    bbox: list[float] | None = None
+    confidence: float | None = None
     sentence: str = ""
     notes: list[str] = field(default_factory=list)
     latex_raw: str = ""
@@ -141,7 +142,7 @@ class Reference(_Dictable):
     raw: str = ""
     title: str = ""
     authors: list[str] = field(default_factory=list)
-    year: Optional[int] = None
+    year: int | None = None
     venue: str = ""
     arxiv: str = ""
     doi: str = ""
@@ -163,7 +164,7 @@ class Hyperparameter(_Dictable):
     """A hyperparameter found in the text, with the sentence it came from."""
 
     name: str
-    value: Union[Number, list]
+    value: Number | list
     unit: str = ""
     sentence: str = ""
     raw: str = ""
@@ -224,7 +225,7 @@ class Document(_Dictable):
             parts.extend(p.text for p in s.paragraphs)
         return "\n\n".join(p for p in parts if p)
 
-    def find(self, quote: str) -> Optional[Location]:
+    def find(self, quote: str) -> Location | None:
         """The location of ``quote`` (whitespace, case, dash and math-markup insensitive), or None."""
         for norm in (normalize_text, alnum_key):
             q = norm(quote)
@@ -235,7 +236,7 @@ class Document(_Dictable):
                     return loc
         return None
 
-    def section_of(self, location: Location) -> Optional[Section]:
+    def section_of(self, location: Location) -> Section | None:
         """The section that holds ``location`` (the last one starting at or before it)."""
         best = None
         for s in self.sections:

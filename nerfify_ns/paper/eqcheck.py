@@ -21,10 +21,9 @@ from __future__ import annotations
 import base64
 import re
 import sys
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterable, Optional, Union
-
 
 PARTIAL = "equation_check.html.j2"
 MAX_DRAW_CHARS = 1000
@@ -45,11 +44,11 @@ class EquationCheck:
     latex: str
     source: str = ""
     method: str = ""
-    confidence: Optional[float] = None
-    page: Optional[int] = None
+    confidence: float | None = None
+    page: int | None = None
     notes: list[str] = field(default_factory=list)
-    rendered: Optional[Path] = None
-    crop: Optional[Path] = None
+    rendered: Path | None = None
+    crop: Path | None = None
     render_error: str = ""
     mathtext: str = ""
     approximated: bool = False
@@ -166,7 +165,7 @@ def _placeholder(path: Path, latex: str, reason: str, dpi: int) -> None:
     fig.savefig(path, dpi=dpi, facecolor="white")
 
 
-def render_latex_png(latex: str, path: Union[str, Path], dpi: int = 150,
+def render_latex_png(latex: str, path: str | Path, dpi: int = 150,
                      fontsize: float = 14) -> tuple[bool, str, str, bool]:
     """Render ``latex`` (one equation, rows allowed) to ``path``. Returns (ok, error, mathtext given,
     approximated). On a parse failure the image shows the LaTeX as text with the reason, and ok is False. An
@@ -245,7 +244,7 @@ def _render(latex: str, path: Path, dpi: int, fontsize: float) -> tuple[bool, st
     return ok, "; ".join(errors), r" \\ ".join(r for _, r in lines), approx
 
 
-def crop_png(pdf, page: int, bbox: Iterable[float], path: Union[str, Path], dpi: int = 150, pad: float = 4.0) -> Path:
+def crop_png(pdf, page: int, bbox: Iterable[float], path: str | Path, dpi: int = 150, pad: float = 4.0) -> Path:
     """The PDF region ``bbox`` (points) of ``page`` (1-based), padded, as a PNG."""
     import pymupdf
 
@@ -257,7 +256,7 @@ def crop_png(pdf, page: int, bbox: Iterable[float], path: Union[str, Path], dpi:
 
 
 # ----- one equation, a document ---------------------------------------------------------------------------
-def write_equation_check(eq, folder: Union[str, Path], pdf=None, stem: Optional[str] = None, index: int = 0,
+def write_equation_check(eq, folder: str | Path, pdf=None, stem: str | None = None, index: int = 0,
                          dpi: int = 150) -> EquationCheck:
     """Write ``<stem>_latex.png`` (our reading, rendered) and, for a PDF equation, ``<stem>_pdf.png`` (the
     page region it came from) into ``folder``; return both paths with what happened. ``pdf`` is an open
@@ -294,7 +293,7 @@ def _safe(s: str) -> str:
     return re.sub(r"[^A-Za-z0-9]+", "_", s)[:20]
 
 
-def write_equation_checks(doc, folder: Union[str, Path], pdf=None, dpi: int = 150) -> list[EquationCheck]:
+def write_equation_checks(doc, folder: str | Path, pdf=None, dpi: int = 150) -> list[EquationCheck]:
     """``write_equation_check`` for every equation of ``doc`` (its PDF opened once when it is one)."""
     close = False
     if pdf is None and getattr(doc, "kind", "") == "pdf" and Path(doc.source).is_file():
@@ -316,13 +315,13 @@ def write_equation_checks(doc, folder: Union[str, Path], pdf=None, dpi: int = 15
 
 
 # ----- HTML -----------------------------------------------------------------------------------------------
-def _data_uri(path: Optional[Path]) -> str:
+def _data_uri(path: Path | None) -> str:
     if not path or not Path(path).is_file():
         return ""
     return "data:image/png;base64," + base64.b64encode(Path(path).read_bytes()).decode("ascii")
 
 
-def checks_context(checks: list[EquationCheck], inline: bool = True, base: Optional[Path] = None) -> list[dict]:
+def checks_context(checks: list[EquationCheck], inline: bool = True, base: Path | None = None) -> list[dict]:
     """What the partial needs per equation: its fields plus image sources (``data:`` URIs when ``inline``,
     else paths relative to ``base``)."""
     out = []
@@ -348,12 +347,12 @@ def _partial_template():
     return env.from_string(source)
 
 
-def render_checks_html(checks: list[EquationCheck], inline: bool = True, base: Optional[Path] = None) -> str:
+def render_checks_html(checks: list[EquationCheck], inline: bool = True, base: Path | None = None) -> str:
     """The HTML fragment (the partial filled): one row per equation, reading next to the PDF crop."""
     return _partial_template().render(equations=checks_context(checks, inline=inline, base=base))
 
 
-def main(argv: Optional[list[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if len(argv) != 2:
         print("usage: python -m nerfify_ns.paper.eqcheck PAPER OUT_DIR", file=sys.stderr)

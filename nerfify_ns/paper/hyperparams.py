@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import re
 import unicodedata
-from functools import lru_cache
+from collections.abc import Iterable
+from functools import cache
 from pathlib import Path
-from typing import Iterable, Optional, Union
+from typing import Union
 
 import yaml
 
@@ -66,7 +67,7 @@ def _one(s: str) -> float:
     return float(s.rstrip("kKM").replace(",", "")) * mult
 
 
-def _tidy(x: float) -> Union[int, float]:
+def _tidy(x: float) -> int | float:
     return int(x) if x.is_integer() and abs(x) >= 1 else x
 
 
@@ -104,7 +105,7 @@ def split_sentences(text: str) -> list[str]:
 
 
 # ----- patterns ---------------------------------------------------------------------------------------
-@lru_cache(maxsize=None)
+@cache
 def load_specs(path: str = str(PATTERNS_FILE)) -> tuple:
     """(name, unit, [compiled patterns]) for each entry of the YAML file."""
     specs = []
@@ -131,7 +132,7 @@ def _qualifier(after: str, hp_name: str) -> str:
     return ""
 
 
-def extract_from_sentence(sentence: str, loc: Optional[Location] = None, section: str = "") -> list[Hyperparameter]:
+def extract_from_sentence(sentence: str, loc: Location | None = None, section: str = "") -> list[Hyperparameter]:
     """Every hyperparameter the patterns find in one sentence."""
     norm = normalize_math(sentence)
     found: list[Hyperparameter] = []
@@ -147,7 +148,7 @@ def extract_from_sentence(sentence: str, loc: Optional[Location] = None, section
     return found
 
 
-def _make(name, unit, m, norm, sentence, loc, section) -> Optional[Hyperparameter]:
+def _make(name, unit, m, norm, sentence, loc, section) -> Hyperparameter | None:
     try:
         value = parse_number(m.group("num"))
     except (ValueError, OverflowError):
@@ -165,7 +166,7 @@ def _make(name, unit, m, norm, sentence, loc, section) -> Optional[Hyperparamete
 
 
 def extract_hyperparameters(items: Iterable[tuple[str, Location, str]],
-                            warnings: Optional[list] = None) -> list[Hyperparameter]:
+                            warnings: list | None = None) -> list[Hyperparameter]:
     """Hyperparameters of (paragraph text, location, section) items, sentence by sentence. A sentence whose reading
     raises is skipped, its reason appended to ``warnings`` (the others are read)."""
     out: list[Hyperparameter] = []

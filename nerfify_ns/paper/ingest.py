@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional, Union
 
 from nerfify_ns.paper.document import Document
 from nerfify_ns.paper.errors import EmptyDocumentError, InputTooLargeError, UnsupportedInputError
@@ -38,7 +37,7 @@ def _check_size(path: Path, limits: Limits) -> None:
         raise EmptyDocumentError(f"{path.name}: the file is empty (0 bytes); check the download")
 
 
-def ingest(path: Union[str, Path], limits: Optional[Limits] = None) -> Document:
+def ingest(path: str | Path, limits: Limits | None = None) -> Document:
     """Read a paper into a Document; raises a typed PaperError on anything it cannot use: unreadable, too large
     (``limits``, see :mod:`nerfify_ns.paper.limits`), reaching outside the paper, not in English, or empty."""
     path = Path(path)

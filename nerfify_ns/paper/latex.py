@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 import tempfile
 from bisect import bisect_right
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, Optional
 
 from nerfify_ns.paper.bibtex import load_references, parse_bbl
 from nerfify_ns.paper.builder import Block, build
@@ -14,7 +14,15 @@ from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.errors import EmptyDocumentError, PaperLimitError
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.latex_source import (
-    Flat, MacroBudget, SourceTree, collect_macros, expand_macros, find_main_file, flatten, line_starts, read_group,
+    Flat,
+    MacroBudget,
+    SourceTree,
+    collect_macros,
+    expand_macros,
+    find_main_file,
+    flatten,
+    line_starts,
+    read_group,
     safe_extract,
 )
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements
@@ -94,7 +102,7 @@ def _read_tree(main: Path, tree: SourceTree, source: str) -> Document:
 class _Parser:
     """Walks the flattened source between \\begin{document} and \\end{document}."""
 
-    def __init__(self, text: str, flat: Flat, macros: dict, budget: Optional[MacroBudget] = None):
+    def __init__(self, text: str, flat: Flat, macros: dict, budget: MacroBudget | None = None):
         self.text, self.flat, self.macros = text, flat, macros
         self.budget = budget or MacroBudget()
         self.source = self.budget.source or "the paper"
@@ -105,7 +113,7 @@ class _Parser:
         self.labels: dict[str, str] = {}
         self.cited: list[str] = []
         self.bib_names: list[str] = []
-        self.bib_refs: Optional[list] = None
+        self.bib_refs: list | None = None
         self.line_starts = line_starts(text)
         self.title = self._clean(self._command_arg("title"))
         self.authors = self._authors()

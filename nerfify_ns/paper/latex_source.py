@@ -20,13 +20,16 @@ import re
 import stat
 import tarfile
 from bisect import bisect_right
-from itertools import accumulate, repeat
 from dataclasses import dataclass, field
+from itertools import accumulate, repeat
 from pathlib import Path, PurePosixPath
-from typing import Optional
 
 from nerfify_ns.paper.errors import (
-    MissingLatexFileError, OutsidePaperError, PaperLimitError, UnsafeArchiveError, UnsupportedInputError,
+    MissingLatexFileError,
+    OutsidePaperError,
+    PaperLimitError,
+    UnsafeArchiveError,
+    UnsupportedInputError,
 )
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, size_text
 
@@ -168,7 +171,7 @@ class SourceTree:
         self.limits = limits
         self.bytes_read = 0
         self._cache: dict[Path, str] = {}
-        self._files: Optional[list[Path]] = None
+        self._files: list[Path] | None = None
         self._complete = True
 
     def rel(self, path: Path) -> str:
@@ -242,7 +245,7 @@ class SourceTree:
     def with_suffix(self, suffix: str, strict: bool = True) -> list[Path]:
         return [p for p in self.files(strict) if p.name.endswith(suffix)]
 
-    def locate(self, name: str, bases: list[Path], shown: str, suffixes: tuple = ("", ".tex")) -> Optional[Path]:
+    def locate(self, name: str, bases: list[Path], shown: str, suffixes: tuple = ("", ".tex")) -> Path | None:
         """The file an include names, tried under each of ``bases`` with each suffix; None when there is none.
         Names that point outside the folder, and files that lead outside it, raise OutsidePaperError."""
         if _names_outside(name):
@@ -260,7 +263,7 @@ class SourceTree:
 
 
 # ----- main file --------------------------------------------------------------------------------------
-def find_main_file(folder: Path, tree: Optional[SourceTree] = None) -> Path:
+def find_main_file(folder: Path, tree: SourceTree | None = None) -> Path:
     """The .tex file with \\documentclass (and \\begin{document}); the biggest such one on ties."""
     tree = tree or SourceTree(folder)
     candidates = []
@@ -320,8 +323,8 @@ def line_starts(text: str) -> list[int]:
     return [0, *accumulate(len(line) + 1 for line in text.split("\n")[:-1])]
 
 
-def flatten(main: Path, root: Optional[Path] = None, limits: Limits = DEFAULT_LIMITS,
-            tree: Optional[SourceTree] = None) -> Flat:
+def flatten(main: Path, root: Path | None = None, limits: Limits = DEFAULT_LIMITS,
+            tree: SourceTree | None = None) -> Flat:
     """The main file with every \\input/\\include/\\subfile/\\import inlined (comments stripped); only files inside
     the paper's folder (``root``, default the main file's) are read, within the limits. The text before and after
     an include on its line become lines of their own."""
@@ -415,7 +418,7 @@ class Macro:
     name: str
     nargs: int
     body: str
-    default: Optional[str] = None
+    default: str | None = None
 
 
 _DEF_START = re.compile(r"\\(?:(?:re)?newcommand|providecommand|DeclareRobustCommand)\*?\s*|\\def\s*|"
@@ -446,7 +449,7 @@ def collect_macros(text: str) -> tuple[dict[str, Macro], str]:
     return macros, "".join(out)
 
 
-def _parse_definition(text: str, m: re.Match) -> Optional[tuple[Macro, int]]:
+def _parse_definition(text: str, m: re.Match) -> tuple[Macro, int] | None:
     i = m.end()
     kind = m.group(0).strip()
     if kind.startswith("\\def"):
@@ -494,7 +497,7 @@ class MacroBudget:
 
 
 def expand_macros(text: str, macros: dict[str, Macro], passes: int = 5,
-                  budget: Optional[MacroBudget] = None) -> str:
+                  budget: MacroBudget | None = None) -> str:
     """Expand user macros (with arguments and an optional first-argument default), a few passes deep, within
     ``budget`` (default: a fresh one with the default limits)."""
     if not macros:

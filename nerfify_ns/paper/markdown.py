@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, Optional
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
-from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 from nerfify_ns.paper.mathdup import Budget, fix_inline, has_duplicated_math, split_display
+from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
 _TRAILING_NUM = re.compile(r"\s*\(\s*(\d+[a-z]?)\s*\)\s*$")
@@ -41,7 +41,7 @@ def markdown_blocks(text: str) -> list[Block]:
 
 
 class _Reader:
-    def __init__(self, lines: list[str], fix, budget: Optional[Budget] = None):
+    def __init__(self, lines: list[str], fix, budget: Budget | None = None):
         self.lines, self.fix, self.i = lines, fix, 0
         self.budget = budget or Budget()
         self.seen_title = False
@@ -128,7 +128,7 @@ class _Reader:
             if not re.fullmatch(r"[\s|:\-]+", row):
                 rows.append([c.strip() for c in row.split("|")])
             self.i += 1
-        if any(_EQ_NUM.match(r[-1] if r else "") or _EQ_NUM.match((r[-2] if len(r) > 1 else "")) for r in rows):
+        if any(_EQ_NUM.match(r[-1] if r else "") or _EQ_NUM.match(r[-2] if len(r) > 1 else "") for r in rows):
             yield from self._equation_rows(rows, start)
             return
         cells = [[self._cell(c) for c in r] for r in rows]

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import re
 import unicodedata
-from typing import Optional
 
 _SYMBOLS = {
     "alpha": "α", "beta": "β", "gamma": "γ", "delta": "δ", "epsilon": "ϵ", "varepsilon": "ε", "zeta": "ζ",
@@ -75,7 +74,7 @@ def _loose(s: str) -> str:
     return re.sub(r"[^\w]|_", "", _strict(s))
 
 
-def _split_point(text: str, start: int, occ: int, end: int, budget: Optional[Budget] = None) -> Optional[int]:
+def _split_point(text: str, start: int, occ: int, end: int, budget: Budget | None = None) -> int | None:
     """The p in (start, occ] where text[start:p] renders text[p:end], strict comparison first."""
     budget = budget or Budget()
     for norm in (_strict, _loose):
@@ -88,7 +87,7 @@ def _split_point(text: str, start: int, occ: int, end: int, budget: Optional[Bud
     return None
 
 
-def _split_by_ends(cell: str, occ: int, k: int = 3, budget: Optional[Budget] = None) -> Optional[int]:
+def _split_by_ends(cell: str, occ: int, k: int = 3, budget: Budget | None = None) -> int | None:
     """Fallback split: the first/last ``k`` symbols of both renderings agree."""
     budget = budget or Budget()
     for p in range(occ, 0, -1):
@@ -100,7 +99,7 @@ def _split_by_ends(cell: str, occ: int, k: int = 3, budget: Optional[Budget] = N
     return None
 
 
-def split_display(cell: str, budget: Optional[Budget] = None) -> tuple[str, str]:
+def split_display(cell: str, budget: Budget | None = None) -> tuple[str, str]:
     """(unicode, latex) of a display-equation cell; ("", cell) when no LaTeX part is found (or the cell is
     longer than a formula pair, or the budget is spent)."""
     cell = cell.strip()
@@ -120,7 +119,7 @@ def split_display(cell: str, budget: Optional[Budget] = None) -> tuple[str, str]
 _NEXT_WORD = re.compile(r"\s*(\S+)")
 
 
-def _latex_end(text: str, occ: int, stop: Optional[int] = None) -> int:
+def _latex_end(text: str, occ: int, stop: int | None = None) -> int:
     """Where the inline LaTeX fragment containing ``occ`` ends (braces balanced, next word is prose), at most
     ``stop``."""
     depth, i, n = 0, occ, min(len(text), stop if stop is not None else len(text))
@@ -141,7 +140,7 @@ def _latex_end(text: str, occ: int, stop: Optional[int] = None) -> int:
     return n
 
 
-def _dedupe_repeat(tok: str) -> Optional[str]:
+def _dedupe_repeat(tok: str) -> str | None:
     """"L=10L=10" -> "$L=10$", "33.2033.20" -> "33.20", "NN" -> "$N$"; None if not a repeat."""
     core = tok.rstrip(",.;:")
     if core.endswith(")") and core.count(")") > core.count("("):
@@ -166,7 +165,7 @@ def has_duplicated_math(text: str) -> bool:
     return len(re.findall(r"[^\s$\\]\\(?:mathbf|sigma|theta|mathrm|mathcal|times|hat)\b", text)) >= 5
 
 
-def fix_inline(text: str, budget: Optional[Budget] = None) -> str:
+def fix_inline(text: str, budget: Budget | None = None) -> str:
     """Replace each unicode+LaTeX pair in running text by ``$LaTeX$``, and plain repeats by one copy; within
     ``budget`` (the document's), the rest kept as written."""
     budget = budget or Budget()

@@ -25,8 +25,8 @@ It never guesses mathematics: anything it does not recognise is left as it is.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from functools import lru_cache
-from typing import Iterable, Optional
 
 from nerfify_ns.equations.normalize import normalize_numbers
 from nerfify_ns.paper.mathsym import UNICODE_TO_LATEX, to_latex_char
@@ -48,7 +48,7 @@ MAX_NORMALIZE_CHARS = 20_000
 _STRAY_STAR = re.compile(r"(?<=[A-Za-z0-9})\]])\*\{")
 
 
-def read_group(s: str, i: int) -> tuple[Optional[str], int]:
+def read_group(s: str, i: int) -> tuple[str | None, int]:
     """The content of the balanced ``{...}`` starting at ``i`` (blanks skipped) and the index after it;
     (None, i) when no group starts there."""
     j = i
@@ -73,7 +73,7 @@ def read_group(s: str, i: int) -> tuple[Optional[str], int]:
     return None, i
 
 
-def _arg(s: str, i: int) -> tuple[Optional[str], int]:
+def _arg(s: str, i: int) -> tuple[str | None, int]:
     """A command's argument at ``i``: a group, a control word, or one character (blanks skipped)."""
     content, end = read_group(s, i)
     if content is not None:
@@ -214,7 +214,7 @@ def _unwrap_arrays(s: str) -> str:
     return s
 
 
-def _env_end(s: str, start: int, env: str) -> Optional[tuple[int, int]]:
+def _env_end(s: str, start: int, env: str) -> tuple[int, int] | None:
     """(index of ``\\end{env}``, index after it) matching the environment opened before ``start``."""
     depth, i = 1, start
     opener, closer = f"\\begin{{{env}}}", f"\\end{{{env}}}"
@@ -353,7 +353,7 @@ def _restore_lost(s: str) -> str:
     return "".join(out)
 
 
-def normalize_latex(latex: str, lost_backslashes: Optional[bool] = None) -> str:
+def normalize_latex(latex: str, lost_backslashes: bool | None = None) -> str:
     """The canonical LaTeX of one equation (see the module's docstring). ``lost_backslashes``: whether the
     source lost its escapes (markdown conversions); None decides from ``latex`` itself."""
     s = latex or ""

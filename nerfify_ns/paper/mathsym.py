@@ -9,7 +9,6 @@ from __future__ import annotations
 import re
 import unicodedata
 from functools import lru_cache
-from typing import Optional
 
 # ----- Unicode -> LaTeX ---------------------------------------------------------------------------------
 GREEK = {
@@ -228,7 +227,7 @@ def font_family(font: str) -> str:
 
 
 @lru_cache(maxsize=4096)
-def font_role(font: str) -> Optional[str]:
+def font_role(font: str) -> str | None:
     """italic | roman | symbol | extension | blackboard | script | fraktur for a math font, None for a text font."""
     k = font_key(font)
     for rx, role in _FONT_RE:
@@ -250,7 +249,7 @@ def is_italic_text_font(font: str, flags: int = 0) -> bool:
 
 
 # ----- mathematical alphanumerics (U+1D400..) ------------------------------------------------------------
-def math_alnum(ch: str) -> Optional[tuple[str, str]]:
+def math_alnum(ch: str) -> tuple[str, str] | None:
     """("bold-italic", "x") for U+1D499 and friends; ("blackboard", "R") for ℝ; None for other characters."""
     cp = ord(ch)
     if not (0x1D400 <= cp <= 0x1D7FF or ch in "ℝℕℤℚℂℙℍℒℛℬℰℱℋℐℳℊℯℴℎℭℌℑℜℨ"):
@@ -282,7 +281,7 @@ def math_alnum(ch: str) -> Optional[tuple[str, str]]:
     return style, base
 
 
-def to_latex_char(ch: str) -> Optional[str]:
+def to_latex_char(ch: str) -> str | None:
     """The LaTeX of one Unicode character, or None when it has none here (ASCII comes back as itself)."""
     if ch in UNICODE_TO_LATEX:
         return UNICODE_TO_LATEX[ch]

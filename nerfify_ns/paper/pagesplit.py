@@ -14,7 +14,6 @@ from __future__ import annotations
 import re
 import statistics
 from dataclasses import dataclass
-from typing import Optional
 
 from nerfify_ns.paper.builder import CAPTION, Block
 from nerfify_ns.paper.document import Location
@@ -69,7 +68,7 @@ def _number_key(num: str) -> tuple:
     return tuple(int(p) if p.isdigit() else ord(p) - ord("A") + 100 for p in num.split("."))
 
 
-def _follows(previous: Optional[str], num: str) -> bool:
+def _follows(previous: str | None, num: str) -> bool:
     """Whether heading number ``num`` can come right after ``previous`` (None: the first heading)."""
     new = _number_key(num)
     if previous is None:
@@ -93,7 +92,7 @@ def _title_like(title: str) -> bool:
     return letters >= 0.6 * len(title.replace(" ", "")) and not re.search(r"\d{3,}", title)
 
 
-def _heading(s: str, previous: Optional[str]) -> Optional[tuple[str, str, str]]:
+def _heading(s: str, previous: str | None) -> tuple[str, str, str] | None:
     """(text before, number, title) when ``s`` holds the heading that follows ``previous``."""
     for pattern in (_HEADING, _GLUED):
         m = pattern.match(s)
@@ -142,7 +141,7 @@ def page_split_blocks(text: str) -> list[Block]:
     widths = [len(x.text) for x in lines if len(x.text) > 20]
     full = statistics.median(widths) if widths else 60
     para: list[_Line] = []
-    previous: Optional[str] = None
+    previous: str | None = None
     next_equation = 1
     in_abstract = False
 

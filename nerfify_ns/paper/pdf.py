@@ -6,12 +6,16 @@ import re
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.errors import (
-    CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, PaperLimitError, ScannedPdfError,
+    CorruptPdfError,
+    EmptyDocumentError,
+    EncryptedPdfError,
+    InputTooLargeError,
+    PaperLimitError,
+    ScannedPdfError,
 )
 from nerfify_ns.paper.language import SAMPLE_CHARS, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements
@@ -47,7 +51,7 @@ class Unit:
         return re.sub(r"\s*\n\s*", " ", joined).strip()
 
 
-def open_pdf(path: Path, max_pages: Optional[int] = None):
+def open_pdf(path: Path, max_pages: int | None = None):
     """Open with pymupdf, turning its failures into typed errors."""
     import pymupdf
 
@@ -65,7 +69,7 @@ def open_pdf(path: Path, max_pages: Optional[int] = None):
     return pdf
 
 
-def read_pdf(path: Path, max_pages: Optional[int] = None, limits: Limits = DEFAULT_LIMITS) -> Document:
+def read_pdf(path: Path, max_pages: int | None = None, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a PDF (at most ``limits.max_text_chars`` characters of text; English prose only)."""
     pdf = open_pdf(path, max_pages)
     try:
@@ -211,7 +215,7 @@ def _body_size(units: list[Unit]) -> float:
     return sizes.most_common(1)[0][0] if sizes else 10.0
 
 
-def _to_blocks(units: list[Unit], words: Optional[dict] = None) -> list[Block]:
+def _to_blocks(units: list[Unit], words: dict | None = None) -> list[Block]:
     body = _body_size(units)
     title_unit = _title_unit(units, body)
     blocks: list[Block] = []
@@ -267,7 +271,7 @@ def _names(text: str) -> list[str]:
     return out
 
 
-def _title_unit(units: list[Unit], body: float) -> Optional[Unit]:
+def _title_unit(units: list[Unit], body: float) -> Unit | None:
     first = [u for u in units if u.page == 1 and len(u.text) < 250]
     if not first:
         return None
@@ -275,7 +279,7 @@ def _title_unit(units: list[Unit], body: float) -> Optional[Unit]:
     return top if top.size >= body * 1.2 else None
 
 
-def _heading(u: Unit, body: float) -> Optional[tuple[str, str]]:
+def _heading(u: Unit, body: float) -> tuple[str, str] | None:
     raw = " ".join(ln.strip() for ln in u.lines)
     if len(u.lines) > 3 or len(raw) > 110 or raw.endswith((".", ",")) and not NAMED_HEADING.match(raw):
         return None

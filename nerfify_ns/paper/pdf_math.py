@@ -30,14 +30,32 @@ import statistics
 import time
 import unicodedata
 from collections import Counter
-from functools import lru_cache
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Iterable, Optional
+from functools import lru_cache
 
 from nerfify_ns.paper.mathnorm import equation_sentence, latex_issues, normalize_latex
 from nerfify_ns.paper.mathsym import (
-    UNICODE_TO_LATEX, ACCENT_CHARS, BIG_OPERATORS, CLOSE, CMEX, CMMI, CMR, CMSY, FUNCTIONS, LATEX_FUNCTIONS, NAMED_OPERATORS,
-    OPEN, PIECES, RELATIONS, cmex_depth, font_family, font_role, is_bold_font, is_italic_text_font, math_alnum,
+    ACCENT_CHARS,
+    BIG_OPERATORS,
+    CLOSE,
+    CMEX,
+    CMMI,
+    CMR,
+    CMSY,
+    FUNCTIONS,
+    LATEX_FUNCTIONS,
+    NAMED_OPERATORS,
+    OPEN,
+    PIECES,
+    RELATIONS,
+    UNICODE_TO_LATEX,
+    cmex_depth,
+    font_family,
+    font_role,
+    is_bold_font,
+    is_italic_text_font,
+    math_alnum,
     to_latex_char,
 )
 
@@ -60,7 +78,7 @@ _SYMBOL_GREEK = dict(zip("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ",
                           "\\sigma", "\\tau", "\\upsilon", "\\varpi", "\\omega", "\\xi", "\\psi", "\\zeta",
                           "A", "B", "X", "\\Delta", "E", "\\Phi", "\\Gamma", "H", "I", "\\vartheta", "K", "\\Lambda",
                           "M", "N", "O", "\\Pi", "\\Theta", "P", "\\Sigma", "T", "Y", "\\varsigma", "\\Omega", "\\Xi",
-                          "\\Psi", "Z"]))
+                          "\\Psi", "Z"], strict=False))
 
 
 # ======================================================================================= glyphs
@@ -72,7 +90,7 @@ class Glyph:
     tex: str
     kind: str  # ord | op | bin | rel | open | close | middle | punct | accent | radical | piece | prime | text | num
     font: str
-    role: Optional[str]
+    role: str | None
     size: float
     x0: float
     y0: float
@@ -118,7 +136,7 @@ def _classify_tex(tex: str) -> str:
     return "ord"
 
 
-def _wrap_style(tex: str, role: Optional[str], bold: bool) -> str:
+def _wrap_style(tex: str, role: str | None, bold: bool) -> str:
     if re.fullmatch(r"[A-Za-z]", tex) or re.fullmatch(r"\\[A-Za-z]+", tex) and tex[1:] in _GREEK_NAMES:
         if role == "blackboard":
             return rf"\mathbb{{{tex}}}"
@@ -543,7 +561,7 @@ def _inline_math_is_prose(lines: list[Line], cx0: float, cx1: float, body: float
     main = [ln for ln in order if ln.glyphs and max(g.size for g in ln.glyphs) >= 0.8 * body]
     lead = 1.65 * body
 
-    def continues(a: Optional[Line], b: Line) -> bool:  # b follows a at the paragraph's leading, flush left
+    def continues(a: Line | None, b: Line) -> bool:  # b follows a at the paragraph's leading, flush left
         return a is not None and 0 < b.base - a.base <= lead and b.x0 <= cx0 + 0.6 * body
 
     for k, ln in enumerate(main):
@@ -614,7 +632,7 @@ class Node:
     base: float
     size: float
     tex: str = ""
-    glyph: Optional[Glyph] = None
+    glyph: Glyph | None = None
     parts: dict = field(default_factory=dict)
 
     @property
@@ -857,7 +875,7 @@ def _limits_pass(nodes: list[Node], stats: _Stats) -> list[Node]:
     if not ops:
         return nodes
 
-    def owner(n: Node) -> Optional[Node]:
+    def owner(n: Node) -> Node | None:
         best, score = None, None
         for op in ops:
             w = op.x1 - op.x0
@@ -1046,7 +1064,7 @@ def _level(n: Node, base: float, size: float) -> bool:
         abs(n.base - base) <= 0.25 * size and n.size >= 0.85 * size
 
 
-def _emit_seq(nodes: list[Node], stats: _Stats, base: Optional[float] = None, size: Optional[float] = None,
+def _emit_seq(nodes: list[Node], stats: _Stats, base: float | None = None, size: float | None = None,
               depth: int = 0) -> str:
     """One row: nuclei left to right, each with the scripts (smaller, raised or lowered) that follow it."""
     if not nodes:
@@ -1361,7 +1379,7 @@ def _region_ok(r: _Region) -> bool:
     return strong >= 3 and has_relation
 
 
-def find_equations(pdf, pages: Optional[Iterable[int]] = None) -> list[PdfEquation]:
+def find_equations(pdf, pages: Iterable[int] | None = None) -> list[PdfEquation]:
     """Every display equation of an open pymupdf document (or of ``pages``, 1-based), in reading order."""
     started = time.perf_counter()
     page_nos = list(pages) if pages is not None else list(range(1, pdf.page_count + 1))

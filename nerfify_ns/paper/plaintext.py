@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
-from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
+from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 
 NUMBERED_HEADING = re.compile(r"^(?:\d+(?:\.\d+){0,3}\.?|[A-Z]\.(?:\d+\.?)*|Appendix [A-Z0-9]+\.?)\s+[A-Z][^.!?]{1,90}$")
 NAMED_HEADING = re.compile(r"^(?:abstract|references|bibliography|acknowledge?ments?|introduction|related work|"

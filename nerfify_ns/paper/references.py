@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import re
-from typing import Optional
 
 from nerfify_ns.paper.document import Reference
 
@@ -27,11 +26,11 @@ def split_entries(text: str) -> list[tuple[str, str]]:
         starts = list(re.finditer(r"(?:^|(?<=\s))\[(\d{1,4})\]\s+", text))
     if len(starts) >= 2:
         return [(m.group(1), text[m.end(): nxt.start() if nxt else len(text)])
-                for m, nxt in zip(starts, [*starts[1:], None])]
+                for m, nxt in zip(starts, [*starts[1:], None], strict=False)]
     dotted = list(re.finditer(r"(?m)^\s*(\d{1,4})\.\s+(?=[A-Z])", text))
     if len(dotted) >= 2:
         return [(m.group(1), text[m.end(): nxt.start() if nxt else len(text)])
-                for m, nxt in zip(dotted, [*dotted[1:], None])]
+                for m, nxt in zip(dotted, [*dotted[1:], None], strict=False)]
     blocks = [b for b in re.split(r"\n\s*\n", text) if b.strip()]
     return [(str(i + 1), b) for i, b in enumerate(blocks)]
 
@@ -63,7 +62,7 @@ def _authors(s: str) -> list[str]:
     names = [n.strip() for n in re.split(r",\s*(?:and\s+)?|\s+and\s+|\s*&\s*", s) if n.strip()]
     if len(names) > 1 and all(re.fullmatch(r"(?:[A-Z]\.?\s*-?)+", n) for n in names[1::2]) \
             and re.fullmatch(r"[^\s,]+(?: [^\s,.]+)?", names[0]):
-        names = [f"{a.strip()}, {b.strip()}" for a, b in zip(names[::2], names[1::2])]  # "Last, F., ..."
+        names = [f"{a.strip()}, {b.strip()}" for a, b in zip(names[::2], names[1::2], strict=False)]  # "Last, F., ..."
     return [n.strip() for n in names if n.strip() and len(n.strip()) > 1]
 
 
@@ -118,6 +117,6 @@ def is_references_heading(title: str) -> bool:
                              title, re.IGNORECASE))
 
 
-def find_arxiv(text: str) -> Optional[str]:
+def find_arxiv(text: str) -> str | None:
     m = ARXIV.search(text)
     return m.group(1) if m else None

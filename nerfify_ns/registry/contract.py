@@ -16,8 +16,9 @@ import ast
 import math
 import operator
 import re
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple
+from typing import Any
 
 SIZES = {"N": 64, "R": 16, "S": 8, "in_dim": 16, "cameras": 4}
 """Example sizes of the contract symbols (the contract and stability rungs run at these)."""
@@ -35,7 +36,7 @@ class TensorSpec:
 
     shape: str
     dtype: str = "float"
-    range: Tuple[Optional[float], Optional[float]] = (None, None)
+    range: tuple[float | None, float | None] = (None, None)
     grad: bool = False
     role: str = "values"
     doc: str = ""
@@ -46,7 +47,7 @@ class TensorSpec:
         dims(self.shape)  # fails early on a malformed shape
 
     def to_data(self) -> dict:
-        data: Dict[str, Any] = {"shape": self.shape, "dtype": self.dtype}
+        data: dict[str, Any] = {"shape": self.shape, "dtype": self.dtype}
         if self.range != (None, None):
             data["range"] = list(self.range)
         if self.grad:
@@ -57,7 +58,7 @@ class TensorSpec:
         return data
 
 
-def T(shape: str, dtype: str = "float", *, range: Tuple[Optional[float], Optional[float]] = (None, None),
+def T(shape: str, dtype: str = "float", *, range: tuple[float | None, float | None] = (None, None),
       grad: bool = False, role: str = "values", doc: str = "") -> TensorSpec:
     """Shorthand for a TensorSpec in terminal definitions."""
     return TensorSpec(shape=shape, dtype=dtype, range=range, grad=grad, role=role, doc=doc)
@@ -67,23 +68,23 @@ def T(shape: str, dtype: str = "float", *, range: Tuple[Optional[float], Optiona
 class Contract:
     """Named inputs and outputs with symbolic shapes; ``sizes`` overrides example sizes of symbols."""
 
-    inputs: Dict[str, TensorSpec] = field(default_factory=dict)
-    outputs: Dict[str, TensorSpec] = field(default_factory=dict)
-    sizes: Dict[str, int] = field(default_factory=dict)
-    free: Tuple[str, ...] = ()
+    inputs: dict[str, TensorSpec] = field(default_factory=dict)
+    outputs: dict[str, TensorSpec] = field(default_factory=dict)
+    sizes: dict[str, int] = field(default_factory=dict)
+    free: tuple[str, ...] = ()
     """Symbols bound by the outputs themselves (``M`` packed samples): the first output using one sets it."""
     doc: str = ""
 
-    def environment(self, params: Mapping[str, Any], case_sizes: Optional[Mapping[str, int]] = None,
-                    extra: Optional[Mapping[str, Any]] = None) -> Dict[str, Any]:
+    def environment(self, params: Mapping[str, Any], case_sizes: Mapping[str, int] | None = None,
+                    extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """The symbols a shape may use: example sizes (per case), parameters, extra bindings."""
         return {**SIZES, **self.sizes, **(case_sizes or {}), **dict(params), **(extra or {})}
 
-    def shape(self, spec: TensorSpec, env: Mapping[str, Any]) -> Tuple[int, ...]:
+    def shape(self, spec: TensorSpec, env: Mapping[str, Any]) -> tuple[int, ...]:
         return tuple(eval_dim(d, env) for d in dims(spec.shape))
 
     def to_data(self) -> dict:
-        data: Dict[str, Any] = {"inputs": {k: v.to_data() for k, v in self.inputs.items()},
+        data: dict[str, Any] = {"inputs": {k: v.to_data() for k, v in self.inputs.items()},
                                 "outputs": {k: v.to_data() for k, v in self.outputs.items()}}
         if self.sizes:
             data["sizes"] = dict(self.sizes)
@@ -102,7 +103,7 @@ class Contract:
 _SHAPE = re.compile(r"^\s*\[(.*)\]\s*$")
 
 
-def dims(shape: str) -> List[str]:
+def dims(shape: str) -> list[str]:
     """``"[R, S, 3]"`` -> ``["R", "S", "3"]``; ``"[]"`` -> ``[]`` (commas inside parentheses kept)."""
     match = _SHAPE.match(shape)
     if not match:
@@ -122,11 +123,11 @@ def dims(shape: str) -> List[str]:
     return parts
 
 
-_BINARY: Dict[type, Callable[[Any, Any], Any]] = {
+_BINARY: dict[type, Callable[[Any, Any], Any]] = {
     ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.FloorDiv: operator.floordiv,
     ast.Pow: operator.pow, ast.Mod: operator.mod,
 }
-_CALLS: Dict[str, Callable[..., Any]] = {"len": len, "int": int, "min": min, "max": max, "sum": sum,
+_CALLS: dict[str, Callable[..., Any]] = {"len": len, "int": int, "min": min, "max": max, "sum": sum,
                                          "ceil": math.ceil, "prod": math.prod}
 
 
@@ -148,7 +149,7 @@ def eval_dim(expr: str, env: Mapping[str, Any]) -> int:
 
 
 def _eval(node: ast.AST, env: Mapping[str, Any], expr: str) -> Any:
-    if isinstance(node, ast.Constant) and isinstance(node.value, (int, float)):
+    if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
         return node.value
     if isinstance(node, ast.Name):
         if node.id not in env:
@@ -166,7 +167,7 @@ def _eval(node: ast.AST, env: Mapping[str, Any], expr: str) -> Any:
     raise ContractSpecError(f"dimension {expr!r}: unsupported expression {ast.dump(node)[:60]}")
 
 
-def symbols(shape: str) -> List[str]:
+def symbols(shape: str) -> list[str]:
     """The names a shape refers to."""
     return sorted({n.id for d in dims(shape) for n in ast.walk(_parse(d)) if isinstance(n, ast.Name)}
                   - set(_CALLS))
@@ -174,12 +175,12 @@ def symbols(shape: str) -> List[str]:
 
 # ------------------------------------------------------------------------------- checking
 def check_outputs(contract: Contract, outputs: Mapping[str, Any], env: Mapping[str, Any], *,
-                  float_inputs: bool = True) -> List[str]:
+                  float_inputs: bool = True) -> list[str]:
     """Problems of ``outputs`` against the contract: missing names, shapes, dtypes, device, value
     ranges, non-finite values. Each problem names the tensor, what the contract says and what came."""
     import torch
 
-    problems: List[str] = []
+    problems: list[str] = []
     env = dict(env)
     for name, spec in contract.outputs.items():
         if name not in outputs:
@@ -202,16 +203,16 @@ def check_outputs(contract: Contract, outputs: Mapping[str, Any], env: Mapping[s
     return problems
 
 
-def _bind_free(contract: Contract, spec: TensorSpec, value: Any, env: Dict[str, Any]) -> None:
+def _bind_free(contract: Contract, spec: TensorSpec, value: Any, env: dict[str, Any]) -> None:
     parts = dims(spec.shape)
     if len(parts) != value.dim():
         return
-    for part, size in zip(parts, value.shape):
+    for part, size in zip(parts, value.shape, strict=False):
         if part in contract.free and part not in env:
             env[part] = int(size)
 
 
-def _dtype_problems(name: str, spec: TensorSpec, value: Any, float_inputs: bool) -> List[str]:
+def _dtype_problems(name: str, spec: TensorSpec, value: Any, float_inputs: bool) -> list[str]:
     import torch
 
     if value.device.type != "cpu":
@@ -226,7 +227,7 @@ def _dtype_problems(name: str, spec: TensorSpec, value: Any, float_inputs: bool)
     return []
 
 
-def finite_problem(name: str, value: Any) -> Optional[str]:
+def finite_problem(name: str, value: Any) -> str | None:
     import torch
 
     if isinstance(value, torch.Tensor) and value.is_floating_point() and value.numel() \
@@ -236,7 +237,7 @@ def finite_problem(name: str, value: Any) -> Optional[str]:
     return None
 
 
-def _value_problems(name: str, spec: TensorSpec, value: Any) -> List[str]:
+def _value_problems(name: str, spec: TensorSpec, value: Any) -> list[str]:
     import torch
 
     problems = [p for p in [finite_problem(name, value)] if p]

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from importlib import resources
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Any
 
 import yaml
 
@@ -45,9 +46,9 @@ class RegistryError(NerfifyError):
 class Registry:
     """Productions and terminals; ``registry[name]`` is a terminal's definition."""
 
-    productions: Dict[str, Any]
-    terminals: Dict[str, TerminalDef]
-    interfaces: Dict[str, Any] = field(default_factory=dict)
+    productions: dict[str, Any]
+    terminals: dict[str, TerminalDef]
+    interfaces: dict[str, Any] = field(default_factory=dict)
 
     def __getitem__(self, name: str) -> TerminalDef:
         return self.terminals[name]
@@ -59,13 +60,13 @@ class Registry:
         return iter(self.terminals.values())
 
     @property
-    def nonterminals(self) -> Dict[str, dict]:
+    def nonterminals(self) -> dict[str, dict]:
         return self.productions["nonterminals"]
 
-    def of_production(self, production: str) -> List[TerminalDef]:
+    def of_production(self, production: str) -> list[TerminalDef]:
         return [t for t in self.terminals.values() if t.production == production]
 
-    def grammar_data(self) -> Dict[str, Any]:
+    def grammar_data(self) -> dict[str, Any]:
         """The grammar as data: what ``grammar_spec.yaml`` holds."""
         return {"version": self.productions["version"], "start": self.productions["start"],
                 "nonterminals": self.nonterminals,
@@ -105,13 +106,13 @@ def _listed(nt: dict, name: str) -> bool:
         or name == nt.get("terminal") or name in slots
 
 
-def build_registry(productions_text: Optional[str] = None) -> Registry:
+def build_registry(productions_text: str | None = None) -> Registry:
     """A registry from the productions (default: ``productions.yaml``) and every terminal module."""
     from nerfify_ns.registry.terminals import MODULES
     from nerfify_ns.registry.terminals.custom import INTERFACES
 
     text = productions_text or resources.files("nerfify_ns.registry").joinpath("productions.yaml").read_text()
-    terminals: Dict[str, TerminalDef] = {}
+    terminals: dict[str, TerminalDef] = {}
     for module in MODULES:
         for t in module.TERMINALS:
             if t.name in terminals:
@@ -122,7 +123,7 @@ def build_registry(productions_text: Optional[str] = None) -> Registry:
     return registry
 
 
-_DEFAULT: List[Registry] = []
+_DEFAULT: list[Registry] = []
 
 
 def default_registry() -> Registry:

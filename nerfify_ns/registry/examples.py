@@ -8,14 +8,15 @@ this runs inside the sandboxed probe.
 
 from __future__ import annotations
 
-from typing import Any, Dict, Mapping, Tuple
+from collections.abc import Mapping
+from typing import Any
 
 from nerfify_ns.registry.contract import Contract, TensorSpec
 
 AABB = ((-1.5, -1.5, -1.5), (1.5, 1.5, 1.5))
 """The scene box of every example (and of the assembled model)."""
 
-CASES: Dict[str, str] = {
+CASES: dict[str, str] = {
     "nominal": "small random inputs of the contract's shapes",
     "empty_batch": "zero rays / points",
     "points_outside_contraction": "positions at 1e5, far outside the scene box and the contraction",
@@ -58,7 +59,7 @@ class NotApplicable(Exception):
     """The case does not apply to this component (e.g. a marcher that needs at least one ray)."""
 
 
-def case_sizes(case: str) -> Dict[str, int]:
+def case_sizes(case: str) -> dict[str, int]:
     """Size overrides of a case: an empty batch has no points and no rays."""
     return {"N": 0, "R": 0} if case == "empty_batch" else {}
 
@@ -85,7 +86,7 @@ def _generator(seed: int):
     return torch.Generator().manual_seed(seed + RUN_SEED)
 
 
-def _positions(shape: Tuple[int, ...], spec: TensorSpec, case: str):
+def _positions(shape: tuple[int, ...], spec: TensorSpec, case: str):
     import torch
 
     x = torch.rand(*shape, generator=_generator(0))
@@ -96,7 +97,7 @@ def _positions(shape: Tuple[int, ...], spec: TensorSpec, case: str):
     return x * SCALES.get(case, 1.0)
 
 
-def _directions(shape: Tuple[int, ...], case: str):
+def _directions(shape: tuple[int, ...], case: str):
     import torch
 
     d = torch.nn.functional.normalize(torch.randn(*shape, generator=_generator(1)), dim=-1)
@@ -113,7 +114,7 @@ def _value_case(x, case: str):
     return x
 
 
-def _values(shape: Tuple[int, ...], spec: TensorSpec, case: str, seed: int):
+def _values(shape: tuple[int, ...], spec: TensorSpec, case: str, seed: int):
     import torch
 
     low, high = spec.range
@@ -123,7 +124,7 @@ def _values(shape: Tuple[int, ...], spec: TensorSpec, case: str, seed: int):
     return _value_case(x, case)
 
 
-def _tensor(name: str, spec: TensorSpec, shape: Tuple[int, ...], case: str, env: Mapping[str, Any], seed: int):
+def _tensor(name: str, spec: TensorSpec, shape: tuple[int, ...], case: str, env: Mapping[str, Any], seed: int):
     import torch
 
     if spec.dtype == "long":
@@ -142,9 +143,9 @@ def _tensor(name: str, spec: TensorSpec, shape: Tuple[int, ...], case: str, env:
     return x.requires_grad_(True) if spec.grad else x
 
 
-def example_inputs(contract: Contract, env: Mapping[str, Any], case: str = "nominal") -> Dict[str, Any]:
+def example_inputs(contract: Contract, env: Mapping[str, Any], case: str = "nominal") -> dict[str, Any]:
     """One example per contract input, at the sizes of ``env`` and changed by ``case``."""
-    inputs: Dict[str, Any] = {}
+    inputs: dict[str, Any] = {}
     for seed, (name, spec) in enumerate(contract.inputs.items(), start=2):
         if spec.dtype == "rays":
             inputs[name] = collide(ray_bundle(case, int(env["R"])), case)

@@ -21,7 +21,7 @@ import inspect
 import textwrap
 import typing
 from dataclasses import dataclass
-from typing import Any, Dict, Optional, Tuple
+from typing import Any
 
 PARAM_TYPES = ("int", "float", "bool", "str", "enum", "int_list", "float_list", "str_list", "mapping")
 
@@ -35,14 +35,14 @@ class ParamSpec:
     name: str
     type: str
     default: Any = None
-    range: Optional[Tuple[Optional[float], Optional[float]]] = None
-    values: Tuple[Any, ...] = ()
-    length: Optional[Tuple[int, int]] = None
+    range: tuple[float | None, float | None] | None = None
+    values: tuple[Any, ...] = ()
+    length: tuple[int, int] | None = None
     doc: str = ""
 
     def to_data(self) -> dict:
         """The parameter as the grammar export writes it."""
-        data: Dict[str, Any] = {"type": self.type}
+        data: dict[str, Any] = {"type": self.type}
         if self.values:
             data["values"] = list(self.values)
         if self.length is not None:
@@ -55,11 +55,11 @@ class ParamSpec:
         return data
 
 
-def param(default: Any, *, range: Optional[Tuple[Optional[float], Optional[float]]] = None,
-          length: Optional[Tuple[int, int]] = None) -> Any:
+def param(default: Any, *, range: tuple[float | None, float | None] | None = None,
+          length: tuple[int, int] | None = None) -> Any:
     """A dataclass field holding a terminal parameter: its default, numeric range and list length."""
     meta = {_META: {"range": range, "length": length}}
-    if isinstance(default, (list, dict)):
+    if isinstance(default, list | dict):
         value = default
         return dataclasses.field(default_factory=lambda: _copy(value), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
@@ -69,25 +69,25 @@ def _copy(value: Any) -> Any:
     return [*value] if isinstance(value, list) else dict(value)
 
 
-@functools.lru_cache(maxsize=None)
-def field_docs(cls: type) -> Dict[str, str]:
+@functools.cache
+def field_docs(cls: type) -> dict[str, str]:
     """The docstring written under each field of ``cls`` or of a base class it inherits the field from
     (cached: reading a class's source is slow and the source does not change in a process)."""
-    docs: Dict[str, str] = {}
+    docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         if klass is not object:
             docs.update(_own_field_docs(klass))
     return docs
 
 
-def _own_field_docs(cls: type) -> Dict[str, str]:
+def _own_field_docs(cls: type) -> dict[str, str]:
     try:
         tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
     except (OSError, TypeError, SyntaxError):
         return {}
     body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
-    docs: Dict[str, str] = {}
-    for node, after in zip(body, body[1:]):
+    docs: dict[str, str] = {}
+    for node, after in zip(body, body[1:], strict=False):
         if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) \
                 and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) \
                 and isinstance(after.value.value, str):
@@ -95,7 +95,7 @@ def _own_field_docs(cls: type) -> Dict[str, str]:
     return docs
 
 
-def _kind(annotation: Any) -> Tuple[str, Tuple[Any, ...]]:
+def _kind(annotation: Any) -> tuple[str, tuple[Any, ...]]:
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if annotation in (int, float, bool, str):
         return annotation.__name__, ()
@@ -110,23 +110,23 @@ def _kind(annotation: Any) -> Tuple[str, Tuple[Any, ...]]:
     raise TypeError(f"unsupported parameter annotation {annotation!r}")
 
 
-def param_specs(cls: type) -> Dict[str, ParamSpec]:
+def param_specs(cls: type) -> dict[str, ParamSpec]:
     """The ParamSpecs of a parameter dataclass, in field order (a fresh copy: callers may edit it)."""
     return {name: dataclasses.replace(spec, default=copy.deepcopy(spec.default))
             for name, spec in _param_specs(cls).items()}
 
 
-def param_defaults(cls: type) -> Dict[str, Any]:
+def param_defaults(cls: type) -> dict[str, Any]:
     """The defaults of a parameter dataclass, in field order (a fresh copy: callers may edit it)."""
-    return {name: copy.deepcopy(spec.default) if isinstance(spec.default, (list, dict)) else spec.default
+    return {name: copy.deepcopy(spec.default) if isinstance(spec.default, list | dict) else spec.default
             for name, spec in _param_specs(cls).items()}
 
 
-@functools.lru_cache(maxsize=None)
-def _param_specs(cls: type) -> Dict[str, ParamSpec]:
+@functools.cache
+def _param_specs(cls: type) -> dict[str, ParamSpec]:
     hints = typing.get_type_hints(cls)
     docs = field_docs(cls)
-    specs: Dict[str, ParamSpec] = {}
+    specs: dict[str, ParamSpec] = {}
     for f in dataclasses.fields(cls):
         kind, values = _kind(hints[f.name])
         meta = f.metadata.get(_META, {})

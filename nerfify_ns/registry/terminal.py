@@ -4,15 +4,16 @@ renders into a plugin, its contract as data, and how the ladder builds and runs 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, Mapping, Optional, Tuple
+from typing import Any
 
 from nerfify_ns.registry.contract import Contract
 from nerfify_ns.registry.params import ParamSpec, param_defaults, param_specs
 
-Build = Callable[[Dict[str, Any], Dict[str, Any]], Any]
+Build = Callable[[dict[str, Any], dict[str, Any]], Any]
 """(small parameters, contract environment) -> the component (a module or a callable)."""
-Call = Callable[[Any, Dict[str, Any], Dict[str, Any]], Dict[str, Any]]
+Call = Callable[[Any, dict[str, Any], dict[str, Any]], dict[str, Any]]
 """(component, example inputs by contract name, environment: sizes, parameters and ``case``) -> outputs by
 contract name."""
 
@@ -27,11 +28,11 @@ class Code:
     uses it; ``component`` names a module of ``nerfify_ns/components`` copied into the plugin;
     ``traits`` are facts the templates read (``domain``, ``normalized_input``, ``times``, ...)."""
 
-    imports: Tuple[str, ...] = ()
-    ctor: Optional[str] = None
-    expr: Optional[str] = None
-    component: Optional[str] = None
-    traits: Dict[str, Any] = field(default_factory=dict)
+    imports: tuple[str, ...] = ()
+    ctor: str | None = None
+    expr: str | None = None
+    component: str | None = None
+    traits: dict[str, Any] = field(default_factory=dict)
 
     def to_data(self) -> dict:
         data = {k: v for k, v in (("imports", list(self.imports)), ("ctor", self.ctor), ("expr", self.expr),
@@ -46,7 +47,7 @@ class Constraint:
     the JSON Schema and GBNF exports cannot express it, so constrained decoding relies on ``validate``)."""
 
     doc: str
-    holds: Callable[[Dict[str, Any], Mapping[str, Any]], bool]
+    holds: Callable[[dict[str, Any], Mapping[str, Any]], bool]
     """(the terminal's parameters with defaults, the whole plan) -> whether the rule holds."""
 
 
@@ -60,10 +61,10 @@ class Harness:
     parameters for a quick run. ``in_model``: the terminal lives inside a Nerfstudio model and is
     checked through the assembled model only."""
 
-    build: Optional[Build] = None
-    call: Optional[Call] = None
-    cases: Tuple[str, ...] = ()
-    small: Dict[str, int] = field(default_factory=dict)
+    build: Build | None = None
+    call: Call | None = None
+    cases: tuple[str, ...] = ()
+    small: dict[str, int] = field(default_factory=dict)
     in_model: bool = False
 
 
@@ -74,51 +75,51 @@ class TerminalDef:
     name: str
     production: str
     """The nonterminal this terminal is an alternative or member of (or whose slot it fills)."""
-    params: Optional[type]
+    params: type | None
     """The dataclass of the terminal's parameters (None: no parameters)."""
     doc: str
     implementation: str
     """The Nerfstudio class or function, or the component of ours, that implements the technique."""
-    card: Optional[str] = None
+    card: str | None = None
     """The knowledge-base card of the technique."""
     contract: Contract = field(default_factory=Contract)
     code: Code = field(default_factory=Code)
     harness: Harness = field(default_factory=Harness)
-    duties: Tuple[Dict[str, Any], ...] = ()
-    param_groups: Tuple[str, ...] = ()
-    config: Dict[str, Dict[str, str]] = field(default_factory=dict)
+    duties: tuple[dict[str, Any], ...] = ()
+    param_groups: tuple[str, ...] = ()
+    config: dict[str, dict[str, str]] = field(default_factory=dict)
     """Per base model: parameter -> field of the base's Nerfstudio model config."""
-    config_class: Optional[str] = None
-    input_domain: Optional[str] = None
-    constraints: Tuple[Constraint, ...] = ()
+    config_class: str | None = None
+    input_domain: str | None = None
+    constraints: tuple[Constraint, ...] = ()
     """Rules across parameters (checked by ``validate`` on the parameters with defaults filled in)."""
 
     @property
-    def param_specs(self) -> Dict[str, ParamSpec]:
+    def param_specs(self) -> dict[str, ParamSpec]:
         return param_specs(self.params) if self.params is not None else {}
 
-    def defaults(self) -> Dict[str, Any]:
+    def defaults(self) -> dict[str, Any]:
         """The parameters' defaults (a fresh copy: callers may edit it)."""
         return param_defaults(self.params) if self.params is not None else {}
 
-    def with_defaults(self, given: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+    def with_defaults(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
         """The terminal's parameters: the plan's values over the defaults."""
         return {**self.defaults(), **dict(given or {})}
 
-    def small(self, given: Optional[Mapping[str, Any]]) -> Dict[str, Any]:
+    def small(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
         """The parameters shrunk for a quick contract/stability run (the structure kept)."""
         p = self.with_defaults(given)
         for key, cap in self.harness.small.items():
             value = p.get(key)
             if isinstance(value, list):
                 p[key] = [min(int(v), cap) for v in value]
-            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            elif isinstance(value, int | float) and not isinstance(value, bool):
                 p[key] = type(value)(min(value, cap))
         return p
 
     def to_grammar_data(self) -> dict:
         """The terminal as ``grammar_spec.yaml`` writes it (an export of this definition)."""
-        data: Dict[str, Any] = {"doc": self.doc, "production": self.production,
+        data: dict[str, Any] = {"doc": self.doc, "production": self.production,
                                 "implementation": self.implementation}
         for key in ("config_class", "card", "input_domain"):
             if getattr(self, key):

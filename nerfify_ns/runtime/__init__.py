@@ -32,12 +32,13 @@ from __future__ import annotations
 
 import os
 import sys
-from typing import Callable, Dict, List
+from collections.abc import Callable
+from typing import Dict, List
 
 ENV_SWITCH = "NERFIFY_RUNTIME"
 ENV_SKIP = "NERFIFY_RUNTIME_SKIP"
 
-_applied: List[str] = []
+_applied: list[str] = []
 
 
 def cuda_available() -> bool:
@@ -127,7 +128,7 @@ def _patch_occupancy_chunks() -> None:
         OccGridEstimator._update = make_chunked_occupancy_update(OccGridEstimator._update)
 
 
-PATCHES: Dict[str, Callable[[], None]] = {
+PATCHES: dict[str, Callable[[], None]] = {
     "lpips": _patch_lpips,
     "nerfacc": _patch_nerfacc,
     "hashgrid": _patch_hashgrid,
@@ -150,7 +151,7 @@ def allow_numpy_scalars_in_checkpoints() -> None:
     )
 
 
-def activate(force: bool = False) -> List[str]:
+def activate(force: bool = False) -> list[str]:
     """Apply the CPU/offline patches (idempotent); returns the names applied so far.
 
     Without ``force`` nothing is changed when CUDA is available or ``NERFIFY_RUNTIME=off``.
@@ -177,5 +178,5 @@ def default_device_type() -> str:
     return "cuda" if cuda_available() else "cpu"
 
 
-def active_patches() -> List[str]:
+def active_patches() -> list[str]:
     return list(_applied)

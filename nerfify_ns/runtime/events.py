@@ -19,9 +19,8 @@ from __future__ import annotations
 import os
 import struct
 from pathlib import Path
-from typing import Dict, List, Optional
 
-Scalars = Dict[str, Dict[int, float]]
+Scalars = dict[str, dict[int, float]]
 """tag -> step -> value."""
 
 MAX_EVENT_FILE = 256 << 20
@@ -40,7 +39,7 @@ _NUMERIC_FIELDS = ("float_val", "double_val", "int_val", "int64_val", "uint32_va
                    "bool_val")
 
 
-def _elements(tensor) -> Optional[int]:
+def _elements(tensor) -> int | None:
     """The element count a tensor's header claims (None for an unknown rank or a negative size)."""
     if tensor.tensor_shape.unknown_rank:
         return None
@@ -54,7 +53,7 @@ def _elements(tensor) -> Optional[int]:
     return count
 
 
-def _value(value) -> Optional[float]:
+def _value(value) -> float | None:
     """The scalar in one summary value: ``simple_value`` (torch's writer) or a one-element numeric tensor. The
     tensor's header is checked first: anything but one element is no scalar, and no array is built for it."""
     if value.HasField("simple_value"):
@@ -83,10 +82,10 @@ class _RecordFile:
     def __init__(self, path: Path) -> None:
         self.path, self.offset, self.broken = path, 0, False
 
-    def records(self) -> List[bytes]:
+    def records(self) -> list[bytes]:
         if self.broken:
             return []
-        out: List[bytes] = []
+        out: list[bytes] = []
         try:
             fd = os.open(str(self.path), os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0))
         except OSError:
@@ -120,7 +119,7 @@ class EventReader:
     def __init__(self, run_dir: Path) -> None:
         self.run_dir = Path(run_dir)
         self.scalars: Scalars = {}
-        self._files: Dict[Path, _RecordFile] = {}
+        self._files: dict[Path, _RecordFile] = {}
         self._count = 0
 
     def poll(self) -> Scalars:
@@ -160,12 +159,12 @@ def read_scalars(run_dir: Path) -> Scalars:
     return EventReader(run_dir).poll() if Path(run_dir).is_dir() else {}
 
 
-def losses(scalars: Scalars) -> Dict[int, float]:
+def losses(scalars: Scalars) -> dict[int, float]:
     """The total training loss per logged step."""
     return dict(scalars.get(LOSS_TAG, {}))
 
 
-def rays_per_sec(scalars: Scalars) -> List[float]:
+def rays_per_sec(scalars: Scalars) -> list[float]:
     """Nerfstudio's per-step training throughput, in step order."""
     rays = scalars.get(RAYS_TAG, {})
     return [rays[s] for s in sorted(rays)]

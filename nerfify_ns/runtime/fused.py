@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import os
-from typing import Callable, List
+from collections.abc import Callable
 
 import torch
 from torch import Tensor
@@ -59,9 +59,9 @@ def flush_denormals() -> int:
 
 
 # ----------------------------------------------------------------------------- fused optimiser
-def _cpu_float_params(params: List) -> bool:
+def _cpu_float_params(params: list) -> bool:
     """All tensors (plain or in param-group dicts) are floating-point CPU tensors."""
-    tensors: List[Tensor] = []
+    tensors: list[Tensor] = []
     for item in params:
         if isinstance(item, dict):
             tensors.extend(item.get("params", []))

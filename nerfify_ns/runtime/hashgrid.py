@@ -31,7 +31,6 @@ CPU tensors whenever it is built, else this torch path. ``NERFIFY_HASHGRID_IMPL`
 from __future__ import annotations
 
 import os
-from typing import List, Optional, Tuple
 
 import torch
 from torch import Tensor
@@ -51,7 +50,7 @@ def _wrap_int32(value: int) -> int:
 _PRIMES_I32 = tuple(_wrap_int32(p) for p in PRIMES)
 
 
-def _corner_stack(a: Tuple[Tensor, Tensor], b: Tuple[Tensor, Tensor], c: Tuple[Tensor, Tensor], op) -> Tensor:
+def _corner_stack(a: tuple[Tensor, Tensor], b: tuple[Tensor, Tensor], c: tuple[Tensor, Tensor], op) -> Tensor:
     """``op(op(a_i, b_j), c_k)`` for corners ``4 i + 2 j + k``, stacked on a new last axis (``[L, N, 8]``).
 
     Corners of one point stay adjacent so a gather or scatter touches the same cache lines for them.
@@ -60,7 +59,7 @@ def _corner_stack(a: Tuple[Tensor, Tensor], b: Tuple[Tensor, Tensor], c: Tuple[T
     return torch.stack([op(p, c[k]) for p in pairs for k in (0, 1)], dim=-1)
 
 
-def corner_indices(positions: Tensor, scalings: Tensor, table_size: int) -> Tuple[Tensor, Tensor]:
+def corner_indices(positions: Tensor, scalings: Tensor, table_size: int) -> tuple[Tensor, Tensor]:
     """Flat table indices ``[L, N, 8]`` (level offsets included, int32) and fractions ``[3, L, N]``.
 
     Corner ``c = 4 * bx + 2 * by + bz`` takes ``floor + b`` along each axis. Masking each axis term
@@ -72,7 +71,7 @@ def corner_indices(positions: Tensor, scalings: Tensor, table_size: int) -> Tupl
     frac = scaled - floor
     base = floor.to(torch.int32)
     mask = table_size - 1
-    terms: List[Tuple[Tensor, Tensor]] = []
+    terms: list[tuple[Tensor, Tensor]] = []
     for axis, prime in enumerate(_PRIMES_I32):
         lo = base[axis] * prime if prime != 1 else base[axis]
         terms.append((lo & mask, (lo + prime) & mask))
@@ -82,7 +81,7 @@ def corner_indices(positions: Tensor, scalings: Tensor, table_size: int) -> Tupl
     return _corner_stack(*terms, op=torch.bitwise_xor), frac
 
 
-def _axis_weights(frac: Tensor) -> List[Tuple[Tensor, Tensor]]:
+def _axis_weights(frac: Tensor) -> list[tuple[Tensor, Tensor]]:
     """Per-axis linear weights ``(1 - t, t)`` for the floor and floor + 1 corners."""
     return [(1.0 - frac[a], frac[a]) for a in range(3)]
 
@@ -101,7 +100,7 @@ def _position_gradient(dots: Tensor, frac: Tensor, scalings: Tensor) -> Tensor:
     (ox, fx), (oy, fy), (oz, fz) = _axis_weights(frac)
     d = dots.transpose(1, 2).contiguous().unbind(1)  # d[4 bx + 2 by + bz], each contiguous [L, N]
 
-    def contract(diff: List[Tensor], u: Tuple[Tensor, Tensor], v: Tuple[Tensor, Tensor]) -> Tensor:
+    def contract(diff: list[Tensor], u: tuple[Tensor, Tensor], v: tuple[Tensor, Tensor]) -> Tensor:
         return (diff[0] * v[0] + diff[1] * v[1]) * u[0] + (diff[2] * v[0] + diff[3] * v[1]) * u[1]
 
     gx = contract([d[4] - d[0], d[5] - d[1], d[6] - d[2], d[7] - d[3]], (oy, fy), (oz, fz))
@@ -139,7 +138,7 @@ class HashGridFunction(torch.autograd.Function):
         levels, n, _ = weights.shape
         features = ctx.table_shape[1]
         grad_levels = grad_out.reshape(n, levels, features).transpose(0, 1).contiguous()  # [L, N, F]
-        grad_table: Optional[Tensor] = None
+        grad_table: Tensor | None = None
         if ctx.needs_input_grad[1]:
             grad_table = grad_out.new_zeros(ctx.table_shape)
             if features == 2:  # complex product: a real weight times a 2-feature gradient
@@ -148,7 +147,7 @@ class HashGridFunction(torch.autograd.Function):
             else:
                 per_corner = weights[..., None] * grad_levels[:, :, None, :]
                 grad_table.index_add_(0, flat_idx, per_corner.view(-1, features))
-        grad_pos: Optional[Tensor] = None
+        grad_pos: Tensor | None = None
         if ctx.needs_input_grad[0]:
             dots = torch.bmm(feats, grad_levels.view(levels * n, features, 1)).view(levels, n, 8)
             grad_pos = _position_gradient(dots, frac, scalings)

@@ -22,7 +22,6 @@ import sys
 import warnings
 from pathlib import Path
 from types import ModuleType
-from typing import Dict, List, Optional
 
 import torch
 from torch import Tensor
@@ -36,7 +35,7 @@ STAMP_SUFFIX = ".stamp"
 BUILD_HINT = "python -m nerfify_ns.runtime.hashgrid_ext build"
 
 
-def _cflags() -> List[str]:
+def _cflags() -> list[str]:
     """Portable optimisation flags (the cache may be shared between machines of one architecture).
 
     ``-ffp-contract=off`` keeps ``p * s - floor(p * s)`` rounded exactly like the torch path.
@@ -68,7 +67,7 @@ def _fingerprint() -> str:
     return digest.hexdigest()
 
 
-_loaded: Dict[str, Optional[ModuleType]] = {}  # library path -> module (None: not loadable)
+_loaded: dict[str, ModuleType | None] = {}  # library path -> module (None: not loadable)
 _warned: set = set()
 
 
@@ -104,13 +103,13 @@ def build(verbose: bool = False) -> Path:
     return path
 
 
-def load() -> Optional[ModuleType]:
+def load() -> ModuleType | None:
     """The built kernel module, or ``None`` if it is not built, stale, or fails to import. Never compiles."""
     path = library_path()
     key = str(path)
     if key in _loaded:
         return _loaded[key]
-    module: Optional[ModuleType] = None
+    module: ModuleType | None = None
     stamp = path.parent / f"{EXT_NAME}{STAMP_SUFFIX}"
     if path.is_file():
         try:
@@ -172,7 +171,7 @@ class HashGridCppFunction(torch.autograd.Function):
         return (grad_pos if need_pos else None), (grad_table if need_table else None), None, None
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m nerfify_ns.runtime.hashgrid_ext",
                                      description="Build or inspect the C++ hash-grid kernel.")
     sub = parser.add_subparsers(dest="command", required=True)

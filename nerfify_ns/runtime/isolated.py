@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import importlib.metadata as metadata
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Dict, Iterable
 
 ENV_ONLY = "NERFIFY_METHODS_ONLY"
 GROUP = "nerfstudio.method_configs"
@@ -45,7 +45,7 @@ def apply_from_env() -> None:
         apply(n for n in os.environ[ENV_ONLY].split(",") if n)
 
 
-def isolation_env(folder: Path, methods: Iterable[str] = ()) -> Dict[str, str]:
+def isolation_env(folder: Path, methods: Iterable[str] = ()) -> dict[str, str]:
     """Environment variables for a process that sees only ``methods`` (entry-point names) among the installed
     plugins; writes ``folder/sitecustomize.py``."""
     folder = Path(folder)

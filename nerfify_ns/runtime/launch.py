@@ -19,9 +19,9 @@ import math
 import os
 import shutil
 import sys
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 from nerfify_ns.dataset import DataLike, Dataset, as_dataset
 from nerfify_ns.runtime.errors import RuntimeLayerError
@@ -74,7 +74,7 @@ class RunLayout:
     def log(self) -> Path:
         return Path(self.output_dir) / (self.log_name or f"{self.method}.train.log")
 
-    def args(self) -> List[str]:
+    def args(self) -> list[str]:
         """The ns-train arguments that put the run here."""
         return ["--output-dir", str(self.output_dir), "--experiment-name", self.experiment,
                 "--timestamp", self.timestamp]
@@ -88,16 +88,16 @@ class TrainRun:
     returncode: int
     wall_seconds: float
     log_path: Path
-    run_dir: Optional[Path] = None
-    config_path: Optional[Path] = None
+    run_dir: Path | None = None
+    config_path: Path | None = None
     timed_out: bool = False
-    losses: Dict[int, float] = field(default_factory=dict)
+    losses: dict[int, float] = field(default_factory=dict)
     """Train loss per logged step."""
-    rays_per_sec: List[float] = field(default_factory=list)
+    rays_per_sec: list[float] = field(default_factory=list)
     """Nerfstudio's per-step ``Train Rays / Sec`` (steps after the first two)."""
     scalars: Scalars = field(default_factory=dict)
     """Every scalar the run logged (tag -> step -> value)."""
-    isolation: List[str] = field(default_factory=list)
+    isolation: list[str] = field(default_factory=list)
     """The sandbox's isolation tags when the run was sandboxed (``bwrap``, ``no-network``...), else empty."""
 
     @property
@@ -109,7 +109,7 @@ class TrainRun:
         return bool(self.losses) and all(math.isfinite(v) for v in self.losses.values())
 
     @property
-    def median_rays_per_sec(self) -> Optional[float]:
+    def median_rays_per_sec(self) -> float | None:
         if not self.rays_per_sec:
             return None
         values = sorted(self.rays_per_sec)
@@ -132,7 +132,7 @@ def console_script(name: str) -> str:
     return str(candidate) if candidate.exists() else (shutil.which(name) or name)
 
 
-def offline_prefix() -> List[str]:
+def offline_prefix() -> list[str]:
     """``unshare -n`` (a process with no network) when we may use it, else nothing."""
     unshare = shutil.which("unshare")
     if unshare and hasattr(os, "geteuid") and os.geteuid() == 0:
@@ -140,7 +140,7 @@ def offline_prefix() -> List[str]:
     return []
 
 
-def launch_env(env: Optional[Mapping[str, str]] = None) -> Dict[str, str]:
+def launch_env(env: Mapping[str, str] | None = None) -> dict[str, str]:
     """Our environment with ``env`` on top; Nerfstudio's Future/User warnings off unless set."""
     full = dict(os.environ, **(env or {}))
     full.setdefault("PYTHONWARNINGS", "ignore::FutureWarning,ignore::UserWarning")
@@ -154,10 +154,10 @@ def train_command(
     *,
     iterations: int,
     method_args: Sequence[str] = (),
-    dataparser: Optional[str] = None,
+    dataparser: str | None = None,
     dataparser_args: Sequence[str] = (),
     prefix: Sequence[str] = (),
-) -> List[str]:
+) -> list[str]:
     """The ``ns-train`` command line: ``prefix`` (``unshare -n``, a sandbox, or nothing), the method, the
     data, the run layout, the iterations, tensorboard logging every step, then ``method_args`` (presets and
     extra arguments) and the dataparser subcommand with its arguments. ``data`` is a dataset or its folder;
@@ -182,12 +182,12 @@ def train_command(
     ]
 
 
-def eval_command(config_path: Path, output_path: Path, *, prefix: Sequence[str] = ()) -> List[str]:
+def eval_command(config_path: Path, output_path: Path, *, prefix: Sequence[str] = ()) -> list[str]:
     """The ``ns-eval`` command line for a trained run's ``config.yml``."""
     return [*prefix, console_script("ns-eval"), "--load-config", str(config_path), "--output-path", str(output_path)]
 
 
-def progress_poll(run_dir: Path, total: int, on_progress: Optional[ProgressHook]) -> Optional[Poll]:
+def progress_poll(run_dir: Path, total: int, on_progress: ProgressHook | None) -> Poll | None:
     """A poll hook for :func:`run_process` calling ``on_progress(step, total)`` when the run's events show
     a new step (None when there is no hook)."""
     if on_progress is None:
@@ -223,13 +223,13 @@ def ns_train(
     *,
     iterations: int,
     method_args: Sequence[str] = (),
-    dataparser: Optional[str] = None,
+    dataparser: str | None = None,
     dataparser_args: Sequence[str] = (),
     timeout: float = 900,
-    env: Optional[dict] = None,
+    env: dict | None = None,
     offline: bool = True,
-    on_progress: Optional[ProgressHook] = None,
-    sandbox: Optional[Sequence[Path]] = None,
+    on_progress: ProgressHook | None = None,
+    sandbox: Sequence[Path] | None = None,
 ) -> TrainRun:
     """Train ``method`` on ``data`` (a dataset or its folder) with Nerfstudio's trainer in a subprocess; the
     dataparser as for :func:`train_command`. ``sandbox``: the method runs code we do not trust (a generated
@@ -258,21 +258,21 @@ def ns_train(
     return read_run(run, layout)
 
 
-def headline_metrics(results: dict) -> Dict[str, Optional[float]]:
+def headline_metrics(results: dict) -> dict[str, float | None]:
     """PSNR, SSIM and LPIPS of an ``ns-eval`` result; coarse-to-fine models report the fine ones."""
-    def pick(name: str) -> Optional[float]:
+    def pick(name: str) -> float | None:
         return results.get(f"fine_{name}", results.get(name))
 
     return {"psnr": pick("psnr"), "ssim": pick("ssim"), "lpips": pick("lpips")}
 
 
 def run_logged(cmd: Sequence[str], log_path: Path, cwd: Path, *, timeout: float,
-               env: Optional[dict] = None) -> ProcessResult:
+               env: dict | None = None) -> ProcessResult:
     """:func:`run_process` under :func:`launch_env` (for helpers such as ns-eval or the checkpoint renderer)."""
     return run_process(cmd, log_path, cwd=cwd, timeout=timeout, env=launch_env(env))
 
 
-def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: Optional[dict] = None) -> dict:
+def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: dict | None = None) -> dict:
     """Evaluate a trained run with ``ns-eval``; returns its headline metrics (LPIPS ``None`` when unavailable)
     merged over all of ``results``."""
     output_path = Path(output_path).resolve()

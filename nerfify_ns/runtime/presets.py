@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from functools import lru_cache
 from importlib import resources
-from typing import Dict, List, Optional
 
 import yaml
 
@@ -15,17 +14,17 @@ DEFAULT_SMOKE_ITERATIONS = 20
 
 
 @lru_cache(maxsize=1)
-def smoke_presets() -> Dict[str, dict]:
+def smoke_presets() -> dict[str, dict]:
     text = resources.files("nerfify_ns.runtime").joinpath("smoke_presets.yaml").read_text()
     return yaml.safe_load(text)
 
 
-def preset_args(method: str) -> List[str]:
+def preset_args(method: str) -> list[str]:
     """The ns-train arguments that shrink ``method`` for a small CPU scene (none if unknown)."""
     return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
 
 
-def smoke_iterations(base: Optional[str], given: Optional[int] = None) -> int:
+def smoke_iterations(base: str | None, given: int | None = None) -> int:
     """Iterations of the smoke rung for a plugin derived from ``base``: ``given`` when set, else the base's
     preset (``smoke_iterations``: bases whose loss leaves its first plateau late need more)."""
     if given is not None:
@@ -38,20 +37,20 @@ DEFAULT_STEP_TIME_EXPONENT = 1.0
 per-step costs that do not grow with the batch, such as the optimiser's update, make it grow less)."""
 
 
-def step_time_exponent(base: Optional[str]) -> float:
+def step_time_exponent(base: str | None) -> float:
     """How a training step's time grows with the ray batch for a plugin derived from ``base``: time ~ rays ** e
     (``step_time_exponent`` in the preset, measured; :data:`DEFAULT_STEP_TIME_EXPONENT` otherwise). A budgeted run
     scales the smoke rung's measured step time to the evaluation's batch with it."""
     return float(smoke_presets().get(base or "", {}).get("step_time_exponent", DEFAULT_STEP_TIME_EXPONENT))
 
 
-def render_cost(base: Optional[str], default: float) -> float:
+def render_cost(base: str | None, default: float) -> float:
     """Rendering a ray against training one for a plugin derived from ``base`` (``render_cost`` in the preset,
     measured; ``default`` otherwise): a budgeted run reserves the checkpoints' rendering with it."""
     return float(smoke_presets().get(base or "", {}).get("render_cost", default))
 
 
-def generated_smoke_args(base: str) -> List[str]:
+def generated_smoke_args(base: str) -> list[str]:
     """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
     and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
     the plugin's sizes come from its plan, already pruned for the scene."""

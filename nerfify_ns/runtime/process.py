@@ -19,9 +19,9 @@ import os
 import signal
 import subprocess
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Mapping, Optional, Sequence
 
 from nerfify_ns import interrupts
 
@@ -49,11 +49,11 @@ class ProcessResult:
         return "\n".join(text.splitlines()[-lines:])
 
 
-_live: Dict[int, subprocess.Popen] = {}
+_live: dict[int, subprocess.Popen] = {}
 """Process groups we started and have not finished with: group id (the leader's pid) -> leader."""
 
 
-def live_groups() -> List[int]:
+def live_groups() -> list[int]:
     """The ids of the child process groups started and not yet finished with."""
     return list(_live)
 
@@ -94,7 +94,7 @@ def kill_group(proc: subprocess.Popen) -> None:
     _live.pop(proc.pid, None)
 
 
-_stopped: List[int] = []
+_stopped: list[int] = []
 """Groups SIGKILLed by the interrupt handler (for the interrupt's line)."""
 
 
@@ -142,7 +142,7 @@ def _group_alive(pgid: int) -> bool:
     return not os.path.isdir("/proc")
 
 
-def _interrupt_cleanup() -> Optional[str]:
+def _interrupt_cleanup() -> str | None:
     """Reap what is left; the number of child process groups the interrupt stopped, in words."""
     count = len(set(_stopped) | set(_live))
     kill_all_groups()
@@ -154,7 +154,7 @@ interrupts.on_interrupt(signal_all_groups)
 interrupts.on_cleanup(_interrupt_cleanup, order=0)
 
 
-def _wait(proc: subprocess.Popen, deadline: float, poll: Optional[Poll], poll_seconds: float) -> Optional[int]:
+def _wait(proc: subprocess.Popen, deadline: float, poll: Poll | None, poll_seconds: float) -> int | None:
     """Wait for ``proc`` until ``deadline`` (perf_counter), calling ``poll`` in between; None when time ran out."""
     while True:
         left = deadline - time.perf_counter()
@@ -173,9 +173,9 @@ def run_process(
     *,
     cwd: Path,
     timeout: float,
-    env: Optional[Mapping[str, str]] = None,
-    preexec_fn: Optional[Callable[[], None]] = None,
-    poll: Optional[Poll] = None,
+    env: Mapping[str, str] | None = None,
+    preexec_fn: Callable[[], None] | None = None,
+    poll: Poll | None = None,
     poll_seconds: float = 1.0,
     pass_fds: Sequence[int] = (),
 ) -> ProcessResult:

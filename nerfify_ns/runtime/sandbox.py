@@ -58,9 +58,9 @@ import subprocess
 import sys
 import time
 import uuid
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
 from nerfify_ns.runtime.paths import ENV_CACHE, nerfify_cache_dir
 from nerfify_ns.runtime.process import Poll, ProcessResult, pid_alive, run_process
@@ -124,7 +124,7 @@ class Limits:
 
 
 # ----------------------------------------------------------------------------------------------- cgroups
-def _mountinfo() -> List[Tuple[str, str, str, str]]:
+def _mountinfo() -> list[tuple[str, str, str, str]]:
     """(root, mount point, fs type, super options) of every mount."""
     out = []
     try:
@@ -139,9 +139,9 @@ def _mountinfo() -> List[Tuple[str, str, str, str]]:
     return out
 
 
-def _own_cgroups() -> Dict[str, str]:
+def _own_cgroups() -> dict[str, str]:
     """Controller (or ``""`` for v2) -> our cgroup path, from ``/proc/self/cgroup``."""
-    found: Dict[str, str] = {}
+    found: dict[str, str] = {}
     try:
         text = Path("/proc/self/cgroup").read_text()
     except OSError:
@@ -154,7 +154,7 @@ def _own_cgroups() -> Dict[str, str]:
     return found
 
 
-def _under(mount_root: str, mount_point: str, path: str) -> Optional[Path]:
+def _under(mount_root: str, mount_point: str, path: str) -> Path | None:
     """The folder of cgroup ``path`` in a hierarchy mounted at ``mount_point`` from ``mount_root``."""
     root = mount_root.rstrip("/")
     if root and not (path == root or path.startswith(root + "/")):
@@ -167,7 +167,7 @@ def _write(path: Path, value: str) -> None:
         f.write(value)
 
 
-def _read_int(path: Path, key: Optional[str] = None) -> Optional[int]:
+def _read_int(path: Path, key: str | None = None) -> int | None:
     """An integer file, or the value of ``key`` in a flat-keyed one; None when absent."""
     try:
         text = path.read_text()
@@ -195,22 +195,22 @@ class TreeCgroup:
 
     PREFIX = "nerfify-"
 
-    def __init__(self, version: int, dirs: Dict[str, Path]) -> None:
+    def __init__(self, version: int, dirs: dict[str, Path]) -> None:
         self.version = version
         self.dirs = dirs
 
     @property
-    def folders(self) -> List[Path]:
+    def folders(self) -> list[Path]:
         return list(dict.fromkeys(self.dirs.values()))
 
     @classmethod
-    def create(cls, limits: Limits) -> Optional["TreeCgroup"]:
+    def create(cls, limits: Limits) -> TreeCgroup | None:
         """A new cgroup below ours with the memory and pids limits set; None where none can be written."""
         name = f"{cls.PREFIX}{os.getpid()}-{uuid.uuid4().hex[:8]}"
         return cls._v2(name, limits) or cls._v1(name, limits)
 
     @classmethod
-    def _v2(cls, name: str, limits: Limits) -> Optional["TreeCgroup"]:
+    def _v2(cls, name: str, limits: Limits) -> TreeCgroup | None:
         own = _own_cgroups().get("")
         mount = next(((r, m) for r, m, fs, _ in _mountinfo() if fs == "cgroup2"), None)
         if own is None or mount is None:
@@ -242,9 +242,9 @@ class TreeCgroup:
         return group
 
     @classmethod
-    def _v1(cls, name: str, limits: Limits) -> Optional["TreeCgroup"]:
+    def _v1(cls, name: str, limits: Limits) -> TreeCgroup | None:
         own = _own_cgroups()
-        dirs: Dict[str, Path] = {}
+        dirs: dict[str, Path] = {}
         for controller in ("memory", "pids"):
             mount = next(((r, m) for r, m, fs, opts in _mountinfo()
                           if fs == "cgroup" and controller in opts.split(",")), None)
@@ -295,7 +295,7 @@ class TreeCgroup:
         for folder in self.folders:
             _write(folder / "cgroup.procs", pid)
 
-    def tasks(self) -> List[int]:
+    def tasks(self) -> list[int]:
         pids = set()
         for folder in self.folders:
             try:
@@ -333,10 +333,10 @@ class TreeCgroup:
             time.sleep(0.02)
         return len(first)
 
-    def usage(self) -> Dict[str, int]:
+    def usage(self) -> dict[str, int]:
         """What the tree used and which limits it hit: ``oom_kills``, ``peak_memory`` (bytes), ``pids_refused``
         (forks refused at the task limit)."""
-        out: Dict[str, int] = {}
+        out: dict[str, int] = {}
         mem, pids = self.dirs.get("memory"), self.dirs.get("pids")
         if mem is not None:
             if self.version == 2:
@@ -371,14 +371,14 @@ def _is_root() -> bool:
     return hasattr(os, "geteuid") and os.geteuid() == 0
 
 
-def setpriv_args() -> List[str]:
+def setpriv_args() -> list[str]:
     """util-linux ``setpriv`` becoming the sandbox's unprivileged user with no capability and no_new_privs."""
     return [shutil.which("setpriv") or "setpriv", f"--reuid={SANDBOX_UID}", f"--regid={SANDBOX_GID}",
             "--clear-groups", "--inh-caps=-all", "--bounding-set=-all", "--no-new-privs", "--"]
 
 
-@functools.lru_cache(maxsize=None)
-def available_modes() -> Tuple[str, ...]:
+@functools.cache
+def available_modes() -> tuple[str, ...]:
     """The isolation modes this machine allows, strongest first (``none`` always)."""
     modes = []
     if _is_root() and shutil.which("bwrap") and shutil.which("setpriv") and _bwrap_works():
@@ -392,6 +392,11 @@ def best_mode() -> str:
     return available_modes()[0]
 
 
+def isolation_available() -> bool:
+    """True when a process can get its own namespaces here (``bwrap``, or the ``unshare`` fallback)."""
+    return best_mode() != "none"
+
+
 def _bwrap_works() -> bool:
     """Whether bubblewrap can build the sandbox here (a container may forbid namespaces)."""
     try:
@@ -402,12 +407,12 @@ def _bwrap_works() -> bool:
         return False
 
 
-def _site_paths() -> List[Path]:
+def _site_paths() -> list[Path]:
     """Folders our interpreter's site-packages reach: what ``.pth`` files add (editable installs, a plugin
     installed with -e) and the folders of packages linked in from elsewhere."""
     import site
 
-    found: List[Path] = []
+    found: list[Path] = []
     dirs = [Path(p) for p in site.getsitepackages() if Path(p).is_dir()]
     for d in dirs:
         for entry in d.iterdir():  # packages linked in from another environment: that environment's folder
@@ -445,7 +450,7 @@ def _site_paths() -> List[Path]:
     return found
 
 
-def code_paths() -> Tuple[Path, ...]:
+def code_paths() -> tuple[Path, ...]:
     """What the sandboxed Python needs to read: the virtual environment, the Python installation it points
     into (the venv's ``python`` may be a link into ``/root/.pyenv``), nerfify-ns itself (a checkout when
     installed editable) and folders of ``.pth`` files and editable installs (read at each run: tests install and
@@ -457,16 +462,16 @@ def code_paths() -> Tuple[Path, ...]:
     return _existing(paths)
 
 
-def cache_paths() -> Tuple[Path, ...]:
+def cache_paths() -> tuple[Path, ...]:
     """The built kernel and the LPIPS weights in our cache (read-only in the sandbox; ``$NERFIFY_CACHE`` may
     change between runs, so not cached)."""
     cache = nerfify_cache_dir()
     return _existing([cache / "ext", cache / "lpips"])
 
 
-def _existing(paths: Iterable[Path]) -> Tuple[Path, ...]:
+def _existing(paths: Iterable[Path]) -> tuple[Path, ...]:
     """The resolved folders of ``paths`` that exist, once each, never ``/``."""
-    out: List[Path] = []
+    out: list[Path] = []
     for p in paths:
         try:
             p = p.resolve()
@@ -482,7 +487,7 @@ def _depth(p: Path) -> int:
 
 
 def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Path], limits: Limits,
-                probe: bool = False, supervise: bool = False) -> List[str]:
+                probe: bool = False, supervise: bool = False) -> list[str]:
     """The bwrap command line up to and including ``setpriv ... --`` (``supervise``: the seccomp filter is
     installed before bwrap runs, by :func:`run_sandboxed`, not passed to it)."""
     args = [shutil.which("bwrap") or "bwrap", "--unshare-pid", "--unshare-net", "--unshare-ipc", "--unshare-uts",
@@ -520,7 +525,7 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
         bound.add(path)
     if not probe:
         args += ["--chdir", str(workdir)]
-    wrapper: List[str] = []
+    wrapper: list[str] = []
     bpf = None if supervise else _seccomp_file()
     if bpf is not None:  # bwrap reads the filter from a file descriptor: the shell opens it as fd 3
         wrapper = ["/bin/sh", "-c", 'exec "$@" 3<"$0"', bpf]
@@ -530,7 +535,7 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
 
 
 # ----------------------------------------------------------------------------------------------- seccomp
-def seccomp_filter() -> Optional[bytes]:
+def seccomp_filter() -> bytes | None:
     """The classic-BPF program for ``bwrap --seccomp`` where calls cannot be supervised
     (:func:`nerfify_ns.runtime.seccomp.kill_filter`): escape calls kill the process (SIGSYS), new user
     namespaces and other ABIs are refused; None on a machine it does not know."""
@@ -543,8 +548,8 @@ def supervised() -> bool:
     return os.environ.get("NERFIFY_SECCOMP", "supervise") != "kill" and notify_supported()
 
 
-@functools.lru_cache(maxsize=None)
-def _seccomp_file() -> Optional[str]:
+@functools.cache
+def _seccomp_file() -> str | None:
     """The filter written once per process to a private file of ours (never into a sandbox's folder)."""
     import atexit
     import tempfile
@@ -568,7 +573,7 @@ _UNSHARE_INNER = (
 )
 
 
-def unshare_prefix(workdir: Path) -> List[str]:
+def unshare_prefix(workdir: Path) -> list[str]:
     """The weaker fallback's prefix: no network, a read-only root but ``workdir``; still root, with capabilities."""
     return [shutil.which("unshare") or "unshare", "-n", "-m", "sh", "-c", _UNSHARE_INNER, "sh", str(workdir)]
 
@@ -578,18 +583,18 @@ def unshare_prefix(workdir: Path) -> List[str]:
 class SandboxResult(ProcessResult):
     """How the sandboxed command ended, which isolation it had, the limits and what the tree used."""
 
-    isolation: List[str] = field(default_factory=list)
+    isolation: list[str] = field(default_factory=list)
     """Tags of what held: the mode, then e.g. ``no-network``, ``read-only-fs``, ``cgroup-memory``..."""
     mode: str = "none"
-    limits: Dict[str, object] = field(default_factory=dict)
-    usage: Dict[str, int] = field(default_factory=dict)
+    limits: dict[str, object] = field(default_factory=dict)
+    usage: dict[str, int] = field(default_factory=dict)
     """``oom_kills``, ``peak_memory``, ``pids_refused`` (from the cgroup) and ``left_running`` (tasks still in
     the cgroup when the command had ended, killed then)."""
-    attempts: List[Dict[str, object]] = field(default_factory=list)
+    attempts: list[dict[str, object]] = field(default_factory=list)
     """What the sandboxed code tried that the seccomp supervisor stopped (call, detail, action, pid), recorded
     in our process; empty without supervision."""
 
-    def attempt_sentences(self) -> List[str]:
+    def attempt_sentences(self) -> list[str]:
         """One sentence per escape attempt (the call named), or for a process the kill filter stopped."""
         from nerfify_ns.runtime.seccomp import Attempt
 
@@ -613,7 +618,7 @@ class SandboxResult(ProcessResult):
         text = data.decode("utf-8", errors="replace")
         return clean("\n".join(text.splitlines()[-lines:]), limit=max(4000, lines * 200), keep="tail")
 
-    def limit_hits(self, left_running: bool = True) -> List[str]:
+    def limit_hits(self, left_running: bool = True) -> list[str]:
         """Sentences naming the limits the process tree ran into (empty when none); with ``left_running``, also
         the processes still running when the command had ended (for a command that should leave none)."""
         found = []
@@ -652,7 +657,7 @@ def host_name() -> str:
     return name if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9.-]{0,62}", name or "") else "localhost"
 
 
-def sandbox_env(workdir: Path, extra: Optional[Mapping[str, str]] = None, mode: str = "none") -> Dict[str, str]:
+def sandbox_env(workdir: Path, extra: Mapping[str, str] | None = None, mode: str = "none") -> dict[str, str]:
     """The command's environment: the allowed part of ours (:data:`ENV_KEEP`), temporary files, caches and
     ``HOME`` inside ``workdir``, bytecode off, our cache named explicitly, then ``extra``. Nothing in it says
     "sandbox": the user and log name are ours (the uid is not), and no variable names the isolation (the probe
@@ -692,8 +697,8 @@ def _death_signal():
         return None
 
 
-def _preexec(group: Optional[TreeCgroup], rlimits: Sequence[Tuple[int, int]],
-             installer: Optional[Installer] = None):
+def _preexec(group: TreeCgroup | None, rlimits: Sequence[tuple[int, int]],
+             installer: Installer | None = None):
     """Run in the child before it executes the sandbox: SIGKILL when we die (bubblewrap's --die-with-parent is set
     only once it runs; a parent killed in between would leave the sandbox orphaned), stdin from /dev/null, join
     the cgroup, set rlimits."""
@@ -747,13 +752,13 @@ def run_sandboxed(
     *,
     timeout: float,
     log_name: str = "run.log",
-    memory: Optional[int] = None,
-    env: Optional[Mapping[str, str]] = None,
+    memory: int | None = None,
+    env: Mapping[str, str] | None = None,
     isolate: bool = True,
-    poll: Optional[Poll] = None,
+    poll: Poll | None = None,
     readonly: Iterable[Path] = (),
-    limits: Optional[Limits] = None,
-    mode: Optional[str] = None,
+    limits: Limits | None = None,
+    mode: str | None = None,
     pass_fds: Sequence[int] = (),
 ) -> SandboxResult:
     """Run ``cmd`` in the sandbox with its working directory ``workdir`` (created; the only writable place),
@@ -786,7 +791,7 @@ def run_sandboxed(
     if not pids_cgroup and mode == "bwrap":
         rlimits.append((resource.RLIMIT_NPROC, limits.pids))
     isolation = [mode]
-    supervisor: Optional[Supervisor] = None
+    supervisor: Supervisor | None = None
     if mode == "bwrap":
         supervise = supervised()
         prefix = _bwrap_args(workdir, readonly, [], limits, supervise=supervise)
@@ -810,12 +815,12 @@ def run_sandboxed(
                "pids_scope": "tree" if pids_cgroup else "user" if mode == "bwrap" else None,
                "files": limits.files, "timeout_s": timeout,
                "cgroup": f"v{group.version}" if group is not None else None}
-    usage: Dict[str, int] = {}
+    usage: dict[str, int] = {}
     owner, folder_mode = (os.getuid(), os.getgid()), workdir.stat().st_mode & 0o7777
     if mode == "bwrap":  # the sandbox's user owns its folder while it runs; bwrap (root, no capability) enters it
         _chown_tree(workdir, SANDBOX_UID, SANDBOX_GID)
         os.chmod(workdir, folder_mode | 0o711)
-    attempts: List[Dict[str, object]] = []
+    attempts: list[dict[str, object]] = []
     try:
         if supervisor is not None:
             supervisor.start()
@@ -838,6 +843,6 @@ def run_sandboxed(
     return SandboxResult(**base, isolation=isolation, mode=mode, limits=applied, usage=usage, attempts=attempts)
 
 
-def python_cmd(module: str, *args: str) -> List[str]:
+def python_cmd(module: str, *args: str) -> list[str]:
     """``python -m module args`` with our interpreter."""
     return [sys.executable, "-m", module, *args]

@@ -32,8 +32,8 @@ import signal
 import socket
 import struct
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
 
 ESCAPE_CALLS = ("mount", "umount2", "pivot_root", "setns", "unshare", "ptrace", "bpf", "keyctl", "add_key",
                 "request_key", "init_module", "finit_module", "delete_module", "reboot", "kexec_load",
@@ -42,7 +42,7 @@ ESCAPE_CALLS = ("mount", "umount2", "pivot_root", "setns", "unshare", "ptrace", 
 """Calls a NeRF plugin never needs: only an escape attempt makes them (the process is killed, the call named)."""
 
 # machine -> (AUDIT_ARCH, x32 bit or 0, syscall numbers)
-_ARCH: Dict[str, Tuple[int, int, Dict[str, int]]] = {
+_ARCH: dict[str, tuple[int, int, dict[str, int]]] = {
     "x86_64": (0xC000003E, 0x40000000, {
         "mount": 165, "umount2": 166, "pivot_root": 155, "setns": 308, "unshare": 272, "ptrace": 101, "bpf": 321,
         "keyctl": 250, "add_key": 248, "request_key": 249, "init_module": 175, "finit_module": 313,
@@ -75,7 +75,7 @@ WRITABLE = ("/tmp", "/dev/shm", "/dev/null", "/proc/self", "/proc/thread-self")
 """Where plugin code may open files for writing besides its run folder (private tmpfs, the null device)."""
 
 
-def arch() -> Optional[Tuple[int, int, Dict[str, int]]]:
+def arch() -> tuple[int, int, dict[str, int]] | None:
     return _ARCH.get(platform.machine())
 
 
@@ -96,7 +96,7 @@ def _assemble(prog: Sequence[tuple]) -> bytes:
     return out
 
 
-def _program(action: int, watch: bool) -> Optional[bytes]:
+def _program(action: int, watch: bool) -> bytes | None:
     """The filter: escape calls (and namespace clones, netlink/packet/raw sockets) get ``action``; with
     ``watch`` (the supervised filter) connects and write-opens are also sent to the supervisor."""
     spec = arch()
@@ -104,7 +104,7 @@ def _program(action: int, watch: bool) -> Optional[bytes]:
         return None
     audit, x32, nr = spec
     eperm, enosys = RET_ERRNO | errno.EPERM, RET_ERRNO | errno.ENOSYS
-    prog: List[tuple] = [(_LD, 0, 0, 4), (_JEQ, 1, 0, audit), (_RET, 0, 0, eperm), (_LD, 0, 0, 0)]
+    prog: list[tuple] = [(_LD, 0, 0, 4), (_JEQ, 1, 0, audit), (_RET, 0, 0, eperm), (_LD, 0, 0, 0)]
     if x32:
         prog.append((_JGE, "eperm", 0, x32))
     prog += [(_JEQ, "act", 0, nr[name]) for name in ESCAPE_CALLS]
@@ -126,12 +126,12 @@ def _program(action: int, watch: bool) -> Optional[bytes]:
     return _assemble(prog)
 
 
-def kill_filter() -> Optional[bytes]:
+def kill_filter() -> bytes | None:
     """The fallback program for ``bwrap --seccomp``: escape calls kill the process (SIGSYS)."""
     return _program(RET_KILL_PROCESS, watch=False)
 
 
-def notify_filter() -> Optional[bytes]:
+def notify_filter() -> bytes | None:
     """The supervised program: escape calls, connects and write-opens go to the :class:`Supervisor`."""
     return _program(RET_USER_NOTIF, watch=True)
 
@@ -165,7 +165,7 @@ class Installer:
         socket.send_fds(self.child, [b"L"], [fd])
         os.close(fd)
 
-    def listener(self, timeout: float = 30.0) -> Optional[int]:
+    def listener(self, timeout: float = 30.0) -> int | None:
         """In the parent: the listener the child sent (None when it sent none, or :meth:`close` was called)."""
         self.parent.settimeout(timeout)
         try:
@@ -183,7 +183,7 @@ class Installer:
             s.close()
 
 
-_SUPPORTED: Optional[bool] = None
+_SUPPORTED: bool | None = None
 
 
 def supervised_available() -> bool:
@@ -236,7 +236,7 @@ class Attempt:
         return f"plugin code tried {what}: refused by the sandbox"
 
 
-def _uid(pid: int) -> Optional[int]:
+def _uid(pid: int) -> int | None:
     try:
         with open(f"/proc/{pid}/status") as f:
             for line in f:
@@ -252,23 +252,23 @@ class Supervisor:
 
     MAX_ATTEMPTS = 200
 
-    def __init__(self, workdir: str, listener: Optional[int] = None,
-                 installer: Optional[Installer] = None) -> None:
+    def __init__(self, workdir: str, listener: int | None = None,
+                 installer: Installer | None = None) -> None:
         self.fd = listener
         self.installer = installer
         self.workdir = os.path.normpath(workdir)
-        self.attempts: List[Attempt] = []
+        self.attempts: list[Attempt] = []
         self.dropped = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="seccomp-supervisor", daemon=True)
         spec = arch()
         self.names = {v: k for k, v in (spec[2] if spec else {}).items()}
 
-    def start(self) -> "Supervisor":
+    def start(self) -> Supervisor:
         self._thread.start()
         return self
 
-    def stop(self) -> List[Attempt]:
+    def stop(self) -> list[Attempt]:
         self._stop.set()
         if self.installer is not None:
             self.installer.close()  # wakes a thread still waiting for the listener (the child never sent it)
@@ -369,7 +369,7 @@ class Supervisor:
         except (OSError, ValueError, OverflowError):
             return b""
 
-    def _sockaddr(self, pid: int, address: int, length: int) -> Tuple[int, str]:
+    def _sockaddr(self, pid: int, address: int, length: int) -> tuple[int, str]:
         data = self._read(pid, address, min(int(length), 128))
         if len(data) < 2:
             return -1, "?"
@@ -382,7 +382,7 @@ class Supervisor:
             return family, f"[{socket.inet_ntop(socket.AF_INET6, data[8:24])}]:{port}"
         return family, f"address family {family}"
 
-    def _open_path(self, pid: int, name: str, args: tuple) -> Optional[str]:
+    def _open_path(self, pid: int, name: str, args: tuple) -> str | None:
         address = args[1] if name in ("openat", "openat2") else args[0]
         raw = self._read(pid, address, 4096)
         raw = raw.split(b"\0", 1)[0]

@@ -16,7 +16,7 @@ from __future__ import annotations
 from .cameras import CameraRays, camera_rays, focal_length, look_at, pixel_rays
 from .catalog import list_scenes, resolve_spec, scene_spec
 from .errors import SceneError, SceneExistsError, SceneSettingsError, SceneSpecError, UnknownSceneError
-from .render import Scene, ViewRender, build_scene, render_view
+from .raycast import Scene, ViewRender, build_scene, render_view
 from .writer import check_settings, load_depth, load_floater_mask, view_times, write_scene, write_spec
 
 __all__ = [

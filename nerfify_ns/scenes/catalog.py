@@ -20,7 +20,7 @@ import yaml
 from .cameras import Rig
 from .errors import SceneSpecError, UnknownSceneError
 from .floaters import FloaterSpec
-from .render import build_scene
+from .raycast import build_scene
 
 CATALOG_FILE = "catalog.yaml"
 SCENE_FIELDS = frozenset(
@@ -107,7 +107,7 @@ def validate_spec(spec: Mapping[str, Any]) -> None:
         scale = spec.get("scale", 1.0)
         if (
             isinstance(scale, bool)
-            or not isinstance(scale, (int, float))
+            or not isinstance(scale, int | float)
             or not np.isfinite(scale)
             or scale <= 0
         ):

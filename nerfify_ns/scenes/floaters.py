@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from .errors import SceneSpecError
 from .geometry import Frame, Sphere, spec_float, spec_vector
-from .render import Layer
+from .raycast import Layer
 from .textures import Material
 
 Array = NDArray[np.float64]

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Mapping, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -155,8 +156,8 @@ class View:
     """``(H, W)`` fraction of the pixel covered by geometry (all ones with a visible background)."""
 
 
-def _scale_vector(value: Any) -> List[float]:
-    if isinstance(value, (int, float)):
+def _scale_vector(value: Any) -> list[float]:
+    if isinstance(value, int | float):
         return [float(value)] * 3
     values = [float(v) for v in value]
     if len(values) != 3:
@@ -164,7 +165,7 @@ def _scale_vector(value: Any) -> List[float]:
     return values
 
 
-def object_to_world(obj: Mapping[str, Any], time: Optional[float] = None) -> np.ndarray:
+def object_to_world(obj: Mapping[str, Any], time: float | None = None) -> np.ndarray:
     """The 4x4 placement of a mesh: scale, rotate about x (y-up meshes to z-up), about z, then translate; with a
     ``motion`` and a ``time`` in [0, 1], an extra turn about z and a lift."""
     sx, sy, sz = _scale_vector(obj.get("scale", 1.0))
@@ -185,7 +186,7 @@ def object_to_world(obj: Mapping[str, Any], time: Optional[float] = None) -> np.
     return t @ rz @ rx @ m
 
 
-def sensor_dict(c2w: np.ndarray, width: int, height: int, camera_angle_x: float, spp: int, seed: int) -> Dict[str, Any]:
+def sensor_dict(c2w: np.ndarray, width: int, height: int, camera_angle_x: float, spp: int, seed: int) -> dict[str, Any]:
     """Mitsuba's perspective sensor of an OpenGL camera-to-world ``c2w`` (box pixel filter, RGBA film)."""
     mi = mitsuba()
     return {
@@ -198,12 +199,12 @@ def sensor_dict(c2w: np.ndarray, width: int, height: int, camera_angle_x: float,
     }
 
 
-def scene_dict(spec: Mapping[str, Any], time: Optional[float] = None) -> Dict[str, Any]:
+def scene_dict(spec: Mapping[str, Any], time: float | None = None) -> dict[str, Any]:
     """The Mitsuba scene of ``spec`` (a ``load_dict`` dictionary; objects placed at ``time``), without a camera."""
     mi = mitsuba()
     env = spec.get("environment", {})
     visible = bool(env.get("visible", True))
-    out: Dict[str, Any] = {"type": "scene", "integrator": {"type": "path", "max_depth": 4, "hide_emitters": not visible}}
+    out: dict[str, Any] = {"type": "scene", "integrator": {"type": "path", "max_depth": 4, "hide_emitters": not visible}}
     out["sky"] = {"type": "envmap", "bitmap": _sky_bitmap(), "scale": float(env.get("strength", 1.0)),
                   "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90)}  # the panorama is z-up, Mitsuba's y-up
     sun = spec.get("sun")
@@ -253,9 +254,9 @@ class Renderer:
 
     def __init__(self, spec: Mapping[str, Any]) -> None:
         self.spec = spec
-        self._scenes: Dict[Optional[float], Any] = {}
+        self._scenes: dict[float | None, Any] = {}
 
-    def scene(self, time: Optional[float]):
+    def scene(self, time: float | None):
         if time not in self._scenes:
             if len(self._scenes) > 4:
                 self._scenes.clear()
@@ -263,7 +264,7 @@ class Renderer:
         return self._scenes[time]
 
     def render(self, c2w: np.ndarray, width: int, height: int, camera_angle_x: float, *, spp: int = 32,
-               seed: int = 0, time: Optional[float] = None) -> View:
+               seed: int = 0, time: float | None = None) -> View:
         """Path-trace one camera."""
         mi = mitsuba()
         sensor = mi.load_dict(sensor_dict(c2w, width, height, camera_angle_x, spp, seed))
@@ -273,7 +274,7 @@ class Renderer:
 
 
 def render_view(spec: Mapping[str, Any], c2w: np.ndarray, width: int, height: int, camera_angle_x: float, *,
-                spp: int = 32, seed: int = 0, time: Optional[float] = None) -> View:
+                spp: int = 32, seed: int = 0, time: float | None = None) -> View:
     """Path-trace one camera of the scene ``spec``."""
     return Renderer(spec).render(c2w, width, height, camera_angle_x, spp=spp, seed=seed, time=time)
 

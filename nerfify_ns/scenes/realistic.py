@@ -26,10 +26,11 @@ import json
 import math
 import os
 import shutil
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any
 
 import numpy as np
 import yaml
@@ -55,16 +56,16 @@ MAX_SPP = 1024
 
 
 @functools.lru_cache(maxsize=1)
-def _specs() -> Dict[str, Any]:
+def _specs() -> dict[str, Any]:
     return yaml.safe_load(resources.files(__package__).joinpath(REALISTIC_FILE).read_text(encoding="utf-8"))["scenes"]
 
 
-def list_realistic() -> List[str]:
+def list_realistic() -> list[str]:
     """Names of the realistic scenes, in file order."""
     return list(_specs())
 
 
-def realistic_spec(name: str) -> Dict[str, Any]:
+def realistic_spec(name: str) -> dict[str, Any]:
     """A copy of the entry of ``name`` in ``realistic.yaml``."""
     specs = _specs()
     if name not in specs:
@@ -88,7 +89,7 @@ class RealisticSettings:
     """Cameras, per-image exposure and white balance, the path tracer's samples, COLMAP's RANSAC."""
     spp: int = 32
     """Path-traced samples per pixel."""
-    poses: Optional[str] = None
+    poses: str | None = None
     """``exact`` or ``colmap`` (Nerfstudio format only); None: the scene's own choice."""
     sfm_factor: int = 4
     """With COLMAP poses: the images COLMAP sees are rendered this many times larger (a capture's full-size
@@ -160,7 +161,7 @@ def scene_cache_dir() -> Path:
     return Path(os.environ.get(ENV_SCENE_CACHE) or nerfify_cache_dir() / "scenes")
 
 
-def cached_realistic(settings: RealisticSettings, progress: Optional[Callable[[str], None]] = None) -> Path:
+def cached_realistic(settings: RealisticSettings, progress: Callable[[str], None] | None = None) -> Path:
     """The folder of the scene ``settings`` describe in the cache, rendered (atomically) when not there yet."""
     check_realistic_settings(settings)
     folder = scene_cache_dir() / f"{settings.name}-{cache_key(settings)[:20]}"
@@ -181,12 +182,12 @@ class Shot:
     file_path: str
     c2w: np.ndarray
     split: str
-    time: Optional[float]
+    time: float | None
     exposure_ev: float
     white_balance: tuple
 
 
-def _cameras(spec: Dict[str, Any], settings: RealisticSettings) -> List[Shot]:
+def _cameras(spec: dict[str, Any], settings: RealisticSettings) -> list[Shot]:
     rig_spec = dict(spec["rig"])
     jitter = float(rig_spec.pop("jitter", 0.0))
     rig = Rig.from_spec(rig_spec)
@@ -199,11 +200,11 @@ def _cameras(spec: Dict[str, Any], settings: RealisticSettings) -> List[Shot]:
         groups = [("train", rig.poses(n, "train", settings.seed), [f"images/frame_{i + 1:05d}.png" for i in range(n)])]
     else:
         groups = [(s, rig.poses(k, s, settings.seed), [f"{s}/r_{i}" for i in range(k)])
-                  for s, k in zip(SPLITS, (settings.n_train, settings.n_val, settings.n_test))]
+                  for s, k in zip(SPLITS, (settings.n_train, settings.n_val, settings.n_test), strict=False)]
     times = view_times({"train": settings.n_train, "val": settings.n_val, "test": settings.n_test})
     shots = []
     for split, poses, names in groups:
-        for i, (c2w, name) in enumerate(zip(poses, names)):
+        for i, (c2w, name) in enumerate(zip(poses, names, strict=False)):
             if jitter:
                 position = c2w[:3, 3] + rng.normal(0.0, jitter, 3)
                 c2w = look_at(position, rig.target + rng.normal(0.0, jitter / 2, 3))
@@ -214,7 +215,7 @@ def _cameras(spec: Dict[str, Any], settings: RealisticSettings) -> List[Shot]:
     return shots
 
 
-def true_facts(spec: Dict[str, Any], settings: RealisticSettings) -> Dict[str, Any]:
+def true_facts(spec: dict[str, Any], settings: RealisticSettings) -> dict[str, Any]:
     """The facts the renderer knows (what the scene probe should find from the images and cameras)."""
     visible = bool(spec.get("environment", {}).get("visible", True))
     appearance = spec.get("appearance", {})
@@ -224,7 +225,7 @@ def true_facts(spec: Dict[str, Any], settings: RealisticSettings) -> Dict[str, A
             "exact_poses": settings.resolved_poses() == "exact", "format": spec["format"]}
 
 
-def render_realistic(settings: RealisticSettings, out: Path, progress: Optional[Callable[[str], None]] = None) -> None:
+def render_realistic(settings: RealisticSettings, out: Path, progress: Callable[[str], None] | None = None) -> None:
     """Render the scene into the (existing, empty) folder ``out``: images, cameras in the scene's format,
     ``ground_truth.json``; COLMAP poses estimated when asked for."""
     spec = realistic_spec(settings.name)
@@ -297,12 +298,12 @@ def _downscale_capture(folder: Path, factor: int) -> None:
 # ------------------------------------------------------------------------------------------ writing
 
 
-def load_ground_truth(folder: Path) -> Dict[str, Any]:
+def load_ground_truth(folder: Path) -> dict[str, Any]:
     """``ground_truth.json`` of a written realistic scene."""
     return json.loads((Path(folder) / GROUND_TRUTH).read_text())
 
 
-def _retarget_ground_truth(truth: Dict[str, Any], source, exported_root: Path) -> Dict[str, Any]:
+def _retarget_ground_truth(truth: dict[str, Any], source, exported_root: Path) -> dict[str, Any]:
     """Ground truth keyed by the exported dataset's image paths: each exported frame is matched to the source
     frame with the same camera (export copies poses exactly)."""
     from nerfify_ns.dataset import read_dataset
@@ -317,8 +318,8 @@ def _retarget_ground_truth(truth: Dict[str, Any], source, exported_root: Path) -
     return {**truth, "format": exported.format, "frames": frames}
 
 
-def write_realistic(settings: RealisticSettings, out: Path, *, fmt: Optional[str] = None, overwrite: bool = False,
-                    progress: Optional[Callable[[str], None]] = None) -> Path:
+def write_realistic(settings: RealisticSettings, out: Path, *, fmt: str | None = None, overwrite: bool = False,
+                    progress: Callable[[str], None] | None = None) -> Path:
     """Write the realistic scene ``settings`` to ``out`` (atomically, from the cache): in its own format, or
     exported to ``fmt`` (``blender``, ``dnerf``, ``nerfstudio``, ``colmap``, ``llff``) with
     :func:`nerfify_ns.dataset.convert.export_dataset`, ``ground_truth.json`` following the images."""
@@ -361,7 +362,7 @@ class PoseAccuracy:
     position_max: float
 
 
-def pose_accuracy(estimated: List[np.ndarray], true: List[np.ndarray]) -> PoseAccuracy:
+def pose_accuracy(estimated: list[np.ndarray], true: list[np.ndarray]) -> PoseAccuracy:
     """Compare camera-to-world matrices (OpenGL axes, matched by index) up to a similarity transform (Umeyama
     1991: the least-squares rotation, translation and scale between the two sets of camera centres)."""
     est = np.stack([np.asarray(m, dtype=np.float64) for m in estimated])

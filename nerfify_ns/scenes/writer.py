@@ -37,7 +37,7 @@ from .cameras import SPLITS, Rig, focal_length, pixel_rays
 from .catalog import resolve_spec, scene_spec
 from .errors import SceneExistsError, SceneSettingsError
 from .floaters import Blob, FloaterSpec
-from .render import Layer, build_scene, render_view, trace
+from .raycast import Layer, build_scene, render_view, trace
 from .textures import Light
 
 Array = NDArray[np.float64]
@@ -64,7 +64,7 @@ def check_settings(resolution: int, n_train: int, n_val: int, n_test: int, seed:
     at least one training view, validation and test views >= 0, at most MAX_VIEWS per split, a seed in
     [0, 2**32)."""
     def whole(name: str, value: Any, lo: int, hi: int, unit: str = "") -> None:
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
             raise SceneSettingsError(f"{name} must be a whole number, got {value!r}")
         if not lo <= value <= hi:
             raise SceneSettingsError(f"{name} must be between {lo} and {hi}{unit}, got {value}")

@@ -19,8 +19,8 @@ The weights are data (``bases.yaml``, ``choice``), so a knowledge base can chang
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Iterable, Mapping, Optional, Sequence
 
 from nerfify_ns.grammar import Grammar
 from nerfify_ns.knowledge.bases import BaseStatement
@@ -57,13 +57,13 @@ class BaseDecision:
     base: str
     reason: str
     scores: list[BaseScore]
-    statement: Optional[BaseStatement] = None
+    statement: BaseStatement | None = None
     close_call: str = ""               # the sentence explaining a close call ("" when it was not one)
-    runner_up: Optional[str] = None
+    runner_up: str | None = None
     criterion: str = ""                # statement | score | exclusive | covered | extra | order | none
     notes: list[str] = field(default_factory=list)
 
-    def score_of(self, name: str) -> Optional[BaseScore]:
+    def score_of(self, name: str) -> BaseScore | None:
         return next((s for s in self.scores if s.name == name), None)
 
     def to_dict(self) -> dict:
@@ -154,7 +154,7 @@ def _reason(best: BaseScore, n_candidates: int, scores: Sequence[BaseScore]) -> 
             f"({', '.join(best.covered) or 'none'}){miss} (score {best.score:.2f}; next: {others})")
 
 
-def _from_statement(statements: Sequence[BaseStatement], available: Iterable[str]) -> Optional[tuple[BaseStatement, list[str]]]:
+def _from_statement(statements: Sequence[BaseStatement], available: Iterable[str]) -> tuple[BaseStatement, list[str]] | None:
     """The first statement naming an available base, and the available bases it names."""
     known = set(available)
     for st in statements:

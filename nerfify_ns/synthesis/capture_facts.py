@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Tuple
 
 import numpy as np
 from PIL import Image
@@ -79,7 +78,7 @@ def camera_layout(poses: np.ndarray) -> Layout:
     return Layout(forward_facing, surrounding, text)
 
 
-def model_folder(dataset: Dataset) -> Optional[Path]:
+def model_folder(dataset: Dataset) -> Path | None:
     """The COLMAP model that came with the dataset (COLMAP format, or ns-process-data's ``colmap/sparse/0``)."""
     if dataset.format == "colmap":
         return dataset.root / str(dataset.meta["colmap_path"])
@@ -87,7 +86,7 @@ def model_folder(dataset: Dataset) -> Optional[Path]:
     return folder if dataset.format == "nerfstudio" and folder.is_dir() else None
 
 
-def points_beyond_cameras(obs: Observations) -> Tuple[float, str]:
+def points_beyond_cameras(obs: Observations) -> tuple[float, str]:
     """Share of the model's points farther than ``EXTENT_RATIO`` camera radii from the cameras' centre."""
     centre = obs.centres.mean(0)
     radius = float(np.linalg.norm(obs.centres - centre, axis=1).mean())
@@ -98,7 +97,7 @@ def points_beyond_cameras(obs: Observations) -> Tuple[float, str]:
                    f"radius (95th percentile at {np.percentile(ratio, 95):.1f}x)")
 
 
-def uniform_background(dataset: Dataset) -> Tuple[bool, str]:
+def uniform_background(dataset: Dataset) -> tuple[bool, str]:
     """Whether every image's border is one uniform colour, the same in all images (a backdrop)."""
     colours = []
     for frame in _sample(dataset):
@@ -136,11 +135,11 @@ class Appearance:
     """Per image (model order), relative to the median image."""
     white_balance: np.ndarray
     """``(M, 2)`` red/green and blue/green log gains per image, relative to the median image."""
-    images: Tuple[str, ...]
+    images: tuple[str, ...]
     evidence: str
 
 
-def appearance_from_points(dataset: Dataset, obs: Observations) -> Optional[Appearance]:
+def appearance_from_points(dataset: Dataset, obs: Observations) -> Appearance | None:
     """Per-image exposure and white balance from the colours of the model's points in the dataset's images;
     None when too few points are seen in three or more readable images."""
     by_name = {f.image.name: f for f in dataset.frames}
@@ -196,7 +195,7 @@ def _group_median(groups: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     starts = np.searchsorted(g, np.arange(n))
     ends = np.searchsorted(g, np.arange(n), side="right")
     out = np.zeros(n)
-    for i, (a, b) in enumerate(zip(starts, ends)):
+    for i, (a, b) in enumerate(zip(starts, ends, strict=False)):
         if b > a:
             out[i] = 0.5 * (v[a + (b - a - 1) // 2] + v[a + (b - a) // 2])
     return out

@@ -11,10 +11,10 @@ import ast
 import json
 import subprocess
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Dict, List, Mapping, Optional
 
 import jinja2
 import networkx as nx
@@ -47,9 +47,9 @@ class ComposedPlugin:
     out: Path
     method: str
     package: str
-    files: List[str]
+    files: list[str]
     plan: dict
-    repairs: List[dict] = field(default_factory=list)
+    repairs: list[dict] = field(default_factory=list)
     """What became of each code repair recorded in the plan (``repairs``): applied, already present or
     does not apply."""
 
@@ -95,7 +95,7 @@ def _component_source(module: str) -> str:
     return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import", "from . import")
 
 
-def _ruff(args: List[str], code: str, path: str) -> str:
+def _ruff(args: list[str], code: str, path: str) -> str:
     ruff = Path(sys.executable).with_name("ruff")
     result = subprocess.run([str(ruff), *args, "--stdin-filename", path, "-"],
                             input=code, capture_output=True, text=True, timeout=60)
@@ -140,7 +140,7 @@ def _custom_source(module: str, sources: Mapping[str, str], path: str) -> str:
     return text if text.endswith("\n") else text + "\n"
 
 
-def plugin_sources(plugin_dir: Path, plan: dict) -> Dict[str, str]:
+def plugin_sources(plugin_dir: Path, plan: dict) -> dict[str, str]:
     """The sources of the custom components of an existing plugin (to recompose it from its plan)."""
     package = Names.of(plan["method"]).package
     modules = {v["module"] for _, v in _custom_entries(plan)}
@@ -152,12 +152,12 @@ def plugin_sources(plugin_dir: Path, plan: dict) -> Dict[str, str]:
     return found
 
 
-def _custom_entries(plan: dict) -> List[tuple]:
+def _custom_entries(plan: dict) -> list[tuple]:
     derivation = validate(plan)
     return [(path, Plan.of(plan).get(path)) for path, term in derivation.used.items() if term == "custom"]
 
 
-def sources_from_folder(folder: Path) -> Dict[str, str]:
+def sources_from_folder(folder: Path) -> dict[str, str]:
     """Custom component sources from a folder of ``<module>.py`` files (``components.<module>``)."""
     folder = Path(folder)
     if not folder.is_dir():
@@ -165,7 +165,7 @@ def sources_from_folder(folder: Path) -> Dict[str, str]:
     return {f"components.{p.stem}": p.read_text() for p in sorted(folder.glob("*.py")) if p.stem.isidentifier()}
 
 
-def readme_rows(context: Context, ctx: dict) -> List[dict]:
+def readme_rows(context: Context, ctx: dict) -> list[dict]:
     pkg = ctx["package"]
     rows = [{"file": f"{pkg}/{p.file}", "part": p.role, "path": p.path, "implementation": p.implementation,
              "evidence": (p.evidence or p.source).replace("|", "/")} for p in context.parts]
@@ -175,8 +175,8 @@ def readme_rows(context: Context, ctx: dict) -> List[dict]:
     return rows
 
 
-def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
-                 sources: Optional[Mapping[str, str]] = None, one_shot: bool = False) -> ComposedPlugin:
+def write_plugin(plan: dict, folder: Path, *, grammar: Grammar | None = None,
+                 sources: Mapping[str, str] | None = None, one_shot: bool = False) -> ComposedPlugin:
     """Validate ``plan`` and render its plugin into the existing, empty ``folder``; ``sources`` holds the
     code of the plan's custom components (``components.<module>`` -> source). ``one_shot`` (the ablation
     ``one-shot``): every file rendered in one pass in declaration order, none parsed or formatted as it is
@@ -189,7 +189,7 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
                      "holes": plan.get("holes") or [], "notes": plan.get("notes") or []}
     graph = plugin_files(ctx)
     env = _environment()
-    written: List[str] = []
+    written: list[str] = []
     for name in (list(graph.nodes) if one_shot else nx.topological_sort(graph)):
         f: PluginFile = graph.nodes[name]["file"]
         text = _render(env, f, ctx, plan, sources or {})
@@ -209,11 +209,11 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Optional[Grammar] = None,
                           files=written, plan=plan, repairs=repairs)
 
 
-def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Optional[Grammar] = None,
-            record: bool = True, sources: Optional[Mapping[str, str]] = None) -> ComposedPlugin:
+def compose(plan: dict, out: Path, *, overwrite: bool = False, grammar: Grammar | None = None,
+            record: bool = True, sources: Mapping[str, str] | None = None) -> ComposedPlugin:
     """Validate ``plan`` and write its plugin package to ``out`` (atomically). ``record`` is kept for callers
     and does nothing: there is no global "last generated" plugin (``ns-train nerfify-generated`` resolves
-    $NERFIFY_GENERATED or the newest plugin under ./nerfify-out, :mod:`nerfify_ns.synthesis.registry`)."""
+    $NERFIFY_GENERATED or the newest plugin under ./nerfify-out, :mod:`nerfify_ns.synthesis.plugin_lookup`)."""
     with atomic_dir(out, overwrite) as staging:
         result = write_plugin(plan, staging, grammar=grammar, sources=sources)
     result.out = Path(out).absolute()

@@ -10,23 +10,24 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Optional, Tuple
-
+from typing import Any
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Derivation, Grammar
-from nerfify_ns.knowledge import KnowledgeBase, card as load_card
 from nerfify_ns.grammar.spec import CUSTOM
+from nerfify_ns.knowledge import KnowledgeBase
+from nerfify_ns.knowledge import card as load_card
 from nerfify_ns.plan import Plan, package_name
 from nerfify_ns.registry import default_registry
-from nerfify_ns.registry.render import py, render
+from nerfify_ns.registry.snippets import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
 from nerfify_ns.synthesis.resources import bases
 
 
-def one(mapping: dict) -> Tuple[str, Any]:
+def one(mapping: dict) -> tuple[str, Any]:
     """The single (alternative, value) of a choice."""
     (key, value), = mapping.items()
     return key, value
@@ -36,7 +37,7 @@ def render_snippet(text: str, params: dict, package: str) -> str:
     return render(text, params, package)
 
 
-def snippet(terminal: str) -> Optional[dict]:
+def snippet(terminal: str) -> dict | None:
     """What ``terminal`` renders (imports, ctor, expr, component, traits), None when it renders nothing
     of its own (the base model's config realises it)."""
     code = default_registry()[terminal].code
@@ -81,7 +82,7 @@ class Names:
     prefix: str
 
     @classmethod
-    def of(cls, method: str) -> "Names":
+    def of(cls, method: str) -> Names:
         package = package_name(method)  # the name validate() checked (plan.method_name_problems)
         prefix = "".join(part.capitalize() for part in package.split("_"))
         return cls(method=method, package=package, prefix=prefix)
@@ -95,8 +96,8 @@ class Context:
     plan: dict
     derivation: Derivation
     grammar: Grammar
-    parts: List[Part] = field(default_factory=list)
-    components: List[str] = field(default_factory=list)
+    parts: list[Part] = field(default_factory=list)
+    components: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.plan = Plan.of(self.plan)
@@ -125,7 +126,7 @@ class Context:
         self.parts.append(Part(file=file, role=role, path=path, terminal=terminal.name, what=what,
                                implementation=implementation, source=source, evidence=str(evidence)))
 
-    def custom(self, slot: str) -> Optional[dict]:
+    def custom(self, slot: str) -> dict | None:
         """The custom component at ``slot`` (a choice or open slot holding ``{custom: {...}}``): its class,
         the import of its module inside the plugin, its constructor arguments as Python source."""
         path = f"{slot}.{CUSTOM}"
@@ -139,7 +140,7 @@ class Context:
             self.components.append(module)
 
 
-def card_reference(card_name: Optional[str], kb: Optional[KnowledgeBase] = None) -> str:
+def card_reference(card_name: str | None, kb: KnowledgeBase | None = None) -> str:
     """'<paper title> (<year>), <equation>' of a card of the knowledge base ``kb`` (default: the package's),
     or '' when there is none."""
     if not card_name:
@@ -168,7 +169,7 @@ def call(cls: str, *args: str) -> str:
 
 
 # ------------------------------------------------------------------------------- the field
-def _imports(ctx: Context, snippet: dict) -> List[str]:
+def _imports(ctx: Context, snippet: dict) -> list[str]:
     ctx.need_component(snippet)
     return [render_snippet(line, {}, ctx.names.package) for line in snippet.get("imports", [])]
 
@@ -182,7 +183,7 @@ def mlp_field(ctx: Context) -> dict:
     root = "model.field.MLPField"
     fp = ctx.plan.get(root)
     pkg = ctx.names.package
-    imports: List[str] = []
+    imports: list[str] = []
 
     pe_name, _ = one(fp["pos_encoding"])
     pe_path = f"{root}.pos_encoding.{pe_name}"
@@ -323,9 +324,9 @@ def field_wrappers(ctx: Context) -> dict:
     field, a ``(name, constructor)``) and at most one blend (the field then is several copies of itself)."""
     path = "model.field_wrappers"
     members = ctx.plan.get(path) or {}
-    conditioners: List[dict] = []
-    blend: Optional[dict] = None
-    imports: List[str] = []
+    conditioners: list[dict] = []
+    blend: dict | None = None
+    imports: list[str] = []
     for name in members:
         member = f"{path}.{name}"
         terminal = ctx.derivation.used.get(member)
@@ -362,11 +363,11 @@ def field_wrappers(ctx: Context) -> dict:
     return {"conditioners": conditioners, "blend": blend, "imports": imports}
 
 
-def schedule_hooks(ctx: Context) -> Tuple[List[dict], List[str]]:
+def schedule_hooks(ctx: Context) -> tuple[list[dict], list[str]]:
     """The plan's schedule hooks (``model.schedule_hooks``): constructors, and the imports they need."""
     path = "model.schedule_hooks"
-    hooks: List[dict] = []
-    imports: List[str] = []
+    hooks: list[dict] = []
+    imports: list[str] = []
     for name in ctx.plan.get(path) or {}:
         member = f"{path}.{name}"
         if ctx.derivation.used.get(member) == CUSTOM:
@@ -385,7 +386,7 @@ def schedule_hooks(ctx: Context) -> Tuple[List[dict], List[str]]:
     return hooks, imports
 
 
-def pixel_sampler(ctx: Context) -> Optional[dict]:
+def pixel_sampler(ctx: Context) -> dict | None:
     """The training pixel sampler: the plan's map (``pixel_sampler``), or a uniform map where a schedule hook
     needs the plugin's sampler (an image curriculum) and the plan names none; None for Nerfstudio's own."""
     needs = any(ctx.grammar.terminals[t].definition is not None
@@ -425,7 +426,7 @@ def custom_field(ctx: Context) -> dict:
             "parts": [p for p in ctx.parts if p.file == "field.py"]}
 
 
-def custom_modules(ctx: Context) -> List[str]:
+def custom_modules(ctx: Context) -> list[str]:
     """The modules of the plugin's components package that custom entries of the plan name."""
     return sorted({ctx.params(path)["module"] for path, term in ctx.derivation.used.items() if term == CUSTOM})
 
@@ -437,7 +438,7 @@ def _renderer_needs_samples(ctx: Context) -> bool:
     return isinstance(entry, dict) and entry.get("source") == "compiler"
 
 
-def _custom_regularizers(ctx: Context) -> List[str]:
+def _custom_regularizers(ctx: Context) -> list[str]:
     """Paths of the plan's custom regularisers (they read the field's densities)."""
     return [path for path, term in ctx.derivation.used.items()
             if term == CUSTOM and path.startswith("model.regularizers.")]
@@ -471,7 +472,7 @@ def tensorial_field(ctx: Context) -> dict:
 
 
 # ------------------------------------------------------------------------------- the model
-def _proposal_networks(ctx: Context) -> Optional[dict]:
+def _proposal_networks(ctx: Context) -> dict | None:
     path = "model.sampler.proposal"
     if not ctx.used(path) or ctx.params(path)["network"] != "kplanes":
         return None
@@ -486,7 +487,7 @@ def _proposal_networks(ctx: Context) -> Optional[dict]:
 
 
 def model_context(ctx: Context) -> dict:
-    imports: List[str] = []
+    imports: list[str] = []
     base = bases()[ctx.plan["base"]]
     rgb_name, _ = one(ctx.plan.get("model.losses.rgb"))
     rgb_path = f"model.losses.rgb.{rgb_name}"
@@ -551,13 +552,13 @@ def model_context(ctx: Context) -> dict:
 
 
 # ------------------------------------------------------------------------------- the config
-def _config_fields(base: dict) -> Dict[str, Any]:
+def _config_fields(base: dict) -> dict[str, Any]:
     module = importlib.import_module(base.get("config_module") or base["module"])
     cls = getattr(module, base["config_class"])
     return {f.name: f for f in dataclasses.fields(cls)}
 
 
-def _mapped_values(ctx: Context, base_name: str) -> List[KW]:
+def _mapped_values(ctx: Context, base_name: str) -> list[KW]:
     """Base-config values that terminals map onto (``config:`` in grammar_spec.yaml)."""
     out = []
     for path, term in ctx.derivation.used.items():
@@ -568,9 +569,9 @@ def _mapped_values(ctx: Context, base_name: str) -> List[KW]:
     return out
 
 
-def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> List[KW]:
+def _derived_values(ctx: Context, base_name: str, fields: dict[str, Any]) -> list[KW]:
     """Base-config switches implied by what the plan contains (or leaves out)."""
-    out: List[KW] = []
+    out: list[KW] = []
     model = ctx.plan.get("model")
     mlp = (model["field"].get("MLPField") or {})
     if "background_color" in fields and not ctx.custom("model.renderer"):
@@ -606,7 +607,7 @@ def _derived_values(ctx: Context, base_name: str, fields: Dict[str, Any]) -> Lis
     return out
 
 
-def _loss_coefficients(ctx: Context, base_name: str) -> List[KW]:
+def _loss_coefficients(ctx: Context, base_name: str) -> list[KW]:
     if base_name in ("vanilla-nerf", "mipnerf"):
         weight = ctx.params("model.sampler.hierarchical")["coarse_loss_weight"]
         return [KW("loss_coefficients", py({"rgb_loss_coarse": weight, "rgb_loss_fine": 1.0}),
@@ -627,7 +628,7 @@ def _loss_coefficients(ctx: Context, base_name: str) -> List[KW]:
     return out
 
 
-def _group_ctor(ctx: Context, kind: str, value: Optional[dict], path: str) -> Tuple[str, List[str]]:
+def _group_ctor(ctx: Context, kind: str, value: dict | None, path: str) -> tuple[str, list[str]]:
     if value is None:
         return "None", []
     name, _ = one(value)

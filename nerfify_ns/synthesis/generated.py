@@ -1,7 +1,7 @@
 """The generated method (``GENERATED_METHOD``): what ``ns-train nerfify-generated`` trains.
 
 It is the plugin folder named by $NERFIFY_GENERATED, else the newest plugin under the current directory's
-``nerfify-out/`` (:func:`nerfify_ns.synthesis.registry.resolve_generated`; no global "last generated"
+``nerfify-out/`` (:func:`nerfify_ns.synthesis.plugin_lookup.resolve_generated`; no global "last generated"
 pointer, so parallel runs never train each other's plugin), imported from its folder, so a user can train it
 without installing it. ``ns-train nerfify-generated`` says on its first line which plugin it trains and how
 it was chosen. When there is none, or it cannot be imported, it is a CPU-sized Nerfacto (proposal sampling
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import sys
-from typing import List, Optional
 
 from nerfstudio.cameras.camera_optimizers import CameraOptimizerConfig
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
@@ -28,7 +27,7 @@ from nerfstudio.plugins.types import MethodSpecification
 
 from nerfify_ns.runtime import default_device_type
 from nerfify_ns.runtime.launch import ENV_GENERATED, GENERATED_METHOD
-from nerfify_ns.synthesis.registry import GeneratedPluginError, load_plugin_method, resolve_generated
+from nerfify_ns.synthesis.plugin_lookup import GeneratedPluginError, load_plugin_method, resolve_generated
 
 
 def cpu_nerfacto_config(method_name: str = GENERATED_METHOD) -> TrainerConfig:
@@ -82,7 +81,7 @@ def _fallback(reason: str) -> MethodSpecification:
                                description=f"nerfify: {reason}; until then a CPU-sized nerfacto")
 
 
-def _training_us(argv: Optional[List[str]] = None) -> bool:
+def _training_us(argv: list[str] | None = None) -> bool:
     """Whether this process is ``ns-train GENERATED_METHOD ...`` (other ns-* commands load us too)."""
     argv = sys.argv if argv is None else argv
     return len(argv) > 1 and argv[1] == GENERATED_METHOD

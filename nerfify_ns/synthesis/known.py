@@ -16,11 +16,11 @@ only when that sequence is long enough to mean something.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Iterable, Optional
+from typing import Any
 
-from nerfify_ns.equations import ParseFailure, parse_equations
-from nerfify_ns.equations import ir
+from nerfify_ns.equations import ParseFailure, ir, parse_equations
 
 COMMUTATIVE = {"+", "*", "odot"}
 MIN_CONTAINED = 6
@@ -55,7 +55,7 @@ def _children(e: Any) -> list:
         return [e.arg]
     if isinstance(e, ir.Apply):
         return list(e.args)
-    if isinstance(e, (ir.Reduce, ir.Integral, ir.Expectation)):
+    if isinstance(e, ir.Reduce | ir.Integral | ir.Expectation):
         return [e.body]
     if isinstance(e, ir.Norm):
         return [e.arg]
@@ -200,7 +200,7 @@ class CardEquations:
         self.ops = ops
 
     @classmethod
-    def of(cls, kb: Any) -> "CardEquations":
+    def of(cls, kb: Any) -> CardEquations:
         cached = getattr(kb, "_card_equations", None)
         if cached is not None:
             return cached
@@ -222,11 +222,11 @@ class CardEquations:
             pass
         return index
 
-    def match(self, latex: str, text: str = "") -> Optional[Match]:
+    def match(self, latex: str, text: str = "") -> Match | None:
         """The card whose equation ``latex`` (or, unreadable, ``text``) is, by structure; None when it is new."""
         return self.read_and_match(latex, text)[1]
 
-    def read_and_match(self, latex: str, text: str = "") -> tuple[bool, Optional[Match]]:
+    def read_and_match(self, latex: str, text: str = "") -> tuple[bool, Match | None]:
         """Whether the parser read the equation (its LaTeX, else its text), and the card it matches (see ``match``):
         both from one parse."""
         parsed = _parsed(latex) if latex else []
@@ -234,7 +234,7 @@ class CardEquations:
             parsed = _parsed(text)
         return bool(parsed), self._match(parsed, latex or text)
 
-    def _match(self, parsed: list, source: str) -> Optional[Match]:
+    def _match(self, parsed: list, source: str) -> Match | None:
         for eq in parsed:
             rhs_c = canonical(eq.rhs)
             for f in self.forms:

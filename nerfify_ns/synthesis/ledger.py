@@ -26,7 +26,7 @@ import math
 import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -67,7 +67,7 @@ def _rules() -> dict:
     }
 
 
-_RULES: Optional[dict] = None
+_RULES: dict | None = None
 
 
 def rules() -> dict:
@@ -87,8 +87,8 @@ class Claim:
     source: str
     """contributions list | abstract | introduction | method | title"""
     section: str = ""
-    page: Optional[int] = None
-    line: Optional[int] = None
+    page: int | None = None
+    line: int | None = None
     whole_paper: bool = False
     parts: list = field(default_factory=list)
     """Ids of the parts it links to."""
@@ -106,8 +106,8 @@ class Part:
     equations: list = field(default_factory=list)
     """{number, latex, text, where, known: card or None, how}"""
     hyperparameters: list = field(default_factory=list)
-    page: Optional[int] = None
-    line: Optional[int] = None
+    page: int | None = None
+    line: int | None = None
     generic: bool = False
     lead: bool = False
     """The opening of a section whose run-in paragraphs are the parts (its claims announce them)."""
@@ -123,7 +123,7 @@ class Part:
     why: str = ""
     production: str = ""
     production_scores: dict = field(default_factory=dict)
-    hole_equations: Optional[list] = None
+    hole_equations: list | None = None
     """The equations its hole carries (None: every equation no card has, and those of cards the grammar does not
     compute; a part new through such a card carries that card's equations only)."""
 
@@ -181,7 +181,7 @@ def _borrows(sentence: str, r: dict) -> bool:
     return any(p.search(sentence) for p in r["borrow"])
 
 
-def _loc(loc: Any) -> tuple[Optional[int], Optional[int], int]:
+def _loc(loc: Any) -> tuple[int | None, int | None, int]:
     return getattr(loc, "page", None), getattr(loc, "line", None), getattr(loc, "order", 0) or 0
 
 
@@ -294,7 +294,7 @@ class _Reader:
             for h in hps:
                 if h.section == heading:
                     section_parts[-1 if len(section_parts) == 1 else 0].hyperparameters.append(
-                        {"name": h.name, "value": h.value if isinstance(h.value, (int, float, str)) else str(h.value),
+                        {"name": h.name, "value": h.value if isinstance(h.value, int | float | str) else str(h.value),
                          "sentence": (h.sentence or "")[:200]})
             if len(section_parts) > 1 and not section_parts[0].equations:
                 section_parts[0].lead = True  # it introduces the run-in parts after it
@@ -457,7 +457,7 @@ class _Reader:
         p.production_scores = dict(sorted(scores.items(), key=lambda kv: -kv[1])[:4])
 
 
-def _production_of_slot(slot: Optional[str]) -> str:
+def _production_of_slot(slot: str | None) -> str:
     """The production (nonterminal) at a plan path of the grammar ('model.field.MLPField.rgb_head' -> 'RGBHead')."""
     if not slot:
         return ""
@@ -487,7 +487,7 @@ def _lhs_name(e: dict) -> str:
     return " ".join(lhs.split())
 
 
-def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> Ledger:
+def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None) -> Ledger:
     """The ledger of ``doc`` (see the module docstring). ``target_cards``: cards whose technique the paper itself
     introduced (the knowledge base already holds them: claiming them is not a hole)."""
     reader = _Reader(doc, kb, set(target_cards or ()))
@@ -519,7 +519,7 @@ def read_ledger(doc: Any, kb: Any, target_cards: Optional[set[str]] = None) -> L
 
 def _merge(parts: list[Part]) -> None:
     """Adjacent new parts of one section that land on the same production are one contribution."""
-    last: Optional[Part] = None
+    last: Part | None = None
     for p in parts:
         if p.status != "new":
             last = None if p.status == "new" else last

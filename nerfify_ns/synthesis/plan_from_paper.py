@@ -29,8 +29,9 @@ import dataclasses
 import math
 import operator
 import re
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional, Sequence
+from typing import Any
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, check, load_grammar, validate
@@ -38,10 +39,10 @@ from nerfify_ns.knowledge.bases import find_base_statements
 from nerfify_ns.knowledge.cards import Card, HyperparameterMap
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, match_target
 from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques
+from nerfify_ns.knowledge.family import Family, detect_family
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
 from nerfify_ns.plan import Hole, Plan, free_method_name
-from nerfify_ns.knowledge.family import Family, detect_family
 from nerfify_ns.synthesis.base_choice import BaseDecision, choose_base, exclusive_cards
 from nerfify_ns.synthesis.ledger import Ledger, read_ledger
 from nerfify_ns.synthesis.resources import load_reference_plan, reference_plans
@@ -77,10 +78,10 @@ class DerivedPlan:
     evidence: dict
     detections: list[Detection] = field(default_factory=list)
     missing: list[str] = field(default_factory=list)
-    base_choice: Optional[BaseDecision] = None
-    family: Optional[Family] = None
+    base_choice: BaseDecision | None = None
+    family: Family | None = None
     """What kind of method the paper describes (static, dynamic, splatting, surface, not-training) and why."""
-    ledger: Optional[Ledger] = None
+    ledger: Ledger | None = None
     """The paper's claims and described parts, each known (a card covers it) or new (a hole)."""
 
     @property
@@ -159,9 +160,9 @@ _COMPARE: dict[type, Callable[[Any, Any], bool]] = {
     ast.NotEq: operator.ne}
 
 
-def exact_log2(value: Any) -> Optional[int]:
+def exact_log2(value: Any) -> int | None:
     """log2 of a positive power of two, else None ("2^19 entries" -> 19; 500000 -> None)."""
-    if not isinstance(value, (int, float)) or value <= 0:
+    if not isinstance(value, int | float) or value <= 0:
         return None
     exponent = math.log2(value)
     return int(exponent) if exponent.is_integer() else None
@@ -189,9 +190,9 @@ def _eval(node: ast.AST, names: dict[str, Any]) -> Any:
         if node.id not in names:
             raise HyperparameterError(f"unknown name {node.id!r} (known: {', '.join(sorted(names))})")
         return names[node.id]
-    if isinstance(node, (ast.List, ast.Tuple)):
+    if isinstance(node, ast.List | ast.Tuple):
         return [_eval(e, names) for e in node.elts]
-    if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd, ast.Not)):
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd | ast.Not):
         value = _eval(node.operand, names)
         return -value if isinstance(node.op, ast.USub) else (not value if isinstance(node.op, ast.Not) else value)
     if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
@@ -214,9 +215,9 @@ def _coerce(value: Any, kind: str) -> Any:
     if value is None or isinstance(value, bool) and kind not in ("bool",):
         return None
     if kind == "int":
-        return int(value) if isinstance(value, (int, float)) and float(value).is_integer() else None
+        return int(value) if isinstance(value, int | float) and float(value).is_integer() else None
     if kind == "float":
-        return float(value) if isinstance(value, (int, float)) else None
+        return float(value) if isinstance(value, int | float) else None
     if kind in ("int_list", "float_list"):
         if not isinstance(value, list):
             return None
@@ -226,7 +227,7 @@ def _coerce(value: Any, kind: str) -> Any:
 
 
 # ------------------------------------------------------------------------------------------ helpers
-def _where(page: Optional[int], line: Optional[int], section: str) -> str:
+def _where(page: int | None, line: int | None, section: str) -> str:
     loc = f"p.{page}" if page is not None else (f"l.{line}" if line is not None else "")
     return ", ".join(x for x in (loc, f"Sec. {section}" if section else "") if x)
 
@@ -339,7 +340,7 @@ class _Deriver:
                                 f"{flag} = {cue.value} ({cue.cue})")
 
     # ----------------------------------------------------------------- substitutions
-    def _card_quote(self, card: str) -> Optional[tuple[str, str, Any, Any, str]]:
+    def _card_quote(self, card: str) -> tuple[str, str, Any, Any, str] | None:
         d = self.used.get(card)
         if d is not None:
             e = d.best()
@@ -438,7 +439,7 @@ class _Deriver:
                                                            f"knowledge base ({c.paper.title})"}
 
     # ----------------------------------------------------------------- hyperparameters
-    def _hp(self, name: str, qualifier: Optional[str] = None, sentence: str = "") -> Optional[Any]:
+    def _hp(self, name: str, qualifier: str | None = None, sentence: str = "") -> Any | None:
         """The paper's statement of hyperparameter ``name`` (with ``qualifier``, in a sentence matching
         ``sentence``): method sections first, then reading order."""
         rank = {"method": 0, "abstract": 1, "title": 1, "experiments": 2, "conclusion": 3}
@@ -467,7 +468,7 @@ class _Deriver:
                             "", "paper", what)
         return True
 
-    def _statement(self, m: HyperparameterMap) -> Optional[Any]:
+    def _statement(self, m: HyperparameterMap) -> Any | None:
         """The paper's statement ``m`` reads (its qualifiers tried in order)."""
         for qualifier in (m.qualifiers or (None,)):
             h = self._hp(m.name, qualifier, m.sentence)
@@ -507,7 +508,7 @@ class _Deriver:
         current = plan.get(path)
         names = {**term.defaults(), **(current if isinstance(current, dict) else {})}  # the parameters before
         values = {}
-        for p, s in zip(group, statements):
+        for p, s in zip(group, statements, strict=False):
             spec = term.params.get(p.param)
             value = _coerce(evaluate(p.value, {**names, "value": s.value}), spec.type) if spec else None
             if value is None:
@@ -522,7 +523,7 @@ class _Deriver:
                 values[param] = value
         what = ", ".join(f"{p.name} = {s.value}" + (f" (as {p.param} = {values[p.param]})"
                                                     if p.param != p.name or values[p.param] != s.value else "")
-                         for p, s in zip(group, statements))
+                         for p, s in zip(group, statements, strict=False))
         if m.grouped:
             return self._apply(plan, path, {**(current or {}), **values}, h, what)
         return self._apply(plan, f"{path}.{m.param}", values[m.param], h, what)
@@ -543,7 +544,7 @@ class _Deriver:
         iterations = self.iterations(plan)
         self.optimizer(plan, iterations)
 
-    def iterations(self, plan: Plan) -> Optional[int]:
+    def iterations(self, plan: Plan) -> int | None:
         """The paper's number of iterations (the upper end of a range), or None."""
         h = self._hp("num_iterations")
         if h is None:
@@ -551,7 +552,7 @@ class _Deriver:
                 self.notes.append(f"the paper states {e.raw} (epochs, not iterations); the base's iteration count is kept")
             return None
         value = max(h.value) if isinstance(h.value, list) else h.value
-        if not isinstance(value, (int, float)) or value < 1:
+        if not isinstance(value, int | float) or value < 1:
             return None
         iterations = int(value)
         if self._apply(plan, "trainer.max_num_iterations", iterations, h, f"{iterations} iterations") \
@@ -560,11 +561,11 @@ class _Deriver:
                               f"the upper end, {iterations}")
         return iterations
 
-    def optimizer(self, plan: Plan, iterations: Optional[int]) -> None:
+    def optimizer(self, plan: Plan, iterations: int | None) -> None:
         h = self._hp("learning_rate")
         final = self._hp("learning_rate_final")
         eps = self._hp("adam_eps")
-        if h is None or not isinstance(h.value, (int, float)):
+        if h is None or not isinstance(h.value, int | float):
             return
         groups = [g for g in (plan.get("optimizers") or {}) if g != "camera_opt"]
         sentence = h.sentence.lower()
@@ -583,7 +584,7 @@ class _Deriver:
                 params["eps"] = current["optimizer"][kind]["eps"]
             self._apply(plan, f"optimizers.{group}.optimizer", {kind: params}, h,
                         f"{kind} with learning rate {h.value}")
-            if final is not None and isinstance(final.value, (int, float)) and final.value < h.value:
+            if final is not None and isinstance(final.value, int | float) and final.value < h.value:
                 steps = iterations or int(plan.get("trainer.max_num_iterations") or 200000)
                 kind_s = "exponential_decay"
                 if not re.search(r"exponential", final.sentence, re.IGNORECASE):
@@ -632,7 +633,7 @@ class _Deriver:
                     status="not implemented",
                     stands_in=f"nothing: the base has no {production} (its behaviour without it)", section=grp["section"])
 
-    def _hole_slot(self, plan: Plan, kind: str) -> tuple[str, str, Optional[str]]:
+    def _hole_slot(self, plan: Plan, kind: str) -> tuple[str, str, str | None]:
         """(slot, production, the terminal standing in when the plan has none) of a hole of ``kind``, read
         from the grammar: the production's path (inside the plan's field when there are several) and its
         terminal (an open production's, or a choice's only alternative besides ``custom``)."""
@@ -682,14 +683,14 @@ class _Deriver:
 def _plainify(obj: Any) -> Any:
     if isinstance(obj, dict):
         return {str(k): _plainify(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
+    if isinstance(obj, list | tuple):
         return [_plainify(v) for v in obj]
     return obj
 
 
-def derive_plan(doc: Any, detections: Optional[Sequence[Detection]] = None,
-                graph: Optional[CitationGraph] = None, grammar: Optional[Grammar] = None,
-                kb: Optional[KnowledgeBase] = None, reference_plans: bool = True) -> DerivedPlan:
+def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
+                graph: CitationGraph | None = None, grammar: Grammar | None = None,
+                kb: KnowledgeBase | None = None, reference_plans: bool = True) -> DerivedPlan:
     """The plan of ``doc`` (see the module docstring) from the knowledge base ``kb`` (default: the
     package's); ``validate(result.plan)`` accepts it. ``reference_plans=False`` (the ablation
     ``no-reference-plans``): the base is not chosen among the reference plans (the paper's statement, the best
@@ -827,7 +828,7 @@ def _evidence_line(e: dict) -> str:
     return f"{label}{where}: \"{_short(e['quote'])}\"" + (f" ({e['what']})" if e.get("what") else "")
 
 
-def plan_from_paper(doc: Any, kb: Optional[KnowledgeBase] = None) -> DerivedPlan:
+def plan_from_paper(doc: Any, kb: KnowledgeBase | None = None) -> DerivedPlan:
     """Detect, recover citations and derive, in one call, all from the knowledge base ``kb``."""
     kb = KnowledgeBase.of(kb)
     detections = detect_techniques(doc, kb)

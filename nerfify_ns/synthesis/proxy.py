@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import yaml
 
@@ -47,7 +47,7 @@ class Knob:
     """``samples``, ``rays`` or ``width`` (``proxy.yaml``'s sections)."""
     path: str
     """The plan's path of the value (``model.sampler.hierarchical.num_coarse_samples``)."""
-    flag: Optional[str]
+    flag: str | None
     """The ns-train argument that sets it (None: the base has no config field for it; never scaled)."""
     paper: Any
     """The plan's value (an int, or a list of ints for proposal rounds)."""
@@ -68,7 +68,7 @@ class Knob:
     def current(self) -> Any:
         return self.paper if self.value is None else self.value
 
-    def halved(self) -> Optional[Any]:
+    def halved(self) -> Any | None:
         """The next smaller value (halved, at least the floor), or None at the floor."""
         cur = self.current
         if isinstance(cur, list):
@@ -85,7 +85,7 @@ def _flag(text: str) -> str:
     return text.replace("_", "-")
 
 
-def knobs(plan: dict, rays: int) -> List[Knob]:
+def knobs(plan: dict, rays: int) -> list[Knob]:
     """What ``proxy.yaml`` lets a proxy of ``plan`` scale, in its order, for a run of ``rays`` rays per step. A
     parameter whose base has no config field for it is listed with ``flag`` None (reported, never scaled)."""
     from nerfify_ns.registry import default_registry
@@ -96,14 +96,14 @@ def knobs(plan: dict, rays: int) -> List[Knob]:
     terminals = default_registry().terminals
     base = plan.get("base")
     defaults = load_grammar().terminals
-    found: Dict[str, List[Knob]] = {kind: [] for kind in spec["order"]}
+    found: dict[str, list[Knob]] = {kind: [] for kind in spec["order"]}
     pruned = {p.get("path"): p.get("from") for p in plan.get("pruned") or [] if isinstance(p, dict) and "from" in p}
     for kind in ("samples", "width"):
         for path, terminal in used.items():
             for name, knob in ((spec.get(kind) or {}).get(terminal) or {}).items():
                 params = defaults[terminal].params
                 value = (plan.get(path) or {}).get(name, params[name].default if name in params else None)
-                if not isinstance(value, (int, list)) or isinstance(value, bool):
+                if not isinstance(value, int | list) or isinstance(value, bool):
                     continue
                 fields = (terminals[terminal].config or {}).get(base) or {}
                 flag = f"--pipeline.model.{_flag(fields[name])}" if name in fields else None
@@ -114,13 +114,13 @@ def knobs(plan: dict, rays: int) -> List[Knob]:
     return [k for kind in spec["order"] for k in found.get(kind, [])]
 
 
-def sample_cost(settings: List[Knob], values: Optional[Dict[str, Any]] = None) -> float:
+def sample_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> float:
     """The samples' cost of a ray (sum of weight x count) at the knobs' current values (or ``values`` by path)."""
     values = values or {}
     return sum(k.weight * k.total(values.get(k.path)) for k in settings if k.kind == "samples") or 1.0
 
 
-def width_cost(settings: List[Knob], values: Optional[Dict[str, Any]] = None) -> float:
+def width_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> float:
     values = values or {}
     return math.prod((k.total(values.get(k.path)) / k.total(k.paper)) ** k.weight
                      for k in settings if k.kind == "width") or 1.0
@@ -133,7 +133,7 @@ class Measured:
     seconds_per_iteration: float
     startup_seconds: float
     rays: int
-    samples: Dict[str, Any] = field(default_factory=dict)
+    samples: dict[str, Any] = field(default_factory=dict)
     """The sample counts it trained with, by plan path (missing: the plan's)."""
 
 
@@ -141,32 +141,32 @@ class Measured:
 class ProxyFit:
     """The settings a budgeted run trains with, how many iterations fit, and why."""
 
-    knobs: List[Knob]
+    knobs: list[Knob]
     time: TimeFit
     rays: int
     seconds_per_iteration: float
     target: dict
     reached: bool
     train_pixels: int
-    scene: Optional[dict] = None
+    scene: dict | None = None
     """The smaller procedural scene the run rendered for itself (:func:`proxy_scene`), or None."""
 
     @property
-    def changed(self) -> List[Knob]:
+    def changed(self) -> list[Knob]:
         return [k for k in self.knobs if k.value is not None and k.value != k.paper]
 
     @property
     def active(self) -> bool:
         return bool(self.changed or self.scene)
 
-    def args(self) -> List[str]:
+    def args(self) -> list[str]:
         """ns-train arguments that give the run the proxy's values."""
-        out: List[str] = []
+        out: list[str] = []
         for k in self.changed:
             out += [k.flag, *([str(v) for v in k.value] if isinstance(k.value, list) else [str(k.value)])]
         return out
 
-    def phrases(self, paper_rays: Optional[int] = None) -> List[str]:
+    def phrases(self, paper_rays: int | None = None) -> list[str]:
         """``64 instead of 192 samples per ray``, ... (what the proxy changed, in words)."""
         parts = []
         samples = [k for k in self.knobs if k.kind == "samples"]
@@ -184,10 +184,10 @@ class ProxyFit:
                          f"{self.scene['from_resolution']} px with {self.scene['from_n_test']}")
         return parts
 
-    def headline(self, paper_rays: Optional[int] = None) -> str:
+    def headline(self, paper_rays: int | None = None) -> str:
         return "trained a CPU proxy: " + ", ".join(self.phrases(paper_rays))
 
-    def record(self, paper_rays: Optional[int] = None) -> dict:
+    def record(self, paper_rays: int | None = None) -> dict:
         """The plan's ``schedule.proxy`` annotation."""
         not_scaled = [f"{k.path}: no ns-train argument sets it for this base" for k in self.knobs if k.flag is None]
         passes = self.time.iterations * self.rays / max(self.train_pixels, 1)
@@ -205,8 +205,8 @@ class ProxyFit:
                 **({"not_scaled": not_scaled} if not_scaled else {})}
 
 
-def _predict(measured: Measured, settings: List[Knob], exponent: float, base_cost: float, base_width: float
-             ) -> Tuple[float, int]:
+def _predict(measured: Measured, settings: list[Knob], exponent: float, base_cost: float, base_width: float
+             ) -> tuple[float, int]:
     rays = next((int(k.current) for k in settings if k.kind == "rays"), measured.rays)
     step = (measured.seconds_per_iteration * (sample_cost(settings) / base_cost)
             * (rays / measured.rays) ** exponent * (width_cost(settings) / base_width))
@@ -214,7 +214,7 @@ def _predict(measured: Measured, settings: List[Knob], exponent: float, base_cos
 
 
 def _fits(left: float, step: float, measured: Measured, rays_per_checkpoint: int, rays: int, budget: Budget,
-          most: Optional[int], render_cost: float) -> Optional[TimeFit]:
+          most: int | None, render_cost: float) -> TimeFit | None:
     try:
         return fit_iterations(left, step, measured.startup_seconds, rays_per_checkpoint, rays, budget, most=most,
                               render_cost=render_cost)
@@ -223,8 +223,8 @@ def _fits(left: float, step: float, measured: Measured, rays_per_checkpoint: int
 
 
 def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int, exponent: float,
-              rays_per_checkpoint: int, train_pixels: int, budget: Budget, most: Optional[int] = None,
-              scene: Optional[dict] = None, render_cost: float = RENDER_COST) -> ProxyFit:
+              rays_per_checkpoint: int, train_pixels: int, budget: Budget, most: int | None = None,
+              scene: dict | None = None, render_cost: float = RENDER_COST) -> ProxyFit:
     """The mildest proxy of ``plan`` that reaches ``proxy.yaml``'s target in ``seconds_left`` (the paper's settings
     when they do), else the strongest; ``rays``: the run's batch before scaling; ``exponent``: the base's step-time
     exponent in the batch. Raises :class:`BudgetError` (from :func:`fit_iterations`) when not even the strongest
@@ -234,11 +234,11 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
     base_cost = sample_cost(settings, measured.samples)
     base_width = width_cost(settings)
 
-    def attempt() -> Tuple[Optional[TimeFit], float, int]:
+    def attempt() -> tuple[TimeFit | None, float, int]:
         step, r = _predict(measured, settings, exponent, base_cost, base_width)
         return _fits(seconds_left, step, measured, rays_per_checkpoint, r, budget, most, render_cost), step, r
 
-    def enough(fit: Optional[TimeFit], r: int) -> bool:
+    def enough(fit: TimeFit | None, r: int) -> bool:
         return fit is not None and (fit.iterations >= (most or math.inf) or (
             fit.iterations >= target["iterations"] and fit.iterations * r >= target["epochs"] * train_pixels))
 
@@ -262,14 +262,15 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
     return ProxyFit(settings, fit, r, step, dict(target), enough(fit, r), train_pixels, scene)
 
 
-def proxy_scene(base: Optional[str], budget: Budget) -> Optional[dict]:
+def proxy_scene(base: str | None, budget: Budget) -> dict | None:
     """The smaller procedural scene ``proxy.yaml`` gives a budgeted run of ``base`` (None: the budget's own): only
     for a budget shorter than the entry's ``below`` seconds and settings the user did not give."""
     entry = (proxy_spec().get("scene") or {}).get(base or "")
     if not entry or not budget.proxy or budget.seconds is None or budget.seconds >= entry["below"]:
         return None
-    from nerfify_ns.scenes.writer import write_spec
     import inspect
+
+    from nerfify_ns.scenes.writer import write_spec
 
     defaults = {k: p.default for k, p in inspect.signature(write_spec).parameters.items()}
     given = dict(budget.scene)
@@ -283,7 +284,7 @@ def proxy_scene(base: Optional[str], budget: Budget) -> Optional[dict]:
             "reason": f"a budget under {entry['below']} s (proxy.yaml, base {base})"}
 
 
-def with_scene(budget: Budget, scene: Optional[dict]) -> Budget:
+def with_scene(budget: Budget, scene: dict | None) -> Budget:
     """``budget`` rendering the proxy's scene (unchanged without one)."""
     if not scene:
         return budget
@@ -291,12 +292,12 @@ def with_scene(budget: Budget, scene: Optional[dict]) -> Budget:
     return replace(budget, scene={**budget.scene, **{k: scene[k] for k in keys if k in scene}})
 
 
-def smoke_samples(plan: dict) -> Tuple[List[str], Dict[str, Any]]:
+def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
     """The smoke rung of a budgeted run trains at the proxy's floors (the cheapest settings the run may take):
     ns-train arguments and the sample counts by plan path (what :class:`Measured` records)."""
     settings = [k for k in knobs(plan, 1) if k.kind == "samples" and k.flag is not None]
-    args: List[str] = []
-    values: Dict[str, Any] = {}
+    args: list[str] = []
+    values: dict[str, Any] = {}
     for k in settings:
         value = [min(v, k.floor) for v in k.paper] if isinstance(k.paper, list) else min(k.paper, k.floor)
         values[k.path] = value

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Dict, List
+from typing import Any
 
 import yaml
 
@@ -25,7 +25,7 @@ SETS = ("regularizers", "field_wrappers", "schedule_hooks")
 
 
 @lru_cache(maxsize=1)
-def pruning_rules() -> List[dict]:
+def pruning_rules() -> list[dict]:
     return yaml.safe_load(resources.files("nerfify_ns.synthesis").joinpath("pruning.yaml").read_text())["rules"]
 
 
@@ -39,7 +39,7 @@ def _cap(value: Any, limit: int, dedupe: bool) -> Any:
 class _Pruner:
     def __init__(self, plan: Plan, facts: SceneFacts, grammar: Grammar) -> None:
         self.plan, self.facts, self.grammar = plan, facts, grammar
-        self.records: List[dict] = []
+        self.records: list[dict] = []
         self.env = {**facts.sizes(), **facts.flags(), **facts.bounds()}
 
     def reason(self, rule: dict) -> str:
@@ -164,7 +164,7 @@ def prune_plan(plan: dict, facts: SceneFacts, grammar: Grammar | None = None) ->
     return pruned
 
 
-def adopt_scene(plan: dict, facts: SceneFacts) -> Dict[str, Any]:
+def adopt_scene(plan: dict, facts: SceneFacts) -> dict[str, Any]:
     """With pruning off (--keep-all): the plan unchanged except for a note of the scene's facts."""
     kept = Plan.of(plan).copy()
     kept.setdefault("notes", []).append(

@@ -11,9 +11,9 @@ silently.
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Sequence, Tuple
 
 from nerfify_ns.errors import NerfifyError
 
@@ -30,14 +30,14 @@ class Hunk:
     """One hunk: where it starts in the old text (1-based), the old lines and the new lines."""
 
     start: int
-    old: List[str]
-    new: List[str]
+    old: list[str]
+    new: list[str]
 
 
-def parse_hunks(diff: str) -> List[Hunk]:
+def parse_hunks(diff: str) -> list[Hunk]:
     """The hunks of a one-file unified diff; a hunk's body is read by its line counts, so a removed line
     that starts with ``--`` is not taken for a header."""
-    hunks: List[Hunk] = []
+    hunks: list[Hunk] = []
     old_left = new_left = 0
     for line in diff.splitlines(True):
         if old_left <= 0 and new_left <= 0:
@@ -78,7 +78,7 @@ def apply_hunks(text: str, hunks: Sequence[Hunk]) -> str:
     """``text`` with ``hunks`` applied exactly (every context and removed line must match; a hunk may have
     moved, as ``patch`` allows, but not changed). Raises DiffError otherwise."""
     lines = text.splitlines(True)
-    out: List[str] = []
+    out: list[str] = []
     position = 0
     for hunk in hunks:
         at = _find(lines, hunk.old, hunk.start - 1, position)
@@ -110,7 +110,7 @@ def diff_text(diff) -> str:
     return str(diff or "")
 
 
-def reapply_one(folder: Path, repair: dict) -> Tuple[str, str]:
+def reapply_one(folder: Path, repair: dict) -> tuple[str, str]:
     """Apply one recorded repair in ``folder``: (status, detail) with status ``applied``, ``already present``
     or ``does not apply``."""
     rel = str(repair.get("file") or "")
@@ -128,7 +128,7 @@ def reapply_one(folder: Path, repair: dict) -> Tuple[str, str]:
         return "does not apply", f"{exc} (the rendered file differs from the one that was repaired)"
 
 
-def reapply_repairs(plan: dict, folder: Path) -> List[dict]:
+def reapply_repairs(plan: dict, folder: Path) -> list[dict]:
     """Re-apply every code repair recorded in ``plan['repairs']`` to the plugin rendered in ``folder``; each
     outcome (file, rule, reason, status, detail) is returned and listed in the plugin's README."""
     outcomes = []
@@ -143,7 +143,7 @@ def reapply_repairs(plan: dict, folder: Path) -> List[dict]:
     return outcomes
 
 
-def _readme_section(readme: Path, outcomes: List[dict]) -> None:
+def _readme_section(readme: Path, outcomes: list[dict]) -> None:
     """Append the recorded repairs and what became of each to the plugin's README."""
     lines = ["", "## Recorded repairs", "",
              "Repairs the verification ladder made to an earlier rendering of this plan (`plan.yaml`, "

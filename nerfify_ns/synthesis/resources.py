@@ -1,7 +1,7 @@
 """The synthesis stage's data: Jinja2 templates, base models, reference plans (terminal code lives in the
 terminal registry, ``nerfify_ns/registry``).
 
-They live at the top of the repository (``templates/``, ``method_configs/``); :mod:`nerfify_ns.data`
+They live at the top of the repository (``templates/``, ``method_configs/``); :mod:`nerfify_ns.package_data`
 finds them there or, in an installed wheel, inside the package.
 """
 
@@ -9,11 +9,10 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
-from typing import Dict, List
 
 import yaml
 
-from nerfify_ns import data
+from nerfify_ns import package_data as data
 from nerfify_ns.errors import NerfifyError
 
 
@@ -28,12 +27,12 @@ def templates_dir() -> Path:
 
 
 @lru_cache(maxsize=1)
-def bases() -> Dict[str, dict]:
+def bases() -> dict[str, dict]:
     """Base models (``templates/bases.yaml``)."""
     return yaml.safe_load((templates_dir() / "bases.yaml").read_text())
 
 
-def reference_plans() -> List[str]:
+def reference_plans() -> list[str]:
     """Names of the reference plans (``method_configs/<name>.yaml``)."""
     return sorted(p.stem for p in data.method_configs_dir().glob("*.yaml"))
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Optional, Tuple
 
 import numpy as np
 
@@ -33,7 +32,7 @@ def _round(value: float, up: bool) -> float:
     return round((math.ceil(value / step) if up else math.floor(value / step)) * step, 12)
 
 
-def near_far(dataset: Dataset) -> Tuple[Optional[float], Optional[float], str]:
+def near_far(dataset: Dataset) -> tuple[float | None, float | None, str]:
     """``(near, far, evidence)`` for the run's coordinates; ``None`` where not known (the plan's value stays)."""
     half = RUN_BOX_HALF_SIZE.get(dataset.format)
     if half is None:

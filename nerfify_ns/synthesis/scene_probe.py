@@ -9,7 +9,6 @@ identified it) is a fact too: the plan records it and it picks the Nerfstudio da
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Tuple
 
 import numpy as np
 from PIL import Image
@@ -34,16 +33,16 @@ class SceneFacts:
     alpha: bool
     appearance_variation: bool
     exact_poses: bool
-    image_size: Tuple[int, int]
+    image_size: tuple[int, int]
     num_images: int
-    evidence: Dict[str, str] = field(default_factory=dict)
+    evidence: dict[str, str] = field(default_factory=dict)
     format: str = "blender"
     """The dataset format (:data:`nerfify_ns.dataset.formats.FORMATS`)."""
     forward_facing: bool = False
     """The cameras face one way, side by side (LLFF-style), rather than surrounding the scene."""
-    near: Optional[float] = None
+    near: float | None = None
     """Near plane of a bounded scene in the run's coordinates (:mod:`~nerfify_ns.synthesis.scene_bounds`)."""
-    far: Optional[float] = None
+    far: float | None = None
     """Far plane of a bounded scene in the run's coordinates."""
 
     def flags(self) -> dict:
@@ -74,7 +73,7 @@ def probe_scene(data: DataLike) -> SceneFacts:
     frames = dataset.train_frames or dataset.frames
     image = _first_image(dataset)
     meta = dataset.meta.get("scene")
-    evidence: Dict[str, str] = {"format": f"{dataset.format}: {dataset.evidence}"}
+    evidence: dict[str, str] = {"format": f"{dataset.format}: {dataset.evidence}"}
 
     alpha = image.ndim == 3 and image.shape[2] == 4 and bool((image[..., 3] < 255).any())
     evidence["alpha"] = f"first image has {'an' if alpha else 'no'} alpha channel with transparency"

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 import yaml
 
@@ -41,14 +41,14 @@ class ScheduleFit:
     run_iterations: int
     factor: float
     """run / paper (1.0: nothing scaled)."""
-    changes: List[dict] = field(default_factory=list)
+    changes: list[dict] = field(default_factory=list)
     """Per scaled value: ``path`` (plan path or ``config:<field>``), ``from``, ``to``."""
-    args: List[str] = field(default_factory=list)
+    args: list[str] = field(default_factory=list)
     """ns-train arguments that give the run the scaled values."""
-    skipped: List[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
     """Step-valued parameters that could not be passed to ns-train (no config field for the base), with why."""
 
-    batch: Optional[dict] = None
+    batch: dict | None = None
     """When the run's ray batch is smaller than the paper's: ``paper_rays``, ``run_rays``, ``factor`` (the learning
     rates' scale) and ``rule``; the scaled learning rates are among ``changes``."""
 
@@ -76,7 +76,7 @@ class ScheduleFit:
 
 def _scale(value: Any, factor: float, minimum: int) -> Any:
     if isinstance(value, list):
-        out: List[int] = []
+        out: list[int] = []
         for v in value:  # milestones and upsampling steps stay strictly increasing, as many as before
             out.append(max(_scale(v, factor, minimum), out[-1] + 1 if out else minimum))
         return out
@@ -89,11 +89,11 @@ def _flag(text: str) -> str:
     return text.replace("_", "-")
 
 
-def _values(value: Any) -> List[str]:
+def _values(value: Any) -> list[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 
-def scale_schedule(plan: dict, iterations: int, rays: Optional[int] = None) -> ScheduleFit:
+def scale_schedule(plan: dict, iterations: int, rays: int | None = None) -> ScheduleFit:
     """The schedule of ``plan`` fitted to a run of ``iterations`` on ``rays`` rays per step: its step counts when
     the run is shorter than the paper's ``trainer.max_num_iterations``, its learning rates when ``rays`` is fewer
     than the paper's ``datamanager.train_num_rays_per_batch``."""
@@ -116,7 +116,7 @@ def _value(plan: Plan, path: str, terminal: str, name: str) -> Any:
     return (plan.get(path) or {}).get(name, defaults[name].default if name in defaults else None)
 
 
-def _scale_learning_rates(plan: Plan, used: Dict[str, str], rays: int, fit: ScheduleFit) -> None:
+def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int, fit: ScheduleFit) -> None:
     """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step
     (``used``: the plan's terminals by path)."""
     paper_rays = int(((plan.get("datamanager") or {}).get("train_num_rays_per_batch")) or 0)
@@ -136,14 +136,14 @@ def _scale_learning_rates(plan: Plan, used: Dict[str, str], rays: int, fit: Sche
         group, part = path.split(".")[1:3]  # optimizers.<group>.<optimizer|scheduler>.<terminal>
         for name in names:
             before = _value(plan, path, terminal, name)
-            if not isinstance(before, (int, float)) or isinstance(before, bool):
+            if not isinstance(before, int | float) or isinstance(before, bool):
                 continue
             after = float(f"{before * factor:.6g}")
             fit.changes.append({"path": f"{path}.{name}", "from": before, "to": after})
             fit.args += [f"--optimizers.{_flag(group)}.{part}.{_flag(name)}", str(after)]
 
 
-def _scale_steps(plan: Plan, used: Dict[str, str], fit: ScheduleFit) -> None:
+def _scale_steps(plan: Plan, used: dict[str, str], fit: ScheduleFit) -> None:
     """The step counts of ``schedule.yaml``'s ``terminals`` and ``config`` sections scaled by ``fit.factor``
     (``used``: the plan's terminals by path)."""
     from nerfify_ns.registry import default_registry
@@ -161,7 +161,7 @@ def _scale_steps(plan: Plan, used: Dict[str, str], fit: ScheduleFit) -> None:
             group = path.split(".")[1]
             flag = lambda name: f"--optimizers.{_flag(group)}.scheduler.{_flag(name)}"  # noqa: E731
         else:
-            fields: Dict[str, str] = (terminals[terminal].config or {}).get(base) or {}
+            fields: dict[str, str] = (terminals[terminal].config or {}).get(base) or {}
             if not fields:
                 fit.skipped += [f"{path}.{n}: the base {base!r} has no config field for {terminal}" for n in names]
                 continue

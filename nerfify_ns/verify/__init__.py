@@ -11,8 +11,8 @@ Plugin code only ever runs in sandboxed subprocesses (``sandbox.py``).
 from nerfify_ns.verify.errors import NotAPluginError, VerifyError
 from nerfify_ns.verify.ladder import REPAIR_MODES, RepairMode, revert_patches, run_ladder
 from nerfify_ns.verify.repair import CodePatch, Fixer, PlanEdit, default_fixers, record_in_plan
-from nerfify_ns.verify.report import RUNGS, Diagnosis, LadderReport, RungResult
-from nerfify_ns.verify.suite import component_suite
+from nerfify_ns.verify.stability_suite import component_suite
+from nerfify_ns.verify.verdicts import RUNGS, Diagnosis, LadderReport, RungResult
 
 __all__ = [
     "CodePatch",

@@ -4,7 +4,6 @@ RayBundle, losses backpropagated; nominal and stiff cases. Runs only inside a pr
 from __future__ import annotations
 
 import copy
-from typing import Dict, List, Tuple
 
 import torch
 from torch import nn
@@ -28,7 +27,7 @@ def build_model(spec, scale: float = 1.0):
 
     cfg = copy.deepcopy(spec.config.pipeline.model)
     for name in ("near_plane", "far_plane"):
-        if isinstance(getattr(cfg, name, None), (int, float)):
+        if isinstance(getattr(cfg, name, None), int | float):
             setattr(cfg, name, getattr(cfg, name) * scale)
     if isinstance(getattr(cfg, "collider_params", None), dict):
         cfg.collider_params = {k: v * scale for k, v in cfg.collider_params.items()}
@@ -39,7 +38,7 @@ def build_model(spec, scale: float = 1.0):
     return model.to("cpu")
 
 
-def plugin_fields(model, package: str) -> List[Tuple[str, nn.Module]]:
+def plugin_fields(model, package: str) -> list[tuple[str, nn.Module]]:
     from nerfstudio.fields.base_field import Field
 
     return [
@@ -49,7 +48,7 @@ def plugin_fields(model, package: str) -> List[Tuple[str, nn.Module]]:
     ]
 
 
-def field_forward(field, case: str = "nominal") -> Dict[str, torch.Tensor]:
+def field_forward(field, case: str = "nominal") -> dict[str, torch.Tensor]:
     """The field's outputs on uniform samples of a small ray bundle."""
     from nerfstudio.field_components.field_heads import FieldHeadNames
     from nerfstudio.model_components.ray_samplers import UniformSampler
@@ -94,7 +93,7 @@ def train_step(model, case: str = "nominal", rays: int = 16):
     return outputs, losses, total
 
 
-def output_problems(outputs: dict, losses: dict) -> List[str]:
+def output_problems(outputs: dict, losses: dict) -> list[str]:
     problems = []
     for key in ("rgb", "accumulation", "depth", "expected_depth", "rgb_fine", "rgb_coarse"):
         value = outputs.get(key)
@@ -106,7 +105,7 @@ def output_problems(outputs: dict, losses: dict) -> List[str]:
     return problems
 
 
-def grad_problems(model, require: bool) -> Tuple[List[str], List[str]]:
+def grad_problems(model, require: bool) -> tuple[list[str], list[str]]:
     """(non-finite gradient problems, names of trainable parameters without a gradient)."""
     groups = model.get_param_groups()
     ids = {id(p) for params in groups.values() for p in params}

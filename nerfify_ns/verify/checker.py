@@ -30,8 +30,9 @@ import json
 import os
 import struct
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional, Sequence, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ _PACK = struct.pack
 json's functions later does not change what the probe sends."""
 
 
-def encode(header: dict, arrays: Optional[Dict[str, np.ndarray]] = None) -> bytes:
+def encode(header: dict, arrays: dict[str, np.ndarray] | None = None) -> bytes:
     """One record: the header (JSON) and its arrays (``.npy``)."""
     arrays = arrays or {}
     header = {**header, "arrays": list(arrays)}
@@ -80,7 +81,7 @@ class Captured:
         self.register_hook = torch.nn.Module.register_forward_hook
         self.is_float, self.numel = torch.Tensor.is_floating_point, torch.Tensor.numel
 
-    def array(self, t) -> Tuple[np.ndarray, str]:
+    def array(self, t) -> tuple[np.ndarray, str]:
         """(float32/int array, the tensor's own dtype name) of a tensor."""
         torch = self.torch
         dtype = str(t.dtype).replace("torch.", "")
@@ -89,18 +90,18 @@ class Captured:
             t = self.to(t, torch.float32)
         return self.numpy(self.to(t, "cpu")).copy(), dtype
 
-    def abs_sum(self, t) -> Optional[float]:
+    def abs_sum(self, t) -> float | None:
         """The float64 sum of absolute values: finite exactly when every value is."""
         if t is None:
             return None
         return float(self.sum(self.abs(self.to(self.detach(t), self.torch.float64))))
 
-    def tree_sum(self, value, depth: int = 0) -> Optional[float]:
+    def tree_sum(self, value, depth: int = 0) -> float | None:
         """:meth:`abs_sum` over every floating tensor of a module's output (a tensor, or dicts, lists and tuples
         of them); None when it holds none."""
         if self.is_tensor(value):
             return self.abs_sum(value) if self.is_float(value) and self.numel(value) else None
-        items = value.values() if isinstance(value, dict) else value if isinstance(value, (list, tuple)) else ()
+        items = value.values() if isinstance(value, dict) else value if isinstance(value, list | tuple) else ()
         total = None
         for item in list(items)[:64] if depth < 4 else ():
             part = self.tree_sum(item, depth + 1)
@@ -116,9 +117,9 @@ class ModuleWatch:
     seen on that call even where the caller masks it (``nan_to_num``, a weight of zero). At most
     :data:`WATCH_MODULES` modules, :data:`WATCH_CALLS` calls each between two :meth:`take`."""
 
-    def __init__(self, cap: "Captured", modules) -> None:
+    def __init__(self, cap: Captured, modules) -> None:
         self.cap = cap
-        self.calls: Dict[str, List[float]] = {}
+        self.calls: dict[str, list[float]] = {}
         self.handles = []
         for name, module in list(modules)[:WATCH_MODULES]:
             self.handles.append(cap.register_hook(module, self._hook(str(name))))
@@ -131,7 +132,7 @@ class ModuleWatch:
                 calls.append(0.0 if total is None else total)
         return hook
 
-    def take(self) -> Dict[str, np.ndarray]:
+    def take(self) -> dict[str, np.ndarray]:
         """``mod:NAME`` -> the per-call sums since the last take, as float64 arrays (for a record)."""
         out = {f"mod:{name}": np.asarray(calls, dtype=np.float64) for name, calls in self.calls.items() if calls}
         self.calls = {}
@@ -148,7 +149,7 @@ WATCH_CALLS = 256
 """Bounds of a :class:`ModuleWatch` (modules watched; calls kept per module between two records)."""
 
 
-def watched_modules(model, own_package: Optional[str] = None) -> List[Tuple[str, Any]]:
+def watched_modules(model, own_package: str | None = None) -> list[tuple[str, Any]]:
     """The modules of ``model`` whose every call is watched: each one whose class is not torch's or Nerfstudio's
     (the plugin's own parts, its fields among them, and ours), never the model itself (its outputs are judged
     directly). ``own_package``: the plugin's package where known (then only its classes and ours)."""
@@ -174,7 +175,7 @@ class RecordPipe:
 
 
 def _sender(fd: int, write, encoder):
-    def send(header: dict, arrays: Optional[Dict[str, np.ndarray]] = None) -> None:
+    def send(header: dict, arrays: dict[str, np.ndarray] | None = None) -> None:
         """One record down the pipe."""
         view = memoryview(encoder(header, arrays))
         while view:
@@ -206,7 +207,7 @@ def read_npy(data: bytes) -> np.ndarray:
     return array.reshape(shape, order="F" if fortran else "C")
 
 
-def decode(data: bytes) -> Tuple[List[Tuple[dict, Dict[str, np.ndarray]]], List[str]]:
+def decode(data: bytes) -> tuple[list[tuple[dict, dict[str, np.ndarray]]], list[str]]:
     """(records, problems) of a byte stream; a malformed record ends the stream (a problem, not a crash)."""
     records, problems, pos = [], [], 0
     while pos < len(data):
@@ -242,7 +243,7 @@ class PipeReader:
         self.write_fd = os.dup(write) if write >= 100 else _high(write)
         os.close(write)
         os.set_inheritable(self.write_fd, True)
-        self.chunks: List[bytes] = []
+        self.chunks: list[bytes] = []
         self.size = 0
         self.overflow = 0
         self._thread = threading.Thread(target=self._drain, daemon=True)
@@ -284,25 +285,25 @@ def _high(fd: int) -> int:
 # ----------------------------------------------------------------------------------------------- judging
 @dataclass
 class Finding:
-    """One failed check (becomes a :class:`nerfify_ns.verify.report.Diagnosis` of the rung)."""
+    """One failed check (becomes a :class:`nerfify_ns.verify.verdicts.Diagnosis` of the rung)."""
 
     rung: str
     rule: str
     message: str
-    component: Optional[str] = None
-    case: Optional[str] = None
-    file: Optional[str] = None
-    line: Optional[int] = None
-    data: Dict[str, Any] = field(default_factory=dict)
+    component: str | None = None
+    case: str | None = None
+    file: str | None = None
+    line: int | None = None
+    data: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
 class Verdicts:
     """Per rung: checks made here, failures found here, and the cases seen (for ``verify.json``)."""
 
-    checks: Dict[str, int] = field(default_factory=dict)
-    findings: List[Finding] = field(default_factory=list)
-    cases: Dict[str, List[dict]] = field(default_factory=dict)
+    checks: dict[str, int] = field(default_factory=dict)
+    findings: list[Finding] = field(default_factory=list)
+    cases: dict[str, list[dict]] = field(default_factory=dict)
 
     def count(self, rung: str, n: int = 1) -> None:
         self.checks[rung] = self.checks.get(rung, 0) + n
@@ -311,7 +312,7 @@ class Verdicts:
         self.findings.append(Finding(rung, rule, message, **where))
 
 
-def _nonfinite(name: str, value: np.ndarray) -> Optional[str]:
+def _nonfinite(name: str, value: np.ndarray) -> str | None:
     if value.dtype.kind in "fc" and value.size:
         bad = int(value.size - np.count_nonzero(np.isfinite(value)))
         if bad:
@@ -319,7 +320,7 @@ def _nonfinite(name: str, value: np.ndarray) -> Optional[str]:
     return None
 
 
-def _tensor(array: np.ndarray, dtype: Optional[str]):
+def _tensor(array: np.ndarray, dtype: str | None):
     import torch
 
     t = torch.from_numpy(np.array(array))
@@ -328,7 +329,7 @@ def _tensor(array: np.ndarray, dtype: Optional[str]):
     return t
 
 
-def grad_findings(header: dict, require: bool) -> Tuple[List[str], List[str]]:
+def grad_findings(header: dict, require: bool) -> tuple[list[str], list[str]]:
     """(non-finite gradients, trainable parameters without a gradient) from ``header["grads"]`` (name ->
     summed absolute gradient, None when no gradient arrived): a sum of absolute float32 values is finite
     exactly when every value is."""
@@ -336,15 +337,15 @@ def grad_findings(header: dict, require: bool) -> Tuple[List[str], List[str]]:
     for name, total in (header.get("grads") or {}).items():
         if total is None:
             missing.append(str(name))
-        elif not (isinstance(total, (int, float)) and np.isfinite(total)):
+        elif not (isinstance(total, int | float) and np.isfinite(total)):
             bad.append(f"gradient of {name} not finite")
     for name, total in (header.get("input_grads") or {}).items():
-        if total is not None and not (isinstance(total, (int, float)) and np.isfinite(total)):
+        if total is not None and not (isinstance(total, int | float) and np.isfinite(total)):
             bad.append(f"gradient of input {name} not finite")
     return bad, (missing if require else [])
 
 
-def judge_component(header: dict, arrays: Dict[str, np.ndarray], contract, env: Dict[str, Any]) -> List[str]:
+def judge_component(header: dict, arrays: dict[str, np.ndarray], contract, env: dict[str, Any]) -> list[str]:
     """Problems of one component case: the contract on the outputs (shapes, dtypes, ranges, finiteness),
     then the gradients."""
     from nerfify_ns.registry.contract import check_outputs
@@ -353,7 +354,7 @@ def judge_component(header: dict, arrays: Dict[str, np.ndarray], contract, env: 
     if header.get("status") == "raised":
         return [str(header.get("message", "raised"))[:300]]
     dtypes = header.get("dtypes") or {}
-    outputs: Dict[str, Any] = {k: _tensor(v, dtypes.get(k)) for k, v in arrays.items()}
+    outputs: dict[str, Any] = {k: _tensor(v, dtypes.get(k)) for k, v in arrays.items()}
     for name, kind in (header.get("others") or {}).items():
         outputs[str(name)] = _Other(str(kind))
     if header.get("out_dim") is not None:
@@ -375,7 +376,7 @@ FIELD_SHAPE = (16, 8)
 """The assembled field's probe: 16 rays of 8 uniform samples; density [.., 1] >= 0, rgb [.., 3] in [0, 1]."""
 
 
-def judge_field(header: dict, arrays: Dict[str, np.ndarray]) -> List[str]:
+def judge_field(header: dict, arrays: dict[str, np.ndarray]) -> list[str]:
     problems = []
     dtypes = header.get("dtypes") or {}
     for key, dim, low, high in FIELD_OUTPUTS:
@@ -400,7 +401,7 @@ def judge_field(header: dict, arrays: Dict[str, np.ndarray]) -> List[str]:
 MODEL_OUTPUTS = ("rgb", "accumulation", "depth", "expected_depth", "rgb_fine", "rgb_coarse")
 
 
-def judge_model(header: dict, arrays: Dict[str, np.ndarray], require: bool) -> Tuple[List[str], List[str]]:
+def judge_model(header: dict, arrays: dict[str, np.ndarray], require: bool) -> tuple[list[str], list[str]]:
     """(problems, parameters without gradient) of one step of the assembled model."""
     problems = []
     for name, value in arrays.items():
@@ -422,7 +423,7 @@ model instance every earlier check of the probe used, every pass and every call 
 so a part that turns non-finite (or raises) from its N-th call is caught for any N <= REPEAT_STEPS."""
 
 
-def judge_repeated(header: dict, arrays: Dict[str, np.ndarray]) -> List[str]:
+def judge_repeated(header: dict, arrays: dict[str, np.ndarray]) -> list[str]:
     """Problems of the repeated passes: ``out:KEY`` (one summed absolute value per pass) and ``mod:NAME`` (one
     per call of a watched part) must be finite; every pass must have run."""
     if header.get("status") == "raised":
@@ -448,7 +449,7 @@ def judge_repeated(header: dict, arrays: Dict[str, np.ndarray]) -> List[str]:
 
 
 # ----------------------------------------------------------------------------------------------- what to expect
-def component_specs(plan) -> List[dict]:
+def component_specs(plan) -> list[dict]:
     """Every component of ``plan`` (a :class:`nerfify_ns.plan.Plan`) that has a contract: its path, terminal,
     name, stability cases, contract and the parameters its example sizes come from. Data only: nothing of the
     plugin is imported (the probe builds the components from the same list)."""
@@ -477,17 +478,17 @@ def component_specs(plan) -> List[dict]:
     return found
 
 
-def case_env(spec: dict, case: str) -> Dict[str, Any]:
+def case_env(spec: dict, case: str) -> dict[str, Any]:
     from nerfify_ns.registry.examples import case_sizes
 
     return spec["contract"].environment(spec["params"], case_sizes(case), {"case": case})
 
 
-def expected(plan, rungs: Sequence[str], with_model: bool) -> Dict[Tuple[str, str, str, str], dict]:
+def expected(plan, rungs: Sequence[str], with_model: bool) -> dict[tuple[str, str, str, str], dict]:
     """The records each rung must deliver: (kind, rung, component, case) -> the component's spec."""
     from nerfify_ns.verify.assembled import MODEL_CASES
 
-    out: Dict[Tuple[str, str, str, str], dict] = {}
+    out: dict[tuple[str, str, str, str], dict] = {}
     specs = component_specs(plan) if plan is not None else []
     if "static" in rungs and with_model:
         out[("param_groups", "static", "<model>", "-")] = {}
@@ -511,7 +512,7 @@ ADVISORY_CASES = ("empty_batch", "half")
 JUDGED = ("component", "field", "model", "param_groups")
 
 
-def judge(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]], plan, rungs: Sequence[str],
+def judge(records: Sequence[tuple[dict, dict[str, np.ndarray]]], plan, rungs: Sequence[str],
           finished: Sequence[str], with_model: bool = True) -> Verdicts:
     """The verdicts of the probe's records: each expected check judged here, missing and duplicated records
     named. ``finished``: the rungs the probe reported as ended (a rung that never ended is failed elsewhere)."""
@@ -532,7 +533,7 @@ def judge(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]], plan, rungs: Se
             continue
         seen.add(key)
         _judge_one(v, kind, rung, key, header, arrays, want.get(key))
-    for key, spec in want.items():
+    for key, _spec in want.items():
         kind, rung, name, case = key
         if key not in seen and rung in finished:
             v.fail(rung, "missing-check", f"the check of {name}, case {case} never arrived from the probe (the "
@@ -543,7 +544,7 @@ def judge(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]], plan, rungs: Se
     return v
 
 
-def _judge_one(v: Verdicts, kind: str, rung: str, key: tuple, header: dict, arrays: dict, spec: Optional[dict]) -> None:
+def _judge_one(v: Verdicts, kind: str, rung: str, key: tuple, header: dict, arrays: dict, spec: dict | None) -> None:
     name, case = key[2], key[3]
     status = header.get("status")
     v.count(rung)
@@ -598,8 +599,8 @@ def _judge_one(v: Verdicts, kind: str, rung: str, key: tuple, header: dict, arra
                file=header.get("file"), line=header.get("line"))
 
 
-def _detached(v: Verdicts, rung: str, missing: List[str], owners: dict) -> None:
-    groups: Dict[str, List[str]] = {}
+def _detached(v: Verdicts, rung: str, missing: list[str], owners: dict) -> None:
+    groups: dict[str, list[str]] = {}
     for pname in missing:
         groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
     for names in groups.values():

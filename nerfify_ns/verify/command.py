@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional
 
 import tyro
 from rich.console import Console
@@ -16,7 +15,7 @@ from rich.table import Table
 from nerfify_ns.safetext import clean
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.ladder import DIFF_NAME, run_ladder
-from nerfify_ns.verify.report import LadderReport
+from nerfify_ns.verify.verdicts import LadderReport
 
 STYLE = {"pass": "green", "fail": "red", "skip": "yellow"}
 
@@ -63,7 +62,7 @@ def _print_repair(report: LadderReport, out: Path, console: Console) -> None:
             console.print(f"apply it with: {_shown(proposal['apply'])}")
 
 
-def print_report(report: LadderReport, console: Optional[Console] = None, out: Optional[Path] = None) -> None:
+def print_report(report: LadderReport, console: Console | None = None, out: Path | None = None) -> None:
     """The rung table, the repair (applied or proposed) and the verdict."""
     console = console or Console()
     console.print(_rung_table(report))
@@ -83,12 +82,12 @@ class Verify:
 
     plugin: tyro.conf.Positional[Path]
     """The plugin folder (pyproject.toml with a nerfstudio.method_configs entry point, or nerfify.json)."""
-    out: Optional[Path] = None
+    out: Path | None = None
     """Where verify.json, repair.diff, patches and logs go (default PLUGIN/.verify)."""
-    data: Optional[Path] = None
+    data: Path | None = None
     """Dataset for the smoke-train rung, in any format --data of 'ns-nerfify PAPER' takes (default: a generated
     32x32 scene)."""
-    rungs: Optional[List[str]] = None
+    rungs: list[str] | None = None
     """Rungs to run (default all): static contract stability smoke."""
     fix: bool = False
     """Apply the deterministic repair to the plugin folder (each change recorded as a revertible unified diff;
@@ -97,7 +96,7 @@ class Verify:
     """Without --fix: try the repair on a scratch copy and print it (--no-propose: the ladder only)."""
     max_rounds: int = 3
     """Repair rounds at most."""
-    iterations: Optional[int] = None
+    iterations: int | None = None
     """Smoke-training iterations (default: the plugin's base's, see ``runtime/smoke_presets.yaml``)."""
     timeout: float = 300.0
     """Time limit of each sandboxed process, seconds."""

@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 from nerfify_ns.registry.contract import Contract, check_outputs
 from nerfify_ns.registry.examples import NotApplicable, case_sizes, example_inputs
-from nerfify_ns.registry.render import build_from_code
+from nerfify_ns.registry.snippets import build_from_code
 from nerfify_ns.registry.terminal import TerminalDef
 
 
@@ -27,23 +27,23 @@ class CaseResult:
 
     case: str
     status: str
-    problems: List[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"case": self.case, "status": self.status, "problems": self.problems}
 
 
-def _tensors(value: Any) -> List[Any]:
+def _tensors(value: Any) -> list[Any]:
     import torch
 
     if isinstance(value, torch.Tensor):
         return [value]
-    if isinstance(value, (list, tuple)):
+    if isinstance(value, list | tuple):
         return [t for v in value for t in _tensors(v)]
     return []
 
 
-def gradient_problems(module: Any, inputs: Dict[str, Any], outputs: Dict[str, Any], required: bool) -> List[str]:
+def gradient_problems(module: Any, inputs: dict[str, Any], outputs: dict[str, Any], required: bool) -> list[str]:
     """Back-propagate the sum of the finite outputs; parameters without gradient (when ``required``) and
     non-finite gradients at parameters and inputs are problems."""
     import torch
@@ -82,8 +82,8 @@ def _default_call(contract: Contract):
     return call
 
 
-def check_component(contract: Contract, build, call, params: Dict[str, Any], case: str,
-                    extra: Optional[Dict[str, Any]] = None) -> CaseResult:
+def check_component(contract: Contract, build, call, params: dict[str, Any], case: str,
+                    extra: dict[str, Any] | None = None) -> CaseResult:
     """Build, run on the case's example inputs, check outputs against ``contract``, back-propagate."""
     import torch
 
@@ -106,7 +106,7 @@ def check_component(contract: Contract, build, call, params: Dict[str, Any], cas
     return CaseResult(case, "fail" if problems else "pass", problems)
 
 
-def gradient_record(cap, module: Any, inputs: Dict[str, Any], outputs: Dict[str, Any]) -> tuple:
+def gradient_record(cap, module: Any, inputs: dict[str, Any], outputs: dict[str, Any]) -> tuple:
     """Back-propagate the sum of the finite outputs (with the functions ``cap`` bound before plugin code ran);
     (parameter name -> summed absolute gradient or None, input name -> summed absolute gradient). The judging
     happens in the checker (:mod:`nerfify_ns.verify.checker`)."""
@@ -127,7 +127,7 @@ def gradient_record(cap, module: Any, inputs: Dict[str, Any], outputs: Dict[str,
     return grads, input_grads
 
 
-def record_case(cap, contract: Contract, build, call, params: Dict[str, Any], case: str) -> tuple:
+def record_case(cap, contract: Contract, build, call, params: dict[str, Any], case: str) -> tuple:
     """Build, run on the case's example inputs and back-propagate, judging nothing: (header, arrays) for the
     checker, which holds the contract. Status ``ran``, ``n/a`` (why) or ``raised`` (what)."""
     torch = cap.torch
@@ -162,7 +162,7 @@ def record_case(cap, contract: Contract, build, call, params: Dict[str, Any], ca
             "input_grads": input_grads}, arrays
 
 
-def record_spec(cap, spec: Dict[str, Any], package: str, case: str) -> tuple:
+def record_spec(cap, spec: dict[str, Any], package: str, case: str) -> tuple:
     """:func:`record_case` of one component of :func:`nerfify_ns.verify.checker.component_specs`."""
     if spec["terminal"] == "custom":
         interface, entry = spec["interface"], spec["entry"]
@@ -182,21 +182,21 @@ def _terminal_build(defn: TerminalDef):
     return lambda params, env: build_from_code(defn.code, params)
 
 
-def run_terminal(defn: TerminalDef, params: Optional[Dict[str, Any]], case: str = "nominal",
-                 contract: Optional[Contract] = None) -> CaseResult:
+def run_terminal(defn: TerminalDef, params: dict[str, Any] | None, case: str = "nominal",
+                 contract: Contract | None = None) -> CaseResult:
     """A registry terminal with the plan's ``params`` (shrunk to small sizes) on ``case``."""
     contract = contract or defn.contract
     call = defn.harness.call or _default_call(contract)
     return check_component(contract, _terminal_build(defn), call, defn.small(params), case)
 
 
-def custom_class(package: str, entry: Dict[str, Any]):
+def custom_class(package: str, entry: dict[str, Any]):
     """The class a custom entry names, imported from the plugin package (on ``sys.path``)."""
     module = importlib.import_module(f"{package}.{entry['module']}")
     return getattr(module, entry["class"])
 
 
-def interface_arguments(interface, env: Dict[str, Any]) -> Dict[str, Any]:
+def interface_arguments(interface, env: dict[str, Any]) -> dict[str, Any]:
     """The constructor arguments an interface passes besides ``params`` (the example sizes)."""
     import torch
 
@@ -208,8 +208,8 @@ def interface_arguments(interface, env: Dict[str, Any]) -> Dict[str, Any]:
     return {name: known[name] for name in interface.ctor}
 
 
-def run_custom(interface, entry: Dict[str, Any], package: str, case: str = "nominal",
-               contract: Optional[Contract] = None) -> CaseResult:
+def run_custom(interface, entry: dict[str, Any], package: str, case: str = "nominal",
+               contract: Contract | None = None) -> CaseResult:
     """A custom component of the plugin against its production's interface."""
     contract = contract or interface.contract_for(entry)
 
@@ -238,7 +238,7 @@ def _kplanes_density_call(module, inputs, env):
     return {"density": module.density_fn(x.float() if env["case"] == "half" else x)}
 
 
-def _extra_components() -> List[TerminalDef]:
+def _extra_components() -> list[TerminalDef]:
     """Components of ours that fill a terminal indirectly (the k-planes proposal density field)."""
     from nerfify_ns.registry.contract import T
     from nerfify_ns.registry.terminal import Harness
@@ -253,7 +253,7 @@ def _extra_components() -> List[TerminalDef]:
                                "points_outside_contraction", "scene_scale_1e3")))]
 
 
-def suite_components() -> List[tuple]:
+def suite_components() -> list[tuple]:
     """(name, cases, run, (implementation, owner)) of every terminal with a contract, at default
     parameters, and of our indirect components: the stability suite of the whole knowledge base."""
     from nerfify_ns.registry import default_registry

@@ -24,22 +24,23 @@ import json
 import shutil
 import subprocess
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Literal, Optional, Sequence, Union
+from typing import Literal
 
 from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import Dataset, as_dataset
 from nerfify_ns.plan import Plan, PlanFileError
 from nerfify_ns.runtime.launch import ProgressHook
 from nerfify_ns.runtime.presets import smoke_iterations as smoke_iterations_for
+from nerfify_ns.runtime.sandbox import Limits
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import CodePatch, Fixer, default_fixers, record_in_plan
-from nerfify_ns.verify.report import RUNGS, Diagnosis, LadderReport, RungResult
 from nerfify_ns.verify.rungs import PROBE_RUNGS, run_probe, static_ast
-from nerfify_ns.verify.sandbox import Limits
-from nerfify_ns.verify.smoke import smoke_rung
+from nerfify_ns.verify.smoke_rung import smoke_rung
+from nerfify_ns.verify.verdicts import RUNGS, Diagnosis, LadderReport, RungResult
 
 RepairMode = Literal["off", "propose", "apply"]
 REPAIR_MODES = ("off", "propose", "apply")
@@ -51,18 +52,18 @@ DIFF_NAME = "repair.diff"
 class _Settings:
     """What every round of one ladder run shares."""
 
-    rungs: List[str]
-    scene: Optional[Dataset]
+    rungs: list[str]
+    scene: Dataset | None
     smoke_iterations: int
     timeout: float
-    fixers: List[Fixer]
+    fixers: list[Fixer]
     max_rounds: int
-    on_progress: Optional[ProgressHook] = None
-    limits: Optional[Limits] = None
+    on_progress: ProgressHook | None = None
+    limits: Limits | None = None
     """The sandbox's limits for the probe and the smoke rung (None: the sandbox's defaults)."""
-    smoke_limit: Optional[Limit] = None
+    smoke_limit: Limit | None = None
     """The smoke rung's time limit and where it comes from (None: ``timeout``, as for the check rungs)."""
-    smoke_args: List[str] = field(default_factory=list)
+    smoke_args: list[str] = field(default_factory=list)
     """ns-train arguments of the smoke rung (a budgeted run's proxy samples)."""
 
 
@@ -70,21 +71,21 @@ class _Settings:
 class _Climb:
     """The rounds on one plugin folder, the patches applied to it and each patched file's first text."""
 
-    rounds: List[List[RungResult]] = field(default_factory=list)
-    patches: List[dict] = field(default_factory=list)
-    originals: Dict[str, str] = field(default_factory=dict)
-    notes: List[str] = field(default_factory=list)
+    rounds: list[list[RungResult]] = field(default_factory=list)
+    patches: list[dict] = field(default_factory=list)
+    originals: dict[str, str] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def _passed(results: Sequence[RungResult]) -> bool:
     return bool(results) and all(r.ok for r in results)
 
 
-def _round(plugin_dir: Path, work: Path, st: _Settings) -> List[RungResult]:
+def _round(plugin_dir: Path, work: Path, st: _Settings) -> list[RungResult]:
     """One climb of the ladder on ``plugin_dir``; rungs after a failure are skipped."""
     info = load_plugin(plugin_dir)
     rungs = st.rungs
-    results: List[RungResult] = []
+    results: list[RungResult] = []
     if "static" in rungs:
         ast_result = static_ast(info, work / "static", timeout=st.timeout)
         if not ast_result.ok:
@@ -121,7 +122,7 @@ def _scene(work: Path) -> Path:
 
 
 def _climb(target: Path, out: Path, st: _Settings, *, repair: bool,
-           first: Optional[List[RungResult]] = None) -> _Climb:
+           first: list[RungResult] | None = None) -> _Climb:
     """Rounds on ``target`` (work folders and patches under ``out``), repairing it between rounds when
     ``repair``; ``first`` is an already known result of round 0 on the same files."""
     climb = _Climb()
@@ -144,7 +145,7 @@ def _climb(target: Path, out: Path, st: _Settings, *, repair: bool,
     return climb
 
 
-def _repair_mode(repair: Union[str, bool]) -> str:
+def _repair_mode(repair: str | bool) -> str:
     """``repair`` as a mode (``True`` is ``"apply"``, ``False`` is ``"off"``, as before modes existed)."""
     if isinstance(repair, bool):
         return "apply" if repair else "off"
@@ -158,16 +159,16 @@ def run_ladder(
     *,
     scene=None,
     out_dir=None,
-    repair: Union[RepairMode, bool] = "apply",
+    repair: RepairMode | bool = "apply",
     max_rounds: int = 3,
-    rungs: Optional[Sequence[str]] = None,
-    smoke_iterations: Optional[int] = None,
+    rungs: Sequence[str] | None = None,
+    smoke_iterations: int | None = None,
     timeout: float = 300,
-    fixers: Optional[Sequence[Fixer]] = None,
-    on_progress: Optional[ProgressHook] = None,
-    limits: Optional[Limits] = None,
-    smoke_limit: Optional[Limit] = None,
-    smoke_args: Optional[Sequence[str]] = None,
+    fixers: Sequence[Fixer] | None = None,
+    on_progress: ProgressHook | None = None,
+    limits: Limits | None = None,
+    smoke_limit: Limit | None = None,
+    smoke_args: Sequence[str] | None = None,
 ) -> LadderReport:
     """Verify the plugin in ``plugin_dir``; the smoke rung trains on ``scene`` (a dataset, or its folder in any
     format :func:`nerfify_ns.dataset.read_dataset` reads; default a generated 32 px scene). Write
@@ -209,7 +210,7 @@ def run_ladder(
     return report
 
 
-def _sandbox_notes(results: Sequence[RungResult]) -> List[str]:
+def _sandbox_notes(results: Sequence[RungResult]) -> list[str]:
     """A note when plugin code ran with less isolation than bubblewrap gives (the fallback, or none)."""
     modes = {r.details.get("sandbox", {}).get("mode") for r in results} - {None}
     weaker = sorted(m for m in modes if m != "bwrap")
@@ -219,16 +220,16 @@ def _sandbox_notes(results: Sequence[RungResult]) -> List[str]:
             "Sandbox section): install bubblewrap and run as root for the full sandbox"]
 
 
-def _copy_ignore(plugin_dir: Path, out: Path) -> Callable[[str, List[str]], set]:
+def _copy_ignore(plugin_dir: Path, out: Path) -> Callable[[str, list[str]], set]:
     """Leave caches and the verification output (when it lies inside the plugin) out of the scratch copy."""
-    def ignore(folder: str, names: List[str]) -> set:
+    def ignore(folder: str, names: list[str]) -> set:
         here = Path(folder).resolve()
         return {n for n in names if n == "__pycache__" or here / n in (out, plugin_dir / ".verify")}
 
     return ignore
 
 
-def _proposal(plugin_dir: Path, out: Path, st: _Settings, first: List[RungResult],
+def _proposal(plugin_dir: Path, out: Path, st: _Settings, first: list[RungResult],
               report: LadderReport) -> dict:
     """Repair a scratch copy of the plugin and climb the ladder on it; the folder itself is not touched."""
     scratch = out / "proposal"
@@ -254,7 +255,7 @@ def _proposal(plugin_dir: Path, out: Path, st: _Settings, first: List[RungResult
     }
 
 
-def combined_diff(originals: Dict[str, str], root: Path) -> str:
+def combined_diff(originals: dict[str, str], root: Path) -> str:
     """One unified diff (``a/FILE`` -> ``b/FILE``, for ``patch -p1``) from each file's original text to its
     text in ``root`` now."""
     parts = []
@@ -265,9 +266,9 @@ def combined_diff(originals: Dict[str, str], root: Path) -> str:
     return "".join(parts)
 
 
-def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> List[CodePatch]:
+def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> list[CodePatch]:
     """The fixers' patches for ``failures``: one per file (the first fixer wins), each a real change."""
-    patches: List[CodePatch] = []
+    patches: list[CodePatch] = []
     seen = set()
     for fixer in fixers:
         try:
@@ -281,7 +282,7 @@ def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> Li
     return patches
 
 
-def _plan_record(target: Path, patches: Sequence[CodePatch], notes: List[str]) -> List[CodePatch]:
+def _plan_record(target: Path, patches: Sequence[CodePatch], notes: list[str]) -> list[CodePatch]:
     """The change of ``target/plan.yaml`` that records ``patches`` in the plan (none without a plan)."""
     path = target / "plan.yaml"
     if not path.is_file():

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import List, Optional
 
 import tomllib
 import yaml
@@ -19,7 +18,7 @@ MAX_YAML_ALIASES = 1000
 """A ``plan.yaml`` with more aliases than this is not read (an alias bomb expands exponentially downstream)."""
 
 
-def plugin_file(root: Path, rel: object) -> Optional[str]:
+def plugin_file(root: Path, rel: object) -> str | None:
     """``rel`` when it names a regular file inside the plugin folder ``root`` (relative, no link and no ``..``
     leading out of it), else None. File names in diagnoses come from the sandboxed probe, which runs plugin code
     and could name any path: the repairs read and write only files this admits."""
@@ -45,7 +44,7 @@ def _read_small(path: Path) -> str:
     return path.read_text()
 
 
-def _load_plan(path: Path) -> Optional[dict]:
+def _load_plan(path: Path) -> dict | None:
     """``plan.yaml`` as a mapping; None when it cannot be read safely (too large, too deep, too many aliases)."""
     try:
         text = _read_small(path)
@@ -67,9 +66,9 @@ class PluginInfo:
     package: str
     config: str
     """``module:variable`` of the MethodSpecification."""
-    python_files: List[str] = field(default_factory=list)
-    plan: Optional[dict] = None
-    entry_line: Optional[int] = None
+    python_files: list[str] = field(default_factory=list)
+    plan: dict | None = None
+    entry_line: int | None = None
 
     @property
     def config_module(self) -> str:

@@ -25,7 +25,6 @@ import sys
 import traceback
 import warnings
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import numpy as np
 
@@ -35,14 +34,14 @@ def module_name(rel: str) -> str:
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def plugin_classes(modules: Dict[str, object]):
+def plugin_classes(modules: dict[str, object]):
     for rel, module in modules.items():
         for _, cls in inspect.getmembers(module, inspect.isclass):
             if cls.__module__ == module.__name__:
                 yield rel, cls
 
 
-def _target_line(cls) -> Optional[int]:
+def _target_line(cls) -> int | None:
     try:
         lines, start = inspect.getsourcelines(cls)
     except (OSError, TypeError):
@@ -55,7 +54,7 @@ def _import(path: str):
     return getattr(importlib.import_module(module), attr)
 
 
-def used_terminals(plan: dict) -> Dict[str, str]:
+def used_terminals(plan: dict) -> dict[str, str]:
     from nerfify_ns.grammar import load_grammar, validate
 
     return dict(validate(plan, load_grammar()).used)
@@ -92,8 +91,8 @@ class Probe:
         self.package = package
         self.plan = plan  # the plugin's plan (a nerfify_ns.plan.Plan), None for a hand-written plugin
         self.failed: set = set()
-        self.models: Dict[float, object] = {}
-        self.last_rung: Optional[str] = None
+        self.models: dict[float, object] = {}
+        self.last_rung: str | None = None
 
     def emit(self, **event) -> None:
         self.events.write(json.dumps(event, default=str) + "\n")
@@ -123,7 +122,7 @@ class Probe:
         message: str,
         file=None,
         line=None,
-        exc: Optional[BaseException] = None,
+        exc: BaseException | None = None,
         **extra,
     ) -> None:
         self.failed.add(rung)
@@ -151,7 +150,7 @@ class Probe:
             return None, None
 
     # ----------------------------------------------------------------------------- static
-    def check_imports(self, files: List[str]) -> Dict[str, object]:
+    def check_imports(self, files: list[str]) -> dict[str, object]:
         """Resolve every import statement of every file; import the plugin's own modules."""
         modules = {}
         for rel in files:
@@ -199,7 +198,7 @@ class Probe:
                 )
         return modules
 
-    def check_classes(self, modules, base: Optional[dict]) -> None:
+    def check_classes(self, modules, base: dict | None) -> None:
         from nerfstudio.fields.base_field import Field
         from nerfstudio.models.base_model import Model, ModelConfig
 
@@ -227,7 +226,7 @@ class Probe:
             if isinstance(cls, type) and issubclass(cls, ModelConfig) and cls is not ModelConfig:
                 self.check_target(cls, file, line, base)
 
-    def check_target(self, cfg_cls, file, line, base: Optional[dict]) -> None:
+    def check_target(self, cfg_cls, file, line, base: dict | None) -> None:
         from nerfstudio.models.base_model import Model
 
         try:
@@ -285,7 +284,7 @@ class Probe:
                 f"entry point {config} does not resolve: {type(exc).__name__}: {exc}",
                 "pyproject.toml",
                 entry_line,
-                exc if not isinstance(exc, (ImportError, AttributeError)) else None,
+                exc if not isinstance(exc, ImportError | AttributeError) else None,
             )
             return None
         if not isinstance(spec, MethodSpecification):
@@ -383,7 +382,7 @@ class Probe:
         params = self.plan.get(path) if isinstance(self.plan.get(path), dict) else {}
         return terminal, defn.harness.cases, lambda case: run_terminal(defn, params, case)
 
-    def _plan_components(self) -> List[tuple]:
+    def _plan_components(self) -> list[tuple]:
         """(path, terminal, name, cases, run) of every component of the plan with a contract."""
         found = []
         for path, terminal in used_terminals(self.plan).items():
@@ -404,14 +403,14 @@ class Probe:
                 self.send({"kind": "component", "rung": rung, "component": spec["name"], "path": spec["path"],
                            "case": case, "owner": owner, "implementation": implementation, **header}, arrays)
 
-    def contract_rung(self, spec, plan: Optional[dict]) -> None:
+    def contract_rung(self, spec, plan: dict | None) -> None:
         if self.pipe is not None:
             if plan is not None:
                 self.record_components("contract", lambda s: ["nominal"])
             self.assembled_contract(spec)
             return
         if plan is not None:
-            for path, terminal, name, _cases, run in self._plan_components():
+            for path, _terminal, name, _cases, run in self._plan_components():
                 result = run("nominal").to_dict()
                 self.emit(event="component", rung="contract", component=name, path=path, **result)
                 if result["status"] == "fail":
@@ -516,10 +515,10 @@ class Probe:
         bad, missing = grad_problems(model, require=True)
         if bad:
             self.diagnose("contract", "non-finite", "; ".join(bad))
-        groups: Dict[str, List[str]] = {}
+        groups: dict[str, list[str]] = {}
         for pname in missing:
             groups.setdefault(pname.rsplit(".", 2)[0] if pname.count(".") >= 2 else pname, []).append(pname)
-        for prefix, names in groups.items():
+        for _prefix, names in groups.items():
             file, line = self.owner_line(model, names[0])
             self.diagnose(
                 "contract",
@@ -579,7 +578,7 @@ class Probe:
             return file, line
         return None, None
 
-    def stability_rung(self, spec, plan: Optional[dict], suite: str) -> None:
+    def stability_rung(self, spec, plan: dict | None, suite: str) -> None:
         """Every component on every stiff case that applies; a failure of a component of ours (or of the
         plugin) gates, one of Nerfstudio's is recorded."""
         if suite != "all" and self.pipe is not None:
@@ -635,7 +634,7 @@ class Probe:
         header = {"kind": "model", "rung": "stability", "component": "<model>", "case": REPEAT_CASE,
                   "owner": "plugin"}
         base = examples.RUN_SEED
-        sums: Dict[str, List[float]] = {}
+        sums: dict[str, list[float]] = {}
         watch, mods, steps = None, {}, 0
         try:
             model = self.shared_model(spec, 1.0)
@@ -665,7 +664,7 @@ class Probe:
         arrays = {key: np.asarray(values, dtype=np.float64) for key, values in sums.items()}
         self.send({**header, "status": "ran", "steps": steps}, {**arrays, **mods})
 
-    def _emit_model_case(self, case: str, status: str, problems: List[str]) -> None:
+    def _emit_model_case(self, case: str, status: str, problems: list[str]) -> None:
         """One stability case of the assembled model (component ``<model>``, owned by the plugin)."""
         if self.pipe is not None:  # a record for the checker: n/a with why, or what was raised
             if status in ("n/a", "fail", "warn"):
@@ -686,13 +685,12 @@ class Probe:
     def assembled_stability(self, spec) -> None:
         import torch
 
-        from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
-
         from nerfify_ns.registry.examples import RUN_SEED
+        from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
 
         for case in MODEL_CASES:
             torch.manual_seed(RUN_SEED)
-            problems: List[str] = []
+            problems: list[str] = []
             if case == "half" and not spec.config.mixed_precision:
                 self._emit_model_case(
                     case, "n/a", ["the method trains in float32 (trainer.mixed_precision off)"]
@@ -739,7 +737,7 @@ class Probe:
 
 
 # ----------------------------------------------------------------------------- main
-def _base_of(plan) -> Optional[dict]:
+def _base_of(plan) -> dict | None:
     if plan and plan.get("base"):
         from nerfify_ns.synthesis.resources import bases
 
@@ -758,7 +756,7 @@ def own_pid_namespace() -> bool:
     return os.path.basename(first) == b"bwrap"
 
 
-def leftover_processes() -> List[str]:
+def leftover_processes() -> list[str]:
     """The processes other than ours (and the sandbox's init, pid 1) in the probe's PID namespace: what plugin
     code started and left running. Only in the ``bwrap`` sandbox, whose PID namespace is the probe's own
     (elsewhere ``/proc`` shows the whole host); zombies are not counted."""
@@ -780,7 +778,7 @@ def leftover_processes() -> List[str]:
     return found
 
 
-def check_leftovers(probe: Probe, rung: Optional[str]) -> None:
+def check_leftovers(probe: Probe, rung: str | None) -> None:
     """Fail ``rung`` when plugin code left processes running (they die with the sandbox, but it tried)."""
     found = leftover_processes()
     if found and rung:
@@ -789,7 +787,7 @@ def check_leftovers(probe: Probe, rung: Optional[str]) -> None:
                        (" ..." if len(found) > 5 else ""), processes=len(found))
 
 
-def run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
+def run_rungs(probe: Probe, info, rungs: list[str], suite: str) -> None:
     """The rungs in order, each between start and end events; the first that fails ends the run; then any
     process plugin code left running fails the last rung that ran."""
     try:
@@ -798,7 +796,7 @@ def run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
         check_leftovers(probe, probe.last_rung)
 
 
-def _run_rungs(probe: Probe, info, rungs: List[str], suite: str) -> None:
+def _run_rungs(probe: Probe, info, rungs: list[str], suite: str) -> None:
     spec = None
     for rung in rungs:
         probe.last_rung = rung

@@ -14,14 +14,15 @@ import ast
 import copy
 import difflib
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Protocol, Sequence, Tuple
+from typing import Any, Protocol
 
 from nerfify_ns.plan import Plan
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.plugin import PluginInfo, plugin_file
-from nerfify_ns.verify.report import Diagnosis
+from nerfify_ns.verify.verdicts import Diagnosis
 
 NAME_CUTOFF = 0.6
 """difflib similarity above which an optimiser key without a group is a misspelling of a group without one."""
@@ -77,7 +78,7 @@ class CodePatch:
     rule: str
     reason: str
     fixer: str = ""
-    plan_edits: List[PlanEdit] = field(default_factory=list)
+    plan_edits: list[PlanEdit] = field(default_factory=list)
 
     def diff(self) -> str:
         return "".join(
@@ -103,7 +104,7 @@ class Fixer(Protocol):
 
     name: str
 
-    def propose(self, info: PluginInfo, diagnoses: Sequence[Diagnosis]) -> List[CodePatch]: ...
+    def propose(self, info: PluginInfo, diagnoses: Sequence[Diagnosis]) -> list[CodePatch]: ...
 
 
 def _read(info: PluginInfo, rel: str) -> str:
@@ -120,7 +121,7 @@ def _offset(text: str, lineno: int, col: int) -> int:
     return sum(len(l) for l in lines[: lineno - 1]) + len(line.encode()[:col].decode(errors="ignore"))
 
 
-def _span(text: str, node: ast.AST) -> Tuple[int, int]:
+def _span(text: str, node: ast.AST) -> tuple[int, int]:
     return _offset(text, node.lineno, node.col_offset), _offset(text, node.end_lineno, node.end_col_offset)
 
 
@@ -129,7 +130,7 @@ def _segment_replace(text: str, node: ast.AST, new: str) -> str:
     return text[:start] + new + text[end:]
 
 
-def _splice(text: str, edits: List[Tuple[int, int, str]]) -> str:
+def _splice(text: str, edits: list[tuple[int, int, str]]) -> str:
     """Replace the character ranges ``(start, end, new)`` (not overlapping), last first."""
     for start, end, new in sorted(edits, reverse=True):
         text = text[:start] + new + text[end:]
@@ -157,7 +158,7 @@ def _entry_end(text: str, pos: int, own_line: bool) -> int:
     return pos
 
 
-def _group_names(d: Diagnosis, key: str, marker: str) -> List[str]:
+def _group_names(d: Diagnosis, key: str, marker: str) -> list[str]:
     """``missing`` / ``extra`` of a param-groups diagnosis: from its data, else parsed from its message."""
     if isinstance(d.data.get(key), list):
         return [str(x) for x in d.data[key]]
@@ -166,19 +167,19 @@ def _group_names(d: Diagnosis, key: str, marker: str) -> List[str]:
     return re.findall(r"'([^']+)'", d.message.split(marker)[1].split(";")[0])
 
 
-def pair_misspelled(missing: Sequence[str], extra: Sequence[str]) -> Dict[str, str]:
+def pair_misspelled(missing: Sequence[str], extra: Sequence[str]) -> dict[str, str]:
     """``{extra key: missing group}`` for every optimiser key that is a close misspelling (difflib) of a
     parameter group without an optimiser; each name is used once, closest pairs first."""
     scored = sorted(((difflib.SequenceMatcher(None, e, m).ratio(), e, m) for e in extra for m in missing),
                     reverse=True)
-    pairs: Dict[str, str] = {}
+    pairs: dict[str, str] = {}
     for ratio, e, m in scored:
         if ratio >= NAME_CUTOFF and e not in pairs and m not in pairs.values():
             pairs[e] = m
     return pairs
 
 
-def _optimizers_dict(text: str, line: Optional[int]) -> Optional[ast.Dict]:
+def _optimizers_dict(text: str, line: int | None) -> ast.Dict | None:
     """The ``optimizers={...}`` dict literal (the one on ``line`` when there are several)."""
     found = [n for n in ast.walk(ast.parse(text))
              if isinstance(n, ast.keyword) and n.arg == "optimizers" and isinstance(n.value, ast.Dict)]
@@ -210,7 +211,7 @@ class OptimizerGroupFixer:
                 patches.append(patch)
         return patches
 
-    def _patch(self, info: PluginInfo, d: Diagnosis) -> Optional[CodePatch]:
+    def _patch(self, info: PluginInfo, d: Diagnosis) -> CodePatch | None:
         text = _read(info, d.file)
         missing = _group_names(d, "missing", "missing optimizers:")
         extra = _group_names(d, "extra", "without a group:")
@@ -218,7 +219,7 @@ class OptimizerGroupFixer:
         if node is None or not (missing or extra):
             return None
         keys = {k.value: k for k in node.keys if isinstance(k, ast.Constant) and isinstance(k.value, str)}
-        values = {k.value: v for k, v in zip(node.keys, node.values) if isinstance(k, ast.Constant)}
+        values = {k.value: v for k, v in zip(node.keys, node.values, strict=False) if isinstance(k, ast.Constant)}
         renames = {e: m for e, m in pair_misspelled(missing, extra).items() if e in keys}
         added = [m for m in missing if m not in renames.values()]
         removed = [e for e in extra if e in keys and e not in renames]
@@ -239,13 +240,13 @@ class OptimizerGroupFixer:
                          self._plan_edits(info.plan, renames, added, removed))
 
     @staticmethod
-    def _removal(text: str, key: ast.AST, value: ast.AST) -> Tuple[int, int, str]:
+    def _removal(text: str, key: ast.AST, value: ast.AST) -> tuple[int, int, str]:
         start = _line_start(text, _span(text, key)[0])
         own_line = start == 0 or text[start - 1] == "\n"
         return start, _entry_end(text, _span(text, value)[1], own_line), ""
 
     @staticmethod
-    def _insertion(text: str, node: ast.Dict, names: Sequence[str], value: str) -> Tuple[int, int, str]:
+    def _insertion(text: str, node: ast.Dict, names: Sequence[str], value: str) -> tuple[int, int, str]:
         """New entries ``name: value`` before the closing brace, in the layout of the existing ones."""
         brace = _span(text, node)[1] - 1
         first = node.keys[0] if node.keys else None
@@ -261,7 +262,7 @@ class OptimizerGroupFixer:
         return brace, brace, sep + ", ".join(f"{_quoted(quote, n)}: {value}" for n in names)
 
     @staticmethod
-    def _reason(renames: Dict[str, str], added: List[str], removed: List[str]) -> str:
+    def _reason(renames: dict[str, str], added: list[str], removed: list[str]) -> str:
         parts = [f"optimizer key {e!r} renamed to the parameter group {m!r} (its settings kept)"
                  for e, m in renames.items()]
         parts += [f"optimizer for parameter group {m!r} added (a copy of 'fields')" for m in added]
@@ -269,8 +270,8 @@ class OptimizerGroupFixer:
         return "; ".join(parts)
 
     @staticmethod
-    def _plan_edits(plan: Optional[dict], renames: Dict[str, str], added: List[str],
-                    removed: List[str]) -> List[PlanEdit]:
+    def _plan_edits(plan: dict | None, renames: dict[str, str], added: list[str],
+                    removed: list[str]) -> list[PlanEdit]:
         edits = [PlanEdit("rename", f"optimizers.{e}", f"optimizers.{m}") for e, m in renames.items()]
         fields = Plan.of(plan).get("optimizers.fields") if plan else None
         edits += [PlanEdit("set", f"optimizers.{m}", fields) for m in added if fields is not None]
@@ -408,7 +409,7 @@ class EmptyReshapeFixer:
         return patches
 
 
-def default_fixers() -> List[Fixer]:
+def default_fixers() -> list[Fixer]:
     return [
         OptimizerGroupFixer(),
         InterlevelLossFixer(),
@@ -429,7 +430,7 @@ def code_repair(patch: CodePatch) -> dict:
             "diff": patch.diff().splitlines()}
 
 
-def record_in_plan(plan: Plan, patches: Sequence[CodePatch]) -> List[str]:
+def record_in_plan(plan: Plan, patches: Sequence[CodePatch]) -> list[str]:
     """Record ``patches`` in ``plan`` (in place), so recomposing the plan keeps them: a patch whose plan
     edits change the plan (and keep it valid) is recorded as those edits; any other (the plan already says
     what the code now says, or nothing in the plan expresses it) as a code repair in ``repairs``. Returns

@@ -8,13 +8,13 @@ import json
 import os
 import signal
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
 
+from nerfify_ns.runtime.sandbox import Limits, SandboxResult, python_cmd, run_sandboxed
 from nerfify_ns.verify.checker import PipeReader, decode, judge
 from nerfify_ns.verify.plugin import PluginInfo, plugin_file
-from nerfify_ns.verify.report import Diagnosis, RungResult, clean_data
-from nerfify_ns.verify.sandbox import Limits, SandboxResult, python_cmd, run_sandboxed
+from nerfify_ns.verify.verdicts import Diagnosis, RungResult, clean_data
 
 PROBE_RUNGS = ("static", "contract", "stability")
 PARSE_LIMITS = Limits(memory=2 << 30, pids=32)
@@ -22,7 +22,7 @@ PARSE_LIMITS = Limits(memory=2 << 30, pids=32)
 PARSE_TIMEOUT = 120.0
 
 
-def read_probe_events(path: Path, max_bytes: int = 64 << 20) -> List[dict]:
+def read_probe_events(path: Path, max_bytes: int = 64 << 20) -> list[dict]:
     """The probe's JSON-lines events (a line cut off by a crash is skipped; at most ``max_bytes`` are read)."""
     if not path.exists():
         return []
@@ -44,7 +44,7 @@ def sandbox_details(result: SandboxResult) -> dict:
     return {"mode": result.mode, "limits": result.limits, "usage": result.usage}
 
 
-def limit_diagnoses(rung: str, result: SandboxResult, left_running: bool = True) -> List[Diagnosis]:
+def limit_diagnoses(rung: str, result: SandboxResult, left_running: bool = True) -> list[Diagnosis]:
     """The limits the sandboxed process tree ran into, as failures of ``rung`` (rule ``sandbox-limit``)."""
     return [Diagnosis(rung, "sandbox-limit", hit) for hit in result.limit_hits(left_running)]
 
@@ -64,9 +64,9 @@ def _exit_text(result: SandboxResult) -> str:
 
 
 def run_probe(
-    info: Optional[PluginInfo], rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan",
-    limits: Optional[Limits] = None,
-) -> Dict[str, RungResult]:
+    info: PluginInfo | None, rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan",
+    limits: Limits | None = None,
+) -> dict[str, RungResult]:
     """Probe ``rungs`` in one sandboxed process and judge what it sends with the checker
     (:mod:`nerfify_ns.verify.checker`, here, in our process); a rung it never finished is failed (timeout or
     crash). Without a plugin (``info`` None: the component suite, our code only) its own events are the verdict."""
@@ -93,8 +93,8 @@ def run_probe(
         data = reader.finish() if reader else b""
     records, wire_problems = decode(data) if reader else ([], [])
     events = [h for h, _ in records if h.get("kind") == "event"] if reader else read_probe_events(events_path)
-    rungs_out: Dict[str, RungResult] = {}
-    started: Dict[str, float] = {}
+    rungs_out: dict[str, RungResult] = {}
+    started: dict[str, float] = {}
     for e in events:
         rung = e.get("rung")
         if rung not in rungs:
@@ -164,8 +164,8 @@ def run_probe(
     return rungs_out
 
 
-def _apply_checker(info: PluginInfo, rungs: Sequence[str], rungs_out: Dict[str, RungResult], records: list,
-                   wire_problems: List[str], overflow: int) -> None:
+def _apply_checker(info: PluginInfo, rungs: Sequence[str], rungs_out: dict[str, RungResult], records: list,
+                   wire_problems: list[str], overflow: int) -> None:
     """The checker's verdicts on the probe's records: its checks counted, its failures added, and a finished
     rung that delivered nothing to judge failed."""
     from nerfify_ns.plan import Plan
@@ -195,7 +195,7 @@ def _apply_checker(info: PluginInfo, rungs: Sequence[str], rungs_out: Dict[str, 
 
 
 def static_ast(info: PluginInfo, workdir: Path, *, timeout: float = PARSE_TIMEOUT,
-               limits: Optional[Limits] = None) -> RungResult:
+               limits: Limits | None = None) -> RungResult:
     """The parsing part of the static rung (files parse, the entry point exists), in a sandboxed subprocess
     with its own limits: a file that exhausts the parser fails the rung naming the file, not our process."""
     r = RungResult("static")

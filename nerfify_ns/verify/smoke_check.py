@@ -14,8 +14,8 @@ plugin code; nothing in it is executed).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -23,10 +23,10 @@ LEARNING_RATIO = 0.9
 MAX_CHECKPOINT = 2 << 30
 
 
-def step_errors(records: Sequence[Tuple[dict, Dict[str, np.ndarray]]]) -> Tuple[Dict[int, float], List[str]]:
+def step_errors(records: Sequence[tuple[dict, dict[str, np.ndarray]]]) -> tuple[dict[int, float], list[str]]:
     """(step -> recomputed photometric error, problems) of the recorded training steps."""
-    errors: Dict[int, float] = {}
-    problems: List[str] = []
+    errors: dict[int, float] = {}
+    problems: list[str] = []
     for header, arrays in records:
         if header.get("kind") != "step":
             continue
@@ -75,7 +75,7 @@ def _numpy_globals() -> list:
     return names
 
 
-def checkpoint_problems(run_dir: Path) -> Tuple[Optional[int], List[str]]:
+def checkpoint_problems(run_dir: Path) -> tuple[int | None, list[str]]:
     """(the step it was saved at, problems) of the newest checkpoint under ``run_dir``."""
     import torch
 
@@ -102,7 +102,7 @@ def checkpoint_problems(run_dir: Path) -> Tuple[Optional[int], List[str]]:
         elif isinstance(value, dict):
             for k, v in value.items():
                 walk(v, f"{name}.{k}" if name else str(k), depth + 1)
-        elif isinstance(value, (list, tuple)):
+        elif isinstance(value, list | tuple):
             for i, v in enumerate(value):
                 walk(v, f"{name}[{i}]", depth + 1)
 
@@ -114,10 +114,10 @@ def checkpoint_problems(run_dir: Path) -> Tuple[Optional[int], List[str]]:
     return step if isinstance(step, int) else None, problems
 
 
-def judge_training(records, run_dir: Path, iterations: int) -> Tuple[int, List[Tuple[str, str]], dict]:
+def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[tuple[str, str]], dict]:
     """(checks, [(rule, message)], details) of a smoke run from its records and its checkpoint."""
     errors, problems = step_errors(records)
-    failures: List[Tuple[str, str]] = [("non-finite-output" if "not finite" in p else "forged-record", p)
+    failures: list[tuple[str, str]] = [("non-finite-output" if "not finite" in p else "forged-record", p)
                                        for p in problems[:3]]
     reached = max(errors) + 1 if errors else 0
     details = {"recorded_steps": len(errors), "iterations_recorded": reached}

@@ -14,21 +14,21 @@ from __future__ import annotations
 import ast
 import json
 import sys
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable, List, Optional
 
 from nerfify_ns.verify.plugin import PluginInfo, plugin_file
-from nerfify_ns.verify.report import Diagnosis
+from nerfify_ns.verify.verdicts import Diagnosis
 
 MAX_SOURCE_BYTES = 4 << 20
 """A plugin module larger than this is refused unparsed (generated ones are a few kilobytes)."""
 
 
-def ast_checks(info: PluginInfo, on_file: Optional[Callable[[str], None]] = None) -> List[Diagnosis]:
+def ast_checks(info: PluginInfo, on_file: Callable[[str], None] | None = None) -> list[Diagnosis]:
     """Every Python file parses; the entry point names a module of the plugin assigning its variable.
     ``on_file(rel)`` is called before each file is parsed."""
-    found: List[Diagnosis] = []
+    found: list[Diagnosis] = []
     trees = {}
     for rel in info.python_files:
         if on_file is not None:
@@ -64,7 +64,7 @@ def ast_checks(info: PluginInfo, on_file: Optional[Callable[[str], None]] = None
             )
         )
     elif rel in trees and not any(
-        isinstance(n, (ast.Assign, ast.AnnAssign)) and var in _targets(n) for n in trees[rel].body
+        isinstance(n, ast.Assign | ast.AnnAssign) and var in _targets(n) for n in trees[rel].body
     ):
         found.append(
             Diagnosis(
@@ -78,7 +78,7 @@ def ast_checks(info: PluginInfo, on_file: Optional[Callable[[str], None]] = None
     return found
 
 
-def _targets(node) -> List[str]:
+def _targets(node) -> list[str]:
     """The names an assignment binds."""
     targets = node.targets if isinstance(node, ast.Assign) else [node.target]
     return [t.id for t in targets if isinstance(t, ast.Name)]

@@ -14,18 +14,18 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Sequence
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from typing import List, Optional, Sequence, Tuple
 
 
 class FakeEndpoint:
     MAX_REQUESTS = 200
 
     def __init__(self, mode: str = "ok", answer: str = "{}", hang_s: float = 5.0,
-                 sequence: Optional[Sequence[Tuple[str, str]]] = None) -> None:
+                 sequence: Sequence[tuple[str, str]] | None = None) -> None:
         self.mode, self.answer, self.hang_s = mode, answer, hang_s
         self.sequence = list(sequence or [])
-        self.requests: List[dict] = []
+        self.requests: list[dict] = []
         endpoint = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -81,7 +81,7 @@ class FakeEndpoint:
                 "usage": {"prompt_tokens": 100, "completion_tokens": 20, "total_tokens": 120}}
         self._send(handler, 200, json.dumps(body).encode(), "application/json")
 
-    def __enter__(self) -> "FakeEndpoint":
+    def __enter__(self) -> FakeEndpoint:
         self.thread.start()
         return self
 

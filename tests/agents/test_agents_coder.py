@@ -11,9 +11,18 @@ import math
 from pathlib import Path
 
 import pytest
+from coder_answers import (
+    MISSING_MODULE,
+    NAN_FOR_LARGE,
+    RGB_HEAD,
+    RGB_HEAD_FOUR,
+    RIGHT,
+    SHAPE_MISMATCH,
+    answer,
+    rgb_answer,
+    rgb_head_hole,
+)
 
-from coder_answers import (MISSING_MODULE, NAN_FOR_LARGE, RGB_HEAD, RGB_HEAD_FOUR, RIGHT, SHAPE_MISMATCH,
-                           answer, rgb_answer, rgb_head_hole)
 from nerfify_ns.agents import Agents, LLMConfig
 from nerfify_ns.agents.cache import ResponseCache
 from nerfify_ns.agents.providers import ScriptedProvider

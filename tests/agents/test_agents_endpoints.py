@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from fake_endpoint import FakeEndpoint
 
 pytest.importorskip("openai", reason="the [llm] extra is not installed (pip install 'nerfify-ns[llm]')")

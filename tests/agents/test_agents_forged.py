@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from coder_answers import RGB_HEAD, rgb_answer, rgb_head_hole
 
 ROOT = Path(__file__).resolve().parents[2]

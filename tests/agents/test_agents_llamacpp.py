@@ -3,7 +3,7 @@
 by the test and stopped after it. CI: two short requests (a JSON-Schema-constrained answer decoded by llama.cpp and
 validated by us; an unconstrained answer cut by ``max_tokens``: not an answer). Bench:
 one plan decoded under our GBNF passes ``validate`` and is merged (the 100-plan run is
-``python -m nerfify_ns.bench.llm_plan_bench``)."""
+``python -m nerfify_ns.benchmarks.llm_plan_bench``)."""
 
 from __future__ import annotations
 

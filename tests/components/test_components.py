@@ -62,7 +62,7 @@ def ref_kplanes(module, coords):
         feats = []
         for planes in module.grids:
             acc = None
-            for pair, plane in zip(pairs, planes):
+            for pair, plane in zip(pairs, planes, strict=False):
                 value = ref_bilinear(plane, coords[n, pair[0]], coords[n, pair[1]])
                 if acc is None:
                     acc = value
@@ -167,7 +167,7 @@ def test_kplanes_matches_reference(reduce, time_resolution):
     w = torch.randn_like(out)
     g = grads((out * w).sum(), [coords, *m.planes()])
     g_ref = grads((ref * w).sum(), [coords, *m.planes()])
-    for a, b in zip(g, g_ref):
+    for a, b in zip(g, g_ref, strict=False):
         close(a, b)
 
 
@@ -188,7 +188,7 @@ def test_kplanes_shapes_init_and_plane_lists():
     assert m.get_out_dim() == 15 and m.in_dim == 3
     assert m(torch.zeros(2, 4, 3)).shape == (2, 4, 15)
     assert len(m.planes()) == 9 and len(m.spatial_planes) == 9 and m.time_planes == []
-    for p, r in zip(m.planes(), [8] * 3 + [16] * 3 + [32] * 3):
+    for p, r in zip(m.planes(), [8] * 3 + [16] * 3 + [32] * 3, strict=False):
         assert p.shape == (1, 5, r, r)
         assert float(p.detach().min()) >= 0.1 and float(p.detach().max()) <= 0.5
 
@@ -309,7 +309,7 @@ def test_plane_regularizers_match_reference(fn, ref, shapes):
         planes[0][0, 0, 0, 0] = 1.7  # |1 - p| on both sides of 1
     out, expected = fn(planes), ref(planes)
     close(out, expected)
-    for a, b in zip(grads(out, planes), grads(expected, planes)):
+    for a, b in zip(grads(out, planes), grads(expected, planes), strict=False):
         close(a, b)
     close(fn(planes[0]), ref(planes[:1]))  # a single tensor is accepted
 

@@ -162,7 +162,7 @@ def test_consistency_views_use_each_frames_camera(scenes):
     depths = [load_depth(f.image.with_name(f.stem + "_depth.npy")) for f in frames]
     new = views_from_frames(frames, depths)
     old = views_from_transforms(dataset.root / "transforms_test.json", depths)
-    for a, b in zip(new, old):
+    for a, b in zip(new, old, strict=False):
         np.testing.assert_allclose(np.nan_to_num(a.points(), posinf=0), np.nan_to_num(b.points(), posinf=0))
     view = DepthView(np.full((12, 16), 3.0), np.eye(4), 20.0, fx=20.0, fy=14.0, cx=9.5, cy=5.0)
     row, col, dist, inside = view.project(view.points())

@@ -3,8 +3,8 @@ gradchecked; for most, a reference written by hand from the equation tests the r
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import pytest

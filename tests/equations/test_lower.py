@@ -9,8 +9,16 @@ import numpy as np
 import pytest
 import torch
 
-from nerfify_ns.equations import (CompileError, LoweringError, ParamSpec, ShapeError, check_lowering, lower,
-                                  lower_module, parse_equation)
+from nerfify_ns.equations import (
+    CompileError,
+    LoweringError,
+    ParamSpec,
+    ShapeError,
+    check_lowering,
+    lower,
+    lower_module,
+    parse_equation,
+)
 from nerfify_ns.equations import check as check_module
 
 PER_SAMPLE = {"sigma": ("R", "S"), "delta": ("R", "S"), "c": ("R", "S", 3)}

@@ -4,9 +4,25 @@ from __future__ import annotations
 
 import pytest
 
-from nerfify_ns.equations import (Apply, BinOp, Cases, Concat, Equation, Expectation, Index, Integral, Norm, Number,
-                                  ParseFailure, Reduce, Symbol, parse_equation, parse_equations, parse_expression,
-                                  show)
+from nerfify_ns.equations import (
+    Apply,
+    BinOp,
+    Cases,
+    Concat,
+    Equation,
+    Expectation,
+    Index,
+    Integral,
+    Norm,
+    Number,
+    ParseFailure,
+    Reduce,
+    Symbol,
+    parse_equation,
+    parse_equations,
+    parse_expression,
+    show,
+)
 
 
 def read(latex: str, **kw) -> Equation:

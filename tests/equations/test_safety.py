@@ -12,8 +12,18 @@ import numpy as np
 import pytest
 import torch
 
-from nerfify_ns.equations import (Apply, BinOp, Equation, LoweringError, Number, ParamSpec, ParseFailure, Symbol,
-                                  lower_module, parse_equation)
+from nerfify_ns.equations import (
+    Apply,
+    BinOp,
+    Equation,
+    LoweringError,
+    Number,
+    ParamSpec,
+    ParseFailure,
+    Symbol,
+    lower_module,
+    parse_equation,
+)
 from nerfify_ns.equations.naming import RESERVED
 
 EVIL = [
@@ -52,23 +62,23 @@ def assert_safe(lowered) -> None:
     attrs = {attr for attr, _ in lowered.params.values()}
     docstrings = set()
     for node in ast.walk(tree):
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef)) and ast.get_docstring(node) is not None:
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef) and ast.get_docstring(node) is not None:
             docstrings.add(id(node.body[0].value))
     for node in ast.walk(tree):
         if isinstance(node, ast.Name):
             assert node.id in ours, f"identifier {node.id!r} is not ours"
         elif isinstance(node, ast.arg):
             assert node.arg in ours, f"argument {node.arg!r} is not ours"
-        elif isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+        elif isinstance(node, ast.FunctionDef | ast.ClassDef):
             assert node.name in ours
         elif isinstance(node, ast.Attribute):
             assert node.attr in TORCH_ATTRIBUTES | attrs, f"attribute {node.attr!r}"
         elif isinstance(node, ast.Constant) and isinstance(node.value, str):
             assert id(node) in docstrings or node.value in attrs, f"string {node.value!r} reached the code"
-        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+        elif isinstance(node, ast.Import | ast.ImportFrom):
             names = {a.name for a in node.names}
             assert names <= {"math", "torch", "nn"} and getattr(node, "module", None) in (None, "torch")
-        elif isinstance(node, (ast.Lambda, ast.Global, ast.Nonlocal, ast.JoinedStr)):
+        elif isinstance(node, ast.Lambda | ast.Global | ast.Nonlocal | ast.JoinedStr):
             raise AssertionError(f"{type(node).__name__} in generated code")
     for tok in tokenize.generate_tokens(io.StringIO(source).readline):
         if tok.type == tokenize.COMMENT:

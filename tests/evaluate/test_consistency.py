@@ -62,9 +62,9 @@ def test_planted_floaters_are_found(floaters):
     scores = C.mask_scores(np.stack([v.mask for v in report.views]), np.stack(truth))
     assert scores["recall"] >= 0.85 and scores["precision"] >= 0.95, scores
     clean = C.scene_views(floaters, "test", clean=True)
-    hit = np.stack([t.depth < c.depth - 1e-6 for t, c in zip(test, clean)])  # centre ray hits a blob
+    hit = np.stack([t.depth < c.depth - 1e-6 for t, c in zip(test, clean, strict=False)])  # centre ray hits a blob
     assert C.mask_scores(np.stack([v.mask for v in report.views]), hit)["recall"] >= 0.95
-    for view, mask in zip(report.views, truth):  # views with floaters score lower
+    for view, mask in zip(report.views, truth, strict=False):  # views with floaters score lower
         assert (view.score < 0.95) == bool(mask.any())
 
 
@@ -76,7 +76,7 @@ def test_clean_depth_stays_quiet(floaters, default):
     report = C.check_consistency(test, C.scene_views(default, "train") + test)
     assert max(v.mask.mean() for v in report.views) < 0.01 and report.mean_score > 0.99
     # the reprojection is right: almost every surface pixel is seen as a surface by another view
-    supported = [(v.support > 0).sum() / np.isfinite(t.depth).sum() for v, t in zip(report.views, test)]
+    supported = [(v.support > 0).sum() / np.isfinite(t.depth).sum() for v, t in zip(report.views, test, strict=False)]
     assert min(supported) > 0.95
     assert not any(v.unobserved.any() for v in report.views)
 

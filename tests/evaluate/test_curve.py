@@ -23,7 +23,7 @@ def test_running_mean_is_undone(buffer):
 
 def test_curve_args_checkpoint_and_disable_eval():
     args = cv.curve_train_args(10)
-    pairs = dict(zip(args[::2], args[1::2]))
+    pairs = dict(zip(args[::2], args[1::2], strict=False))
     assert pairs["--steps-per-save"] == "10" and pairs["--save-only-latest-checkpoint"] == "False"
     assert pairs["--steps-per-eval-batch"] == pairs["--steps-per-eval-image"] == "0"
     assert pairs["--steps-per-eval-all-images"] == "0" and pairs["--logging.max-buffer-size"] == "1"

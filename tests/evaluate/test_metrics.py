@@ -4,12 +4,11 @@ import math
 
 import numpy as np
 import pytest
+from conftest import installed_lpips_weights
 from scipy.signal import correlate2d
 from skimage.metrics import structural_similarity
 
 from nerfify_ns.evaluate import metrics as m
-
-from conftest import installed_lpips_weights
 
 
 def _pair(seed=0, shape=(40, 52, 3), noise=0.1):

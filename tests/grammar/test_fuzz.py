@@ -1,12 +1,12 @@
 """The grammar fuzzer: sampled plans are derivations, cover every terminal and both edges of every
-parameter, and (a handful here, hundreds in `nerfify_ns.bench.grammar_fuzz`) compose and pass the static
+parameter, and (a handful here, hundreds in `nerfify_ns.benchmarks.grammar_fuzz`) compose and pass the static
 and contract rungs. Each test names its seed so a failure can be replayed."""
 
 from __future__ import annotations
 
 import pytest
 
-from nerfify_ns.bench.grammar_fuzz import check_plan
+from nerfify_ns.benchmarks.grammar_fuzz import check_plan
 from nerfify_ns.grammar import check, load_grammar
 from nerfify_ns.grammar.fuzz import PlanSampler
 from nerfify_ns.synthesis.resources import load_reference_plan
@@ -36,7 +36,7 @@ def test_sampled_plans_compose_and_pass_static_and_contract(index, tmp_path):
     sampler = PlanSampler(load_grammar(), seed=SEED)
     plans = [sampler.sample(method=f"fuzz-{SEED}-{i}") for i in range(index + 1)]
     failures = check_plan(plans[index], tmp_path)
-    assert failures == [], f"seed {SEED} plan {index} (replay: python -m nerfify_ns.bench.grammar_fuzz " \
+    assert failures == [], f"seed {SEED} plan {index} (replay: python -m nerfify_ns.benchmarks.grammar_fuzz " \
                            f"--seed {SEED} --only {index}): {failures}"
 
 
@@ -112,7 +112,7 @@ def test_one_proposal_network_for_every_round(reference, tmp_path):
 def test_the_benchmark_checks_every_plan_of_its_slice(monkeypatch, tmp_path):
     """`--start` splits a seed's plans between processes: each plan of the slice is checked once (a timing
     variable once shadowed the slice's start, and every plan after the first was skipped)."""
-    from nerfify_ns.bench import grammar_fuzz
+    from nerfify_ns.benchmarks import grammar_fuzz
 
     checked = []
     monkeypatch.setattr(grammar_fuzz, "check_plan", lambda plan, work: checked.append(plan["method"]) or [])

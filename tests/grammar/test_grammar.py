@@ -4,7 +4,7 @@ accept and reject the same plans (each rule of the grammar, both ways)."""
 from __future__ import annotations
 
 import copy
-from typing import Callable, Dict, Tuple
+from collections.abc import Callable
 
 import jsonschema
 import pytest
@@ -69,7 +69,7 @@ def _dynamic_nerf(p: dict) -> None:
                                     "image_curriculum": {"rule": "keyframes"}, "custom_stage": CUSTOM}
 
 
-VALID: Dict[str, dict] = {
+VALID: dict[str, dict] = {
     **{f"reference {n}": ref(n) for n in ["instant-ngp", "kplanes-static", "mipnerf", "nerfacto", "tensorf",
                                           "vanilla-nerf"]},
     "dynamic k-planes": mutate("kplanes-static", _dynamic_kplanes),
@@ -111,7 +111,7 @@ VALID: Dict[str, dict] = {
 }
 
 # (rule the violation must name, plan)
-INVALID: Dict[str, Tuple[str, dict]] = {
+INVALID: dict[str, tuple[str, dict]] = {
     "unknown slot": ("unknown_slot", mutate("nerfacto", lambda p: p["model"].update(shader={}))),
     "missing slot": ("missing_slot", mutate("nerfacto", lambda p: p["model"].pop("sampler"))),
     "two alternatives": ("choice_arity", mutate("vanilla-nerf", lambda p: p["model"]["sampler"].update(

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
+from synthetic_papers import write_paper
 
 from nerfify_ns.knowledge import KnowledgeBase
 from nerfify_ns.knowledge.bases import find_base_statements
-from synthetic_papers import write_paper
 
 
 def statements(tmp_path, text: str, heading: str = "3 Method"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
+from synthetic_papers import REFERENCES, real_paper, write_paper
 
 from nerfify_ns.knowledge.citations import (
     TARGET,
@@ -17,7 +18,6 @@ from nerfify_ns.knowledge.citations import (
 from nerfify_ns.knowledge.detect import detect_techniques
 from nerfify_ns.knowledge.papers import load_papers
 from nerfify_ns.paper import Reference, ingest
-from synthetic_papers import REFERENCES, real_paper, write_paper
 
 
 def uses_of(tmp_path, sentence: str, heading: str = "3 Method"):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import json
 
 import pytest
+from synthetic_papers import real_paper, write_paper
 
 from nerfify_ns.knowledge.detect import Detection, detect_techniques, used_cards
 from nerfify_ns.paper import ingest
-from synthetic_papers import real_paper, write_paper
 
 
 def by_card(detections: list[Detection]) -> dict[str, Detection]:

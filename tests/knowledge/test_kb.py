@@ -7,13 +7,13 @@ import shutil
 from pathlib import Path
 
 import pytest
+from synthetic_papers import write_paper
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.knowledge import CARDS_DIR, KnowledgeBase, UnknownCardError, load_cards
 from nerfify_ns.knowledge.citations import build_citation_graph, find_citation_uses
 from nerfify_ns.knowledge.detect import detect_techniques, used_cards
 from nerfify_ns.knowledge.errors import KnowledgeError
-from synthetic_papers import write_paper
 
 PACKAGE = Path(__file__).resolve().parents[2] / "nerfify_ns"
 KEEP = ("rgb_l2", "positional_encoding", "hierarchical_sampling", "mlp_backbone", "density_activation",
@@ -85,7 +85,7 @@ def _cached_functions(path: Path) -> list[str]:
     """Functions of ``path`` decorated with functools' lru_cache or cache."""
     found = []
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
             for dec in node.decorator_list:
                 target = dec.func if isinstance(dec, ast.Call) else dec
                 name = target.attr if isinstance(target, ast.Attribute) else getattr(target, "id", "")

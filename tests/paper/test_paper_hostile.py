@@ -13,15 +13,30 @@ import time
 from pathlib import Path
 
 import pytest
-
 from hostile_papers import (
-    big_bib, chinese_pdf, fifo, german_markdown, include_tree, inflating_tarball, latex_folder, macro_bomb,
-    outside_canary, russian_text, tarball, token,
+    big_bib,
+    chinese_pdf,
+    fifo,
+    german_markdown,
+    include_tree,
+    inflating_tarball,
+    latex_folder,
+    macro_bomb,
+    outside_canary,
+    russian_text,
+    tarball,
+    token,
 )
+
 from nerfify_ns.paper import (
-    NotEnglishError, OutsidePaperError, PaperError, PaperLimitError, UnsafeArchiveError, ingest,
+    NotEnglishError,
+    OutsidePaperError,
+    PaperError,
+    PaperLimitError,
+    UnsafeArchiveError,
+    ingest,
+    latex_source,
 )
-from nerfify_ns.paper import latex_source
 from nerfify_ns.paper.bibtex import bib_entries
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, MAX_BIB_ENTRIES, Limits
 

@@ -14,9 +14,16 @@ import time
 from pathlib import Path
 
 import pytest
-
 from hostile_papers import (
-    MAIN, big_bib, chinese_pdf, include_tree, inflating_tarball, latex_folder, macro_bomb, outside_canary, tarball,
+    MAIN,
+    big_bib,
+    chinese_pdf,
+    include_tree,
+    inflating_tarball,
+    latex_folder,
+    macro_bomb,
+    outside_canary,
+    tarball,
     token,
 )
 

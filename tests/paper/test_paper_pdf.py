@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import pymupdf
 import pytest
-from paper_pdfs import two_column_pdf, text_pdf
+from paper_pdfs import text_pdf, two_column_pdf
 
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.paper import (
-    CorruptPdfError, EmptyDocumentError, EncryptedPdfError, InputTooLargeError, Limits, NotANerfPaperError,
-    ScannedPdfError, UnsupportedInputError, ingest, require_nerf_paper,
+    CorruptPdfError,
+    EmptyDocumentError,
+    EncryptedPdfError,
+    InputTooLargeError,
+    Limits,
+    NotANerfPaperError,
+    ScannedPdfError,
+    UnsupportedInputError,
+    ingest,
+    require_nerf_paper,
 )
 
 

@@ -172,9 +172,9 @@ def test_fuzz_the_readers_with_fragments_of_real_papers():
     for label, text in fragments:
         for latex in (text, text.strip("$ \n")[:600]):
             results = _timed(label, parse_equations, latex)
-            assert results and all(isinstance(r, (Equation, ParseFailure)) for r in results), label
+            assert results and all(isinstance(r, Equation | ParseFailure) for r in results), label
             read += sum(isinstance(r, Equation) for r in results)
-            assert isinstance(_timed(label, parse_expression, latex), (ParseFailure, object))
+            assert isinstance(_timed(label, parse_expression, latex), ParseFailure | object)
         assert isinstance(_timed(label, normalize_latex, text), str)
         assert isinstance(_timed(label, latex_issues, text), list)
         for sentence in _timed(label, split_sentences, text):
@@ -182,7 +182,7 @@ def test_fuzz_the_readers_with_fragments_of_real_papers():
         assert isinstance(_timed(label, mentions, text), list)
     for label, latex in _math_fragments(FRAGMENTS):
         results = _timed(label, parse_equations, latex)
-        assert results and all(isinstance(r, (Equation, ParseFailure)) for r in results), label
+        assert results and all(isinstance(r, Equation | ParseFailure) for r in results), label
         read += sum(isinstance(r, Equation) for r in results)
         _timed(label, parse_expression, latex)
         assert isinstance(_timed(label, mentions, f"where ${latex}$ is the value"), list)
@@ -212,7 +212,7 @@ def test_fuzz_ingestion_notation_and_the_compiler_with_fragments_of_real_papers(
         items = doc_items(doc)
         for item in items:
             _timed(label, _parse, item)
-            assert all(isinstance(p, (Equation, ParseFailure)) for p in item.parsed), label
+            assert all(isinstance(p, Equation | ParseFailure) for p in item.parsed), label
         if items and compiled < 12:
             plan = dict(base)
             plan["holes"] = [{"production": production, "slot": slot, "section": items[0].section,

@@ -42,14 +42,14 @@ def test_fused_optimizer_steps_like_nerfstudios(config):
     assert ours.defaults["fused"] is True and not stock.defaults.get("fused")
     g = torch.Generator().manual_seed(1)
     for step in range(6):
-        for a, b in zip(ours_params, stock_params):
+        for a, b in zip(ours_params, stock_params, strict=False):
             grad = torch.randn(a.shape, generator=g)
             if step % 2:  # hash-grid style: most rows of a table untouched this step
                 grad[torch.rand(a.shape[0], generator=g) < 0.9] = 0
             a.grad, b.grad = grad.clone(), grad.clone()
         ours.step()
         stock.step()
-    for a, b in zip(ours_params, stock_params):
+    for a, b in zip(ours_params, stock_params, strict=False):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-7)
         torch.testing.assert_close(ours.state[a]["exp_avg_sq"], stock.state[b]["exp_avg_sq"], rtol=1e-5, atol=1e-12)
 

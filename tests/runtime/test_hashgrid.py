@@ -4,11 +4,9 @@ import copy
 
 import pytest
 import torch
-
 from hashgrid_oracle import STOCK, make_encoding, off_grid, run
 
 from nerfify_ns.runtime.hashgrid import corner_indices, corner_weights, fast_pytorch_fwd, hash_encode
-
 
 
 @pytest.fixture(autouse=True)

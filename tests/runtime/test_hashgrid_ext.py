@@ -12,14 +12,12 @@ from pathlib import Path
 
 import pytest
 import torch
-from nerfstudio.field_components.encodings import HashEncoding
-
 from hashgrid_oracle import STOCK, make_encoding, off_grid, run
+from nerfstudio.field_components.encodings import HashEncoding
 
 from nerfify_ns.runtime import hashgrid, hashgrid_ext
 from nerfify_ns.runtime.hashgrid import fast_pytorch_fwd, hash_encode
 from nerfify_ns.runtime.paths import ENV_CACHE
-
 
 
 @pytest.fixture(scope="session")

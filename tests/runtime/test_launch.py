@@ -16,7 +16,7 @@ import pytest
 
 import nerfify_ns
 from nerfify_ns.runtime import events as ev
-from nerfify_ns.runtime.launch import (GENERATED_METHOD, RunLayout, eval_command, progress_poll, train_command)
+from nerfify_ns.runtime.launch import GENERATED_METHOD, RunLayout, eval_command, progress_poll, train_command
 from nerfify_ns.runtime.process import TIMEOUT_CODE, run_process
 
 # A stand-in for a training: logs one Train Loss per step to tensorboard events in RUN_DIR, then exits.
@@ -48,7 +48,7 @@ def test_train_command_and_layout(tmp_path):
     cmd = train_command("nerfacto", tmp_path / "scene", layout, iterations=7, method_args=["--machine.seed", "3"],
                         dataparser="blender-data", dataparser_args=["--scale-factor", "1.0"], prefix=["unshare", "-n"])
     assert cmd[:2] == ["unshare", "-n"] and Path(cmd[2]).name == "ns-train" and cmd[3] == "nerfacto"
-    pairs = dict(zip(cmd[4::2], cmd[5::2]))
+    pairs = dict(zip(cmd[4::2], cmd[5::2], strict=False))
     assert pairs["--data"] == str((tmp_path / "scene").resolve()) and pairs["--max-num-iterations"] == "7"
     assert pairs["--output-dir"] == str(tmp_path / "out") and pairs["--vis"] == "tensorboard"
     assert cmd[-3:] == ["blender-data", "--scale-factor", "1.0"]

@@ -7,12 +7,11 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import installed_lpips_weights
 
 from nerfify_ns.runtime import lpips
 from nerfify_ns.runtime.errors import LPIPSWeightsError
 from nerfify_ns.runtime.lpips_weights import _NumpyOnlyUnpickler, read_checkpoint
-
-from conftest import installed_lpips_weights
 
 
 def test_unavailable_gives_nan_then_null_and_warns_once(no_lpips_weights, capsys):

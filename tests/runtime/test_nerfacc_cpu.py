@@ -43,7 +43,7 @@ def _ref_scan(x, starts, cnts, op, exclusive=False, reverse=False):
     """Per-chunk torch.cumsum / torch.cumprod in a Python loop (reference only)."""
     out = torch.zeros_like(x)
     ident = 0.0 if op == "sum" else 1.0
-    for s, c in zip(starts.tolist(), cnts.tolist()):
+    for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
         if c == 0:
             continue
         seg = x[s : s + c]
@@ -269,7 +269,7 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     out = C.inclusive_sum(starts, cnts, x, False, False)
     ref = _ref_scan(x, starts, cnts, "sum")
     covered = torch.zeros(30, dtype=torch.bool)
-    for s, c in zip(starts.tolist(), cnts.tolist()):
+    for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
         covered[s : s + c] = True
     torch.testing.assert_close(out[covered], ref[covered], atol=1e-6, rtol=0)
     assert (out[~covered] == 0).all()
@@ -283,7 +283,7 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     for excl in (False, True):
         op = C.exclusive_sum if excl else C.inclusive_sum
         outn = op(starts, cnts, x, True, False)
-        for s, c in zip(starts.tolist(), cnts.tolist()):
+        for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
             if c:
                 tot = x[s : s + c].sum()
                 ref = _ref_scan(x, starts, cnts, "sum", excl)[s : s + c] / tot
@@ -471,7 +471,7 @@ def _ref_march_ray(o, d, binaries, aabbs, near, far, step, cone):
                         if level_at(tc) == lvl:  # a level's planes only cut where it applies
                             cuts.add(tc)
         cuts = sorted(cuts)
-        for c0, c1 in zip(cuts[:-1], cuts[1:]):
+        for c0, c1 in zip(cuts[:-1], cuts[1:], strict=False):
             m = 0.5 * (c0 + c1)
             lvl = level_at(m)
             if lvl is not None and binaries[(lvl,) + cell_of(m, lvl)]:
@@ -746,7 +746,7 @@ def _ref_importance(tv, cdf, n):
         else:
             out.append(tv[p0] + (u - cdf[p0]) * (tv[p1] - tv[p0]) / (cdf[p1] - cdf[p0]))
     edges = [max(out[0] - (out[1] - out[0]) / 2, tv[0])]
-    edges += [(a + b) / 2 for a, b in zip(out[:-1], out[1:])]
+    edges += [(a + b) / 2 for a, b in zip(out[:-1], out[1:], strict=False)]
     edges.append(min(out[-1] + (out[-1] - out[-2]) / 2, tv[-1]))
     return out, edges
 

@@ -19,8 +19,16 @@ from pathlib import Path
 
 import pytest
 
-from nerfify_ns.runtime.sandbox import (SANDBOX_UID, Limits, SandboxError, TreeCgroup, _own_cgroups,
-                                        available_modes, run_sandboxed, seccomp_filter)
+from nerfify_ns.runtime.sandbox import (
+    SANDBOX_UID,
+    Limits,
+    SandboxError,
+    TreeCgroup,
+    _own_cgroups,
+    available_modes,
+    run_sandboxed,
+    seccomp_filter,
+)
 
 BWRAP = "bwrap" in available_modes()
 needs_bwrap = pytest.mark.skipif(not BWRAP, reason="needs root and bubblewrap (scripts/setup.sh installs it)")

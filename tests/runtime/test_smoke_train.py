@@ -7,12 +7,11 @@ Every run goes through ``ns-train`` / ``ns-eval`` (Nerfstudio's own trainer and 
 import math
 
 import pytest
-
-from nerfify_ns.evaluate.smoke import smoke_train
-from nerfify_ns.runtime.presets import preset_args
-from nerfify_ns.runtime.launch import ns_eval, ns_train, offline_prefix
-
 from conftest import installed_lpips_weights
+
+from nerfify_ns.evaluate.smoke_train import smoke_train
+from nerfify_ns.runtime.launch import ns_eval, ns_train, offline_prefix
+from nerfify_ns.runtime.presets import preset_args
 
 NO_WEIGHTS_ENV = {"NERFIFY_LPIPS_WEIGHTS": "none"}
 

@@ -101,7 +101,7 @@ def test_colmap_estimates_the_capture_poses_and_the_probe_measures_the_capture(t
     """The real-capture path: 40 images, poses from the images alone (pycolmap, as ns-process-data); against the
     renderer's cameras after a similarity alignment; the facts are measured (points beyond the cameras, per-image
     gains), and with the true gains divided out the appearance fact flips."""
-    from nerfify_ns.bench.realistic_bench import neutralised_copy
+    from nerfify_ns.benchmarks.realistic_bench import neutralised_copy
     from nerfify_ns.synthesis.scene_probe import probe_scene
 
     monkeypatch.setenv(realistic.ENV_SCENE_CACHE, str(tmp_path / "scenes"))

@@ -9,7 +9,6 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
 
 CLI = Path(sys.executable).with_name("ns-nerfify")
 MAX_RSS_MB = 1500
@@ -46,7 +45,7 @@ def _tree_hwm_mb(pid: int) -> float:
     return total
 
 
-def run_cli(*args: str, cwd: Path, timeout: float = 120, env: Optional[dict] = None) -> Done:
+def run_cli(*args: str, cwd: Path, timeout: float = 120, env: dict | None = None) -> Done:
     """``ns-nerfify ARGS`` in ``cwd``: its exit code, output, wall time and peak RSS (of it and its descendants,
     sampled every 20 ms)."""
     start = time.perf_counter()

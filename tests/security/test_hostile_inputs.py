@@ -5,12 +5,10 @@ claims 2^40 rows, an equations.yaml bomb, and a plan whose method name ends in a
 
 from __future__ import annotations
 
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
-
 from hostile_cli import alias_bomb, assert_one_error, deep_yaml, run_cli, snapshot
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -89,8 +87,9 @@ def test_a_resumed_bench_reads_task_results_within_bounds(tmp_path):
     import os
 
     from hostile_cli import deep_json
-    from nerfify_ns.benchsuite.executor import finished, task_folder
-    from nerfify_ns.benchsuite.tasks import RESULT, Task
+
+    from nerfify_ns.nerfifybench.executor import finished, task_folder
+    from nerfify_ns.nerfifybench.tasks import RESULT, Task
 
     task = Task("p", "default", "full", 0)
     folder = task_folder(tmp_path, task)

@@ -12,8 +12,8 @@ import subprocess
 from pathlib import Path
 
 import pytest
-
 from hostile_cli import assert_one_error, run_cli, snapshot
+
 from nerfify_ns.atomic import MARKER, STAGING_MARKER, OverwriteRefused, atomic_dir, clean_leftovers, is_ours
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -10,10 +10,9 @@ import time
 from pathlib import Path
 
 import pytest
+from hostile_cli import alias_bomb, assert_one_error, deep_json, deep_yaml, run_cli, snapshot
 
 from nerfify_ns.evaluate.report import ReportError, write_report
-
-from hostile_cli import alias_bomb, assert_one_error, deep_json, deep_yaml, run_cli, snapshot
 
 PNG = (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\x00\x00\x00\x01\x08\x02\x00\x00\x00\x90wS\xde\x00"
        b"\x00\x00\x0cIDATx\x9cc\xf8\xcf\xc0\x00\x00\x03\x01\x01\x00\xc9\xfe\x92\xef\x00\x00\x00\x00IEND\xaeB`\x82")

@@ -18,7 +18,7 @@ from nerfify_ns.atomic import OutputExistsError
 from nerfify_ns.grammar import PlanError
 from nerfify_ns.plan import Plan, PlanFileError
 from nerfify_ns.synthesis.compose import compose, plugin_files
-from nerfify_ns.synthesis.registry import ENV_GENERATED, generated_plugin_dir
+from nerfify_ns.synthesis.plugin_lookup import ENV_GENERATED, generated_plugin_dir
 from nerfify_ns.synthesis.resources import UnknownReferencePlanError, load_reference_plan, reference_plans
 
 RUFF = Path(sys.executable).with_name("ruff")
@@ -132,8 +132,8 @@ def test_compose_keeps_no_global_pointer_and_the_env_overrides(tmp_path, monkeyp
 _BUILD = textwrap.dedent('''
     import dataclasses, json, sys, torch
     from nerfstudio.configs.method_configs import all_methods
-    from nerfify_ns.bench.step_timing import build_model, ray_batch, run_before_iteration_callbacks
-    from nerfify_ns.synthesis.registry import load_plugin_method
+    from nerfify_ns.benchmarks.step_timing import build_model, ray_batch, run_before_iteration_callbacks
+    from nerfify_ns.synthesis.plugin_lookup import load_plugin_method
 
     def build(config):
         model = build_model(config, seed=0)

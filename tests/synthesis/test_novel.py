@@ -9,6 +9,7 @@ import re
 import numpy as np
 import pytest
 import yaml
+from novel_papers import GATENERF, GATENERF_NO_WIDTH
 
 from nerfify_ns.equations import parse_equation
 from nerfify_ns.paper import ingest
@@ -17,8 +18,6 @@ from nerfify_ns.synthesis.novel.notation import NOTATION_FILE, Notation, PaperWo
 from nerfify_ns.synthesis.novel.records import EquationsFileError, read_corrections, write_records
 from nerfify_ns.synthesis.novel.widths import WidthError, Widths
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
-
-from novel_papers import GATENERF, GATENERF_NO_WIDTH
 
 
 @pytest.fixture(scope="module")
@@ -264,7 +263,6 @@ def test_a_ladder_failure_on_a_compiled_part_brings_back_the_base_part(gatenerf,
 
 def test_a_matrix_on_the_interfaces_input_takes_its_width_when_built(tmp_path):
     import torch
-
     from novel_papers import PROJNERF
 
     paper = tmp_path / "projnerf.md"
@@ -281,9 +279,9 @@ def test_a_matrix_on_the_interfaces_input_takes_its_width_when_built(tmp_path):
 
 def test_a_loss_on_densities_becomes_a_regulariser_with_the_papers_constants(tmp_path):
     import torch
+    from novel_papers import SPARSEFIELD
 
     from nerfify_ns.grammar import validate
-    from novel_papers import SPARSEFIELD
 
     paper = tmp_path / "sparsefield.md"
     paper.write_text(SPARSEFIELD)

@@ -10,13 +10,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+from novel_papers import GATENERF
 
 from nerfify_ns.budget import Budget
 from nerfify_ns.pipeline import run_compose, run_paper
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, implement_holes
 from nerfify_ns.synthesis.novel.records import EquationsFileError
-
-from novel_papers import GATENERF
 
 PAPERS = Path(__file__).resolve().parents[2].parent / "shared" / "papers"
 SMALL = Budget(iterations=20, every=20, cpu_presets=True,

@@ -5,13 +5,12 @@ compiled again from the equations, and the hole's notes say why."""
 from __future__ import annotations
 
 import yaml
+from novel_papers import GATENERF
 
 from nerfify_ns.paper import ingest
 from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
 from nerfify_ns.synthesis.novel.records import RECOMPILE_NOTE, read_corrections, source_hash, write_records
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
-
-from novel_papers import GATENERF
 
 PAYLOAD = "\nimport os\nos.system('touch /tmp/owned')  # appended by someone else\n"
 

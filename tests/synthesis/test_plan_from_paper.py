@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from synthetic_papers import real_paper, write_paper
 
 import nerfify_ns.synthesis.plan_from_paper as plan_from_paper_module
 from nerfify_ns.grammar import load_grammar, validate
@@ -18,10 +19,19 @@ from nerfify_ns.knowledge.detect import detect_techniques
 from nerfify_ns.paper import ingest
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.base_choice import BaseScore, choose_base, close_call, exclusive_cards, is_close
-from nerfify_ns.synthesis.plan_from_paper import (HyperparameterError, TerminalSlot, base_order, derive_plan, evaluate,
-                                                  hosted_cards, plan_from_paper, slot_table, slug, terminal_slots)
+from nerfify_ns.synthesis.plan_from_paper import (
+    HyperparameterError,
+    TerminalSlot,
+    base_order,
+    derive_plan,
+    evaluate,
+    hosted_cards,
+    plan_from_paper,
+    slot_table,
+    slug,
+    terminal_slots,
+)
 from nerfify_ns.synthesis.resources import load_reference_plan
-from synthetic_papers import real_paper, write_paper
 
 FIELD = "model.field.MLPField"
 

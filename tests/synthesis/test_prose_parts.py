@@ -14,17 +14,16 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_field_wrappers import _ladder, _train, dynamic_scene, nerfacto_plan, plugin_on_path, small  # noqa: F401
 
 from nerfify_ns.grammar import validate
 from nerfify_ns.paper import ingest
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, implement_holes, prose
 from nerfify_ns.synthesis.novel.implement import HoleResult, revert
-from nerfify_ns.synthesis.novel.records import read_corrections, to_yaml, write_records
+from nerfify_ns.synthesis.novel.records import read_corrections, to_yaml
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
 from nerfify_ns.synthesis.resources import load_reference_plan
-
-from test_field_wrappers import _ladder, _train, dynamic_scene, nerfacto_plan, plugin_on_path, small  # noqa: F401
 
 PAPERS = Path(__file__).resolve().parents[1] / "data" / "papers"
 

@@ -5,8 +5,8 @@ from dataclasses import replace
 
 import pytest
 
-from nerfify_ns.plan import Plan
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, BudgetError
+from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.proxy import Measured, fit_proxy, knobs, proxy_scene, proxy_spec, smoke_samples
 from nerfify_ns.synthesis.resources import load_reference_plan
 

@@ -13,7 +13,7 @@ from nerfify_ns.synthesis.repairs import DiffError, apply_diff, is_applied, pars
 from nerfify_ns.synthesis.resources import load_reference_plan
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import CodePatch, InterlevelLossFixer, record_in_plan
-from nerfify_ns.verify.report import Diagnosis
+from nerfify_ns.verify.verdicts import Diagnosis
 
 BEFORE = "".join(f"line {i}\n" for i in range(1, 21))
 

@@ -49,7 +49,7 @@ def test_step_lists_stay_increasing_and_as_long():
     fit = scale_schedule(plan, 60)
     (upsampling,) = [c for c in fit.changes if c["path"].endswith("upsampling_iters")]
     before, after = upsampling["from"], upsampling["to"]
-    assert len(after) == len(before) and all(b > a for a, b in zip(after, after[1:]))
+    assert len(after) == len(before) and all(b > a for a, b in zip(after, after[1:], strict=False))
     flag = fit.args.index("--pipeline.model.upsampling-iters")
     assert fit.args[flag + 1: flag + 1 + len(after)] == [str(v) for v in after]
 

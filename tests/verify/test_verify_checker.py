@@ -17,8 +17,17 @@ import torch
 from nerfify_ns.runtime.sandbox import available_modes
 from nerfify_ns.verify import checker
 from nerfify_ns.verify.assembled import MODEL_CASES
-from nerfify_ns.verify.checker import (REPEAT_CASE, REPEAT_STEPS, ModuleWatch, PipeReader, RecordPipe, decode,
-                                       judge, judge_repeated, watched_modules)
+from nerfify_ns.verify.checker import (
+    REPEAT_CASE,
+    REPEAT_STEPS,
+    ModuleWatch,
+    PipeReader,
+    RecordPipe,
+    decode,
+    judge,
+    judge_repeated,
+    watched_modules,
+)
 from nerfify_ns.verify.smoke_check import judge_training, step_errors
 
 

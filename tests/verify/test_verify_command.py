@@ -67,7 +67,7 @@ def test_verify_reports_then_fix_renames_the_key(tmp_path):
     assert data["ok"] and [r["status"] for r in data["rungs"]] == ["pass"] and data["repair"] == "apply"
     assert [p["file"] for p in data["patches"]] == [CONFIG, "plan.yaml"]  # the plan records the repair
 
-    from nerfify_ns.verify.report import LadderReport
+    from nerfify_ns.verify.verdicts import LadderReport
 
     revert_patches(LadderReport(plugin=str(plugin), patches=data["patches"]))  # revertible, as before
     assert {p: p.read_bytes() for p in plugin.rglob("*") if p.is_file() and ".verify" not in p.parts} == files

@@ -12,7 +12,6 @@ from nerfify_ns.synthesis.resources import reference_plans
 from nerfify_ns.verify import component_suite, run_ladder
 from nerfify_ns.verify.components import suite_components
 
-
 IN_CI = {"nerfacto", "vanilla-nerf", "tensorf"}
 
 

@@ -7,10 +7,10 @@ import sys
 import pytest
 from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
+from nerfify_ns.runtime.sandbox import available_modes, isolation_available, run_sandboxed
 from nerfify_ns.verify import Diagnosis, LadderReport, NotAPluginError, RungResult
 from nerfify_ns.verify.plugin import load_plugin
 from nerfify_ns.verify.repair import ExpGuardFixer, OptimizerGroupFixer
-from nerfify_ns.verify.sandbox import available_modes, isolation_available, run_sandboxed
 from nerfify_ns.verify.rungs import static_ast
 from nerfify_ns.verify.static import ast_checks
 
@@ -178,8 +178,8 @@ def test_static_rung_parser_crash_is_named(reference_plugins, tmp_path):
     """The parser killed at its memory limit: the rung names the file it was parsing and how it ended."""
     import shutil
 
+    from nerfify_ns.runtime.sandbox import Limits
     from nerfify_ns.verify.rungs import static_ast
-    from nerfify_ns.verify.sandbox import Limits
 
     plugin = shutil.copytree(reference_plugins["nerfacto"], tmp_path / "p")
     (plugin / "nerfacto_ref" / "big.py").write_text("x = [" + "(1, 2.5, 'abc'), " * 200000 + "]\n")

@@ -29,7 +29,7 @@ def filters_and_memory(target):
     psi_new = np.tanh((mu + f_psi * psi) @ p["p_w_psi"].T + p["p_b_psi"])             # (7)
     want = (np.concatenate([psi_new * f_d, l_in], -1), psi_new * f_c, psi_new)        # (8), (9)
     got = eq(*(torch.from_numpy(a) for a in (h_d, h_c, l_in, psi)))
-    for value, ref in zip(got, want):
+    for value, ref in zip(got, want, strict=False):
         np.testing.assert_allclose(value.detach().numpy(), ref, rtol=1e-9, atol=1e-12)
 
 

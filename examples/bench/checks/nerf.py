@@ -1,6 +1,6 @@
 """Checks of NeRF (Mildenhall et al., ECCV 2020) items: reference functions written from the paper, called by
 ``ns-nerfify bench`` (in the sandbox) on what the pipeline generated. Each takes a
-``nerfify_ns.benchsuite.checkrun.Target`` and raises AssertionError when the generated part disagrees."""
+``nerfify_ns.nerfifybench.checkrun.Target`` and raises AssertionError when the generated part disagrees."""
 
 import numpy as np
 import torch

@@ -9,11 +9,17 @@ production's contract (``INTERFACES``), like any terminal.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Dict, List, Literal, Tuple
+from typing import Any, Literal
 
 from nerfify_ns.registry.contract import Contract, T
-from nerfify_ns.registry.examples import (COMPOSITE_CASES, DENSITY_CASES, DIRECTION_CASES, POINT_CASES, RAY_CASES,
-                                          VALUE_CASES)
+from nerfify_ns.registry.examples import (
+    COMPOSITE_CASES,
+    DENSITY_CASES,
+    DIRECTION_CASES,
+    POINT_CASES,
+    RAY_CASES,
+    VALUE_CASES,
+)
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Call, TerminalDef
 
@@ -24,9 +30,9 @@ class Custom:
     """Dotted module inside the plugin package that defines the class (e.g. ``components.sh_head``)."""
     class_: str = param("Component")
     """The class implementing the production's interface."""
-    params: Dict[str, Any] = param({})
+    params: dict[str, Any] = param({})
     """Constructor arguments of the class (beyond those the interface passes)."""
-    implements: List[str] = param([])
+    implements: list[str] = param([])
     """The paper's equations the component implements (e.g. ``Eq. 7``)."""
     source: Literal["compiler", "model", "hand"] = param("hand")
     """Who wrote the component: the equation compiler, a language model, or a person."""
@@ -48,16 +54,16 @@ class Interface:
 
     production: str
     doc: str
-    ctor: Tuple[str, ...]
+    ctor: tuple[str, ...]
     contract: Contract
     call: Call
-    cases: Tuple[str, ...] = ()
+    cases: tuple[str, ...] = ()
     out_dim: bool = False
     """The component reports its output width through ``get_out_dim()``."""
-    duties: Tuple[Dict[str, Any], ...] = ()
+    duties: tuple[dict[str, Any], ...] = ()
     """Duties of a custom component in this production (as a terminal's)."""
 
-    def contract_for(self, params: Dict[str, Any]) -> Contract:
+    def contract_for(self, params: dict[str, Any]) -> Contract:
         """The contract, with the position range of the component's input domain where it has one (a field
         wrapper's: a conditioner's or, ``wrapper: blend``, a blend's of ``params.num_fields`` fields)."""
         if self.production == "FieldWrapper" and params.get("wrapper") == "blend":
@@ -161,7 +167,7 @@ FEATURES = {"features": T("[N, out_dim]", doc="encoded features (width: the comp
 LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
 RAYS = {"ray_bundle": T("[R]", "rays", role="rays")}
 
-INTERFACES: Dict[str, Interface] = {i.production: i for i in [
+INTERFACES: dict[str, Interface] = {i.production: i for i in [
     Interface("PosEncoding", "forward(positions [N, 3]) -> [N, get_out_dim()]", (),
               Contract({"positions": T("[N, 3]", range=(-1.0, 1.0), grad=True, role="positions")}, FEATURES),
               _one("positions", "features"), POINT_CASES, out_dim=True),

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Dict, List, Literal
+from typing import Any, Literal
 
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import DIRECTION_CASES, POINT_CASES
@@ -19,7 +19,7 @@ SMALL = {"num_levels": 4, "log2_hashmap_size": 12, "max_res": 64, "num_component
          "num_frequencies": 6, "resolutions": 16, "time_resolution": 4, "dim": 8}
 
 
-def features(shape: str, doc: str = "encoded features") -> Dict[str, Any]:
+def features(shape: str, doc: str = "encoded features") -> dict[str, Any]:
     return {"features": T(shape, grad=True, doc=doc)}
 
 
@@ -60,7 +60,7 @@ class Hash:
 
 @dataclass
 class KPlanes:
-    resolutions: List[int] = param([64, 128, 256, 512], range=(2, 2048), length=(1, 6))
+    resolutions: list[int] = param([64, 128, 256, 512], range=(2, 2048), length=(1, 6))
     """Spatial resolution of every scale (K-Planes: 64, 128, 256, 512)."""
     num_components: int = param(32, range=(1, 256))
     """Features per plane, C."""
@@ -275,7 +275,7 @@ class TensorVM:
     """Grid resolution at the start of training."""
     final_resolution: int = param(300, range=(8, 1024))
     """Grid resolution after the last upsampling."""
-    upsampling_iters: List[int] = param([2000, 3000, 4000, 5500, 7000], range=(1, 10000000), length=(0, 16))
+    upsampling_iters: list[int] = param([2000, 3000, 4000, 5500, 7000], range=(1, 10000000), length=(0, 16))
     """Iterations at which the grids are upsampled."""
     density_components: int = param(16, range=(1, 512))
     """Components of the density tensor."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List, Literal
+from typing import Literal
 
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import DENSITY_CASES, DENSITY_OFFSETS
@@ -13,7 +13,7 @@ from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 SMALL = {"layer_width": 32, "num_layers": 3, "density_width": 16, "color_width": 16, "density_layers": 2,
          "color_layers": 2}
 
-ACTIVATIONS: Dict[str, Code] = {
+ACTIVATIONS: dict[str, Code] = {
     "softplus": Code(expr="nn.functional.softplus({{ x }})"),
     "relu": Code(expr="nn.functional.relu({{ x }})"),
     # Nerfstudio's trunc_exp is a plain exp forward: its argument is clamped so densities stay finite
@@ -25,7 +25,7 @@ ACTIVATIONS: Dict[str, Code] = {
 
 def activation(name: str):
     """The activation ``name`` as a function, evaluated from the expression it renders into plugins."""
-    from nerfify_ns.registry.render import compile_expression
+    from nerfify_ns.registry.snippets import compile_expression
 
     return compile_expression(ACTIVATIONS[name], "x")
 
@@ -36,7 +36,7 @@ class Backbone:
     """Hidden layers of the MLP (NeRF: 8)."""
     layer_width: int = param(256, range=(8, 1024))
     """Units per hidden layer (NeRF: 256)."""
-    skip_connections: List[int] = param([4], range=(1, 14), length=(0, 8))
+    skip_connections: list[int] = param([4], range=(1, 14), length=(0, 8))
     """Layers that receive the encoded input again (NeRF: a skip at layer 4)."""
     skip_every_layer: bool = param(False)
     """The encoded input is fed again to every hidden layer after the first (replaces skip_connections)."""
@@ -165,7 +165,7 @@ BRANCHES_NEED_A_LINEAR_DENSITY_HEAD = Constraint(
     "separate density and colour branches feed the linear density head (density_linear): density_split reads "
     "the density from the backbone's first channel and a custom head reads all of it",
     lambda p, plan: not p["branches"] or "density_linear" in (
-        ((((plan.get("model") or {}).get("field") or {}).get("MLPField") or {}).get("density_head") or {})))
+        (((plan.get("model") or {}).get("field") or {}).get("MLPField") or {}).get("density_head") or {}))
 
 FEATURES_IN = {"features": T("[N, in_dim]", grad=True, doc="encoded positions (a width the harness chooses)")}
 DENSITY_OUT = {"density": T("[N, 1]", range=(0.0, None), doc="sigma >= 0")}

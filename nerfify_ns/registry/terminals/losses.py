@@ -87,7 +87,7 @@ def _photometric(name: str):
 
         pred, target = inputs["pred"], inputs["target"]
         if name == "charbonnier":
-            from nerfify_ns.components.losses import charbonnier_loss
+            from nerfify_ns.components.photometric_losses import charbonnier_loss
 
             return {"loss": charbonnier_loss(pred, target, eps=env["eps"])}
         if name == "l1":
@@ -160,10 +160,10 @@ TERMINALS = [
                 harness=Harness(build=_none, call=_photometric("l1"), cases=VALUE_CASES)),
     TerminalDef("charbonnier", "RGBLoss", Charbonnier,
                 "Charbonnier loss sqrt((x - y)^2 + eps^2) (Mip-NeRF 360 Sec. 5).",
-                "nerfify_ns.components.losses.charbonnier_loss", card="charbonnier",
+                "nerfify_ns.components.photometric_losses.charbonnier_loss", card="charbonnier",
                 contract=Contract(PHOTOMETRIC_IN, LOSS),
-                code=Code(("from .components.losses import CharbonnierLoss",), ctor="CharbonnierLoss(eps={{ p.eps }})",
-                          component="losses"),
+                code=Code(("from .components.photometric_losses import CharbonnierLoss",), ctor="CharbonnierLoss(eps={{ p.eps }})",
+                          component="photometric_losses"),
                 harness=Harness(build=_none, call=_photometric("charbonnier"), cases=VALUE_CASES)),
     TerminalDef("interlevel", "Losses", Weighted,
                 "Proposal supervision: proposal weights must bound the NeRF weights (Mip-NeRF 360 Eq. 13).",

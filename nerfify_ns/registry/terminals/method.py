@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Literal
+from typing import Literal
 
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
@@ -81,7 +81,7 @@ class ExponentialDecay:
 
 @dataclass
 class MultiStep:
-    milestones: List[int] = param([10000, 15000, 20000], range=(1, 10000000), length=(1, 16))
+    milestones: list[int] = param([10000, 15000, 20000], range=(1, 10000000), length=(1, 16))
     """Iterations at which the learning rate is multiplied by gamma."""
     gamma: float = param(0.33, range=(1.0e-6, 1.0))
     """Factor applied at each milestone."""

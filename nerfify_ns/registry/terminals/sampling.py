@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Literal
+from typing import Literal
 
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import AABB, COMPOSITE_CASES, RAY_CASES, SCALES, NotApplicable
@@ -28,13 +28,13 @@ class Hierarchical:
 
 @dataclass
 class Proposal:
-    samples_per_ray: List[int] = param([256, 96], range=(1, 4096), length=(1, 4))
+    samples_per_ray: list[int] = param([256, 96], range=(1, 4096), length=(1, 4))
     """Samples of each proposal round."""
     nerf_samples: int = param(48, range=(1, 4096))
     """Samples per ray of the NeRF field."""
     network: Literal["hash", "kplanes"] = param("hash")
     """The proposal density fields: small hash grids (Nerfacto) or k-planes."""
-    network_max_res: List[int] = param([128, 256], range=(8, 4096), length=(1, 4))
+    network_max_res: list[int] = param([128, 256], range=(8, 4096), length=(1, 4))
     """Finest resolution of each proposal network."""
     network_num_levels: int = param(5, range=(1, 16))
     """Levels of each proposal hash grid."""
@@ -101,7 +101,7 @@ def _call_hierarchical(module, inputs, env):
     return {"ray_samples": edges, "positions": positions}
 
 
-def proposal_resolutions(p) -> List[int]:
+def proposal_resolutions(p) -> list[int]:
     """The finest resolution of each proposal network, as Nerfacto builds them: one network per round (one
     in all with ``use_same_network``), network i taking ``network_max_res[min(i, len - 1)]``."""
     res = list(p["network_max_res"])

@@ -10,8 +10,9 @@ model's scalars and parameters (anneal, freeze) or the training pixel sampler's 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any, Iterator, Literal, Mapping, Set
+from typing import Any, Literal
 
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.params import param
@@ -93,12 +94,12 @@ def _terminals_in(plan: Any) -> Iterator[str]:
             yield from _terminals_in(value)
 
 
-def schedulable_parts(plan: Mapping[str, Any]) -> Set[str]:
+def schedulable_parts(plan: Mapping[str, Any]) -> set[str]:
     """The parts a schedule hook of ``plan`` may change: what the plan's terminals declare (``schedulable``)."""
     from nerfify_ns.registry.core import default_registry
 
     registry = default_registry()
-    names: Set[str] = set()
+    names: set[str] = set()
     for key in _terminals_in(plan.get("model") if isinstance(plan, Mapping) else None):
         if key in registry.terminals:
             names.update(registry[key].code.traits.get("schedulable", ()))

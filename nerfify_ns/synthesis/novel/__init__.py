@@ -12,7 +12,13 @@ compiled module), ``implement.py`` (selection, binding, compile, check, placemen
 (equations.yaml: the record a person corrects, and the cache of what compiled).
 """
 
-from nerfify_ns.synthesis.novel.implement import (IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, HoleResult, Implementation,
-                                                  implement_holes)
+from nerfify_ns.synthesis.novel.implement import (
+                                                  IMPLEMENTED,
+                                                  NOT_IMPLEMENTED,
+                                                  PARTLY,
+                                                  HoleResult,
+                                                  Implementation,
+                                                  implement_holes,
+)
 
 __all__ = ["IMPLEMENTED", "NOT_IMPLEMENTED", "PARTLY", "HoleResult", "Implementation", "implement_holes"]

@@ -14,9 +14,8 @@ paper's notation appears only through ``safe_comment``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Optional
 
-from nerfify_ns.equations.render import safe_comment
+from nerfify_ns.equations.show import safe_comment
 
 RUNTIME = "IN"
 """The size name of an interface input whose width is known only when the component is built (``in_dim``)."""
@@ -40,10 +39,10 @@ class NetSpec:
 
     key: str
     attr: str
-    out_width: Optional[int]
+    out_width: int | None
     layers: int
     width: int
-    activation: Optional[str]
+    activation: str | None
     per_sample: bool = False
     evidence: str = ""
 
@@ -132,8 +131,8 @@ class Adapter:
             out.append(f"# {safe_comment(net.key, 40)}: a network of {self.network_input} ({safe_comment(net.evidence, 100)})")
             out.append(f"self.{net.attr} = {_net_ctor(net, in_dim)}")
             if net.activation == "softplus" and self.production == "Renderer":
-                out.append(f"# a new non-negative coefficient starts near zero (softplus(-3) = 0.05): the part starts "
-                           f"close to the base's rendering and learns how far it departs")
+                out.append("# a new non-negative coefficient starts near zero (softplus(-3) = 0.05): the part starts "
+                           "close to the base's rendering and learns how far it departs")
                 out.append(f"nn.init.constant_(self.{net.attr}.layers[-1].bias, -3.0)")
         return out
 

@@ -36,17 +36,37 @@ import json
 import re
 import time
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any
 
-from nerfify_ns.equations import (Apply, BinOp, Concat, Equation, Index, Number, ParseFailure, Reduce, Symbol,
-                                  lower_module, parse_equations, show)
+from nerfify_ns.equations import (
+    Apply,
+    BinOp,
+    Concat,
+    Equation,
+    Index,
+    Number,
+    ParseFailure,
+    Reduce,
+    Symbol,
+    lower_module,
+    parse_equations,
+    show,
+)
 from nerfify_ns.equations.ir import walk
-from nerfify_ns.equations.naming import Names, sanitize
-from nerfify_ns.equations.render import safe_comment
+from nerfify_ns.equations.naming import Names
 from nerfify_ns.equations.shapes import CompileError, ParamSpec, is_bound_variable, sample_indexed_keys, uses
+from nerfify_ns.equations.show import safe_comment
 from nerfify_ns.plan import Plan
-from nerfify_ns.synthesis.novel.adapters import (ADAPTERS, RUNTIME, Adapter, Feed, NetSpec, StateSpec,
-                                                 Wiring, component_source)
+from nerfify_ns.synthesis.novel.adapters import (
+    ADAPTERS,
+    RUNTIME,
+    Adapter,
+    Feed,
+    NetSpec,
+    StateSpec,
+    Wiring,
+    component_source,
+)
 from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords
 from nerfify_ns.synthesis.novel.widths import WidthError, Widths
 
@@ -68,8 +88,8 @@ class Item:
     order: int
     where: str
     in_hole: bool
-    page: Optional[int] = None
-    bbox: Optional[list] = None
+    page: int | None = None
+    bbox: list | None = None
     corrected: bool = False
     parsed: list = field(default_factory=list)
     position: int = 0
@@ -182,24 +202,24 @@ class _Attempt:
     equations: list                 # Equation, in schedule order later
     outputs: list                   # keys returned by the module
     items: list                     # Item of each equation
-    composite: Optional[Equation] = None
+    composite: Equation | None = None
     dropped: list = field(default_factory=list)     # notes on rewrites
     roots: list = field(default_factory=list)
 
 
 class _Hole:
     def __init__(self, hole: dict, items: list[Item], words: PaperWords, notation: Notation, plan: Plan,
-                 context: dict, corrections: Optional[dict], cards: list[str]):
+                 context: dict, corrections: dict | None, cards: list[str]):
         self.hole, self.items, self.words, self.notation, self.plan = hole, items, words, notation, plan
         self.context, self.cards = context, cards
         self.corr = corrections or {}
-        self.adapter: Optional[Adapter] = ADAPTERS.get(hole["production"])
+        self.adapter: Adapter | None = ADAPTERS.get(hole["production"])
         self.result = HoleResult(id=hole_id(hole), slot=hole["slot"], production=hole["production"],
                                  section=hole.get("section", ""))
         self.provisions = self.adapter.provisions(context) if self.adapter else {}
 
     # -------------------------------------------------------------- roles
-    def role_of(self, sym: Symbol) -> Optional[Definition]:
+    def role_of(self, sym: Symbol) -> Definition | None:
         binding = (self.corr.get("bindings") or {}).get(sym.key)
         if isinstance(binding, dict) and binding.get("role"):
             return Definition(binding["role"], "correction", "equations.yaml", "", "")
@@ -251,7 +271,7 @@ class _Hole:
                     out.setdefault(eq.defines, []).append((eq, it))
         return out
 
-    def roots(self, own: list[Item], later: list[Item]) -> list[tuple[list[Equation], list[Item], Optional[Equation]]]:
+    def roots(self, own: list[Item], later: list[Item]) -> list[tuple[list[Equation], list[Item], Equation | None]]:
         """Candidate outputs, the paper's latest form first: (equations defining the outputs, their items,
         a composite equation summing per-sample contributions or None)."""
         adapter = self.adapter
@@ -292,7 +312,7 @@ class _Hole:
         return candidates[:MAX_ROOTS]
 
     # -------------------------------------------------------------- closure and bindings
-    def attempt(self, roots: list[Equation], root_items: list[Item], composite: Optional[Equation], own: list[Item],
+    def attempt(self, roots: list[Equation], root_items: list[Item], composite: Equation | None, own: list[Item],
                 pool: list[Item]) -> tuple[_Attempt, dict]:
         """The equations the roots need (each symbol's definition nearest the roots) and every free symbol's
         binding; raises _Unbound naming what is missing."""
@@ -302,7 +322,7 @@ class _Hole:
         chosen: dict[str, tuple[Equation, Item]] = {}
         rewritten: dict[str, Equation] = {}
         notes: list[str] = []
-        for eq, it in zip(roots, root_items):
+        for eq, it in zip(roots, root_items, strict=False):
             chosen[eq.defines] = (eq, it)
         root_sections = {it.section for it in root_items}
         corrections = self.corr.get("bindings") or {}
@@ -357,7 +377,7 @@ class _Hole:
         outputs = [composite.defines] if composite is not None else [eq.defines for eq in roots]
         return _Attempt(equations, outputs, items, composite, notes, list(roots)), bindings
 
-    def _pick_definition(self, key, defs, root_items, sym: Optional[Symbol] = None):
+    def _pick_definition(self, key, defs, root_items, sym: Symbol | None = None):
         """The definition of ``key`` the part uses: one that defines it per sample when it is read with a sample
         index (and per ray otherwise), in the roots' block, then their section, then the hole's; the paper's
         latest form first (a derivation ends with the form it uses)."""
@@ -446,7 +466,7 @@ class _Hole:
         return {"as": "input", "role": role, "source": source, "evidence": evidence, "reads": prov.doc,
                 "code": prov.code, "per_sample": prov.per_sample, "width": prov.width, **extra}
 
-    def _bind(self, key: str, sym: Optional[Symbol], eq: Equation, corrected: Optional[dict]) -> dict:
+    def _bind(self, key: str, sym: Symbol | None, eq: Equation, corrected: dict | None) -> dict:
         where = f"equation ({eq.number})" if eq.number else f"the equation of '{safe_comment(eq.defines or '?', 30)}'"
         name = safe_comment(key, 40)
         if key in self._basis:
@@ -458,7 +478,7 @@ class _Hole:
         corrected = corrected if isinstance(corrected, dict) else None
         how = corrected.get("as") if corrected else None
         if how == "constant":
-            if not isinstance(corrected.get("value"), (int, float)) or isinstance(corrected.get("value"), bool):
+            if not isinstance(corrected.get("value"), int | float) or isinstance(corrected.get("value"), bool):
                 raise _Unbound(f"'{name}': a constant in equations.yaml needs a numeric value")
             return {"as": "constant", "role": str(corrected.get("role", "constant")), "source": "correction",
                     "evidence": "equations.yaml", "value": float(corrected["value"])}
@@ -582,7 +602,7 @@ class _Hole:
             # at the check's small sizes a learned matrix's corrected size only fills what the rest leaves open
             # (scaled sizes would not add up), applied after the first pass below
             if not (small and bindings.get(key, {}).get("as") == "parameter"):
-                for var, v in zip(w.shapes[key], value):
+                for var, v in zip(w.shapes[key], value, strict=False):
                     w.set(var, stated(v))
         for key in att.outputs:  # an output's role fixes its width (a colour has 3 channels)
             sym = next((eq.lhs for eq in att.equations if eq.defines == key), None)
@@ -656,7 +676,7 @@ def _loose(sym: Symbol) -> str:
     return symbol_loose_key(sym)
 
 
-def _find_symbol(eq: Equation, key: str) -> Optional[Symbol]:
+def _find_symbol(eq: Equation, key: str) -> Symbol | None:
     for side in (eq.rhs,):
         for node in walk(side):
             if isinstance(node, Symbol) and node.key == key and not is_bound_variable(node):
@@ -702,7 +722,7 @@ def plan_context(plan: Plan) -> dict:
     return ctx
 
 
-def _encoding_width(terminal: str, params: dict) -> Optional[int]:
+def _encoding_width(terminal: str, params: dict) -> int | None:
     """The width of a direction encoding from its contract's output shape (``[N, levels ** 2]``)."""
     try:
         from nerfify_ns.registry import default_registry
@@ -717,8 +737,8 @@ def _encoding_width(terminal: str, params: dict) -> Optional[int]:
         return None
 
 
-def implement_holes(doc: Any, plan: dict, *, corrections: Optional[dict] = None, reuse: Optional[dict] = None,
-                    cache: Optional[dict] = None, kb: Any = None) -> Implementation:
+def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, reuse: dict | None = None,
+                    cache: dict | None = None, kb: Any = None) -> Implementation:
     """Compile every hole of ``plan`` from ``doc``'s equations (see the module docstring). ``corrections``: the
     holes a person edited in equations.yaml, ``reuse``: hole id -> the earlier result of a hole not edited (both
     from ``records.read_corrections``; a reused hole is not recompiled); ``cache``: content digest -> result,
@@ -883,7 +903,7 @@ ALTERNATIVES = {"RGBLoss": ("Regularizers",), "Regularizers": ("RGBLoss",)}
 does not give what its equations read is tried in the other (a loss on the field's densities is a regulariser)."""
 
 
-def _slot_of(production: str) -> Optional[str]:
+def _slot_of(production: str) -> str | None:
     from nerfify_ns.grammar import load_grammar
 
     return next((path for path, symbol in load_grammar().symbol_paths() if symbol == production), None)
@@ -1127,7 +1147,7 @@ def _implement_one(work: _Hole) -> HoleResult:
     res.source = source
     numbers = sorted((f"Eq. {e.number}" for e in att.equations if e.number), key=_number_key)
     unnumbered: dict[str, int] = {}
-    for e, it in zip(att.equations, att.items):
+    for e, it in zip(att.equations, att.items, strict=False):
         if not e.number and e is not att.composite and it is not None:
             unnumbered[it.section] = unnumbered.get(it.section, 0) + 1
     implements = numbers + [f"{n} unnumbered equation(s) of {section}" for section, n in unnumbered.items()]
@@ -1208,7 +1228,7 @@ def _operator_discrepancies(work: _Hole, att: _Attempt, sized: _Sized) -> list[s
     return notes
 
 
-def _defines_text(latex: str) -> Optional[str]:
+def _defines_text(latex: str) -> str | None:
     """The key of the symbol an equation's left side names, read from its LaTeX alone (for an equation the reader
     refused: a derivation step whose left side is an integral names none)."""
     from nerfify_ns.equations import parse_expression
@@ -1307,7 +1327,7 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
                   else "2 layers (the paper states no depth)")
     width_text = (f"{width[0]} wide ({width[2]}: \"{_short(width[1], 100)}\")" if width
                   else "64 wide (the paper states no width)")
-    for key, ident, dims in lowered.inputs:
+    for key, _ident, dims in lowered.inputs:
         b = bindings[key]
         local = names.get("a", key)
         if b["as"] == "network":
@@ -1350,7 +1370,7 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
         for net in w.networks:
             net.width, net.layers = min(net.width, 8), min(net.layers, 2)
         w.states = [(StateSpec(st.key, st.attr, min(st.rows, 16), st.width), o) for st, o in w.states]
-    for key, ident in lowered.outputs:
+    for key, _ident in lowered.outputs:
         w.outputs.append((key, names.get("o", key), sized.widths.get(key)))
     w.states = [(st, next(o for k, o, _ in w.outputs if k == st.key)) for st, _ in w.states]
     production = work.adapter.production

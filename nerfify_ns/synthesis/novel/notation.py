@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import functools
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Optional
+from typing import Any
 
 import yaml
 
@@ -92,13 +93,13 @@ class Notation:
 
     @classmethod
     @functools.lru_cache(maxsize=4)
-    def load(cls, path: Optional[Path] = None) -> "Notation":
+    def load(cls, path: Path | None = None) -> Notation:
         return cls(yaml.safe_load(Path(path or NOTATION_FILE).read_text(encoding="utf-8")))
 
     def role(self, name: str) -> Role:
         return self.roles[name]
 
-    def table_role(self, sym: Symbol) -> Optional[str]:
+    def table_role(self, sym: Symbol) -> str | None:
         """The role the shared table gives ``sym`` (its variants first), None when the table has none."""
         for v in self.variants:
             if v["name"] != sym.name:
@@ -115,7 +116,7 @@ class Notation:
         entry = self.symbols.get(sym.name)
         return entry["role"] if entry else None
 
-    def phrase_role(self, phrase: str) -> Optional[str]:
+    def phrase_role(self, phrase: str) -> str | None:
         """The role a defining phrase names ("the pre-modulation weight matrix" -> weight_matrix)."""
         for pattern, role in self.phrases:
             if pattern.search(phrase):
@@ -219,7 +220,7 @@ class PaperWords:
     _text: str = ""
 
     @classmethod
-    def read(cls, doc: Any, notation: Optional[Notation] = None) -> "PaperWords":
+    def read(cls, doc: Any, notation: Notation | None = None) -> PaperWords:
         notation = notation or Notation.load()
         words = cls()
         for text, where, section in _sentences(doc):
@@ -231,9 +232,9 @@ class PaperWords:
         for hp in getattr(doc, "hyperparameters", []) or []:
             try:
                 where = _where_of(hp.loc, hp.section)
-                if hp.name == "hidden_dim" and isinstance(hp.value, (int, float)):
+                if hp.name == "hidden_dim" and isinstance(hp.value, int | float):
                     words.widths.append((int(hp.value), hp.sentence, where))
-                elif hp.name == "num_layers" and isinstance(hp.value, (int, float)):
+                elif hp.name == "num_layers" and isinstance(hp.value, int | float):
                     words.layers.append((int(hp.value), hp.sentence, where))
             except Exception as err:  # noqa: BLE001 - a hyperparameter that is no width (inf, nan): recorded
                 words.unread.append(("", f"could not read the hyperparameter {hp.name}: {_describe(err)}",
@@ -310,7 +311,7 @@ class PaperWords:
             self.widths.append((int(m.group(1)), text, where))
 
     # ------------------------------------------------------------------ look-ups
-    def definition(self, sym: Symbol) -> Optional[Definition]:
+    def definition(self, sym: Symbol) -> Definition | None:
         return self.definitions.get(symbol_loose_key(sym))
 
     def names(self, sym: Symbol) -> bool:
@@ -323,7 +324,7 @@ class PaperWords:
         return any(re.search(rf"(?<![A-Za-z{_GREEK_CHARS}]){re.escape(form)}(?![A-Za-z{_GREEK_CHARS}])", self._text)
                    for form in surface_forms(sym))
 
-    def first_sentence(self, sym: Symbol) -> Optional[tuple]:
+    def first_sentence(self, sym: Symbol) -> tuple | None:
         """The first sentence that names ``sym`` (text, where), None when none does."""
         key = symbol_loose_key(sym)
         forms = surface_forms(sym)
@@ -334,7 +335,7 @@ class PaperWords:
                 return text, where
         return None
 
-    def shape_of(self, sym: Symbol) -> Optional[tuple]:
+    def shape_of(self, sym: Symbol) -> tuple | None:
         """The paper's stated shape of ``sym`` with its letters resolved: ((rows, evidence), (width, evidence))."""
         stated = self.shapes.get(symbol_loose_key(sym))
         if stated is None:
@@ -374,7 +375,7 @@ def surface_forms(sym: Symbol) -> list[str]:
     return sorted(forms)
 
 
-def _latex_pattern(sym: Symbol) -> Optional[re.Pattern]:
+def _latex_pattern(sym: Symbol) -> re.Pattern | None:
     """``P_{\\text{deform}}`` and its spellings in LaTeX a sentence holds (for a symbol with a word script)."""
     scripts = [x for x in list(sym.subscripts) + [sym.superscript or ""] if x and len(x) > 1 and x.isalpha()]
     if not scripts or not sym.name.isalpha() or len(sym.name) > 1:

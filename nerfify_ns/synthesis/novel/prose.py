@@ -34,7 +34,7 @@ import re
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -56,7 +56,7 @@ class ParamRule:
     percent: bool = False
     choices: list = field(default_factory=list)          # (value, compiled pattern)
     only_when: dict = field(default_factory=dict)
-    noun: Optional[re.Pattern] = None
+    noun: re.Pattern | None = None
     required: str = ""
 
 
@@ -67,11 +67,11 @@ class Part:
     terminal: str
     place: str
     statements: list
-    noun: Optional[re.Pattern]
+    noun: re.Pattern | None
     parameters: dict
     sets: dict = field(default_factory=dict)
     captures: list = field(default_factory=list)
-    exact_unless: Optional[re.Pattern] = None
+    exact_unless: re.Pattern | None = None
     approximation: str = ""
     also: list = field(default_factory=list)
 
@@ -232,7 +232,7 @@ def _groups(spec: Spec, flat: str) -> list[tuple[int, int]]:
     return [(a, b) for a, b in groups]
 
 
-def _belongs(spec: Spec, noun: Optional[re.Pattern], flat: str, m: re.Match) -> bool:
+def _belongs(spec: Spec, noun: re.Pattern | None, flat: str, m: re.Match) -> bool:
     """A number belongs to the part whose noun is in its own match, or in the nearest noun phrase before it (the
     first one after it when none precedes)."""
     if noun is None:
@@ -285,7 +285,7 @@ def _coerce(spec_param: Any, value: Any) -> tuple[Any, str]:
     items = value if isinstance(value, list) else [value]
     out = []
     for item in items:
-        if not isinstance(item, (int, float)):
+        if not isinstance(item, int | float):
             return None, f"{item!r} is not a number"
         if "int" in str(kind):
             if float(item) != int(item):
@@ -340,7 +340,7 @@ class _Reader:
             if st is None or cap["param"] in self.choices:
                 continue
             value = _number(self.spec, st.match, False)
-            if isinstance(value, (int, float)):
+            if isinstance(value, int | float):
                 value = value + int(cap.get("offset", 0))
                 self.set(cap["param"], [value] if cap.get("list") else value, "statement", st.sentence)
         for name in sorted(names, key=lambda n: bool(self.part.parameters[n].only_when)):
@@ -368,7 +368,7 @@ class _Reader:
         return self.choices
 
     # -------------------------------------------------------------- sources of a value
-    def set(self, name: str, value: Any, source: str, sentence: Optional[Sentence]) -> bool:
+    def set(self, name: str, value: Any, source: str, sentence: Sentence | None) -> bool:
         value, why = _coerce(self.params.get(name), value)
         if value is None:
             if sentence is not None:
@@ -476,7 +476,7 @@ def _restore(plan: Any, data: dict) -> None:
     plan.update(copy.deepcopy(data))
 
 
-def _terminal_at(plan: Any, slot: str) -> Optional[str]:
+def _terminal_at(plan: Any, slot: str) -> str | None:
     from nerfify_ns.grammar import derive
 
     try:
@@ -545,7 +545,7 @@ def _order_members(members: Any) -> None:
     members.update(ordered)
 
 
-def build(hole: dict, sentences: list, plan: Any, corr: Optional[dict], compiled: HoleResult) -> HoleResult:
+def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: HoleResult) -> HoleResult:
     """The hole built from its sentences (a ProseResult, the plan changed in place), or ``compiled`` unchanged
     when the compiler implemented it or no sentence of the hole states a typed part. A part of the hole's own
     production is looked for first; a hole the derivation filed under another production (an encoding) whose own

@@ -22,7 +22,7 @@ import hashlib
 import json
 import logging
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -210,7 +210,7 @@ def _reusable_source(source_file: Path, hole: dict) -> tuple:
     return data.decode("utf-8", errors="replace"), None
 
 
-def load_records(folder: Path) -> Optional[dict]:
+def load_records(folder: Path) -> dict | None:
     """A run folder's equations.yaml (for the report), None when there is none."""
     path = Path(folder) / FILE
     if not path.is_file():

@@ -16,10 +16,22 @@ person's correction in ``equations.yaml``, fills it).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
-from nerfify_ns.equations.ir import (Apply, BinOp, Cases, Compare, Concat, Equation, Expectation, Integral, Neg, Norm,
-                                     Number, Reduce, Symbol)
+from nerfify_ns.equations.ir import (
+    Apply,
+    BinOp,
+    Cases,
+    Compare,
+    Concat,
+    Equation,
+    Expectation,
+    Integral,
+    Neg,
+    Norm,
+    Number,
+    Reduce,
+    Symbol,
+)
 from nerfify_ns.equations.shapes import is_bound_variable
 from nerfify_ns.errors import NerfifyError
 
@@ -85,7 +97,7 @@ class Widths:
             i = self.parent[i]
         return i
 
-    def resolve(self, w) -> Optional[int]:
+    def resolve(self, w) -> int | None:
         if isinstance(w, int):
             return w
         if isinstance(w, Var):
@@ -142,7 +154,7 @@ class Widths:
         return [i for i, w in enumerate(self.shapes.get(key, ())) if self.resolve(w) is None]
 
     # --------------------------------------------------------------- the walk
-    def run(self, equations: list[Equation], rounds: Optional[int] = None) -> None:
+    def run(self, equations: list[Equation], rounds: int | None = None) -> None:
         """Propagate widths through ``equations`` until nothing changes (each round may settle one more link of a
         chain, whatever order the equations come in)."""
         equations = _in_dependency_order(equations)
@@ -173,7 +185,7 @@ class Widths:
             if want is None and all(p is not None for p in parts):
                 self.unify(target, sum(parts))
             elif want is not None and sum(p is None for p in parts) == 1:
-                missing = next(p for p, r in zip(total.parts, parts) if r is None)
+                missing = next(p for p, r in zip(total.parts, parts, strict=False) if r is None)
                 rest = sum(r for r in parts if r is not None)
                 if want - rest <= 0:
                     raise WidthError(f"{self.where}: a concatenation of width {want} cannot hold {rest} + more")
@@ -184,7 +196,7 @@ class Widths:
             if not a or not b:
                 return  # a scalar broadcasts
             raise WidthError(f"{self.where}: a value with {len(a)} feature dimension(s) and one with {len(b)}")
-        for x, y in zip(a, b):
+        for x, y in zip(a, b, strict=False):
             self.unify(x, y)
 
     def _broadcast(self, a: tuple, b: tuple) -> tuple:
@@ -193,13 +205,13 @@ class Widths:
         if not b:
             return a
         if len(a) == len(b):
-            for x, y in zip(a, b):
+            for x, y in zip(a, b, strict=False):
                 if self.resolve(x) == 1:
                     continue
                 if self.resolve(y) == 1:
                     continue
                 self.unify(x, y)
-            return tuple(y if self.resolve(x) == 1 else x for x, y in zip(a, b))
+            return tuple(y if self.resolve(x) == 1 else x for x, y in zip(a, b, strict=False))
         return a if len(a) > len(b) else b
 
     def shape(self, e) -> tuple:

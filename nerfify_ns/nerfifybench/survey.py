@@ -1,0 +1,310 @@
+"""The paper survey: every paper of a folder or a suite through the pipeline up to its plan (and the equation
+compiler), in a process of its own, and what it made of each: the family, the base and why, the paper's
+contributions as read, each novel part with the production it changes and its status; against a suite's labelled
+novelty items, found / implemented / spurious.
+
+    ns-nerfify survey ../shared/papers            # every .pdf/.md/.tex/.txt paper under the folder
+    ns-nerfify survey examples/bench/dev.yaml     # the suite's papers, scored against its novelty items
+
+Scoring (deterministic, from the run's own plan.yaml):
+* an item of the paper's own (``NoveltyItem.novel``) is **found** when a hole (or a compiled ``custom`` part) lands
+  at its production and shares one of its phrases' content words with the hole's claim, contribution heading, text
+  or equations' numbers, or is the only hole at that production; items without a production (a paper that is not a
+  training method) are matched by their phrases alone;
+* **implemented**: the hole that found it is no longer "not implemented" (compiled, or written by the model coder);
+* a hole is **spurious** when it matches no novel item and no ``known_from`` item (a known card's part, or a part
+  the paper does not add);
+* the **family** is correct when the plan's family is the suite's.
+Each paper runs as ``ns-nerfify PAPER --until plan`` (``--verify``: ``--until verify``) in a subprocess with a time
+and memory limit; a paper that fails is a row with its one-line reason, never a traceback here.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from nerfify_ns.errors import NerfifyError
+from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry, load_suite
+from nerfify_ns.safeio import load_json, load_yaml
+
+PAPER_SUFFIXES = (".pdf", ".md", ".tex", ".txt")
+TIME_LIMIT = 300
+"""Seconds one paper's run may take (the read and plan stages take seconds; the ladder, with --verify, minutes)."""
+MEMORY_LIMIT = 8 * 2**30
+_STOP = set("a an the of for and or to in on with by from as at is are we our its their this that each per".split())
+
+
+@dataclass
+class PaperRow:
+    id: str
+    path: str
+    exit_code: int | None = None
+    error: str = ""
+    family: str = ""
+    family_expected: str = ""
+    base: str = ""
+    base_reason: str = ""
+    contributions: list = field(default_factory=list)
+    holes: list = field(default_factory=list)
+    items: list = field(default_factory=list)
+    """Per novel item: {id, production, found, implemented, hole}."""
+    spurious: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def family_ok(self) -> bool | None:
+        return None if not self.family_expected else self.family == self.family_expected
+
+    def to_dict(self) -> dict:
+        d = dict(self.__dict__)
+        d["family_ok"] = self.family_ok
+        return d
+
+
+def _words(text: str) -> set[str]:
+    return {w[:6] for w in re.findall(r"[a-z][a-z-]{2,}", (text or "").lower()) if w not in _STOP}
+
+
+def _hole_text(h: dict) -> str:
+    eqs = " ".join(f"Eq. {e.get('number', '')}" for e in h.get("equations", []))
+    return " ".join([h.get("contribution", ""), h.get("claim", ""), h.get("text", ""), h.get("section", ""), eqs])
+
+
+def _matches(item: NoveltyItem, hole: dict) -> bool:
+    text = _hole_text(hole)
+    words = _words(text)
+    by_phrase = any(len(_words(p) & words) >= max(1, min(2, len(_words(p)))) for p in item.phrases)
+    numbers = set(item.equations)
+    by_number = bool(numbers) and any(str(e.get("number", "")) in numbers for e in hole.get("equations", []))
+    if not item.production or item.production == "Primitive":
+        return by_phrase
+    return hole.get("production") == item.production and (by_phrase or by_number)
+
+
+def score_row(row: PaperRow, entry: PaperEntry) -> None:
+    """Found / implemented per novel item of ``entry``, spurious holes, against ``row.holes``."""
+    novel = [i for i in entry.novelty if i.novel]
+    used: set[int] = set()
+    for item in novel:
+        hit = next((k for k, h in enumerate(row.holes) if _matches(item, h)), None)
+        if hit is None and item.production:
+            same = [k for k, h in enumerate(row.holes) if h.get("production") == item.production]
+            siblings = [i for i in novel if i.production == item.production]
+            if len(same) == 1 and len(siblings) == 1:
+                hit = same[0]
+        hole = row.holes[hit] if hit is not None else None
+        if hit is not None:
+            used.add(hit)
+        row.items.append({"id": item.id, "production": item.production, "found": hole is not None,
+                          "implemented": bool(hole) and hole.get("status") not in ("not implemented", None),
+                          "status": hole.get("status") if hole else "not found",
+                          "hole": f"{hole.get('production')}: {hole.get('contribution', '')}" if hole else ""})
+    borrowed = [i for i in entry.novelty if i.known_from]
+    for k, h in enumerate(row.holes):
+        if k in used or any(_matches(i, h) for i in novel) or any(_matches(i, h) for i in borrowed):
+            continue
+        row.spurious.append(f"{h.get('production')}: {h.get('contribution') or h.get('section')}")
+
+
+def _limits() -> None:  # pragma: no cover - runs in the child
+    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+
+
+def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeout: int = TIME_LIMIT) -> PaperRow:
+    """One paper through ``ns-nerfify PAPER --until plan`` (or verify) in its own process; the row from its plan."""
+    row = PaperRow(pid, str(paper))
+    cli = Path(sys.executable).with_name("ns-nerfify")
+    command = ([str(cli), str(paper), "--until", "verify", "--out", str(out), "--overwrite"] if verify else
+               [sys.executable, "-m", "nerfify_ns.nerfifybench.survey", str(paper), str(out)])
+    start = time.perf_counter()
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, preexec_fn=_limits)
+    except subprocess.TimeoutExpired:
+        row.error, row.seconds = f"stopped after the {timeout} s limit of one paper", float(timeout)
+        return row
+    row.seconds = round(time.perf_counter() - start, 1)
+    row.exit_code = done.returncode
+    lines = [x for x in (done.stdout + done.stderr).splitlines() if x.strip()]
+    failed = next((x for x in lines if x.startswith(("failed ", "error:"))), "")
+    if "Traceback" in done.stdout + done.stderr:
+        row.error = "a traceback: " + (lines[-1] if lines else "")
+    elif failed:
+        row.error = failed
+    plan_file = out / "plan.yaml"
+    if not plan_file.is_file():
+        row.error = row.error or (lines[-1] if lines else f"exit {done.returncode}, no plan")
+        return row
+    try:
+        plan = load_yaml(plan_file, what="the paper's plan") or {}
+    except NerfifyError as exc:
+        row.error = row.error or f"its plan could not be read: {exc}"
+        return row
+    family = plan.get("family") or {}
+    row.family = family.get("name", "")
+    row.base = plan.get("base", "")
+    note = next((n for n in plan.get("notes", []) if str(n).startswith("base: ")), "")
+    row.base_reason = note[6:300]
+    chosen = out / "base.json"
+    if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
+        data = load_json(chosen, what="the base chosen")
+        row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
+    row.contributions = plan.get("contributions", [])
+    row.holes = plan.get("holes", [])
+    for path, custom in _customs(plan):
+        row.holes.append({"production": custom.get("production", ""), "contribution": custom.get("contribution", ""),
+                          "claim": custom.get("claim", ""), "text": custom.get("text", ""),
+                          "equations": [{"number": n} for n in custom.get("implements", [])],
+                          "status": custom.get("status", "implemented"), "slot": path})
+    return row
+
+
+def _customs(plan: Any, prefix: str = "") -> list:
+    out = []
+    if isinstance(plan, dict):
+        for key, value in plan.items():
+            if key in ("holes", "evidence", "notes", "contributions", "family"):
+                continue
+            path = f"{prefix}.{key}" if prefix else str(key)
+            if key == "custom" and isinstance(value, dict) and value.get("production"):
+                out.append((path, value))
+            else:
+                out.extend(_customs(value, path))
+    return out
+
+
+def _read_paper(paper: Path, out: Path) -> int:
+    """The child of one survey row: the paper's read stage (ingest, families, ledger, plan, the equation compiler),
+    as ``ns-nerfify PAPER --dry-run`` runs it, with the plan written to ``out/plan.yaml``. 2: bad input, one line."""
+    from nerfify_ns.errors import NerfifyError
+    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.plan import Plan
+
+    try:
+        result = run_paper(paper, dry_run=True)
+    except NerfifyError as exc:
+        print(f"error: {exc}")
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "plan.yaml").write_text(Plan.of(result.plan).dump())
+    (out / "base.json").write_text(json.dumps({"base": result.derived.base, "reason": result.derived.base_reason}))
+    family = result.derived.family
+    if family is not None and not family.buildable:
+        print(f"failed plan: a {family.headline()} paper: {family.why}")
+        return 1
+    return 0
+
+
+def papers_of(target: Path) -> list[tuple[str, Path, PaperEntry | None]]:
+    """(id, paper, suite entry or None) for a suite file or every paper under a folder."""
+    if target.is_file() and target.suffix in (".yaml", ".yml"):
+        suite = load_suite(target)
+        return [(p.id, p.input, p) for p in suite.papers]
+    files = sorted(f for f in target.rglob("*") if f.suffix.lower() in PAPER_SUFFIXES and f.name != "SOURCE.md")
+    return [(f.stem, f, None) for f in files]
+
+
+def survey(target: Path, work: Path | None = None, verify: bool = False) -> list[PaperRow]:
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="nerfify-survey-") as tmp:
+        base = Path(work or tmp)
+        for pid, paper, entry in papers_of(target):
+            row = run_paper_row(pid, paper, base / pid, verify)
+            if entry is not None:
+                row.family_expected = entry.family
+                score_row(row, entry)
+            rows.append(row)
+    return rows
+
+
+CAUSES = (  # why a found part was not built, from its record's reason (first match wins)
+    ("no adapter for its production", r"no adapter for the \w+ production"),
+    ("prose only (no equation to compile)", r"no equation of the paper belongs|names none the reader found"),
+    ("a symbol it cannot bind", r"\bbind|unbound|cannot place|no binding|not a quantity|interface does not give"),
+    ("a width or size not stated", r"\bwidth\b|\bsize\b|sizes"),
+    ("an equation it cannot read", r"cannot read|unreadable|unknown operator|not read|parse"),
+    ("a reduction it cannot lower", r"reduc|sum over|product over"),
+    ("the contract rung", r"contract"),
+    ("the stability rung", r"stabilit|non-?finite"),
+    ("the smoke rung", r"smoke"),
+    ("no form of the part compiled", r"no form of the part compiled"),
+)
+
+
+def cause(reason: str) -> str:
+    """The cause of a part left unbuilt, from its recorded reason (``CAUSES``; 'other' when none matches)."""
+    return next((name for name, pattern in CAUSES if re.search(pattern, reason or "", re.IGNORECASE)), "other")
+
+
+def causes(rows: list[PaperRow]) -> dict:
+    """Histogram: cause -> number of found parts not built (the buildable papers' holes)."""
+    out: dict = {}
+    for r in rows:
+        if r.exit_code == 1 and "failed plan" in r.error:  # a family the grammar cannot build: nothing was tried
+            continue
+        for h in r.holes:
+            if h.get("status") == "implemented":
+                continue
+            c = cause(str(h.get("reason") or h.get("why") or ""))
+            out[c] = out.get(c, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+def totals(rows: list[PaperRow]) -> dict:
+    items = [i for r in rows for i in r.items]
+    holes = sum(len(r.holes) for r in rows)
+    spurious = sum(len(r.spurious) for r in rows)
+    found = sum(i["found"] for i in items)
+    return {"papers": len(rows), "items": len(items), "found": found,
+            "found_share": round(found / len(items), 3) if items else None,
+            "implemented": sum(i["implemented"] for i in items),
+            "implemented_share_of_found": round(sum(i["implemented"] for i in items) / found, 3) if found else None,
+            "holes": holes, "spurious": spurious, "spurious_share": round(spurious / holes, 3) if holes else 0.0,
+            "family_ok": sum(1 for r in rows if r.family_ok), "family_labelled": sum(1 for r in rows if r.family_expected),
+            "tracebacks": sum(1 for r in rows if r.error.startswith("a traceback")), "not_built_causes": causes(rows)}
+
+
+def table(rows: list[PaperRow]) -> str:
+    """The survey as a markdown table, then the totals."""
+    lines = ["| paper | family | base | contributions (new/known) | novel parts: found / implemented | spurious holes | exit |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        new = sum(1 for c in r.contributions if c.get("status") == "new")
+        known = sum(1 for c in r.contributions if c.get("status") == "known")
+        fam = r.family + ("" if r.family_ok in (None, True) else f" (labelled {r.family_expected})")
+        items = (f"{sum(i['found'] for i in r.items)}/{len(r.items)} found, {sum(i['implemented'] for i in r.items)} "
+                 "implemented") if r.items else f"{len(r.holes)} hole(s)"
+        missing = [i["id"] for i in r.items if not i["found"]]
+        if missing:
+            items += f" (not found: {', '.join(missing)})"
+        spur = "; ".join(r.spurious) if r.spurious else "0"
+        lines.append(f"| {r.id} | {fam or '-'} | {r.base or '-'} | {new}/{known} | {items} | {spur} | "
+                     f"{r.exit_code if r.exit_code is not None else '-'}{(': ' + r.error[:120]) if r.error else ''} |")
+    t = totals(rows)
+    lines.append("")
+    lines.append(f"found {t['found']}/{t['items']} ({t['found_share']}), implemented {t['implemented']} of the found, "
+                 f"spurious holes {t['spurious']}/{t['holes']} ({t['spurious_share']}), family "
+                 f"{t['family_ok']}/{t['family_labelled']}, tracebacks {t['tracebacks']}")
+    if t["not_built_causes"]:
+        lines.append("why found parts were not built (papers the grammar can build): " + ", ".join(
+            f"{name} {n}" for name, n in t["not_built_causes"].items()))
+    return "\n".join(lines)
+
+
+def write(rows: list[PaperRow], out: Path) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "survey.json").write_text(json.dumps({"rows": [r.to_dict() for r in rows], "totals": totals(rows)},
+                                                indent=2, default=str))
+    (out / "survey.md").write_text(table(rows) + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(_read_paper(Path(sys.argv[1]), Path(sys.argv[2])))

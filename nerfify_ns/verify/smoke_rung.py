@@ -1,0 +1,234 @@
+"""The smoke-train rung: Nerfstudio's own trainer on a tiny scene, sandboxed; the verdict comes from
+the exit code and the run's tensorboard events (iterations reached, finite losses, falling
+photometric loss), never from text the plugin prints."""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from pathlib import Path
+
+from nerfify_ns.budget import Limit
+from nerfify_ns.dataset import DataLike, as_dataset
+from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
+from nerfify_ns.runtime.launch import (
+    ENV_GENERATED,
+    GENERATED_METHOD,
+    ProgressHook,
+    RunLayout,
+    progress_poll,
+    train_command,
+)
+from nerfify_ns.runtime.sandbox import Limits, python_cmd, run_sandboxed
+from nerfify_ns.verify.checker import PipeReader, decode
+from nerfify_ns.verify.plugin import PluginInfo
+from nerfify_ns.verify.rungs import limit_diagnoses, sandbox_details
+from nerfify_ns.verify.smoke_check import judge_training
+from nerfify_ns.verify.verdicts import Diagnosis, RungResult
+
+SMOKE_ARGS = [
+    "--pipeline.datamanager.train-num-rays-per-batch",
+    "128",
+    "--pipeline.datamanager.eval-num-rays-per-batch",
+    "128",
+    "--pipeline.model.eval-num-rays-per-chunk",
+    "256",
+    "--steps-per-eval-batch",
+    "100000",
+    "--steps-per-eval-image",
+    "100000",
+    "--steps-per-eval-all-images",
+    "1000000",
+    "--steps-per-save",
+    "100000",
+    "--machine.device-type",
+    "cpu",
+    "--mixed-precision",
+    "False",
+    "--logging.max-buffer-size",
+    "1",
+]
+LEARNING_RATIO = 0.9
+"""The photometric loss over the last quarter must be below this fraction of the first quarter's."""
+
+
+def warmup_args(plan: dict | None) -> list[str]:
+    """ns-train arguments switching off learning-rate warm-up (a 20-step run would never leave it)."""
+    args: list[str] = []
+    for group, spec in ((plan or {}).get("optimizers") or {}).items():
+        scheduler = (spec or {}).get("scheduler") or {}
+        flag = f"--optimizers.{group.replace('_', '-')}.scheduler."
+        if "cosine_decay" in scheduler:
+            args += [flag + "warm-up-end", "0"]
+        elif "exponential_decay" in scheduler and (scheduler["exponential_decay"] or {}).get("warmup_steps"):
+            args += [flag + "warmup-steps", "0"]
+    return args
+
+
+def photometric(scalars: Scalars) -> dict[int, float]:
+    """Sum of the ``rgb`` losses per step (Train Loss Dict/rgb_loss, rgb_loss_coarse/fine), else the total."""
+    tags = [t for t in scalars if t.startswith("Train Loss Dict/") and "rgb" in t]
+    if not tags:
+        return scalars.get(LOSS_TAG, {})
+    steps = set.intersection(*(set(scalars[t]) for t in tags))
+    return {s: sum(scalars[t][s] for t in tags) for s in sorted(steps)}
+
+
+def step_timing(scalars: Scalars, wall_seconds: float) -> dict[str, float | None]:
+    """What the run measured of its own speed: the median seconds of a training iteration after the first two
+    (the first compiles and warms caches), and the seconds the process spent on anything else (sandbox and
+    Nerfstudio start-up, loading the data, the first iteration). A budgeted run plans its training from these
+    (``nerfify_ns.budget.fit_iterations``). Raw per-step times: the rung logs with a buffer of one step."""
+    times = scalars.get(ITER_TIME_TAG, {})
+    steps = [times[s] for s in sorted(times)]
+    if len(steps) < 3:
+        return {"seconds_per_iteration": None, "startup_seconds": None}
+    return {"seconds_per_iteration": statistics.median(steps[2:]),
+            "startup_seconds": max(0.0, wall_seconds - sum(steps[1:]))}
+
+
+def _head(path: Path, limit: int = 4 << 20) -> str:
+    """The start of a file the sandboxed run wrote (bounded: it is read in our process)."""
+    with open(path, "rb") as f:
+        return f.read(limit).decode("utf-8", errors="replace")
+
+
+def recorded(cmd: list[str], fd: int) -> list[str]:
+    """``ns-train ...`` run through :mod:`nerfify_ns.verify.recorder`, which sends every step to ``fd``."""
+    return python_cmd("nerfify_ns.verify.recorder", str(fd), *cmd[1:])
+
+
+def checked_verdict(r: RungResult, records: list, run_dir: Path, iterations: int, result) -> None:
+    """The checker's part of the verdict (:mod:`nerfify_ns.verify.smoke_check`, from the recorded steps and the
+    checkpoint, never from the run's own logs) and the escape attempts the sandbox recorded. The checks on the
+    run's logs that follow can only add failures (a plugin forging its logs cannot pass that way)."""
+    checks, failures, details = judge_training(records, run_dir, iterations)
+    r.checks = checks
+    r.details.update(details)
+    failures = [("escape-attempt", t) for t in result.attempt_sentences()] + failures
+    if not result.timed_out and result.returncode == 0 and not checks:
+        failures.append(("nothing-checked", "nothing checked: the training delivered no step to judge"))
+    for rule, message in failures:
+        if rule != "iterations" or not result.timed_out:  # a timeout says so itself
+            r.fail(Diagnosis("smoke", rule, message, traceback=result.tail(15)))
+
+
+def smoke_rung(
+    info: PluginInfo,
+    scene: DataLike,
+    workdir: Path,
+    *,
+    iterations: int = 20,
+    timeout: float = 120,
+    extra_args: list[str] | None = None,
+    on_progress: ProgressHook | None = None,
+    limits: Limits | None = None,
+    limit: Limit | None = None,
+) -> RungResult:
+    """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` on ``scene`` (a dataset or its folder; the
+    dataset's Nerfstudio dataparser) in the sandbox and judge the run. ``limit``: the time limit and where it comes
+    from (named in the message when it is reached; default ``timeout`` seconds)."""
+    limit = limit or Limit(timeout, "the smoke rung")
+    timeout = limit.timeout
+    r = RungResult("smoke")
+    workdir = Path(workdir).resolve()
+    start = time.perf_counter()
+    scene = as_dataset(scene)
+    layout = RunLayout(workdir, GENERATED_METHOD, log_name="train.log")
+    cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
+                        method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
+    env = {ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
+    reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
+    try:
+        result = run_sandboxed(recorded(cmd, reader.write_fd), workdir, timeout=timeout, log_name=layout.log_name,
+                               env=env, poll=progress_poll(layout.run_dir, iterations, on_progress),
+                               readonly=[info.root, scene.root], limits=limits, pass_fds=(reader.write_fd,))
+    finally:
+        records = decode(reader.finish())[0]
+    r.seconds = time.perf_counter() - start
+    r.details.update(
+        {
+            "isolation": result.isolation,
+            "sandbox": sandbox_details(result),
+            "returncode": result.returncode,
+            "wall_s": round(result.seconds, 1),
+            "log": str(result.log_path),
+        }
+    )
+    run_dir = layout.run_dir
+    scalars = read_scalars(run_dir)
+    total = scalars.get(LOSS_TAG, {})
+    rgb = photometric(scalars)
+    reached = max(total) + 1 if total else 0
+    r.details.update({"iterations": reached, "iterations_wanted": iterations, "final_loss": total.get(reached - 1),
+                      "limit_seconds": limit.seconds, "limit_source": limit.source,
+                      **step_timing(scalars, result.seconds)})
+    if limit.seconds is None:
+        r.details["sandbox"]["limits"] = {**r.details["sandbox"]["limits"], "timeout_s": None}  # none, not inf
+    checked_verdict(r, records, layout.run_dir, iterations, result)
+    hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
+    if hits:
+        for d in hits:
+            d.traceback = result.tail(15)
+            r.fail(d)
+        return r
+    if result.timed_out:
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "timeout",
+                f"stopped at {reached} of {iterations} iterations after {result.seconds:.0f} s: "
+                f"{limit.describe()}",
+                traceback=result.tail(15),
+            )
+        )
+        return r
+    bad = sorted(s for s, v in total.items() if not math.isfinite(v))
+    if bad:
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "non-finite-loss",
+                f"the training loss is not finite from step {bad[0]} "
+                f"(read from the run's tensorboard events)",
+                traceback=result.tail(15),
+            )
+        )
+        return r
+    if result.returncode != 0:
+        r.fail(
+            Diagnosis(
+                "smoke", "exit-code", f"ns-train exited with {result.returncode}", traceback=result.tail(20)
+            )
+        )
+        return r
+    config = layout.config
+    if config.is_file() and info.package not in _head(config):
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "wrong-method",
+                f"ns-train did not train {info.package} (the plugin failed to "
+                "load and the fallback method ran)",
+                traceback=result.tail(15),
+            )
+        )
+        return r
+    if reached < iterations:
+        r.fail(Diagnosis("smoke", "iterations", f"reached {reached} of {iterations} iterations"))
+        return r
+    values = [rgb[s] for s in sorted(rgb)]
+    q = max(len(values) // 4, 1)
+    first, last = statistics.mean(values[:q]), statistics.mean(values[-q:])
+    r.details.update({"photometric_first": first, "photometric_last": last})
+    if not last < LEARNING_RATIO * first:
+        r.fail(
+            Diagnosis(
+                "smoke",
+                "no-learning",
+                f"the photometric loss does not decrease: first quarter "
+                f"{first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)",
+            )
+        )
+    return r
