@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from nerfify_ns import runfolder
 from nerfify_ns.agents.cache import ResponseCache
 from nerfify_ns.agents.client import Client
 from nerfify_ns.agents.config import LLMConfig
@@ -23,7 +24,7 @@ from nerfify_ns.agents.providers import Provider, make_provider
 from nerfify_ns.agents.usage import Ledger
 
 LOG = logging.getLogger("nerfify.agents")
-FILE = "agents.json"
+FILE = runfolder.AGENTS
 
 
 class Agents:
