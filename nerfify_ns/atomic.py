@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from nerfify_ns import interrupts
+from nerfify_ns import interrupts, runfolder
 from nerfify_ns.errors import NerfifyError
 
 
@@ -149,11 +149,11 @@ def _legacy(folder: Path) -> bool:
             return None
         return data if isinstance(data, dict) else None
 
-    run = obj("run.json")
+    run = obj(runfolder.OUTCOME)
     if run is not None and isinstance(run.get("stages"), list) and (
-            (folder / "plan.yaml").is_file() or (folder / "nerfify.log").is_file()):
+            (folder / runfolder.PLAN).is_file() or (folder / runfolder.LOG).is_file()):
         return True
-    plugin = obj("nerfify.json")
+    plugin = obj(runfolder.PLUGIN_META)
     if plugin is not None and isinstance(plugin.get("files"), list):
         return True
     return obj("scene.json") is not None and (folder / "transforms_train.json").is_file()
