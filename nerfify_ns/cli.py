@@ -15,6 +15,7 @@ import tyro
 from rich.console import Console
 from rich.table import Table
 
+from nerfify_ns import runfolder
 from nerfify_ns.ablations import NAMES as ABLATION_NAMES
 from nerfify_ns.ablations import Ablations
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, parse_duration
@@ -267,7 +268,8 @@ def _conclude(outcome: Outcome, out: Path) -> None:
     stopped = [r.name for r in outcome.records if r.status == NOT_RUN and r.reason.startswith("stopped")]
     if stopped:
         CONSOLE.print(f"stopped after {outcome.until} (--until {outcome.until}); not run: {', '.join(stopped)}")
-    CONSOLE.print(f"outputs: {out}  (report: {out / 'report.html'}, log: {out / 'nerfify.log'})", soft_wrap=True)
+    CONSOLE.print(f"outputs: {out}  (report: {out / runfolder.REPORT_HTML}, log: {out / runfolder.LOG})",
+                  soft_wrap=True)
     if outcome.failed is not None:
         raise SystemExit(1)
 
