@@ -34,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from PIL import Image
 from scipy import ndimage
 
+from nerfify_ns import runfolder
 from nerfify_ns.scenes import camera_rays, focal_length, load_depth
 
 Array = NDArray[np.float64]
@@ -213,7 +214,7 @@ class ConsistencyReport:
             Image.fromarray(np.where(view.mask, 255, 0).astype(np.uint8)).save(
                 out_dir / f"{name}_inconsistent.png"
             )
-        path = out_dir / "consistency.json"
+        path = out_dir / runfolder.CONSISTENCY
         path.write_text(json.dumps(self.summary(), indent=2) + "\n")
         return path
 
