@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Union
 
+from nerfify_ns import runfolder
 from nerfify_ns.dataset import DataLike
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.events import ITER_TIME_TAG, read_scalars
@@ -204,7 +205,7 @@ def record_curve(
     results, eval_seconds = evaluate_checkpoints(
         run.config_path,
         ckpts,
-        Path(out_dir) / "checkpoint_eval.json",
+        Path(out_dir) / runfolder.CHECKPOINT_EVAL,
         timeout=timeout,
         env=env,
         save_dir=save_dir,
@@ -221,7 +222,7 @@ def record_curve(
         points.append(CurvePoint(label, step + 1, seconds[step], result["psnr"], loss))
         previous = step
     curve = Curve(points, eval_seconds=eval_seconds, train_wall_seconds=run.wall_seconds, checkpoints=ckpts)
-    curve.csv_path = write_curve_csv(points, Path(out_dir) / "curve.csv")
+    curve.csv_path = write_curve_csv(points, Path(out_dir) / runfolder.CURVE)
     return curve
 
 
