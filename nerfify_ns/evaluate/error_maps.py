@@ -25,6 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from PIL import Image
 from scipy import ndimage
 
+from nerfify_ns import runfolder
 from nerfify_ns.evaluate.metrics import SSIM_WINDOW, as_rgb, psnr, psnr_from_mse, ssim_map
 
 Array = NDArray[np.float64]
@@ -222,5 +223,5 @@ def analyze_views(
         view = analyze_view(pred, gt)
         panel = save_panel(out_dir / f"{name}_errors.png", pred, gt, view)
         summaries.append({"view": name, "panel": panel.name, **view.summary()})
-    (out_dir / "error_maps.json").write_text(json.dumps(summaries, indent=2) + "\n")
+    (out_dir / runfolder.ERROR_MAPS).write_text(json.dumps(summaries, indent=2) + "\n")
     return summaries
