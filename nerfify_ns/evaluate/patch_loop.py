@@ -49,6 +49,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.evaluate.curve import CurvePoint, read_curve_csv
@@ -145,14 +146,14 @@ class RunArtifacts:
             path = eval_dir / name
             return json.loads(path.read_text()) if path.is_file() else None
 
-        curve_path = eval_dir / "curve.csv"
+        curve_path = eval_dir / runfolder.CURVE
         return cls(
             eval_dir=eval_dir,
             plan=plan,
             scene=Path(scene),
-            summary=read("summary.json") or {},
-            error_maps=read("error_maps.json") or [],
-            consistency=read("consistency.json"),
+            summary=read(runfolder.SUMMARY) or {},
+            error_maps=read(runfolder.ERROR_MAPS) or [],
+            consistency=read(runfolder.CONSISTENCY),
             curve=read_curve_csv(curve_path) if curve_path.is_file() else [],
         )
 
@@ -556,15 +557,15 @@ class PatchLoop:
         return Measurement(psnrs, dirs)
 
     def _save_history(self, history: dict) -> Path:
-        return write_json(self.out / "history.json", history)
+        return write_json(self.out / runfolder.PATCH_HISTORY, history)
 
     # -------------------------------------------------------------------------------- run
 
     def run(self) -> PatchLoopResult:
         self.out.mkdir(parents=True, exist_ok=True)
         best = self.plan.copy()
-        best_path = _write_plan(self.out / "best_plan.yaml", best)
-        _write_plan(self.out / "start_plan.yaml", best)
+        best_path = _write_plan(self.out / runfolder.BEST_PLAN, best)
+        _write_plan(self.out / runfolder.START_PLAN, best)
         history: dict = {
             "method": best.get("method"),
             "scene": str(self.scene),
@@ -578,7 +579,7 @@ class PatchLoop:
             "rounds": [],
             "entries": [],
             "stopped": None,
-            "best_plan": "best_plan.yaml",
+            "best_plan": runfolder.BEST_PLAN,
         }
         have: dict[int, tuple[float | None, Path]] = {}
         tried: set = set()
@@ -586,7 +587,7 @@ class PatchLoop:
         measurement: Measurement | None = None
         for rnd in range(self.rounds):
             folder = self.out / "rounds" / f"r{rnd:02d}"
-            _write_plan(folder / "plan.yaml", best)
+            _write_plan(folder / runfolder.PLAN, best)
             base_folder = folder / "base"
             # a kept candidate's seed-0 run lives in its own folder; the other seeds go to base/
             measurement = self._measure(best, base_folder, have)
@@ -596,7 +597,7 @@ class PatchLoop:
             diagnoses = self.critic.diagnose(artifacts)
             round_record = {
                 "round": rnd,
-                "plan": str((folder / "plan.yaml").relative_to(self.out)),
+                "plan": str((folder / runfolder.PLAN).relative_to(self.out)),
                 "psnr_runs": measurement.psnrs,
                 "psnr": mean,
                 "noise": noise,
@@ -644,8 +645,8 @@ class PatchLoop:
             results = []
             for k, (patch, patched) in enumerate(candidates):
                 cand_folder = folder / f"c{k:02d}_{patch.rule}"
-                _write_plan(cand_folder / "plan.yaml", patched)
-                write_json(cand_folder / "patch.json", patch.to_json())
+                _write_plan(cand_folder / runfolder.PLAN, patched)
+                write_json(cand_folder / runfolder.PATCH, patch.to_json())
                 self.progress(f"round {rnd}: trying {patch.rule} ({patch.finding.name})")
                 summary = self._evaluate(patched, cand_folder, self.seeds[0], patch.rule)
                 results.append((patch, patched, cand_folder, summary))
@@ -684,7 +685,7 @@ class PatchLoop:
                 break
             patch, patched, cand_folder, summary = results[best_index]
             best = patched
-            best_path = _write_plan(self.out / "best_plan.yaml", best)
+            best_path = _write_plan(self.out / runfolder.BEST_PLAN, best)
             round_record["kept"] = patch.rule
             have = {self.seeds[0]: (summary.get("psnr"), cand_folder / f"seed_{self.seeds[0]}")}
             history["best_psnr"] = summary.get("psnr")
@@ -711,7 +712,7 @@ class PatchLoop:
             "threshold": threshold,
             "decision": decision,
             "reason": reason,
-            "plan": str((folder / "plan.yaml").relative_to(self.out)) if folder else None,
+            "plan": str((folder / runfolder.PLAN).relative_to(self.out)) if folder else None,
             "run": str((folder / f"seed_{self.seeds[0]}").relative_to(self.out)) if folder and summary else None,
             "train_seconds": summary.get("seconds") if summary else None,
         }
@@ -724,7 +725,7 @@ def run_patch_loop(plan: dict, scene: DataLike, out_dir: Path, **kwargs) -> Patc
 
 def revert(out_dir: Path, round_index: int) -> dict:
     """The plan a round started from (before its patch): ``rounds/rNN/plan.yaml``."""
-    path = Path(out_dir) / "rounds" / f"r{round_index:02d}" / "plan.yaml"
+    path = Path(out_dir) / "rounds" / f"r{round_index:02d}" / runfolder.PLAN
     if not path.is_file():
         raise PatchLoopError(f"no round {round_index} in {out_dir}")
     return yaml.safe_load(path.read_text())
@@ -732,4 +733,4 @@ def revert(out_dir: Path, round_index: int) -> dict:
 
 def copy_best(out_dir: Path, target: Path) -> Path:
     """Copy the best plan so far to ``target``."""
-    return Path(shutil.copy(Path(out_dir) / "best_plan.yaml", target))
+    return Path(shutil.copy(Path(out_dir) / runfolder.BEST_PLAN, target))
