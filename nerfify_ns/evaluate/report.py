@@ -42,7 +42,7 @@ from typing import Any
 import jinja2
 import yaml
 
-from nerfify_ns import safeio
+from nerfify_ns import runfolder, safeio
 from nerfify_ns.errors import NerfifyError
 
 NOT_RUN = "not run"
@@ -253,9 +253,9 @@ class _Builder:
 
     # ---------------------------------------------------------------- paper and plan
     def paper_and_plan(self) -> None:
-        plan, err = _read_yaml(self.run / "plan.yaml")
-        paper_md = self.run / "paper.md"
-        evidence, err_ev = _read_json(self.run / "evidence.json")
+        plan, err = _read_yaml(self.run / runfolder.PLAN)
+        paper_md = self.run / runfolder.PAPER
+        evidence, err_ev = _read_json(self.run / runfolder.EVIDENCE)
         blocks: list[Block] = error(err)
         data: dict = {"status": "ok" if isinstance(plan, dict) else NOT_RUN, "paper_md": NOT_RUN,
                       "evidence": NOT_RUN}
@@ -275,7 +275,7 @@ class _Builder:
             data["plan_evidence"] = plan_evidence
             pruned = plan.get("pruned") or []
             blocks += [heading("Left out for the scene (pruned)"), table(pruned, ["path", "action", "from", "to", "reason"]),
-                       folded("plan.yaml", yaml.safe_dump(plan, sort_keys=False))]
+                       folded(runfolder.PLAN, yaml.safe_dump(plan, sort_keys=False))]
             data["pruned"] = pruned
         else:
             blocks.append(not_run("plan (plan.yaml)"))
@@ -285,7 +285,7 @@ class _Builder:
             data["paper_md"] = {"characters": len(text), "headings": headings[:50]}
             blocks += [heading("Cleaned paper"),
                        text_block(f"{len(text)} characters, {len(headings)} headings: {', '.join(headings[:20])}"),
-                       folded("paper.md", text[:MAX_TEXT])]
+                       folded(runfolder.PAPER, text[:MAX_TEXT])]
         else:
             blocks.append(not_run("cleaned paper (paper.md)"))
         blocks += [heading("Detected techniques"), *error(err_ev)]
@@ -300,8 +300,8 @@ class _Builder:
 
     # ---------------------------------------------------------------- citations
     def citations(self) -> None:
-        graph, err = _read_json(self.run / "citations.json")
-        png = self.run / "citations.png"
+        graph, err = _read_json(self.run / runfolder.CITATIONS)
+        png = self.run / runfolder.CITATIONS_FIGURE
         blocks, data = error(err), {"status": NOT_RUN}
         if png.is_file():
             blocks.append(figure(png, "citation graph (target paper -> cited dependencies)", self.images))
@@ -324,9 +324,9 @@ class _Builder:
 
     # ---------------------------------------------------------------- components and holes
     def components(self) -> None:
-        meta, _ = _read_json(self.run / "nerfify.json")
+        meta, _ = _read_json(self.run / runfolder.PLUGIN_META)
         plugin = self.run if isinstance(meta, dict) else self.run / "plugin"
-        plan, _ = _read_yaml(self.run / "plan.yaml")
+        plan, _ = _read_yaml(self.run / runfolder.PLAN)
         blocks: list[Block] = []
         data: dict = {"status": "ok" if plugin.is_dir() else NOT_RUN}
         if plugin.is_dir():
@@ -359,7 +359,7 @@ class _Builder:
     def novel_parts(self) -> None:
         """equations.yaml: per hole, implemented / partly / not implemented with the reason, the equations as read
         (rendered, beside the PDF region they came from), bindings, sizes, state, the generated code, the checks."""
-        records, err = _read_yaml(self.run / "equations.yaml")
+        records, err = _read_yaml(self.run / runfolder.EQUATIONS)
         blocks = error(err)
         if not isinstance(records, dict) or not isinstance(records.get("holes"), list):
             self.add("equations", "Novel parts from the paper's equations",
@@ -373,7 +373,7 @@ class _Builder:
             blocks.append(text_block(f"numbered equations found {counts.get('numbered', 0)}, read "
                                      f"{counts.get('read', 0)}; displayed equations {counts.get('displayed', 0)}; "
                                      f"compiler time {records.get('seconds', '?')} s", "muted"))
-        agents, _ = _read_json(self.run / "agents.json")
+        agents, _ = _read_json(self.run / runfolder.AGENTS)
         spent = ((agents or {}).get("usage") or {}).get("scopes") or {} if isinstance(agents, dict) else {}
         blocks.append(table([{"part": h.get("id"), "production": h.get("production"), "slot": h.get("slot"),
                               "status": h.get("status"), "written by": _writer(h),
@@ -427,7 +427,7 @@ class _Builder:
     def agents(self) -> None:
         """agents.json: the endpoint (never a key), calls, cache hits, tokens and cost per stage, warnings, the
         planner's disagreements with the deterministic plan, the coder's rounds per hole."""
-        data, err = _read_json(self.run / "agents.json")
+        data, err = _read_json(self.run / runfolder.AGENTS)
         if data is None and err is None:
             return  # no --llm: the report is the deterministic path's, without this section
         if not isinstance(data, dict):
@@ -459,7 +459,7 @@ class _Builder:
 
     # ---------------------------------------------------------------- verification
     def verification(self) -> None:
-        report, err = _read_json(self.run / "verify.json")
+        report, err = _read_json(self.run / runfolder.VERIFY)
         blocks = error(err)
         if not isinstance(report, dict):
             self.add("verification", "Verification ladder", blocks + [not_run("verification ladder (verify.json)")],
@@ -493,7 +493,7 @@ class _Builder:
 
     # ---------------------------------------------------------------- metrics and curve
     def metrics(self) -> None:
-        summary, err = _read_json(self.eval / "summary.json")
+        summary, err = _read_json(self.eval / runfolder.SUMMARY)
         if not isinstance(summary, dict):
             self.add("metrics", "Metrics", error(err) + [not_run("evaluation (eval/summary.json)")],
                      {"status": NOT_RUN})
@@ -511,7 +511,7 @@ class _Builder:
                                                 "diagnostics": summary.get("diagnostics")})
 
     def curve(self) -> None:
-        csv_path, png = self.eval / "curve.csv", self.eval / "curve.png"
+        csv_path, png = self.eval / runfolder.CURVE, self.eval / runfolder.CURVE_FIGURE
         blocks, data = [], {"status": NOT_RUN}
         if png.is_file():
             blocks.append(figure(png, "held-out PSNR against training seconds (evaluation time excluded)",
@@ -528,7 +528,7 @@ class _Builder:
 
     # ---------------------------------------------------------------- error maps, consistency
     def error_maps(self) -> None:
-        views, err = _read_json(self.eval / "error_maps.json")
+        views, err = _read_json(self.eval / runfolder.ERROR_MAPS)
         if not isinstance(views, list):
             self.add("error_maps", "Error maps and worst regions", error(err) + [not_run("error maps "
                                                                                           "(eval/error_maps.json)")],
@@ -550,7 +550,7 @@ class _Builder:
                  {"status": "ok", "views": len(views), "regions": rows})
 
     def consistency(self) -> None:
-        report, err = _read_json(self.eval / "consistency.json")
+        report, err = _read_json(self.eval / runfolder.CONSISTENCY)
         if not isinstance(report, dict):
             self.add("consistency", "Cross-view consistency", error(err) + [not_run("consistency "
                                                                                      "(eval/consistency.json)")],
@@ -570,7 +570,7 @@ class _Builder:
 
     # ---------------------------------------------------------------- patch loop
     def patches(self) -> None:
-        history, err = _read_json(self.run / "patches" / "history.json")
+        history, err = _read_json(self.run / "patches" / runfolder.PATCH_HISTORY)
         if not isinstance(history, dict):
             self.add("patches", "Patch loop", error(err) + [not_run("patch loop (patches/history.json)")],
                      {"status": NOT_RUN})
@@ -668,7 +668,7 @@ SECTIONS: Sequence[Callable[[_Builder], None]] = (
 def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     """The run's outcome from ``run.json`` (written by the pipeline): the stages that ran, the one that failed
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
-    outcome, err = _read_json(run_dir / "run.json")
+    outcome, err = _read_json(run_dir / runfolder.OUTCOME)
     novel = sections.get("equations") or {}
     counts = ({"found": novel["holes"], "built": novel.get("implemented") or 0}
               if isinstance(novel.get("holes"), int) else None)
@@ -694,8 +694,8 @@ def headline_views(run_dir: Path, images: list[str]) -> tuple[list[Block], str |
     """What the report opens with: ground truth | render | error of the best and of the worst test view (by PSNR),
     and one line of the result (PSNR, the foreground's colour spread against the ground truth's, iterations and
     seconds, the budget). Nothing when the evaluation did not run."""
-    views, _ = _read_json(run_dir / "eval" / "error_maps.json")
-    summary, _ = _read_json(run_dir / "eval" / "summary.json")
+    views, _ = _read_json(run_dir / "eval" / runfolder.ERROR_MAPS)
+    summary, _ = _read_json(run_dir / "eval" / runfolder.SUMMARY)
     blocks: list[Block] = []
     scored = [v for v in views or [] if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), int | float)]
     if scored:
@@ -783,12 +783,12 @@ def write_report(run_dir: Path) -> tuple[Path, Path]:
         outcome = _shaped("outcome", lambda: read_outcome(run_dir, builder.data))
         views, result = _shaped("headline", lambda: headline_views(run_dir, builder.images))
         outcome.update(views=views, result=result)
-        plan, _ = _read_yaml(run_dir / "plan.yaml")
+        plan, _ = _read_yaml(run_dir / runfolder.PLAN)
     finally:
         _ROOT.reset(token)
     title = f"nerfify report: {plan.get('method')}" if isinstance(plan, dict) and plan.get("method") \
         else f"nerfify report: {run_dir.name}"
-    html_path, json_path = run_dir / "report.html", run_dir / "report.json"
+    html_path, json_path = run_dir / runfolder.REPORT_HTML, run_dir / runfolder.REPORT_JSON
     html = _shaped("page", lambda: render_html(title, run_dir, outcome, builder.sections))
     payload = {
         "title": title,
@@ -798,7 +798,7 @@ def write_report(run_dir: Path) -> tuple[Path, Path]:
         "not_run": [k for k, v in builder.data.items() if isinstance(v, dict) and v.get("status") == NOT_RUN],
         "images": builder.images,
     }
-    text = _shaped("report.json", lambda: json.dumps(payload, indent=2, default=str, ensure_ascii=False) + "\n")
+    text = _shaped(runfolder.REPORT_JSON, lambda: json.dumps(payload, indent=2, default=str, ensure_ascii=False) + "\n")
     _write_atomic(html_path, html)  # both built before either is written: a refusal writes nothing
     _write_atomic(json_path, text)
     return html_path, json_path
