@@ -33,6 +33,7 @@ import numpy as np
 from PIL import Image
 from scipy import ndimage
 
+from nerfify_ns import runfolder
 from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.errors import NerfifyError
@@ -143,7 +144,7 @@ def _mean(values: Sequence[float | None]) -> float | None:
 
 def _final_ssim(out_dir: Path) -> float | None:
     """Mean SSIM of the last checkpoint from the render subprocess (float renders, like the PSNR)."""
-    path = out_dir / "checkpoint_eval.json"
+    path = out_dir / runfolder.CHECKPOINT_EVAL
     if not path.is_file():
         return None
     results = json.loads(path.read_text()).get("results") or []
@@ -180,7 +181,7 @@ def evaluate_run(
     limit = limit or Limit(timeout, "the caller's timeout" if timeout is not None else "none")
     timeout = limit.timeout
     plugin_dir, out_dir = Path(plugin_dir).resolve(), Path(out_dir).resolve()
-    if not (plugin_dir / "nerfify.json").is_file():
+    if not (plugin_dir / runfolder.PLUGIN_META).is_file():
         raise RunEvalError(f"{plugin_dir} is not a composed plugin (no nerfify.json)")
     dataset = as_dataset(scene)
     test_frames = dataset.eval_frames
@@ -219,7 +220,7 @@ def evaluate_run(
         )
         summary.update(status="failed", reason=reason, psnr=None, ssim=None, lpips=None, seconds=None,
                        log_tail=run.log_tail(15))
-        write_json(out_dir / "summary.json", summary)
+        write_json(out_dir / runfolder.SUMMARY, summary)
         return summary
     renders = out_dir / "renders"
     started = time.perf_counter()
@@ -231,11 +232,11 @@ def evaluate_run(
         why = (f"rendering the checkpoints stopped after {spent:.0f} s: {limit.describe()}"
                if limit.seconds is not None and spent >= limit.seconds else f"evaluation failed: {exc}")
         summary.update(status="failed", reason=why, psnr=None, ssim=None, lpips=None, seconds=None)
-        write_json(out_dir / "summary.json", summary)
+        write_json(out_dir / runfolder.SUMMARY, summary)
         return summary
     plot_curves(
         [curve, *compare],
-        out_dir / "curve.png",
+        out_dir / runfolder.CURVE_FIGURE,
         labels=None if compare_labels is None else [label, *compare_labels],
     )
     preds = [np.asarray(Image.open(renders / f"{f['name']}.png").convert("RGB")) for f in frames]
@@ -274,14 +275,14 @@ def evaluate_run(
         diagnostics=diagnostics,
         per_view_diagnostics=[{"view": n, **d} for n, d in zip(names, per_view, strict=False)],
         paths={
-            "curve_csv": "curve.csv",
-            "curve_png": "curve.png",
-            "error_maps": "error_maps.json",
-            "consistency": "consistency.json",
+            "curve_csv": runfolder.CURVE,
+            "curve_png": runfolder.CURVE_FIGURE,
+            "error_maps": runfolder.ERROR_MAPS,
+            "consistency": runfolder.CONSISTENCY,
             "renders": "renders",
             "panels": [v["panel"] for v in error_maps],
             "masks": [f"{n}_inconsistent.png" for n in names],
         },
     )
-    write_json(out_dir / "summary.json", summary)
+    write_json(out_dir / runfolder.SUMMARY, summary)
     return summary
