@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nerfify_ns import runfolder
+
 RESULT = "result.json"
 
 
@@ -47,7 +49,7 @@ class Target:
 
 
 def _component_file(run_dir: Path, custom: dict) -> Path | None:
-    meta = run_dir / "nerfify.json"
+    meta = run_dir / runfolder.PLUGIN_META
     if not meta.is_file() or not custom.get("module"):
         return None
     package = json.loads(meta.read_text())["package"]
@@ -58,7 +60,7 @@ def _component_file(run_dir: Path, custom: dict) -> Path | None:
 def _record(run_dir: Path, custom: dict | None) -> dict | None:
     import yaml
 
-    path = run_dir / "equations.yaml"
+    path = run_dir / runfolder.EQUATIONS
     if custom is None or not path.is_file():
         return None
     holes = (yaml.safe_load(path.read_text()) or {}).get("holes") or []
