@@ -25,6 +25,7 @@ from typing import Any
 
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry
 
 SCORE = {"C": 1.0, "I": 0.5, "M": 0.0}
@@ -144,7 +145,7 @@ def score_items(entry: PaperEntry, run_dir: Path | None, work: Path, *, timeout:
     plugin); checks run in the sandbox under ``work``."""
     from nerfify_ns.nerfifybench.checkrun import run_check
 
-    plan_file = Path(run_dir) / "plan.yaml" if run_dir is not None else None
+    plan_file = Path(run_dir) / runfolder.PLAN if run_dir is not None else None
     plan = yaml.safe_load(plan_file.read_text()) if plan_file is not None and plan_file.is_file() else None
     scores = []
     for item in entry.novelty:
