@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from nerfify_ns import runfolder
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry, load_suite
 from nerfify_ns.safeio import load_json, load_yaml
@@ -139,7 +140,7 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
         row.error = "a traceback: " + (lines[-1] if lines else "")
     elif failed:
         row.error = failed
-    plan_file = out / "plan.yaml"
+    plan_file = out / runfolder.PLAN
     if not plan_file.is_file():
         row.error = row.error or (lines[-1] if lines else f"exit {done.returncode}, no plan")
         return row
@@ -194,7 +195,7 @@ def _read_paper(paper: Path, out: Path) -> int:
         print(f"error: {exc}")
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    (out / "plan.yaml").write_text(Plan.of(result.plan).dump())
+    (out / runfolder.PLAN).write_text(Plan.of(result.plan).dump())
     (out / "base.json").write_text(json.dumps({"base": result.derived.base, "reason": result.derived.base_reason}))
     family = result.derived.family
     if family is not None and not family.buildable:
