@@ -26,6 +26,7 @@ import traceback
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from nerfify_ns import runfolder
 from nerfify_ns.nerfifybench.suite import BenchBudget, PaperEntry, Suite, load_suite
 
 RESULT = "result.json"
@@ -107,8 +108,8 @@ def _curve(eval_dir: Path) -> dict:
     """Per checkpoint: iterations done, training seconds, PSNR, loss (curve.csv) and SSIM (checkpoint_eval.json)."""
     from nerfify_ns.evaluate.curve import read_curve_csv
 
-    points = read_curve_csv(eval_dir / "curve.csv") if (eval_dir / "curve.csv").is_file() else []
-    ssim = {r["step"] + 1: _finite(r.get("ssim")) for r in (_json(eval_dir / "checkpoint_eval.json") or {})
+    points = read_curve_csv(eval_dir / runfolder.CURVE) if (eval_dir / runfolder.CURVE).is_file() else []
+    ssim = {r["step"] + 1: _finite(r.get("ssim")) for r in (_json(eval_dir / runfolder.CHECKPOINT_EVAL) or {})
             .get("results", [])}
     return {"step": [p.step for p in points], "seconds": [p.train_seconds for p in points],
             "psnr": [_finite(p.psnr) for p in points], "ssim": [ssim.get(p.step) for p in points],
@@ -132,7 +133,7 @@ def _executability(summary: dict | None, verify: dict | None, ladder_ran: bool) 
 def _usage(run_dir: Path) -> dict:
     """Model calls and cost as the run recorded them (``agents.json``'s usage ledger, written when model agents took
     part); empty otherwise."""
-    data = (_json(run_dir / "agents.json") or {}).get("usage") or {}
+    data = (_json(run_dir / runfolder.AGENTS) or {}).get("usage") or {}
     total = data.get("total", data) if isinstance(data, dict) else {}
     calls = total.get("calls")
     cost = total.get("cost_usd", total.get("cost"))
@@ -158,18 +159,18 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
                   ablations=ablations, overwrite=True)
     except NerfifyError as exc:
         result.update(status="failed", reason=f"{type(exc).__name__}: {exc}")
-    run = _json(run_dir / "run.json") or {}
+    run = _json(run_dir / runfolder.OUTCOME) or {}
     stages = {s["name"]: s for s in run.get("stages", [])}
     if run.get("failed") and result["status"] == "ok":
         result.update(status="failed", reason=f"{run['failed']['name']}: {run['failed']['reason']}")
-    summary = _json(run_dir / "eval" / "summary.json")
+    summary = _json(run_dir / "eval" / runfolder.SUMMARY)
     seconds = lambda *names: round(sum(stages.get(n, {}).get("seconds") or 0.0 for n in names), 2)  # noqa: E731
     scores = score_items(entry, run_dir if run_dir.is_dir() else None, folder / "checks",
                          timeout=b.check_timeout)
     result.update(
         stages={n: {"status": s["status"], "reason": s.get("reason", "")} for n, s in stages.items()},
         ablations=run.get("ablations", list(ablations.names)),
-        executability=_executability(summary, _json(run_dir / "verify.json"), stages.get("verify", {}).get(
+        executability=_executability(summary, _json(run_dir / runfolder.VERIFY), stages.get("verify", {}).get(
             "status") == "ran"),
         metrics=_metrics(summary), curve=_curve(run_dir / "eval"),
         generation_seconds=seconds("read", "plan", "plugin"), verify_seconds=seconds("verify"),
@@ -181,7 +182,7 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
 def _plan_base(run_dir: Path) -> str | None:
     import yaml
 
-    plan = run_dir / "plan.yaml"
+    plan = run_dir / runfolder.PLAN
     return (yaml.safe_load(plan.read_text()) or {}).get("base") if plan.is_file() else None
 
 
@@ -278,7 +279,7 @@ def _reference_method(entry: PaperEntry, task: Task, data: Path, folder: Path) -
     frames = dataset.eval_frames
     values = [lpips(np.asarray(Image.open(out / "renders" / f"{f.stem}.png").convert("RGB")),
                     as_rgb(np.asarray(Image.open(f.image)))) for f in frames]
-    ssim = (_json(out / "checkpoint_eval.json") or {}).get("results") or [{}]
+    ssim = (_json(out / runfolder.CHECKPOINT_EVAL) or {}).get("results") or [{}]
     return {**summary, "status": "ok", "psnr": curve.points[-1].psnr,
             "ssim": max(ssim, key=lambda r: r.get("step", -1)).get("ssim"),
             "lpips": float(np.mean(values)) if values and all(v is not None for v in values) else None,
