@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from nerfify_ns import runfolder
 from nerfify_ns.ablations import FULL, Ablations
 from nerfify_ns.atomic import OutputExistsError, atomic_dir, check_target  # noqa: F401  (re-exported)
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, Limit, check_count, check_limit, smoke_limit
@@ -58,7 +59,7 @@ class FamilyError(NerfifyError):
                          "(plan.yaml, report.html), built none")
 
 
-LOG_FILE = "nerfify.log"
+LOG_FILE = runfolder.LOG
 """The run's log in its output folder: warnings and other packages' output, stage by stage."""
 
 
@@ -149,7 +150,7 @@ def run_paper(
     if not buildable:  # the plan and what was read are written; nothing is built that would pretend
         with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
             _write_paper_artefacts(staging, doc, derived, graph)
-            (staging / "plan.yaml").write_text(Plan.of(derived.plan).dump())
+            (staging / runfolder.PLAN).write_text(Plan.of(derived.plan).dump())
             with outcome.stage("plan", "checking that the grammar can build the paper's method",
                                failures=(NerfifyError,)):
                 raise FamilyError(derived.family, len(derived.holes))
@@ -289,7 +290,7 @@ def _build(plan: dict, folder: Path, data: Dataset | None, scene: str, keep_all:
                 ladder = ladder_run()
             if _smoke_timed_out(ladder):  # not verified for want of time: kept as it is, training goes on
                 _note_unverified(plan, folder, ladder, budget)
-            (folder / "verify.json").write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
+            (folder / runfolder.VERIFY).write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
             timing = _smoke_timing(ladder, smoke_values)
             _judge_ladder(ladder, stage)
     summary, run = None, None
@@ -385,7 +386,7 @@ def _note_unverified(plan: Plan, folder: Path, ladder, budget: Budget) -> None:
                f"{f' or --smoke-iterations {done}' if done >= 3 else ''}")
     smoke.notes.append(figures)
     plan.notes.append(f"smoke rung not verified: time ({figures})")
-    (folder / "plan.yaml").write_text(Plan.of(plan).dump())
+    (folder / runfolder.PLAN).write_text(Plan.of(plan).dump())
     smoke.details["verdict"] = "not verified: time"
     if wanted is None:
         smoke.details["iterations_wanted"] = smoke_iterations(plan["base"], budget.smoke_iterations)
@@ -461,7 +462,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
             schedule = {**(fitted.record() if fitted is not None else {}), **({"proxy": proxy} if proxy else {})}
             args = [*args, *(fitted.args if fitted is not None else [])]
             plan["schedule"] = schedule
-            (folder / "plan.yaml").write_text(Plan.of(plan).dump())
+            (folder / runfolder.PLAN).write_text(Plan.of(plan).dump())
     return TrainingRun(iterations, every, args, limit, record, schedule, proxy)
 
 
@@ -479,7 +480,7 @@ def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
     from nerfify_ns.evaluate.run_eval import write_json
 
     summary = {**summary, "budget": run.budget, "schedule": run.schedule}
-    write_json(folder / "eval" / "summary.json", summary)
+    write_json(folder / "eval" / runfolder.SUMMARY, summary)
     return summary
 
 
@@ -491,7 +492,7 @@ def _plan_for_scene(plan: dict, folder: Path, data: Dataset | None, scene: str, 
         data = read_dataset(write_scene(scene, folder / "scene", **budget.scene))
     facts = probe_scene(data)
     plan = Plan.of(adopt_scene(plan, facts) if keep_all else prune_plan(plan, facts))
-    (folder / "plan.yaml").write_text(plan.dump())
+    (folder / runfolder.PLAN).write_text(plan.dump())
     stage.summary = (f"{plan['method']} (base {plan['base']}), {data.format} dataset, "
                      f"{len(plan.get('pruned') or [])} pruning(s), {len(plan.get('holes') or [])} hole(s)")
     return plan, data
@@ -499,7 +500,7 @@ def _plan_for_scene(plan: dict, folder: Path, data: Dataset | None, scene: str, 
 
 def _regenerate(plan: dict, folder: Path, sources: dict[str, str] | None) -> None:
     """The plugin written again from ``plan`` into ``folder`` (its earlier files removed first)."""
-    meta = folder / "nerfify.json"
+    meta = folder / runfolder.PLUGIN_META
     if meta.is_file():
         for name in json.loads(meta.read_text()).get("files", []):
             (folder / name).unlink(missing_ok=True)
@@ -566,7 +567,7 @@ def _report(folder: Path, outcome: Outcome) -> None:
     from nerfify_ns.evaluate.report import write_report
 
     start = time.perf_counter()
-    outcome.write(folder / "run.json")
+    outcome.write(folder / runfolder.OUTCOME)
     outcome.progress.start("report", "writing the report")
     write_report(folder)
     outcome.progress.finish("report", "report.html, report.json", time.perf_counter() - start)
@@ -574,18 +575,18 @@ def _report(folder: Path, outcome: Outcome) -> None:
 
 def _plugin_files(folder: Path) -> list:
     """The files of the plugin generated into ``folder`` (none when the plugin stage did not run)."""
-    meta = folder / "nerfify.json"
+    meta = folder / runfolder.PLUGIN_META
     return json.loads(meta.read_text())["files"] if meta.is_file() else []
 
 
 def _write_paper_artefacts(folder: Path, doc: Document, derived: DerivedPlan, graph: CitationGraph) -> None:
     cleaned = clean_markdown(doc)
-    (folder / "paper.md").write_text(cleaned)
-    (folder / "evidence.json").write_text(json.dumps({
+    (folder / runfolder.PAPER).write_text(cleaned)
+    (folder / runfolder.EVIDENCE).write_text(json.dumps({
         "paper": {"title": doc.title, "source": str(doc.source), "kind": doc.kind},
         "key_terms": key_terms_report(doc, cleaned), **derived.to_dict()}, indent=2, default=str))
-    (folder / "citations.json").write_text(graph.to_json())
-    graph.draw(folder / "citations.png")
+    (folder / runfolder.CITATIONS).write_text(graph.to_json())
+    graph.draw(folder / runfolder.CITATIONS_FIGURE)
 
 
 @dataclass
@@ -625,7 +626,7 @@ def run_demo(
             metrics = result.summary()
             stage.summary = f"{metrics['iterations']} iterations, PSNR {metrics['psnr']}, SSIM {metrics['ssim']}"
         scene_path = final / "scene" if dataset.root.is_relative_to(staging) else dataset.root
-        (staging / "summary.json").write_text(json.dumps(result.summary(), indent=2))
+        (staging / runfolder.SUMMARY).write_text(json.dumps(result.summary(), indent=2))
         _rewrite_saved_paths(staging, final)
         _rebase(result, staging, final)
     return DemoResult(out=final, scene=scene_path, smoke=result)
