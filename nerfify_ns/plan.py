@@ -32,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.errors import NerfifyError
 
 DERIVATION_KEYS = ("method", "scene", "base", "trainer", "datamanager", "model", "optimizers")
@@ -367,7 +368,7 @@ def _nerfify_plugin_package(origin: Path, package: str) -> bool:
     if folder is None or folder.name != package:
         return False
     try:
-        return json.loads((folder.parent / "nerfify.json").read_text()).get("package") == package
+        return json.loads((folder.parent / runfolder.PLUGIN_META).read_text()).get("package") == package
     except (OSError, ValueError, AttributeError):
         return False
 
