@@ -20,6 +20,7 @@ import jinja2
 import networkx as nx
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.atomic import atomic_dir
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, load_grammar, validate
@@ -71,8 +72,8 @@ def plugin_files(ctx: dict) -> nx.DiGraph:
         PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py", *sampler_files)),
         PluginFile(f"{pkg}/__init__.py", "__init__.py.j2", (f"{pkg}/config.py",)),
         PluginFile("pyproject.toml", "pyproject.toml.j2", (f"{pkg}/config.py",)),
-        PluginFile("plan.yaml", "plan"),
-        PluginFile("README.md", "README.md.j2", (f"{pkg}/config.py", "plan.yaml")),
+        PluginFile(runfolder.PLAN, "plan"),
+        PluginFile("README.md", "README.md.j2", (f"{pkg}/config.py", runfolder.PLAN)),
     ]
     graph = nx.DiGraph()
     for f in files:
@@ -204,7 +205,7 @@ def write_plugin(plan: dict, folder: Path, *, grammar: Grammar | None = None,
             "config": f"{ctx['package']}.config:{ctx['config']['var']}", "files": written,
             "composition": "one-shot" if one_shot else "file-dag",
             **({"repairs": repairs} if repairs else {})}
-    (Path(folder) / "nerfify.json").write_text(json.dumps(meta, indent=2))
+    (Path(folder) / runfolder.PLUGIN_META).write_text(json.dumps(meta, indent=2))
     return ComposedPlugin(out=Path(folder).absolute(), method=ctx["method"], package=ctx["package"],
                           files=written, plan=plan, repairs=repairs)
 
