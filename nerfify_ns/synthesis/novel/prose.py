@@ -38,6 +38,7 @@ from typing import Any
 
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.synthesis.novel.implement import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, HoleResult
 
 SPEC_FILE = Path(__file__).with_name("prose.yaml")
@@ -390,7 +391,7 @@ class _Reader:
         was = self.choices.get(name)
         if was is not None and was.value == value:
             return True
-        self.choices[name] = Choice(value, "correction", where="equations.yaml", unit=rule.unit if rule else "",
+        self.choices[name] = Choice(value, "correction", where=runfolder.EQUATIONS, unit=rule.unit if rule else "",
                                     why=f"set in equations.yaml (read: {was.value!r}, {was.source})" if was else
                                     "set in equations.yaml")
         return True
