@@ -16,6 +16,7 @@ import os
 import sys
 from pathlib import Path
 
+from nerfify_ns import runfolder
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.runtime.launch import ENV_GENERATED
 
@@ -33,7 +34,7 @@ class GeneratedPluginError(NerfifyError):
 def _verification_failed(folder: Path) -> bool:
     """Whether the run that wrote ``folder`` records a failed verification (``run.json``)."""
     try:
-        stages = json.loads((folder / "run.json").read_text())["stages"]
+        stages = json.loads((folder / runfolder.OUTCOME).read_text())["stages"]
         return any(s.get("name") == "verify" and s.get("status") == "failed" for s in stages)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return False
@@ -48,7 +49,7 @@ def newest_plugin(root: Path) -> Path | None:
     except OSError:
         return None
     for folder in entries:
-        meta = folder / "nerfify.json"
+        meta = folder / runfolder.PLUGIN_META
         if folder.name.startswith(".") or not meta.is_file() or _verification_failed(folder):
             continue
         try:
@@ -78,7 +79,7 @@ def generated_plugin_dir(cwd: Path | None = None) -> Path | None:
 
 def load_plugin_method(plugin_dir: Path):
     """The MethodSpecification of a generated plugin folder, imported from the folder itself."""
-    meta_path = Path(plugin_dir) / "nerfify.json"
+    meta_path = Path(plugin_dir) / runfolder.PLUGIN_META
     try:
         meta = json.loads(meta_path.read_text())
     except (OSError, ValueError):
