@@ -12,6 +12,7 @@ from rich.markup import escape
 from rich.syntax import Syntax
 from rich.table import Table
 
+from nerfify_ns import runfolder
 from nerfify_ns.safetext import clean
 from nerfify_ns.verify.errors import VerifyError
 from nerfify_ns.verify.ladder import DIFF_NAME, run_ladder
@@ -125,6 +126,6 @@ class Verify:
         )
         console = Console()
         print_report(report, console, out)
-        console.print(f"report: {_shown(Path(out) / 'verify.json')}")
+        console.print(f"report: {_shown(Path(out) / runfolder.VERIFY)}")
         if not report.ok:
             raise SystemExit(1)
