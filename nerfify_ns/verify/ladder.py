@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+from nerfify_ns import runfolder
 from nerfify_ns.budget import Limit
 from nerfify_ns.dataset import Dataset, as_dataset
 from nerfify_ns.plan import Plan, PlanFileError
@@ -206,7 +207,7 @@ def run_ladder(
     (out / DIFF_NAME).unlink(missing_ok=True)
     if report.diff:
         (out / DIFF_NAME).write_text(report.diff)
-    (out / "verify.json").write_text(json.dumps(report.to_dict(), indent=2, default=str))
+    (out / runfolder.VERIFY).write_text(json.dumps(report.to_dict(), indent=2, default=str))
     return report
 
 
@@ -284,7 +285,7 @@ def _propose(info, failures: Sequence[Diagnosis], fixers: Sequence[Fixer]) -> li
 
 def _plan_record(target: Path, patches: Sequence[CodePatch], notes: list[str]) -> list[CodePatch]:
     """The change of ``target/plan.yaml`` that records ``patches`` in the plan (none without a plan)."""
-    path = target / "plan.yaml"
+    path = target / runfolder.PLAN
     if not path.is_file():
         return []
     try:
@@ -298,7 +299,7 @@ def _plan_record(target: Path, patches: Sequence[CodePatch], notes: list[str]) -
     if after == before:
         return []
     notes.extend(f"recorded in the plan: {line}" for line in lines)
-    return [CodePatch("plan.yaml", before, after, "record-repair",
+    return [CodePatch(runfolder.PLAN, before, after, "record-repair",
                       "the repairs recorded in the plan, so recomposing it keeps them: " + "; ".join(lines),
                       "plan-record")]
 
