@@ -9,6 +9,7 @@ from pathlib import Path
 import tomllib
 import yaml
 
+from nerfify_ns import runfolder
 from nerfify_ns.verify.errors import NotAPluginError
 
 ENTRY_GROUP = "nerfstudio.method_configs"
@@ -105,9 +106,9 @@ def load_plugin(root: Path) -> PluginInfo:
     if not root.is_dir():
         raise NotAPluginError(f"{root} is not a folder")
     meta = {}
-    if (root / "nerfify.json").is_file():
+    if (root / runfolder.PLUGIN_META).is_file():
         try:
-            meta = json.loads(_read_small(root / "nerfify.json"))
+            meta = json.loads(_read_small(root / runfolder.PLUGIN_META))
         except (OSError, ValueError, UnicodeDecodeError, RecursionError, MemoryError):
             meta = {}
         if not isinstance(meta, dict) or not all(isinstance(meta.get(k, ""), str)
@@ -129,7 +130,7 @@ def load_plugin(root: Path) -> PluginInfo:
             part.startswith(".") or part in ("__pycache__", "build") for part in p.relative_to(root).parts
         )
     )
-    plan = _load_plan(root / "plan.yaml") if (root / "plan.yaml").is_file() else None
+    plan = _load_plan(root / runfolder.PLAN) if (root / runfolder.PLAN).is_file() else None
     return PluginInfo(
         root=root,
         method=method,
