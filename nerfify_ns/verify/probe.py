@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from nerfify_ns import runfolder
+
 
 def module_name(rel: str) -> str:
     parts = rel[:-3].split("/")
@@ -418,7 +420,7 @@ class Probe:
                         "contract",
                         "component-contract",
                         f"{name} ({path}): " + "; ".join(result["problems"]),
-                        "plan.yaml",
+                        runfolder.PLAN,
                         None,
                         component=name,
                     )
