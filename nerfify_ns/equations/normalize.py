@@ -19,7 +19,7 @@ What converters leave in NeRF papers' LaTeX and what it becomes here:
     (MinerU's spaced digits), 8\\,192, 1e-2, 10⁻³, 2¹⁹, 5·10⁻⁴       8192, 0.01, 10^{-3}, 2^{19}, 5\\cdot 10^{-4}
 
 ``normalize_numbers(text)`` is the same number reading on a plain string: the paper's LaTeX normaliser
-(``paper/mathnorm.py``) and the hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read
+(``equations/mathnorm.py``) and the hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read
 one way wherever it appears.
 
 Limits (hostile input): at most ``MAX_CHARS`` characters and ``MAX_DEPTH`` nested groups; every pattern

@@ -6,6 +6,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
+from nerfify_ns.equations.mathnorm import annotate_equations
 from nerfify_ns.paper.document import (
     Algorithm,
     Caption,
@@ -19,7 +20,6 @@ from nerfify_ns.paper.document import (
     Section,
 )
 from nerfify_ns.paper.hyperparams import extract_hyperparameters, split_sentences
-from nerfify_ns.paper.mathnorm import annotate_equations
 from nerfify_ns.paper.references import is_references_heading, parse_reference_text
 
 KINDS = ("title", "authors", "abstract", "heading", "para", "equation", "caption", "algorithm", "table",

@@ -6,11 +6,11 @@ import re
 from collections.abc import Iterator
 from pathlib import Path
 
+from nerfify_ns.equations.mathdup import Budget, fix_inline, has_duplicated_math, split_display
 from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split_heading
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
-from nerfify_ns.paper.mathdup import Budget, fix_inline, has_duplicated_math, split_display
 from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")

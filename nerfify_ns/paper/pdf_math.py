@@ -34,8 +34,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import lru_cache
 
-from nerfify_ns.paper.mathnorm import equation_sentence, latex_issues, normalize_latex
-from nerfify_ns.paper.mathsym import (
+from nerfify_ns.equations.mathnorm import equation_sentence, latex_issues, normalize_latex
+from nerfify_ns.equations.mathsym import (
     ACCENT_CHARS,
     BIG_OPERATORS,
     CLOSE,

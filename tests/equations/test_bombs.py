@@ -99,8 +99,8 @@ def test_huge_equations_are_refused_by_the_reader_the_normaliser_and_the_rendere
     rows = run_bombs(f"""
         from pathlib import Path
         from nerfify_ns.equations import parse_equations, parse_expression
-        from nerfify_ns.paper.eqcheck import render_latex_png
-        from nerfify_ns.paper.mathnorm import latex_issues, normalize_latex
+        from nerfify_ns.equations.eqcheck import render_latex_png
+        from nerfify_ns.equations.mathnorm import latex_issues, normalize_latex
         latex = Path({str(source)!r}).read_text()
         render_latex_png(r"y = \\frac{{a}}{{b}}", {str(tmp_path / 'warm.png')!r})  # warm up: matplotlib, mathtext
         parse_equations("y = x")
@@ -117,8 +117,8 @@ def test_huge_equations_are_refused_by_the_reader_the_normaliser_and_the_rendere
 
 
 def test_the_renderer_skips_what_the_reader_refuses_for_its_size(tmp_path):
+    from nerfify_ns.equations.eqcheck import MAX_DRAW_CHARS, render_latex_png
     from nerfify_ns.equations.normalize import MAX_BIG_OPERATORS, MAX_DEPTH
-    from nerfify_ns.paper.eqcheck import MAX_DRAW_CHARS, render_latex_png
 
     cases = {
         "deep": "y = " + "(" * (MAX_DEPTH + 1) + "x" + ")" * (MAX_DEPTH + 1),

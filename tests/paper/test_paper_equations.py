@@ -12,9 +12,9 @@ import pymupdf
 import pytest
 
 from nerfify_ns.benchmarks.pdf_math_bench import MathWriter, make_math_pdf
+from nerfify_ns.equations.eqcheck import render_checks_html, render_latex_png, to_mathtext, write_equation_checks
+from nerfify_ns.equations.mathnorm import equation_sentence, has_lost_backslashes, latex_issues, normalize_latex
 from nerfify_ns.paper import ingest
-from nerfify_ns.paper.eqcheck import render_checks_html, render_latex_png, to_mathtext, write_equation_checks
-from nerfify_ns.paper.mathnorm import equation_sentence, has_lost_backslashes, latex_issues, normalize_latex
 from nerfify_ns.paper.pdf_math import _pdf_string, actual_texts, find_equations, make_glyph, reconstruct
 
 # ------------------------------------------------------------------------------------------- normaliser
@@ -298,7 +298,7 @@ def test_html_partial_escapes_paper_text(tmp_path):
     from nerfify_ns.paper.document import Equation
 
     eq = Equation(latex="x<script>alert(1)</script>", number="1", notes=["<b>note</b>"], confidence=0.3)
-    from nerfify_ns.paper.eqcheck import write_equation_check
+    from nerfify_ns.equations.eqcheck import write_equation_check
 
     check = write_equation_check(eq, tmp_path)
     html = render_checks_html([check])

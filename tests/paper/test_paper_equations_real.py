@@ -11,8 +11,8 @@ from pathlib import Path
 import pymupdf
 import pytest
 
+from nerfify_ns.equations.eqcheck import write_equation_check
 from nerfify_ns.paper import ingest
-from nerfify_ns.paper.eqcheck import write_equation_check
 from nerfify_ns.paper.pdf_math import find_equations
 
 PAPERS = Path(__file__).resolve().parents[2].parent / "shared" / "papers"

@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 
 from nerfify_ns.equations import Equation, ParseFailure, parse_equations, parse_expression
+from nerfify_ns.equations.mathnorm import latex_issues, normalize_latex
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.paper import ingest
 from nerfify_ns.paper.hyperparams import extract_from_sentence, split_sentences
-from nerfify_ns.paper.mathnorm import latex_issues, normalize_latex
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_PAPERS = REPO.parent / "shared" / "papers"
@@ -289,7 +289,8 @@ def test_an_exception_in_one_form_or_binding_is_recorded_and_the_part_goes_on(tm
 
 
 def test_an_exception_in_one_sentence_or_equation_of_the_paper_is_recorded(tmp_path, monkeypatch):
-    from nerfify_ns.paper import hyperparams, mathnorm
+    from nerfify_ns.equations import mathnorm
+    from nerfify_ns.paper import hyperparams
     from nerfify_ns.synthesis.novel import implement_holes
     from nerfify_ns.synthesis.novel.notation import PaperWords
 

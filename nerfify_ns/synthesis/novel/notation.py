@@ -25,7 +25,7 @@ import yaml
 
 from nerfify_ns.equations import ParseFailure, parse_expression
 from nerfify_ns.equations.ir import Symbol, walk
-from nerfify_ns.paper.mathsym import GREEK
+from nerfify_ns.equations.mathsym import GREEK
 
 NOTATION_FILE = Path(__file__).resolve().parent / "notation.yaml"
 _GREEK_NAMES = {u: tex.lstrip("\\") for u, tex in GREEK.items()}

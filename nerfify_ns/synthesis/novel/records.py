@@ -89,7 +89,7 @@ def render_images(folder: Path, implementation: Implementation, doc: Any = None)
     """Each hole's equations as read, rendered (matplotlib mathtext), and the PDF region each came from, under
     equations/<hole id>/; the records name the files (``image``, ``crop``). A rendering failure is said in the
     record, never hidden."""
-    from nerfify_ns.paper.eqcheck import crop_png, render_latex_png
+    from nerfify_ns.equations.eqcheck import crop_png, render_latex_png
 
     pdf = None
     source = Path(str(getattr(doc, "source", "") or ""))

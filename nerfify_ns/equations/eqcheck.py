@@ -13,7 +13,7 @@ not given to mathtext (its time and memory grow with the input: minutes and GBs 
 image says why it was not drawn. Text shown as text is drawn with ``parse_math=False``, so a ``$`` in it
 never starts mathtext either.
 
-Usage: ``python -m nerfify_ns.paper.eqcheck PAPER OUT_DIR`` writes the PNGs and ``equations.html``.
+Usage: ``python -m nerfify_ns.equations.eqcheck PAPER OUT_DIR`` writes the PNGs and ``equations.html``.
 """
 
 from __future__ import annotations
@@ -342,7 +342,7 @@ def _partial_template():
 
     import jinja2
 
-    source = resources.files("nerfify_ns.paper").joinpath(PARTIAL).read_text(encoding="utf-8")
+    source = resources.files("nerfify_ns.equations").joinpath(PARTIAL).read_text(encoding="utf-8")
     env = jinja2.Environment(autoescape=True, undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
     return env.from_string(source)
 
@@ -355,7 +355,7 @@ def render_checks_html(checks: list[EquationCheck], inline: bool = True, base: P
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if len(argv) != 2:
-        print("usage: python -m nerfify_ns.paper.eqcheck PAPER OUT_DIR", file=sys.stderr)
+        print("usage: python -m nerfify_ns.equations.eqcheck PAPER OUT_DIR", file=sys.stderr)
         return 2
     from nerfify_ns.paper import ingest
 

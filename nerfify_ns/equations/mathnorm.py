@@ -28,8 +28,8 @@ import re
 from collections.abc import Iterable
 from functools import lru_cache
 
+from nerfify_ns.equations.mathsym import UNICODE_TO_LATEX, to_latex_char
 from nerfify_ns.equations.normalize import normalize_numbers
-from nerfify_ns.paper.mathsym import UNICODE_TO_LATEX, to_latex_char
 
 _FONT_DECL = {"bf": r"\mathbf", "bm": r"\mathbf", "boldmath": r"\mathbf", "cal": r"\mathcal", "rm": r"\mathrm",
               "it": r"\mathit", "sf": r"\mathsf", "tt": r"\mathtt", "mit": r"\mathit"}
