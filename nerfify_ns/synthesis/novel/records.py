@@ -26,11 +26,11 @@ from typing import Any
 
 import yaml
 
-from nerfify_ns import safeio
+from nerfify_ns import runfolder, safeio
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.synthesis.novel.implement import HoleResult, Implementation
 
-FILE = "equations.yaml"
+FILE = runfolder.EQUATIONS
 FOLDER = "equations"
 MAX_BYTES = 4 << 20
 MAX_SOURCE = 1 << 20
