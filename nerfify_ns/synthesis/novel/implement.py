@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from nerfify_ns import runfolder
 from nerfify_ns.equations import (
     Apply,
     BinOp,
@@ -222,7 +223,7 @@ class _Hole:
     def role_of(self, sym: Symbol) -> Definition | None:
         binding = (self.corr.get("bindings") or {}).get(sym.key)
         if isinstance(binding, dict) and binding.get("role"):
-            return Definition(binding["role"], "correction", "equations.yaml", "", "")
+            return Definition(binding["role"], "correction", runfolder.EQUATIONS, "", "")
         d = self.words.definition(sym)
         if d is not None:
             return d
@@ -481,7 +482,7 @@ class _Hole:
             if not isinstance(corrected.get("value"), int | float) or isinstance(corrected.get("value"), bool):
                 raise _Unbound(f"'{name}': a constant in equations.yaml needs a numeric value")
             return {"as": "constant", "role": str(corrected.get("role", "constant")), "source": "correction",
-                    "evidence": "equations.yaml", "value": float(corrected["value"])}
+                    "evidence": runfolder.EQUATIONS, "value": float(corrected["value"])}
         if how == "input":
             role = str(corrected.get("role", ""))
             if role not in self.provisions:
@@ -489,14 +490,14 @@ class _Hole:
                                f"{self.adapter.production} interface does not give (it gives: "
                                f"{', '.join(sorted(self.provisions)) or 'nothing'})")
             self._provision_used[role] = key
-            return self._input(role, "correction", "equations.yaml")
+            return self._input(role, "correction", runfolder.EQUATIONS)
         d = self.role_of(sym)
         role = d.role if d else None
         kind = self.notation.roles[role].kind if role in self.notation.roles else None
         if how == "parameter" or (how is None and role in ("weight_matrix", "bias")):
             matrix = role != "bias" and (role == "weight_matrix" or sym.name[:1].isupper())
             return {"as": "parameter", "role": role or "weight_matrix", "source": d.source if d else "correction",
-                    "evidence": d.evidence() if d else "equations.yaml", "matrix": matrix}
+                    "evidence": d.evidence() if d else runfolder.EQUATIONS, "matrix": matrix}
         if how == "network":
             return self._network(key, sym, d, corrected)
         stated = self.words.constants.get(_loose(sym))
@@ -544,7 +545,7 @@ class _Hole:
         rng = self.notation.roles[role].range if role in self.notation.roles else (None, None)
         activation, act_source = None, "none: the paper states none and the role has no range"
         if corrected and corrected.get("activation"):
-            activation, act_source = str(corrected["activation"]), "equations.yaml"
+            activation, act_source = str(corrected["activation"]), runfolder.EQUATIONS
         elif act:
             activation, act_source = act[0], f"{act[2]}: \"{_short(act[1])}\""
         elif role == "hidden":
@@ -597,7 +598,7 @@ class _Hole:
             if key in w.shapes and isinstance(value, list) and len(value) == len(w.shapes[key]) and \
                     all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= 1 << 16 for v in value):
                 corrected[key] = value
-                evidence[key] = {"source": "correction", "evidence": "equations.yaml"}
+                evidence[key] = {"source": "correction", "evidence": runfolder.EQUATIONS}
         for key, value in corrected.items():
             # at the check's small sizes a learned matrix's corrected size only fills what the rest leaves open
             # (scaled sizes would not add up), applied after the first pass below
