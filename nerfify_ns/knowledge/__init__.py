@@ -9,7 +9,8 @@ its key equation, the component implementing it, the signals that reveal it in a
 cards it requires. ``papers.yaml`` lists known papers and the cards each provides; citation
 recovery matches a reference against it by arXiv id, then normalised title.
 
-Imports only ``nerfify_ns.errors`` from the project (the grammar is upstream-independent).
+Imports only ``nerfify_ns.errors`` and the sentence splitter ``nerfify_ns.sentence_split`` from the project (the
+grammar is upstream-independent).
 """
 
 from nerfify_ns.knowledge.cards import (

@@ -1,4 +1,5 @@
-"""Reading a paper's sentences in context: section roles, sentence splitting, prior-work and usage cues.
+"""Reading a paper's sentences in context: section roles, prior-work and usage cues (sentences split by
+``nerfify_ns.sentence_split``).
 
 Shared by technique detection (``detect.py``) and citation recovery (``citations.py``). The rules
 are data (``detect.yaml``). A paper is any object shaped like ``nerfify_ns.paper.Document``
@@ -17,12 +18,9 @@ from typing import Any
 import yaml
 
 from nerfify_ns.knowledge.errors import KnowledgeError
+from nerfify_ns.sentence_split import split_sentences  # noqa: F401  (the package's one splitter, re-exported)
 
 DETECT_FILE = Path(__file__).resolve().parent / "detect.yaml"
-
-_ABBREV = re.compile(r"(?:\b(?:e\.g|i\.e|et al|Figs?|Eqs?|Eqns?|Secs?|Tabs?|vs|cf|resp|approx|Refs?|No|Alg|Ch|Sect|"
-                     r"etc|w\.r\.t|Fig|Eq)|\b[A-Z])\.$")
-
 
 @dataclass(frozen=True)
 class Rules:
@@ -67,29 +65,13 @@ def read_rules(path: Path | str = DETECT_FILE) -> Rules:
         return Rules(
             section_roles=tuple((r["role"], re.compile(r["pattern"], re.IGNORECASE)) for r in data["section_roles"]),
             context_weights=dict(data["context_weights"]), signal_weights=dict(data["signal_weights"]),
-            used_threshold=float(data["used_threshold"]), prior=comp(cues["prior"]), usage=comp(cues["usage"]), own=comp(cues["own"]),
+            used_threshold=float(data["used_threshold"]), prior=comp(cues["prior"]), usage=comp(cues["usage"]),
+            own=comp(cues["own"]),
             contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards,
             scene_cues=tuple((str(flag), spec["value"], comp(spec["patterns"]))
                              for flag, spec in (data.get("scene_cues") or {}).items()))
     except (OSError, KeyError, TypeError, re.error, yaml.YAMLError) as exc:
         raise KnowledgeError(f"{path}: cannot read the detection rules ({exc}); fix detect.yaml") from exc
-
-
-def split_sentences(text: str) -> list[str]:
-    """Sentences of a paragraph, each an exact substring of ``text`` (abbreviations kept intact)."""
-    text = text.strip()
-    if not text:
-        return []
-    out: list[str] = []
-    start = 0
-    for m in re.finditer(r"(?<=[.!?])\s+(?=[A-Z0-9(\[$\\])", text):
-        piece = text[start:m.start()]
-        if _ABBREV.search(piece):
-            continue
-        out.append(piece)
-        start = m.end()
-    out.append(text[start:])
-    return [s.strip() for s in out if s.strip()]
 
 
 def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:

@@ -7,14 +7,14 @@ import unicodedata
 from collections.abc import Iterable
 from functools import cache
 from pathlib import Path
-from typing import Union
 
 import yaml
 
 from nerfify_ns.equations.normalize import normalize_numbers
 from nerfify_ns.paper.document import Hyperparameter, Location
+from nerfify_ns.sentence_split import split_sentences
 
-Value = Union[int, float, list]
+Value = int | float | list
 PATTERNS_FILE = Path(__file__).with_name("hyperparams.yaml")
 
 # ----- numbers ----------------------------------------------------------------------------------------
@@ -60,7 +60,8 @@ def _one(s: str) -> float:
     m = re.fullmatch(r"(-?\d+(?:\.\d+)?)\s*(?:×|\*|·|x)\s*10\s*\^?\s*(-?)\s*(\d+)", s)
     if m:
         return float(m.group(1)) * 10.0 ** int(m.group(2) + m.group(3))
-    m = re.fullmatch(r"(-?)(2|10)\s*\^?\s*(-?)\s*(\d+)", s) if ("^" in s or re.fullmatch(r"-?10\s*-\s*\d+", s)) else None
+    powered = "^" in s or re.fullmatch(r"-?10\s*-\s*\d+", s)
+    m = re.fullmatch(r"(-?)(2|10)\s*\^?\s*(-?)\s*(\d+)", s) if powered else None
     if m:
         return float(m.group(1) + "1") * float(m.group(2)) ** int(m.group(3) + m.group(4))
     mult = {"k": 1e3, "K": 1e3, "M": 1e6}.get(s[-1], 1.0)
@@ -74,7 +75,8 @@ def _tidy(x: float) -> int | float:
 def parse_number(text: str) -> Value:
     """``"5 × 10^-4"`` -> 0.0005, ``"2^19"`` -> 524288, ``"300k"`` -> 300000, ``"100–300k"`` -> [100000, 300000]."""
     text = text.strip()
-    parts = re.split(r"\s*[–—]\s*|(?<=\d)-(?=\d)(?![^×]*×)", text) if not re.search(r"[eE]-|\^\s*-|10\s*−", text) else [text]
+    signed = re.search(r"[eE]-|\^\s*-|10\s*−", text)  # a minus sign of an exponent is no range
+    parts = [text] if signed else re.split(r"\s*[–—]\s*|(?<=\d)-(?=\d)(?![^×]*×)", text)
     if len(parts) == 2 and parts[0] and parts[1]:
         lo, hi = parts
         if hi[-1] in "kKM" and lo[-1] not in "kKM":
@@ -83,39 +85,20 @@ def parse_number(text: str) -> Value:
     return _tidy(_one(text))
 
 
-# ----- sentences --------------------------------------------------------------------------------------
-_ABBREV = re.compile(r"(?:\b(?:e\.g|i\.e|et al|Figs?|Eqs?|Eqns?|Secs?|Tabs?|vs|cf|resp|approx|Refs?|No|Alg|Ch|Sect)"
-                     r"|\b[A-Z])\.$")
-
-
-def split_sentences(text: str) -> list[str]:
-    """Split a paragraph into sentences, keeping abbreviations ("Fig.", "et al.", initials) intact."""
-    pieces = re.split(r"(?<=[.!?])\s+(?=[A-Z0-9(\[$\\])", text.strip())
-    out: list[str] = []
-    open_math = False  # inside inline math: an odd number of $ so far in the sentence (a lone $ for 1000 chars)
-    for piece in pieces:
-        # an abbreviation, or a period inside inline math (MinerU's "$0 . 0 0 1$"), does not end a sentence
-        if out and ((open_math and len(out[-1]) < 1000) or _ABBREV.search(out[-1])):
-            out[-1] += " " + piece
-        else:
-            out.append(piece)
-            open_math = False
-        open_math ^= piece.count("$") % 2 == 1
-    return [s for s in out if s]
-
-
 # ----- patterns ---------------------------------------------------------------------------------------
 @cache
 def load_specs(path: str = str(PATTERNS_FILE)) -> tuple:
     """(name, unit, [compiled patterns]) for each entry of the YAML file."""
     specs = []
     for entry in yaml.safe_load(Path(path).read_text(encoding="utf-8")):
-        pats = [re.compile(p.replace("{num}", NUMBER).replace("{int}", INTEGER), re.IGNORECASE) for p in entry["patterns"]]
+        pats = [re.compile(p.replace("{num}", NUMBER).replace("{int}", INTEGER), re.IGNORECASE)
+                for p in entry["patterns"]]
         specs.append((entry["name"], entry.get("unit", ""), pats))
     return tuple(specs)
 
 
-_QUALIFIERS = [("direction", r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*d\s*\)|\(?d\)|view(?:ing)? direction|direction)"),
+_QUALIFIERS = [("direction",
+                r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*d\s*\)|\(?d\)|view(?:ing)? direction|direction)"),
                ("position", r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*x\s*\)|\(?x\)|position|location)"),
                ("coarse", r"^[^.;,]{0,25}\bcoarse\b"), ("fine", r"^[^.;,]{0,25}\bfine\b"),
                ("proposal", r"^[^.;,]{0,25}\bproposal\b")]

@@ -116,11 +116,12 @@ def check_elements(blocks: list, source: str, limits: Limits) -> None:
     """Refuse a reader's blocks, before any per-element work is done on them, when the paper has more than
     ``limits.max_elements`` elements (blocks, table cells, algorithm lines) or more than
     ``limits.max_number_text_chars`` characters of sentences with a number."""
-    from nerfify_ns.paper.hyperparams import split_sentences
+    from nerfify_ns.sentence_split import split_sentences
 
     n = numeric = 0
     for b in blocks:
-        n += 1 + sum(len(r) for r in (getattr(b, "rows", None) or [])) + (b.text.count("\n") if b.kind == "algorithm" else 0)
+        n += 1 + sum(len(r) for r in (getattr(b, "rows", None) or []))
+        n += b.text.count("\n") if b.kind == "algorithm" else 0
         if n > limits.max_elements:
             raise PaperLimitError(f"{source}: more than {limits.max_elements:,} elements (paragraphs, equations, table "
                                   "cells, algorithm lines; the limit); pass the paper alone")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 
 from nerfify_ns.paper.document import Reference
+from nerfify_ns.sentence_split import split_sentences
 
 ARXIV = re.compile(r"(?:arxiv(?:\s*preprint)?\s*(?:arxiv)?\s*[:/]?\s*|abs/|arxiv\.org/(?:abs|pdf)/)"
                    r"(\d{4}\.\d{4,5}|[a-z\-]+(?:\.[A-Z]{2})?/\d{7})(?:v\d+)?", re.IGNORECASE)
@@ -45,18 +46,6 @@ def _trailing_backrefs(raw: str) -> str:
     return re.sub(r"(?<=\.)\s*\d{1,3}(?:\s*,\s*\d{1,3})*\s*$", "", raw).strip()
 
 
-def _split_sentences(raw: str) -> list[str]:
-    """Split at ". " except after initials, "et al." and common abbreviations."""
-    parts = re.split(r"(?<=[.?!])\s+", raw)
-    out: list[str] = []
-    for p in parts:
-        if out and re.search(r"(?:\b[A-Z]|\bet al|\bvol|\bpp|\bno|\bEd|\bIn|\bProc)\.$", out[-1]):
-            out[-1] += " " + p
-        else:
-            out.append(p)
-    return out
-
-
 def _authors(s: str) -> list[str]:
     s = re.sub(r"\bet al\.?", "", s).strip(" ,.")
     names = [n.strip() for n in re.split(r",\s*(?:and\s+)?|\s+and\s+|\s*&\s*", s) if n.strip()]
@@ -83,11 +72,11 @@ def parse_reference(raw: str, key: str = "", index: int = 0) -> Reference:
         ref.venue = re.sub(r"^[\s,.]*(?:in\s+)?", "", body[quoted.end():], flags=re.IGNORECASE).strip(" ,.")
     elif paren_year:  # APA: Author, A., & Author, B. (2021). Title. Venue.
         ref.authors = _authors(body[: paren_year.start()])
-        rest = _split_sentences(body[paren_year.end():].strip())
+        rest = split_sentences(body[paren_year.end():], bibliography=True)
         ref.title = rest[0].strip(" .") if rest else ""
         ref.venue = " ".join(rest[1:]).strip(" .")
     else:  # CVPR/ACM: Authors. Title. In Venue, pages, 2021.
-        parts = _split_sentences(body)
+        parts = split_sentences(body, bibliography=True)
         if len(parts) >= 2:
             ref.authors = _authors(parts[0])
             ref.title = parts[1].strip(" .")
