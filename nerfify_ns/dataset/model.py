@@ -15,7 +15,6 @@ Conventions, whatever the format on disk:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -174,5 +173,3 @@ class Dataset:
         return f"Dataset({self.describe()!r}, root={str(self.root)!r})"
 
 
-def json_dump(payload: Any) -> str:
-    return json.dumps(payload, indent=2) + "\n"
