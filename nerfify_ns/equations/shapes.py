@@ -93,10 +93,6 @@ def sample_indexed_keys(equations: list[Equation]) -> set[str]:
     return keys
 
 
-def batch_axes(dims: tuple) -> tuple[str, ...]:
-    return tuple(d for d in dims[:2] if d in (RAY, SAMPLE))
-
-
 def is_bound_variable(sym: Symbol) -> bool:
     """``t`` inside an integral over t, ``k`` inside a sum over a range: a variable, not a quantity."""
     return sym.index is not None and sym.name == sym.index.var and not sym.subscripts and not sym.superscript \
