@@ -226,37 +226,6 @@ def record_curve(
     return curve
 
 
-def run_curve(
-    method: str,
-    data: DataLike,
-    out_dir: Path,
-    *,
-    iterations: int,
-    every: int,
-    label: str | None = None,
-    method_args: Sequence[str] = (),
-    timeout: float = 900,
-    env: dict | None = None,
-) -> Curve:
-    """Train with checkpoints, then evaluate them: the whole PSNR-against-time measurement."""
-    run = train_for_curve(
-        method,
-        data,
-        out_dir,
-        iterations=iterations,
-        every=every,
-        method_args=method_args,
-        timeout=timeout,
-        env=env,
-    )
-    if not run.ok:
-        raise CurveError(
-            f"training {method} failed (exit {run.returncode}, timed out: {run.timed_out}); "
-            f"see {run.log_path}"
-        )
-    return record_curve(run, out_dir, label=label, timeout=timeout, env=env)
-
-
 def write_curve_csv(points: Iterable[CurvePoint], path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
