@@ -159,12 +159,6 @@ def ssim(pred: ArrayLike, gt: ArrayLike, **kwargs: float) -> float:
     return float(np.mean(ssim_map(pred, gt, **kwargs)))
 
 
-def mean_ssim(preds: Sequence[ArrayLike], gts: Sequence[ArrayLike]) -> float:
-    if len(preds) != len(gts) or not preds:
-        raise ValueError("need the same, non-zero number of predictions and ground truths")
-    return float(np.mean([ssim(p, g) for p, g in zip(preds, gts, strict=False)]))
-
-
 _lpips_cache: dict = {}
 
 
