@@ -37,7 +37,6 @@ import copy
 import hashlib
 import json
 import math
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -731,6 +730,3 @@ def revert(out_dir: Path, round_index: int) -> dict:
     return yaml.safe_load(path.read_text())
 
 
-def copy_best(out_dir: Path, target: Path) -> Path:
-    """Copy the best plan so far to ``target``."""
-    return Path(shutil.copy(Path(out_dir) / runfolder.BEST_PLAN, target))
