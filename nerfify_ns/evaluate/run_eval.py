@@ -73,12 +73,6 @@ def write_json(path: Path, payload) -> Path:
     return path
 
 
-def scene_test_frames(scene: DataLike) -> list[dict]:
-    """The views Nerfstudio renders for the dataset's test split, in its order (name = image stem, under which
-    the renders are saved; gt = the image)."""
-    return [{"name": f.stem, "gt": f.image} for f in as_dataset(scene).eval_frames]
-
-
 def loss_stats(losses: dict) -> dict:
     """First/last/min of the train loss (means over the first and last tenth of the logged steps)."""
     if not losses:
