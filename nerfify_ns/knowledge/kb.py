@@ -225,8 +225,3 @@ def _known_cards_only(p: KnownPaper, cards: dict[str, Card]) -> KnownPaper:
     return dataclasses.replace(p, provides=tuple(c for c in p.provides if c in cards))
 
 
-def knowledge_base(kb: KnowledgeBase | None = None, folder: Path | str | None = None) -> KnowledgeBase:
-    """``kb``, else the one in ``folder``, else the default (for entry points that take either)."""
-    if kb is not None:
-        return kb
-    return KnowledgeBase.load(folder) if folder is not None else KnowledgeBase.default()
