@@ -17,7 +17,6 @@ its deterministic counterpart):
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -195,6 +194,3 @@ def to_dict(scores: list[ItemScore]) -> list[dict]:
     return [asdict(s) for s in scores]
 
 
-def write_scores(path: Path, scores: list[ItemScore]) -> None:
-    Path(path).write_text(json.dumps({"items": to_dict(scores), "coverage": coverage(scores)}, indent=2,
-                                     default=str))
