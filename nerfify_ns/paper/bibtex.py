@@ -80,11 +80,6 @@ def bib_entries(text: str, max_entries: int | None = None, source: str = "") -> 
         yield m.group(2), fields
 
 
-def parse_bib(text: str, max_entries: int | None = None, source: str = "") -> dict[str, Reference]:
-    """Every @entry of a .bib text, by key (@string/@comment/@preamble skipped)."""
-    return {key: _reference(key, fields) for key, fields in bib_entries(text, max_entries, source)}
-
-
 def _reference(key: str, fields: dict) -> Reference:
     authors = [strip_tex(a) for a in re.split(r"\s+and\s+", fields.get("author", "")) if a.strip()]
     year = re.search(r"\d{4}", fields.get("year", ""))
