@@ -33,8 +33,6 @@ from nerfify_ns.paper.errors import (
 )
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, size_text
 
-MAX_INPUT_DEPTH = DEFAULT_LIMITS.max_include_depth  # kept for callers of the old name
-
 SOURCE_SUFFIXES = frozenset({".tex", ".ltx", ".bib", ".bbl", ".sty", ".cls", ".clo", ".bst", ".def", ".cfg",
                              ".txt", ".inc", ".tikz", ".pgf", ""})
 """Archive members written to disk: what the LaTeX reader may read (``\\input{name}`` without a suffix included).
