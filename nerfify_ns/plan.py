@@ -35,8 +35,6 @@ import yaml
 from nerfify_ns import runfolder
 from nerfify_ns.errors import NerfifyError
 
-DERIVATION_KEYS = ("method", "scene", "base", "trainer", "datamanager", "model", "optimizers")
-"""Top-level keys of the derivation (``method`` names it)."""
 ANNOTATION_KEYS = ("description", "paper", "evidence", "pruned", "holes", "notes", "repairs", "schedule", "family",
                    "contributions")
 """Top-level keys that annotate a plan (not part of the derivation)."""
@@ -55,10 +53,6 @@ class PlanFileError(NerfifyError):
 def split_path(path: str) -> list[str]:
     """``"model.sampler.proposal"`` -> ``["model", "sampler", "proposal"]`` (empty parts dropped)."""
     return [part for part in str(path).split(".") if part]
-
-
-def join_path(*parts: str) -> str:
-    return ".".join(p for p in parts if p)
 
 
 @dataclass
