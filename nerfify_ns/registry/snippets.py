@@ -31,10 +31,6 @@ def render(text: str, params: Mapping[str, Any], package: str = "", **extra: Any
     return SNIPPETS.from_string(text).render(p=dict(params), package=package, **extra)
 
 
-def render_imports(code: Code, package: str = "") -> list:
-    return [render(line, {}, package) for line in code.imports]
-
-
 _RELATIVE_COMPONENTS = re.compile(r"^from \.components(\.\w+)? import")
 
 
