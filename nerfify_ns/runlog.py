@@ -22,7 +22,6 @@ import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
-LOGGER = logging.getLogger("nerfify")
 FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 HELD_RECORDS = 5000
 """Records kept in memory before a run's log file exists (older ones are dropped)."""
