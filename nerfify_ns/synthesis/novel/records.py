@@ -210,13 +210,3 @@ def _reusable_source(source_file: Path, hole: dict) -> tuple:
     return data.decode("utf-8", errors="replace"), None
 
 
-def load_records(folder: Path) -> dict | None:
-    """A run folder's equations.yaml (for the report), None when there is none."""
-    path = Path(folder) / FILE
-    if not path.is_file():
-        return None
-    try:
-        data = safeio.load_yaml(path, MAX_BYTES)
-    except safeio.ReadRefused:
-        return None
-    return data if isinstance(data, dict) else None
