@@ -67,10 +67,6 @@ class Response:
     model: str = ""
     cached: bool = False
 
-    def to_row(self) -> dict:
-        return {"text": self.text, "finish": self.finish, "input_tokens": self.input_tokens,
-                "output_tokens": self.output_tokens, "model": self.model}
-
 
 class Provider:
     """The interface: one request, one response (or a :class:`ProviderError`)."""
