@@ -106,6 +106,3 @@ def is_references_heading(title: str) -> bool:
                              title, re.IGNORECASE))
 
 
-def find_arxiv(text: str) -> str | None:
-    m = ARXIV.search(text)
-    return m.group(1) if m else None
