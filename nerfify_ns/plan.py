@@ -82,22 +82,6 @@ class Hole:
         return asdict(self)
 
 
-@dataclass
-class Pruning:
-    """One pruning of the plan for its scene: the rule, the path, what happened, and why."""
-
-    rule: str
-    path: str
-    action: str
-    before: Any = None
-    after: Any = None
-    reason: str = ""
-
-    def to_dict(self) -> dict:
-        return {"rule": self.rule, "path": self.path, "action": self.action, "from": self.before,
-                "to": self.after, "reason": self.reason}
-
-
 class Plan(dict):
     """A plan mapping with the one path API (see the module docstring)."""
 
