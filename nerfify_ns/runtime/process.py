@@ -7,7 +7,7 @@ datamanager worker or grandchild outlives the run.
 
 Each child starts a session of its own (``start_new_session``): a terminal's Ctrl-C does not reach it and
 a signal sent to us is not passed on, so we stop it ourselves. Every live child process group is kept in a
-registry (:func:`live_groups`); on SIGINT or SIGTERM (:mod:`nerfify_ns.interrupts`) the handler sends
+registry (``_live``); on SIGINT or SIGTERM (:mod:`nerfify_ns.interrupts`) the handler sends
 SIGKILL to all of them at once (:func:`signal_all_groups`), and the command's clean-up reaps them
 (:func:`kill_all_groups`). A group is also killed when its leader exits, so a worker its leader left
 behind does not outlive the run either.
@@ -51,11 +51,6 @@ class ProcessResult:
 
 _live: dict[int, subprocess.Popen] = {}
 """Process groups we started and have not finished with: group id (the leader's pid) -> leader."""
-
-
-def live_groups() -> list[int]:
-    """The ids of the child process groups started and not yet finished with."""
-    return list(_live)
 
 
 def start_group(cmd: Sequence[str], **popen: object) -> subprocess.Popen:
