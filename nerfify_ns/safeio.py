@@ -259,24 +259,6 @@ def read_image_bytes(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int 
     return mime, data
 
 
-def open_image(path: PathLike, limit: int = MAX_IMAGE, *, max_pixels: int = MAX_PIXELS, what: str | None = None):
-    """A PIL image of ``path`` (not decoded yet) whose size was checked against ``max_pixels`` from its header."""
-    import io
-
-    from PIL import Image
-
-    name = what or _show(path)
-    data = read_bytes(path, limit, what=name)
-    try:
-        image = Image.open(io.BytesIO(data))
-    except Exception as exc:  # noqa: BLE001 - PIL's many errors: one line
-        raise ReadRefused(f"{name} is not an image PIL reads ({type(exc).__name__})") from None
-    width, height = image.size
-    if width * height > max_pixels:
-        raise ReadRefused(f"{name} declares {width} x {height} pixels, over the limit of {max_pixels}")
-    return image
-
-
 # ------------------------------------------------------------------------------------------ paths
 
 
