@@ -88,9 +88,6 @@ class DerivedPlan:
     def close_call(self) -> str:
         return self.base_choice.close_call if self.base_choice else ""
 
-    def paper_quotes(self) -> list[str]:
-        return [e["quote"] for e in self.evidence.values() if e.get("quote")]
-
     def to_dict(self) -> dict:
         return {"plan": self.plan.to_dict(), "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
                 "base_choice": self.base_choice.to_dict() if self.base_choice else None,
