@@ -100,8 +100,12 @@ def coder_messages(record: Any, hole: dict, frozen: dict) -> list[dict]:
             f"{', '.join(frozen['constructor_arguments']) or 'no required arguments'} as keyword arguments "
             f"(accept **kwargs for the rest)"
             + (" and it has get_out_dim() returning its output width" if frozen["get_out_dim"] else "") + ".\n\n"
+            + (f"The paper's contribution this part belongs to: {str(hole.get('contribution'))[:300]}\n"
+               if hole.get("contribution") else "")
             + (f"The paper's claim of this part: {str(hole.get('claim'))[:600]}\n\n" if hole.get("claim") else "")
+            + (f"Why it is a novel part here: {str(hole.get('why'))[:400]}\n\n" if hole.get("why") else "")
             + f"The paper's text of this part:\n{str(hole.get('text') or '')[:4000]}\n\n"
+            + _prose_lines(record)
             + (f"The paper's hyperparameters stated with it:\n"
                f"{json.dumps(hole.get('hyperparameters'), indent=1, default=str)[:2000]}\n\n"
                if hole.get("hyperparameters") else "")
@@ -109,6 +113,23 @@ def coder_messages(record: Any, hole: dict, frozen: dict) -> list[dict]:
             f"What the equation compiler made of it: {record.status}; reason: {record.reason}\n"
             + (f"The compiler's partial code:\n{record.source[:4000]}\n" if record.source else ""))
     return [{"role": "system", "content": system}, {"role": "user", "content": user}]
+
+
+def _prose_lines(record: Any) -> str:
+    """What the deterministic reading of the part's sentences found (each typed part it stated, with the quoted
+    sentence and the sizes read, and why it was not built), so that the model starts from the paper's own words."""
+    parts = getattr(record, "parts", None) or []
+    if not parts:
+        return ""
+    lines = []
+    for part in parts[:6]:
+        sizes = {k: v.get("value") for k, v in (part.get("parameters") or {}).items()
+                 if v.get("source") in ("paper", "statement", "correction")}
+        lines.append(f"- {part.get('part')}: \"{str((part.get('statement') or {}).get('quote', ''))[:300]}\""
+                     + (f"; sizes stated: {json.dumps(sizes, default=str)}" if sizes else "")
+                     + (f"; not built: {str(part.get('reason'))[:300]}" if part.get("reason") else ""))
+    return "The paper's sentences that state this part (as the deterministic reader found them):\n" + \
+        "\n".join(lines) + "\n\n"
 
 
 def answer_problems(frozen: dict):

@@ -75,6 +75,8 @@ class Part:
     exact_unless: re.Pattern | None = None
     approximation: str = ""
     also: list = field(default_factory=list)
+    companion: bool = False
+    """Built only beside another stated part of its production (a backbone's size alone is no novel part)."""
 
 
 @dataclass
@@ -86,17 +88,54 @@ class Spec:
     number_words: dict
     ordinal_words: dict
     parts: list
+    tens_words: dict = field(default_factory=dict)
+    scale_words: dict = field(default_factory=dict)
 
 
 def _compile(pattern: str, spec_words: dict) -> re.Pattern:
     from nerfify_ns.paper.hyperparams import NUMBER
 
-    counts = "|".join(spec_words["number_words"])
+    counts = _word_number_pattern(spec_words)
     ordinals = "|".join(spec_words["ordinal_words"])
     text = (pattern.replace("{int}", r"(?P<num>\d+)(?!\d|\.\d)").replace("{num}", NUMBER)
-            .replace("{count}", rf"(?P<num>\d+|{counts})(?!\d|\.\d)")
+            .replace("{count}", rf"(?<![\d.])(?P<num>\d+|{counts})(?![\w.-]*\d)")
             .replace("{ordinal}", rf"(?P<num>\d+(?:st|nd|rd|th)|{ordinals})"))
     return re.compile(text, re.IGNORECASE)
+
+
+def _word_number_pattern(spec_words: dict) -> str:
+    """A number written in words ("six", "sixty-four", "two hundred and fifty-six"): the spec's units and teens,
+    tens joined to a unit by a hyphen or a space, hundreds and thousands (longest alternatives first)."""
+    units = sorted(spec_words["number_words"], key=len, reverse=True)
+    tens = sorted(spec_words.get("tens_words") or {}, key=len, reverse=True)
+    unit = "|".join(units)
+    below_100 = (rf"(?:(?:{'|'.join(tens)})(?:[- ](?:{unit}))?|{unit})" if tens else rf"(?:{unit})")
+    scales = "|".join(sorted(spec_words.get("scale_words") or {}, key=len, reverse=True))
+    if not scales:
+        return below_100
+    return rf"{below_100}(?:\s+(?:{scales})(?:\s+(?:and\s+)?{below_100})?)*"
+
+
+def word_number(spec: Spec, text: str) -> int | None:
+    """The value of a number written in words (see :func:`_word_number_pattern`); None when it is not one."""
+    total, current, seen = 0, 0, False
+    for token in re.split(r"[\s-]+", text.strip().lower()):
+        if token == "and":
+            continue
+        if token in spec.number_words:
+            current += int(spec.number_words[token])
+        elif token in spec.tens_words:
+            current += int(spec.tens_words[token])
+        elif token in spec.scale_words:
+            scale = int(spec.scale_words[token])
+            if scale >= 1000:
+                total, current = total + max(current, 1) * scale, 0
+            else:
+                current = max(current, 1) * scale
+        else:
+            return None
+        seen = True
+    return total + current if seen else None
 
 
 @lru_cache(maxsize=1)
@@ -104,7 +143,8 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
     """The parts of ``prose.yaml``, their patterns compiled (numbers in every notation, as the hyperparameter
     reader reads them)."""
     data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    words = {"number_words": data["number_words"], "ordinal_words": data["ordinal_words"]}
+    words = {key: dict(data.get(key) or {}) for key in ("number_words", "ordinal_words", "tens_words",
+                                                         "scale_words")}
     comp = lambda p: _compile(p, words)  # noqa: E731
     parts, mentions = [], [comp(p) for p in data.get("other_nouns") or []]
     for entry in data["parts"]:
@@ -122,12 +162,14 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
                     [comp(p) for p in entry["statements"]], comp(entry["noun"]) if entry.get("noun") else None,
                     params, dict(entry.get("sets") or {}), list(entry.get("captures") or []),
                     comp(entry["exact_unless"]) if entry.get("exact_unless") else None,
-                    " ".join(str(entry.get("approximation") or "").split()), list(entry.get("also") or []))
+                    " ".join(str(entry.get("approximation") or "").split()), list(entry.get("also") or []),
+                    bool(entry.get("companion")))
         if part.noun is not None:
             mentions.append(part.noun)
         parts.append(part)
     return Spec(comp(data["negation"]), int(data["negation_window"]), comp(data["out_of_scope_sections"]),
-                mentions, dict(data["number_words"]), dict(data["ordinal_words"]), parts)
+                mentions, words["number_words"], words["ordinal_words"], parts, words["tens_words"],
+                words["scale_words"])
 
 
 # ------------------------------------------------------------------------------------------ sentences
@@ -206,11 +248,16 @@ def _negated(spec: Spec, flat: str, start: int) -> bool:
     return bool(spec.negation.search(before))
 
 
-def statements(part: Part, scope: list[Sentence], spec: Spec) -> list[Statement]:
-    """Every sentence of the hole (rank 0) that states ``part``, with its first match."""
+_CITATION = re.compile(r"\[\d+(?:\s*[,–-]\s*\d+)*\]|\bet al\.")
+"""A sentence that cites other work describes that work: it states no part of the paper's own outside the hole."""
+
+
+def statements(part: Part, scope: list[Sentence], spec: Spec, rank: int = 0) -> list[Statement]:
+    """Every sentence of ``rank`` (0: the hole's own; 1: the rest of the method, sentences citing other work left
+    out) that states ``part``, with its first match."""
     found = []
     for s in scope:
-        if s.rank != 0:
+        if s.rank != rank or (rank > 0 and _CITATION.search(s.text)):
             continue
         for k, pattern in enumerate(part.statements):
             m = next((m for m in pattern.finditer(s.flat) if not _negated(spec, s.flat, m.start())), None)
@@ -254,6 +301,8 @@ def _number(spec: Spec, m: re.Match, percent: bool) -> Any:
     low = raw.lower()
     if low in spec.number_words:
         return spec.number_words[low]
+    if re.fullmatch(r"[a-z][a-z\s-]*", low) and (worded := word_number(spec, low)) is not None:
+        return worded
     if low in spec.ordinal_words:
         return spec.ordinal_words[low]
     raw = re.sub(r"(?<=\d)(?:st|nd|rd|th)$", "", raw)
@@ -319,10 +368,13 @@ class Choice:
 
 
 class _Reader:
-    def __init__(self, part: Part, found: list[Statement], scope: list[Sentence], spec: Spec, corrected: dict):
+    def __init__(self, part: Part, found: list[Statement], scope: list[Sentence], spec: Spec, corrected: dict,
+                 base: dict | None = None):
         from nerfify_ns.registry import default_registry
 
         self.part, self.found, self.scope, self.spec, self.corrected = part, found, scope, spec, corrected
+        self.base = base if part.place == "options" and isinstance(base, dict) else {}
+        """The options already at the slot (the base's backbone): what an unstated size stays at."""
         self.params = default_registry()[part.terminal].param_specs
         self.choices: dict[str, Choice] = {}
         self.problems: list[str] = []
@@ -361,8 +413,10 @@ class _Reader:
                                     f"{first.sentence.where})")
                 continue
             self.choices[name] = Choice(self.default(name), "asked", unit=rule.unit,
-                                        why="the paper does not state it: the terminal's default, to be confirmed "
-                                            "in equations.yaml (asked)")
+                                        why="the paper does not state it: the base plan's value, to be confirmed "
+                                            "in equations.yaml (asked)" if name in self.base else
+                                        "the paper does not state it: the terminal's default, to be confirmed "
+                                        "in equations.yaml (asked)")
         for name in self.corrected:  # a person's value where it differs from what was read (or asked)
             if name in self.params and (name not in self.choices or self.choices[name].value != self.corrected[name]):
                 self.corrected_value(name)
@@ -431,6 +485,8 @@ class _Reader:
         return self.choices[name].value if name in self.choices else self.default(name)
 
     def default(self, name: str) -> Any:
+        if name in self.base:
+            return copy.deepcopy(self.base[name])
         spec = self.params.get(name)
         return copy.deepcopy(spec.default) if spec is not None else None
 
@@ -566,25 +622,37 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
             refiled, slot = other, other_slot
             break
         stated = []
+    elsewhere = _stated_elsewhere(spec, refiled or production, scope, stated) if stated else []
     if not stated:
         return compiled
+    if refiled:
+        _refile_hole(plan, hole, refiled, slot)
     corrected = _corrections(corr or {})
     res = ProseResult(id=compiled.id, slot=compiled.slot, production=compiled.production, section=compiled.section,
                       equations=compiled.equations, hash=compiled.hash)
     if compiled.reason:
         res.notes.append(f"the equation compiler: {_short(compiled.reason, 300)}")
     if refiled:
-        res.notes.append(f"placed as {refiled} at {slot}: the derivation filed the part under {production}, but its "
-                         f"sentences state a part of {refiled} (below)")
+        res.notes.append(f"placed as {refiled} at {slot}: the derivation filed the part under {production} at "
+                         f"{hole['slot']}, but its sentences state a part of {refiled} (below)")
+        res.production, res.slot = refiled, slot
     built, refused, approximate = [], [], []
-    for part, found in stated:
-        reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}))
+    for part, found in stated + elsewhere:
+        optional = (part, found) in elsewhere
+        base = plan.get(slot) if part.place == "options" else None
+        reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}), base)
         choices = reader.run()
         st = found[0]
         record = {"part": part.name, "terminal": part.terminal,
                   "statement": {"quote": _short(st.sentence.text), "where": st.sentence.where,
                                 "matched": _short(st.match.group(0), 120)},
                   "parameters": {k: c.to_dict() for k, c in choices.items()}}
+        if optional:
+            record["statement"]["elsewhere"] = ("stated in the method outside the hole's section: a part of the same "
+                                                "production the hole's slot takes")
+        if reader.missing and optional:
+            res.notes.append(f"{part.terminal} stated at {st.sentence.where}, not built: {'; '.join(reader.missing)}")
+            continue
         if reader.missing:
             record["status"] = NOT_IMPLEMENTED
             record["reason"] = "; ".join(reader.missing)
@@ -602,6 +670,11 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
             broken = [v for v in _violations(plan) if str(v) not in standing]
         except Exception as err:  # noqa: BLE001 - this part's reason; the others are still built
             written, broken = [], [f"{type(err).__name__}: {err}"]
+        if broken and optional:
+            _restore(plan, before)
+            res.notes.append(f"{part.terminal} stated at {st.sentence.where}, not built: the grammar refuses it here: "
+                             + "; ".join(_short(str(v), 200) for v in broken[:2]))
+            continue
         if broken:
             _restore(plan, before)
             record["status"] = NOT_IMPLEMENTED
@@ -639,9 +712,33 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
 
 
 def _stated_parts(spec: Spec, production: str, scope: list[Sentence]) -> list[tuple[Part, list[Statement]]]:
-    """The parts of ``production`` the hole's sentences state (a choice's first one only, in the spec's order)."""
+    """The parts of ``production`` the hole's sentences state (a choice's first one only, in the spec's order; a
+    companion only beside another stated part)."""
     stated = [(p, found) for p in spec.parts if p.production == production and (found := statements(p, scope, spec))]
+    if not any(not p.companion for p, _ in stated):
+        return []
     return stated[:1] if stated and stated[0][0].place == "choice" else stated
+
+
+def _stated_elsewhere(spec: Spec, production: str, scope: list[Sentence],
+                      stated: list) -> list[tuple[Part, list[Statement]]]:
+    """Members of a set production (field wrappers, schedule hooks) that the rest of the method states outside the
+    hole's section, in sentences citing no other work: one hole stands for the production's slot, and a paper
+    describes each of its members in a section of its own. A part already stated by the hole is not repeated;
+    one that cannot be built there is left out (a note), not refused."""
+    have = {p.name for p, _ in stated}
+    return [(p, found) for p in spec.parts if p.production == production and p.place == "member"
+            and not p.companion and p.name not in have and (found := statements(p, scope, spec, rank=1))]
+
+
+def _refile_hole(plan: Any, hole: dict, production: str, slot: str) -> None:
+    """The plan's hole entry moves to the production its sentences state (with where the derivation had filed
+    it), so that the records, the report and the survey name the part's real production."""
+    for h in plan.get("holes") or []:
+        if isinstance(h, dict) and h.get("slot") == hole.get("slot") and h.get("production") == hole.get(
+                "production"):
+            h["filed_as"] = {"production": h["production"], "slot": h["slot"]}
+            h["production"], h["slot"] = production, slot
 
 
 def _slot_in(plan: Any, production: str) -> str:
