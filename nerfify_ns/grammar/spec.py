@@ -3,9 +3,9 @@
 Nonterminal kinds: sequence (named slots), choice (one alternative, ``{alt: value}``), enum
 (a parameterless terminal written as its name), set (a subset of member terminals; with ``custom``
 also components of the plugin), map (a subset of keys holding the same nonterminal) and open (one
-terminal's parameters, or ``{custom: {...}}``). Terminals carry their implementation, typed
-parameters, contract, duties and the optimiser groups they create; ``Terminal.definition`` is the
-registry's definition (code, harness) where the grammar was built from the registry.
+terminal's parameters, or ``{custom: {...}}``). A terminal is the registry's ``TerminalDef``: implementation,
+typed parameters, contract, duties, the optimiser groups it creates, and (built from the registry) the code it
+renders and the ladder's harness.
 ``grammar_spec.yaml`` is the registry's export; ``parse_grammar`` reads such an export back.
 """
 
@@ -20,9 +20,9 @@ from typing import Any
 
 import yaml
 
-from nerfify_ns.errors import NerfifyError
-from nerfify_ns.registry import Registry, TerminalDef, default_registry
-from nerfify_ns.registry.params import PARAM_TYPES, ParamSpec
+from nerfify_ns.registry import Registry, RegistryError, TerminalDef, default_registry
+from nerfify_ns.registry.core import check_references
+from nerfify_ns.registry.params import ParamSpec, ParamTypeError
 
 KINDS = ("sequence", "choice", "enum", "set", "map", "open")
 CUSTOM = "custom"
@@ -33,37 +33,12 @@ Param = ParamSpec
 """A typed terminal parameter (the registry's ParamSpec)."""
 
 
-class GrammarSpecError(NerfifyError):
-    """The grammar itself is inconsistent (a bug in the grammar, not in a plan)."""
+GrammarSpecError = RegistryError
+"""The grammar itself is inconsistent (a bug in the grammar, not in a plan): the registry's error, since one
+reference check (``registry.core.check_references``) serves the registry and the grammar read from its export."""
 
-
-@dataclass(frozen=True)
-class Terminal:
-    """A leaf of the grammar: one implementable technique or configuration block."""
-
-    name: str
-    doc: str
-    implementation: str
-    params: dict[str, Param]
-    card: str | None = None
-    contract: dict[str, Any] = field(default_factory=dict)
-    duties: tuple[dict[str, Any], ...] = ()
-    param_groups: tuple[str, ...] = ()
-    config: dict[str, dict[str, str]] = field(default_factory=dict)
-    config_class: str | None = None
-    input_domain: str | None = None
-    production: str = ""
-    definition: TerminalDef | None = field(default=None, compare=False, repr=False)
-
-    def defaults(self) -> dict[str, Any]:
-        return {name: p.default for name, p in self.params.items()}
-
-    @classmethod
-    def from_definition(cls, d: TerminalDef) -> Terminal:
-        return cls(name=d.name, doc=d.doc, implementation=d.implementation, params=d.param_specs, card=d.card,
-                   contract=d.contract.to_data() if not d.contract.empty else {}, duties=tuple(d.duties),
-                   param_groups=tuple(d.param_groups), config={k: dict(v) for k, v in d.config.items()},
-                   config_class=d.config_class, input_domain=d.input_domain, production=d.production, definition=d)
+Terminal = TerminalDef
+"""A leaf of the grammar, one implementable technique or configuration block: the registry's definition itself."""
 
 
 @dataclass(frozen=True)
@@ -182,38 +157,11 @@ def _nonterminal(name: str, raw: dict) -> Nonterminal:
     )
 
 
-def _param(name: str, raw: dict, owner: str) -> Param:
-    kind = raw.get("type")
-    if kind not in PARAM_TYPES:
-        raise GrammarSpecError(f"terminal {owner}: parameter {name} has unknown type {kind!r}")
-    rng = raw.get("range")
-    return Param(name=name, type=kind, default=raw.get("default"), doc=raw.get("doc", ""),
-                 range=tuple(rng) if rng is not None else None,
-                 values=tuple(raw.get("values", ())), length=tuple(raw["length"]) if "length" in raw else None)
-
-
 def _terminal(name: str, raw: dict) -> Terminal:
-    return Terminal(
-        name=name, doc=raw.get("doc", ""), implementation=raw["implementation"],
-        params={k: _param(k, v, name) for k, v in (raw.get("params") or {}).items()},
-        card=raw.get("card"), contract=raw.get("contract") or {}, duties=tuple(raw.get("duties") or ()),
-        param_groups=tuple(raw.get("param_groups") or ()), config=raw.get("config") or {},
-        config_class=raw.get("config_class"), input_domain=raw.get("input_domain"),
-        production=raw.get("production", ""),
-    )
-
-
-def _check_references(grammar: Grammar) -> None:
-    known = set(grammar.nonterminals) | set(grammar.terminals)
-    for nt in grammar.nonterminals.values():
-        refs = [s.symbol for s in nt.slots] + list(nt.alternatives) + [r for r in (nt.value, nt.terminal) if r]
-        for ref in refs:
-            if ref not in known:
-                raise GrammarSpecError(f"nonterminal {nt.name} refers to unknown symbol {ref!r}")
-        if nt.kind in ("enum", "set", "open") and any(r not in grammar.terminals for r in nt.alternatives):
-            raise GrammarSpecError(f"{nt.kind} {nt.name} may only list terminals")
-        if nt.accepts_custom and CUSTOM not in grammar.terminals:
-            raise GrammarSpecError(f"{nt.name} accepts custom components but the grammar has no 'custom' terminal")
+    try:
+        return TerminalDef.from_data(name, raw)
+    except ParamTypeError as exc:
+        raise GrammarSpecError(str(exc)) from exc
 
 
 def grammar_from_data(raw: dict, source: str = "", interfaces: dict | None = None) -> Grammar:
@@ -223,7 +171,7 @@ def grammar_from_data(raw: dict, source: str = "", interfaces: dict | None = Non
         terminals={k: _terminal(k, v) for k, v in raw["terminals"].items()},
         interfaces=dict(interfaces if interfaces is not None else raw.get("interfaces") or {}),
     )
-    _check_references(grammar)
+    check_references(raw["nonterminals"], grammar.terminals, grammar.interfaces)
     return grammar
 
 
@@ -237,11 +185,9 @@ def grammar_from_registry(registry: Registry) -> Grammar:
     grammar = Grammar(
         start=registry.productions["start"], version=registry.productions["version"], source="registry",
         nonterminals={k: _nonterminal(k, v) for k, v in registry.nonterminals.items()},
-        terminals={name: Terminal.from_definition(d) for name, d in registry.terminals.items()},
-        interfaces=dict(registry.interfaces),
+        terminals=dict(registry.terminals), interfaces=dict(registry.interfaces),
     )
-    _check_references(grammar)
-    return grammar
+    return grammar  # the registry checked its references when it was built
 
 
 @lru_cache(maxsize=4)

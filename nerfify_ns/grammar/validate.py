@@ -113,7 +113,8 @@ def _check_param(d: Derivation, path: str, production: str, param: Param, value:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
             d.fail(path, production, "param_type", f"{param.name} must be a list of strings, got {value!r}")
         elif param.length and not param.length[0] <= len(value) <= param.length[1]:
-            d.fail(path, production, "param_length", f"{param.name} must have {param.length[0]}..{param.length[1]} items")
+            d.fail(path, production, "param_length",
+                   f"{param.name} must have {param.length[0]}..{param.length[1]} items")
         return
     if param.type in ("int_list", "float_list"):
         item_kind = param.type.split("_")[0]
@@ -284,8 +285,8 @@ def duties_at(g: Grammar, path: str, term: str) -> tuple:
 def _check_constraints(g: Grammar, d: Derivation, plan: dict) -> None:
     """Rules across a terminal's parameters (and the plan around it) that types and ranges cannot say."""
     for path, name in d.used.items():
-        definition = g.terminals[name].definition
-        if definition is None or not definition.constraints:
+        definition = g.terminals[name]
+        if not definition.constraints:
             continue
         given = _at_path(plan, path)
         params = definition.with_defaults(given if isinstance(given, dict) else {})

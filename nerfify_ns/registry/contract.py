@@ -98,6 +98,26 @@ class Contract:
     def empty(self) -> bool:
         return not self.inputs and not self.outputs
 
+    @classmethod
+    def from_data(cls, raw: Mapping[str, Any]) -> Contract:
+        """A contract from its data form (``to_data``; an empty mapping is the empty contract)."""
+        def specs(group: Mapping[str, Any] | None) -> dict[str, TensorSpec]:
+            return {k: TensorSpec(shape=v["shape"], dtype=v.get("dtype", "float"),
+                                  range=tuple(v.get("range") or (None, None)), grad=bool(v.get("grad")),
+                                  role=v.get("role", "values"), doc=v.get("doc", "")) for k, v in (group or {}).items()}
+        return cls(inputs=specs(raw.get("inputs")), outputs=specs(raw.get("outputs")),
+                   sizes=dict(raw.get("sizes") or {}), free=tuple(raw.get("free") or ()), doc=raw.get("doc", ""))
+
+    # Read as a mapping, a contract is its data form (empty for the empty contract), as the grammar export has it.
+    def keys(self):
+        return ({} if self.empty else self.to_data()).keys()
+
+    def __getitem__(self, key: str) -> Any:
+        return ({} if self.empty else self.to_data())[key]
+
+    def __bool__(self) -> bool:
+        return not self.empty
+
 
 # ------------------------------------------------------------------------------- shapes
 _SHAPE = re.compile(r"^\s*\[(.*)\]\s*$")

@@ -80,24 +80,35 @@ class Registry:
         return SPEC_HEADER + body
 
     def check(self) -> None:
-        """Raise RegistryError when a symbol is unknown, a terminal sits under the wrong production, or a
-        production that accepts ``custom`` has no interface."""
-        known = set(self.nonterminals) | set(self.terminals)
-        for name, nt in self.nonterminals.items():
-            refs = [s.rstrip("?") for s in (nt.get("slots") or {}).values()]
-            refs += list(nt.get("alternatives") or nt.get("members") or [])
-            refs += [r for r in (nt.get("value"), nt.get("terminal")) if r]
-            for ref in refs:
-                if ref not in known:
-                    raise RegistryError(f"production {name} refers to unknown symbol {ref!r}")
-            custom = "custom" in (nt.get("alternatives") or []) or nt.get("custom") or nt.get("kind") == "open"
-            if custom and name not in self.interfaces:
-                raise RegistryError(f"production {name} accepts custom components but has no interface")
-        for name, t in self.terminals.items():
-            if t.production != "*" and t.production not in self.nonterminals:
-                raise RegistryError(f"terminal {name}: unknown production {t.production!r}")
-            if t.production != "*" and not _listed(self.nonterminals[t.production], name):
-                raise RegistryError(f"terminal {name} says production {t.production} but is not in it")
+        """Raise RegistryError when the productions and the terminals do not fit (see :func:`check_references`)."""
+        check_references(self.nonterminals, self.terminals, self.interfaces)
+
+
+def check_references(nonterminals: dict[str, dict], terminals: dict[str, TerminalDef],
+                     interfaces: dict[str, Any]) -> None:
+    """The one reference check of a grammar, built from the registry or read back from its export: raise
+    RegistryError when a symbol is unknown, an enum, set or open production lists a nonterminal, a terminal sits
+    under the wrong production, or a production that accepts ``custom`` has no interface or no ``custom`` terminal."""
+    known = set(nonterminals) | set(terminals)
+    for name, nt in nonterminals.items():
+        listed = list(nt.get("alternatives") or nt.get("members") or [])
+        refs = [s.rstrip("?") for s in (nt.get("slots") or {}).values()]
+        refs += listed + [r for r in (nt.get("value"), nt.get("terminal")) if r]
+        for ref in refs:
+            if ref not in known:
+                raise RegistryError(f"production {name} refers to unknown symbol {ref!r}")
+        if nt.get("kind") in ("enum", "set", "open") and any(r not in terminals for r in listed):
+            raise RegistryError(f"{nt.get('kind')} {name} may only list terminals")
+        custom = "custom" in listed or nt.get("custom") or nt.get("kind") == "open"
+        if custom and name not in interfaces:
+            raise RegistryError(f"production {name} accepts custom components but has no interface")
+        if custom and "custom" not in terminals:
+            raise RegistryError(f"{name} accepts custom components but the grammar has no 'custom' terminal")
+    for name, t in terminals.items():
+        if t.production != "*" and t.production not in nonterminals:
+            raise RegistryError(f"terminal {name}: unknown production {t.production!r}")
+        if t.production != "*" and not _listed(nonterminals[t.production], name):
+            raise RegistryError(f"terminal {name} says production {t.production} but is not in it")
 
 
 def _listed(nt: dict, name: str) -> bool:

@@ -18,6 +18,7 @@ import copy
 import dataclasses
 import functools
 import inspect
+import keyword
 import textwrap
 import typing
 from dataclasses import dataclass
@@ -56,9 +57,10 @@ class ParamSpec:
 
 
 def param(default: Any, *, range: tuple[float | None, float | None] | None = None,
-          length: tuple[int, int] | None = None) -> Any:
-    """A dataclass field holding a terminal parameter: its default, numeric range and list length."""
-    meta = {_META: {"range": range, "length": length}}
+          length: tuple[int, int] | None = None, doc: str = "") -> Any:
+    """A dataclass field holding a terminal parameter: its default, numeric range and list length (``doc``: where
+    the class has no source to read the docstring under the field from, as for a class built from data)."""
+    meta = {_META: {"range": range, "length": length, "doc": doc}}
     if isinstance(default, list | dict):
         value = default
         return dataclasses.field(default_factory=lambda: _copy(value), metadata=meta)
@@ -136,5 +138,28 @@ def _param_specs(cls: type) -> dict[str, ParamSpec]:
         specs[name] = ParamSpec(name=name, type=kind, default=default, values=values,
                                 range=tuple(rng) if rng is not None else None,
                                 length=tuple(meta["length"]) if meta.get("length") else None,
-                                doc=docs.get(f.name, ""))
+                                doc=docs.get(f.name) or meta.get("doc") or "")
     return specs
+
+
+_ANNOTATIONS = {"int": int, "float": float, "bool": bool, "str": str, "int_list": list[int],
+                "float_list": list[float], "str_list": list[str], "mapping": dict[str, Any]}
+
+
+class ParamTypeError(ValueError):
+    """A parameter written as data has a type that is not one of :data:`PARAM_TYPES`."""
+
+
+def params_class_from_data(owner: str, raw: dict[str, dict]) -> type:
+    """The parameter dataclass of terminal ``owner`` from its export (``ParamSpec.to_data`` per parameter)."""
+    fields = []
+    for name, spec in raw.items():
+        kind = spec.get("type")
+        if kind not in PARAM_TYPES:
+            raise ParamTypeError(f"terminal {owner}: parameter {name} has unknown type {kind!r}")
+        annotation = typing.Literal[tuple(spec.get("values", ()))] if kind == "enum" else _ANNOTATIONS[kind]
+        rng, length = spec.get("range"), spec.get("length")
+        fields.append((f"{name}_" if keyword.iskeyword(name) else name, annotation,
+                       param(spec.get("default"), range=tuple(rng) if rng is not None else None,
+                             length=tuple(length) if length else None, doc=spec.get("doc", ""))))
+    return dataclasses.make_dataclass(f"{owner.title().replace('_', '').replace('-', '')}Params", fields)

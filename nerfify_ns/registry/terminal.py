@@ -1,5 +1,9 @@
 """One grammar terminal, defined once: production, typed parameters, card, implementation, the code it
-renders into a plugin, its contract as data, and how the ladder builds and runs it at small sizes."""
+renders into a plugin, its contract as data, and how the ladder builds and runs it at small sizes.
+
+The grammar's terminal *is* this class (``grammar.spec.Terminal``): the grammar built from the registry holds
+the definitions themselves, and a grammar read back from its export (``grammar_spec.yaml``) holds definitions
+rebuilt from the data (:meth:`TerminalDef.from_data`: parameters, contract, duties; no code or harness)."""
 
 from __future__ import annotations
 
@@ -9,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from nerfify_ns.registry.contract import Contract
-from nerfify_ns.registry.params import ParamSpec, param_defaults, param_specs
+from nerfify_ns.registry.params import ParamSpec, param_defaults, param_specs, params_class_from_data
 
 Build = Callable[[dict[str, Any], dict[str, Any]], Any]
 """(small parameters, contract environment) -> the component (a module or a callable)."""
@@ -24,9 +28,9 @@ class Code:
 
     ``ctor`` is a Jinja2 expression over the parameters ``p`` building the component; ``expr`` is a
     Jinja2 expression evaluated in the plugin (``{{ x }}`` is its input where it has one; a
-    regulariser's may use ``self``, ``outputs``, ``batch`` and ``{{ field }}``, the model's field); ``imports`` are added to the file that
-    uses it; ``component`` names a module of ``nerfify_ns/components`` copied into the plugin;
-    ``traits`` are facts the templates read (``domain``, ``normalized_input``, ``times``, ...)."""
+    regulariser's may use ``self``, ``outputs``, ``batch`` and ``{{ field }}``, the model's field); ``imports``
+    are added to the file that uses it; ``component`` names a module of ``nerfify_ns/components`` copied into the
+    plugin; ``traits`` are facts the templates read (``domain``, ``normalized_input``, ``times``, ...)."""
 
     imports: tuple[str, ...] = ()
     ctor: str | None = None
@@ -75,8 +79,8 @@ class TerminalDef:
     name: str
     production: str
     """The nonterminal this terminal is an alternative or member of (or whose slot it fills)."""
-    params: type | None
-    """The dataclass of the terminal's parameters (None: no parameters)."""
+    params_class: type | None
+    """The dataclass of the terminal's parameters (None: no parameters); ``params`` are its typed specs."""
     doc: str
     implementation: str
     """The Nerfstudio class or function, or the component of ours, that implements the technique."""
@@ -95,12 +99,17 @@ class TerminalDef:
     """Rules across parameters (checked by ``validate`` on the parameters with defaults filled in)."""
 
     @property
+    def params(self) -> dict[str, ParamSpec]:
+        """The typed parameters, by name (read from ``params_class``; a fresh copy: callers may edit it)."""
+        return param_specs(self.params_class) if self.params_class is not None else {}
+
+    @property
     def param_specs(self) -> dict[str, ParamSpec]:
-        return param_specs(self.params) if self.params is not None else {}
+        return self.params
 
     def defaults(self) -> dict[str, Any]:
         """The parameters' defaults (a fresh copy: callers may edit it)."""
-        return param_defaults(self.params) if self.params is not None else {}
+        return param_defaults(self.params_class) if self.params_class is not None else {}
 
     def with_defaults(self, given: Mapping[str, Any] | None) -> dict[str, Any]:
         """The terminal's parameters: the plan's values over the defaults."""
@@ -126,8 +135,8 @@ class TerminalDef:
                 data[key] = getattr(self, key)
         if self.param_groups:
             data["param_groups"] = list(self.param_groups)
-        if self.params is not None:
-            data["params"] = {name: spec.to_data() for name, spec in self.param_specs.items()}
+        if self.params_class is not None:
+            data["params"] = {name: spec.to_data() for name, spec in self.params.items()}
         if self.config:
             data["config"] = {k: dict(v) for k, v in self.config.items()}
         if not self.contract.empty:
@@ -142,6 +151,23 @@ class TerminalDef:
         if self.harness.cases:
             data["cases"] = list(self.harness.cases)
         return data
+
+
+    @classmethod
+    def from_data(cls, name: str, raw: Mapping[str, Any]) -> TerminalDef:
+        """A terminal from its export (``to_grammar_data``'s form): parameters, contract, duties, card; the code
+        it renders and the ladder's harness are not exported (constraints come back as their docs only)."""
+        code = dict(raw.get("code") or {})
+        plain = {k: code.pop(k) for k in ("imports", "ctor", "expr", "component") if k in code}
+        return cls(name=name, production=raw.get("production", ""), doc=raw.get("doc", ""),
+                   params_class=params_class_from_data(name, raw["params"]) if "params" in raw else None,
+                   implementation=raw["implementation"], card=raw.get("card"),
+                   contract=Contract.from_data(raw.get("contract") or {}),
+                   code=Code(imports=tuple(plain.get("imports") or ()), ctor=plain.get("ctor"), expr=plain.get("expr"),
+                             component=plain.get("component"), traits=code),
+                   harness=Harness(cases=tuple(raw.get("cases") or ())), duties=tuple(raw.get("duties") or ()),
+                   param_groups=tuple(raw.get("param_groups") or ()), config=dict(raw.get("config") or {}),
+                   config_class=raw.get("config_class"), input_domain=raw.get("input_domain"))
 
 
 def replace(defn: TerminalDef, **changes: Any) -> TerminalDef:

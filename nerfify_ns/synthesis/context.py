@@ -389,8 +389,7 @@ def schedule_hooks(ctx: Context) -> tuple[list[dict], list[str]]:
 def pixel_sampler(ctx: Context) -> dict | None:
     """The training pixel sampler: the plan's map (``pixel_sampler``), or a uniform map where a schedule hook
     needs the plugin's sampler (an image curriculum) and the plan names none; None for Nerfstudio's own."""
-    needs = any(ctx.grammar.terminals[t].definition is not None
-                and ctx.grammar.terminals[t].definition.code.traits.get("needs_map_sampler")
+    needs = any(ctx.grammar.terminals[t].code.traits.get("needs_map_sampler")
                 for p, t in ctx.derivation.used.items() if p.startswith("model.schedule_hooks."))
     if "pixel_sampler" not in ctx.plan and not needs:
         return None
