@@ -13,17 +13,19 @@ not given to mathtext (its time and memory grow with the input: minutes and GBs 
 image says why it was not drawn. Text shown as text is drawn with ``parse_math=False``, so a ``$`` in it
 never starts mathtext either.
 
-Usage: ``python -m nerfify_ns.equations.eqcheck PAPER OUT_DIR`` writes the PNGs and ``equations.html``.
+Usage: ``python -m nerfify_ns.paper.equation_check PAPER OUT_DIR`` reads a paper and writes the PNGs and
+``equations.html``.
 """
 
 from __future__ import annotations
 
 import base64
 import re
-import sys
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+
+from .normalize import STYLE_COMMANDS
 
 PARTIAL = "equation_check.html.j2"
 MAX_DRAW_CHARS = 1000
@@ -120,7 +122,7 @@ def _flatten_envs(s: str) -> tuple[str, bool]:
 def to_mathtext(latex: str) -> tuple[list[str], bool]:
     """The rows mathtext is given for ``latex`` and whether anything was approximated (environments)."""
     s, approx = _flatten_envs(latex)
-    s = re.sub(r"\\(?:label|tag\*?)\{[^{}]*\}|\\(?:nonumber|notag|displaystyle|textstyle|limits|nolimits)\b", "", s)
+    s = re.sub(r"\\(?:label|tag\*?)\{[^{}]*\}|\\(?:" + "|".join(STYLE_COMMANDS) + r")\b", "", s)
     s = re.sub(r"\\(?:[bB]igg?[lrm]?)(?![A-Za-z])", "", s)
     s = re.sub(r"(?<!\\)&", "", s)
     s = re.sub(r"\\text\{([^{}]*)\}", lambda m: r"\ \text{" + m.group(1).strip() + r"}\ ", s)  # words set apart
@@ -171,7 +173,7 @@ def render_latex_png(latex: str, path: str | Path, dpi: int = 150,
     approximated). On a parse failure the image shows the LaTeX as text with the reason, and ok is False. An
     equation too large for the equation reader is not drawn (the image says so); nothing here raises for what
     a paper wrote: a failure is the error returned."""
-    from nerfify_ns.equations.normalize import size_refusal
+    from .normalize import size_refusal
 
     path = Path(path)
     latex = str(latex or "")
@@ -350,28 +352,3 @@ def _partial_template():
 def render_checks_html(checks: list[EquationCheck], inline: bool = True, base: Path | None = None) -> str:
     """The HTML fragment (the partial filled): one row per equation, reading next to the PDF crop."""
     return _partial_template().render(equations=checks_context(checks, inline=inline, base=base))
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if len(argv) != 2:
-        print("usage: python -m nerfify_ns.equations.eqcheck PAPER OUT_DIR", file=sys.stderr)
-        return 2
-    from nerfify_ns.paper import ingest
-
-    doc = ingest(argv[0])
-    out = Path(argv[1])
-    checks = write_equation_checks(doc, out)
-    page = ("<!doctype html><meta charset='utf-8'><title>equations</title>"
-            "<style>body{font-family:sans-serif}</style>" + render_checks_html(checks))
-    (out / "equations.html").write_text(page, encoding="utf-8")
-    for c in checks:
-        flag = "" if not c.render_error else f"  [{c.render_error[:80]}]"
-        conf = "-" if c.confidence is None else f"{c.confidence:.2f}"
-        print(f"({c.number or '-'}) p.{c.page or '-'} {c.method:10s} {conf}  {c.latex[:90]}{flag}")
-    print(f"{len(checks)} equations -> {out / 'equations.html'}")
-    return 0
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -1,6 +1,32 @@
-"""Normalise the noise of converted papers before parsing; keep each character's column in the original.
+"""The one LaTeX normaliser: how the noise of converted papers is removed before an equation is stored or read.
 
-What converters leave in NeRF papers' LaTeX and what it becomes here:
+One table of what converters leave (``STYLE_COMMANDS``, ``SIZE_COMMANDS``, ``BOLD_COMMANDS``,
+``FONT_DECLARATIONS``, ``TEXT_COMMANDS``, ``MATH_CLASS_COMMANDS``, ``LOST_SUBSCRIPT``, the row spacing, the
+fraction variants) serves its two forms, so a command a converter leaves is taught here once:
+
+``normalize_latex(latex)`` -- the canonical LaTeX of one equation, what a Document stores for .tex, markdown and
+PDF equations alike (the original kept in ``latex_raw``):
+
+* bold: ``\\pmb``, ``\\boldsymbol``, ``\\bm``, ``\\bold``, ``{\\bf x}`` -> ``\\mathbf{x}``; ``{\\cal L}`` ->
+  ``\\mathcal{L}``, ``{\\rm obj}``/``\\textrm``/``\\mbox`` -> ``\\mathrm``/``\\text``; empty ``\\mathbf{}`` and
+  friends dropped;
+* markdown's lost escapes: a stray ``*{`` after an atom was ``_{`` (``{\\cal L}*{\\rm reg}``); with evidence of
+  lost backslashes in the same text (``!\\big(``, ``!\\left(``): ``!`` -> ``\\!``, top-level ``,`` -> ``\\,``,
+  ``[2pt]`` -> ``\\\\``;
+* wrappers: a ``\\begin{array}`` around the whole formula or around one cell, LaTeXML's
+  ``\\mathopen{}\\mathclose{{\\left( ...}}\\right)``, ``\\displaystyle``, sizes (``\\small``), ``\\big`` sizes,
+  ``\\label``/``\\tag``/``\\nonumber``, ``\\limits``;
+* spacing: Mathpix's ``L _ { \\mathrm { r e c } }`` -> ``L_{\\mathrm{rec}}``; thin spaces -> a blank; trailing
+  sentence punctuation dropped;
+* numbers (``normalize_numbers``, below);
+* Unicode pasted into LaTeX -> commands (``σ`` -> ``\\sigma``); ``\\lVert``/``\\Vert`` -> ``\\|``;
+  ``\\dfrac`` -> ``\\frac``; ``{a \\over b}`` -> ``\\frac{a}{b}``; ``\\operatorname*`` -> ``\\operatorname``.
+
+It never guesses mathematics: anything it does not recognise is left as it is.
+
+``normalize(latex)`` -- the equation reader's form: the pieces (one equation each) of a displayed equation, every
+character keeping its column in the original (a reading failure names the column as the paper wrote it, so this
+form works on the text as given rather than on ``normalize_latex``'s output):
 
     $$, \\[ \\], \\displaystyle, \\limits, \\label{..}, \\nonumber      removed
     \\tag{3}                                                       the equation number '3'
@@ -18,19 +44,23 @@ What converters leave in NeRF papers' LaTeX and what it becomes here:
     numbers (``read_numbers``): 1 0 ^ { - 2 }, 5 1 2, 0 . 0 0 1    10^{-2}, 512, 0.001
     (MinerU's spaced digits), 8\\,192, 1e-2, 10⁻³, 2¹⁹, 5·10⁻⁴       8192, 0.01, 10^{-3}, 2^{19}, 5\\cdot 10^{-4}
 
-``normalize_numbers(text)`` is the same number reading on a plain string: the paper's LaTeX normaliser
-(``equations/mathnorm.py``) and the hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read
-one way wherever it appears.
+``normalize_numbers(text)`` is the same number reading on a plain string: ``normalize_latex`` and the
+hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read one way wherever it appears.
 
-Limits (hostile input): at most ``MAX_CHARS`` characters and ``MAX_DEPTH`` nested groups; every pattern
-here is linear in the length of the text.
+Limits (hostile input): the reader's form takes at most ``MAX_CHARS`` characters and ``MAX_DEPTH`` nested
+groups, the canonical form normalises at most ``MAX_NORMALIZE_CHARS``; every pattern here is linear in the
+length of the text.
 """
 
 from __future__ import annotations
 
 import re
 import unicodedata
+from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
+
+from .mathsym import to_latex_char
 
 MAX_CHARS = 4000
 MAX_DEPTH = 32
@@ -176,6 +206,413 @@ def normalize_numbers(text: str, *, math: bool = True) -> str:
     if not (_PROSE_WORK.search(text) or (math and (_SPACED_DIGITS.search(text) or _E_NOTATION.search(text)))):
         return text
     return read_numbers(Mapped(text), math=math).text
+
+
+# --- what converters leave: one table for both forms ----------------------------------------------------------
+
+STYLE_COMMANDS = ("displaystyle", "textstyle", "scriptstyle", "scriptscriptstyle", "limits", "nolimits",
+                  "nonumber", "notag")
+"""Math styles and numbering switches: how an equation is set, never what it says (removed)."""
+SIZE_COMMANDS = ("tiny", "scriptsize", "footnotesize", "small", "normalsize", "large", "Large", "LARGE", "huge",
+                 "Huge", "allowbreak", "nobreak", "centering", "medmuskip", "relax")
+"""Font sizes and layout switches converters leave inside math (removed)."""
+BOLD_COMMANDS = ("pmb", "boldsymbol", "bm", "bold", "mathbold", "mathbfit", "bmath", "textbf", "mathbf")
+"""Every spelling of bold: ``\\mathbf`` in the canonical form, dropped by the reader (bold is not meaning)."""
+FONT_DECLARATIONS = {"bf": r"\mathbf", "bm": r"\mathbf", "boldmath": r"\mathbf", "cal": r"\mathcal",
+                     "rm": r"\mathrm", "it": r"\mathit", "sf": r"\mathsf", "tt": r"\mathtt", "mit": r"\mathit"}
+"""Old-style font declarations (``{\\cal L}``) and the command each means."""
+TEXT_COMMANDS = ("textrm", "textnormal", "mbox", "textup", "textit", "textsf", "texttt", "hbox")
+"""Text in math: ``\\text``."""
+MATH_CLASS_COMMANDS = ("mathop", "mathrel", "mathbin", "mathord")
+"""Math-class wrappers: spacing only (removed, their argument kept)."""
+FRACTION_VARIANTS = ("dfrac", "tfrac", "cfrac")
+"""Sized fractions: ``\\frac``."""
+LOST_SUBSCRIPT = re.compile(r"(?<=[A-Za-z0-9})\]])\*\s*\{")
+"""Markdown's lost ``_``: ``P*{\\mathrm{new}}``, ``{\\cal L}*{\\rm reg}`` were ``P_{...}``, ``{\\cal L}_{...}``."""
+ROW_SPACING = r"\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]"
+"""``[2pt]``: the spacing argument of a row break whose ``\\\\`` markdown lost."""
+_FRACTION_VARIANT = re.compile(r"\\(?:" + "|".join(FRACTION_VARIANTS) + r")(?![A-Za-z])")
+_LABEL_OR_TAG = re.compile(r"\\(?:label|tag\*?)\s*\{[^{}]*\}")
+
+# --- the canonical form ---------------------------------------------------------------------------------------
+_ARG_CMDS = ("mathbf", "mathrm", "mathcal", "mathbb", "mathfrak", "mathscr", "mathsf", "mathtt", "mathit",
+             "hat", "widehat", "tilde", "widetilde", "bar", "overline", "vec", "dot", "ddot", "text",
+             "operatorname", "underline", "breve", "check", "acute", "grave")
+_THIN_SPACES = re.compile(r"(?<!\\)\\(?:,|;|:|!|>|\s)|\\(?:thinspace|medspace|thickspace|negthinspace)\b|(?<!\\)~")
+_LOST_EVIDENCE = re.compile(r"(?:^|[\s})\w])!\\(?:left|big|Big|bigg|Bigg)\b|(?<![\\\s^_])\*\{|\\(?:exp|log)!")
+MAX_NORMALIZE_CHARS = 20_000
+"""Longer formulas are not normalised (every step here is linear, a few are repeated per nesting level)."""
+
+
+def read_group(s: str, i: int) -> tuple[str | None, int]:
+    """The content of the balanced ``{...}`` starting at ``i`` (blanks skipped) and the index after it;
+    (None, i) when no group starts there."""
+    j = i
+    while j < len(s) and s[j] in " \t\n":
+        j += 1
+    if j >= len(s) or s[j] != "{":
+        return None, i
+    depth = 0
+    k = j
+    while k < len(s):
+        c = s[k]
+        if c == "\\":
+            k += 2
+            continue
+        if c == "{":
+            depth += 1
+        elif c == "}":
+            depth -= 1
+            if depth == 0:
+                return s[j + 1:k], k + 1
+        k += 1
+    return None, i
+
+
+def _arg(s: str, i: int) -> tuple[str | None, int]:
+    """A command's argument at ``i``: a group, a control word, or one character (blanks skipped)."""
+    content, end = read_group(s, i)
+    if content is not None:
+        return content, end
+    j = i
+    while j < len(s) and s[j] in " \t\n":
+        j += 1
+    if j >= len(s) or s[j] in "}^_&":
+        return None, i
+    m = re.match(r"\\[A-Za-z]+|\\.|.", s[j:], re.DOTALL)
+    return m.group(0), j + len(m.group(0))
+
+
+def _map_commands(s: str, names: Iterable[str], fn, depth: int = 0) -> str:
+    """Replace every ``\\name ARG`` (ARG a group or one token) by ``fn(name, ARG)``, the argument mapped
+    first (one pass per nesting level; deeper than 64 levels is left as it is)."""
+    rx = _command_rx(tuple(names))
+    if depth > 64 or not rx.search(s):
+        return s
+    out, pos = [], 0
+    for m in rx.finditer(s):
+        if m.start() < pos:
+            continue
+        arg, end = _arg(s, m.end())
+        if arg is None:
+            continue
+        out.append(s[pos:m.start()])
+        out.append(fn(m.group(1), _map_commands(arg, names, fn, depth + 1)))
+        pos = end
+    out.append(s[pos:])
+    return "".join(out)
+
+
+@lru_cache(maxsize=16)
+def _command_rx(names: tuple) -> re.Pattern:
+    return re.compile(r"\\(" + "|".join(sorted(names, key=len, reverse=True)) + r")(?![A-Za-z])\*?")
+
+
+def _font_declarations(s: str) -> str:
+    """``{\\cal L}`` -> ``\\mathcal{L}``, ``^{\\rm obj}`` -> ``^{\\mathrm{obj}}`` (scope: to the group's end);
+    a declaration given a group is a command of that group (``\\bm{c}``, ``\\rm{d}x`` -> ``\\mathbf{c}``,
+    ``\\mathrm{d}x``)."""
+    rx = re.compile(r"\\(" + "|".join(FONT_DECLARATIONS) + r")(?![A-Za-z])\s*")
+    for _ in range(50):
+        m = rx.search(s)
+        if not m:
+            break
+        cmd = FONT_DECLARATIONS[m.group(1)]
+        group, after = read_group(s, m.end())
+        if group is not None:
+            s = s[:m.start()] + f"{cmd}{{{group}}}" + s[after:]
+            continue
+        # the declaration's scope ends at the close of the enclosing group (or the string's end)
+        depth, k = 0, m.end()
+        while k < len(s):
+            c = s[k]
+            if c == "\\":
+                k += 2
+                continue
+            if c == "{":
+                depth += 1
+            elif c == "}":
+                if depth == 0:
+                    break
+                depth -= 1
+            k += 1
+        body = s[m.end():k].strip()
+        s = s[:m.start()] + (f"{cmd}{{{body}}}" if body else "") + s[k:]
+    return s
+
+
+def _unwrap_mathclose(s: str) -> str:
+    """LaTeXML's ``\\mathopen{}\\mathclose{{\\left( X}}\\right)`` -> ``\\left( X\\right)``."""
+    s = s.replace(r"\mathopen{}", "")
+    for _ in range(100):
+        i = s.find(r"\mathclose{")
+        if i < 0:
+            break
+        content, end = read_group(s, i + len(r"\mathclose"))
+        if content is None:
+            break
+        inner, inner_end = read_group(content, 0)
+        if inner is not None and inner_end == len(content.rstrip()):
+            content = inner
+        s = s[:i] + content + s[end:]
+    return s
+
+
+def _top_level_split(body: str, sep: str) -> list[str]:
+    """Split at ``sep`` (``\\\\`` or ``&``) outside braces and nested environments."""
+    parts, depth, env, cur, i = [], 0, 0, [], 0
+    while i < len(body):
+        if body.startswith("\\begin{", i):
+            env += 1
+        elif body.startswith("\\end{", i):
+            env -= 1
+        c = body[i]
+        if c == "\\" and not body.startswith(sep, i):
+            cur.append(body[i:i + 2])
+            i += 2
+            continue
+        if c == "{":
+            depth += 1
+        elif c == "}":
+            depth -= 1
+        if depth == 0 and env == 0 and body.startswith(sep, i):
+            parts.append("".join(cur))
+            cur = []
+            i += len(sep)
+            continue
+        cur.append(c)
+        i += 1
+    parts.append("".join(cur))
+    return parts
+
+
+def _unwrap_arrays(s: str) -> str:
+    """A ``\\begin{array}`` around the whole formula, or around a single cell anywhere, is a wrapper."""
+    rx = re.compile(r"\\begin\{array\}\s*(?:\[[^\]]*\])?\s*\{([^{}]*)\}")
+    budget = 200  # environments examined, in all
+    for _ in range(20):
+        changed = False
+        for m in rx.finditer(s):
+            budget -= 1
+            if budget < 0:
+                break
+            end = _env_end(s, m.end(), "array")
+            if end is None:
+                continue
+            body_end, after = end
+            body = s[m.end():body_end]
+            rows = [r for r in _top_level_split(body, "\\\\") if r.strip()]
+            rows = [re.sub(r"^\s*\[[^\]]*\]", "", r) for r in rows]  # \\[2pt] row spacing
+            cells = [c for r in rows for c in _top_level_split(r, "&")]
+            whole = not s[:m.start()].strip() and not s[after:].strip()
+            if len(cells) == 1 or whole:
+                inner = " \\\\ ".join(_strip_braces(r.strip()) for r in rows)
+                s = s[:m.start()] + inner + s[after:]
+                changed = True
+                break
+        if not changed:
+            break
+    s = re.sub(r"\\begin\{array\}\s*\[\]", r"\\begin{array}", s)
+    return s
+
+
+def _env_end(s: str, start: int, env: str) -> tuple[int, int] | None:
+    """(index of ``\\end{env}``, index after it) matching the environment opened before ``start``."""
+    depth, i = 1, start
+    opener, closer = f"\\begin{{{env}}}", f"\\end{{{env}}}"
+    while True:
+        nxt = s.find(closer, i)
+        if nxt < 0:
+            return None
+        nested = s.find(opener, i, nxt)
+        if nested >= 0:
+            depth, i = depth + 1, nested + len(opener)
+            continue
+        depth -= 1
+        if depth == 0:
+            return nxt, nxt + len(closer)
+        i = nxt + len(closer)
+
+
+def _strip_braces(s: str) -> str:
+    """``{x+y}`` -> ``x+y`` when one group spans the whole string."""
+    while s.startswith("{"):
+        content, end = read_group(s, 0)
+        if content is None or end != len(s):
+            break
+        s = content.strip()
+    return s
+
+
+def _over_to_frac(s: str) -> str:
+    """``{a \\over b}`` -> ``\\frac{a}{b}`` (one ``\\over`` in a group)."""
+    for _ in range(20):
+        m = re.search(r"\\over(?![A-Za-z])", s)
+        if not m:
+            break
+        # the enclosing group
+        depth, k = 0, m.start() - 1
+        while k >= 0:
+            c = s[k]
+            if c == "}" and (k == 0 or s[k - 1] != "\\"):
+                depth += 1
+            elif c == "{" and (k == 0 or s[k - 1] != "\\"):
+                if depth == 0:
+                    break
+                depth -= 1
+            k -= 1
+        if k < 0:
+            num, den, end = s[:m.start()], s[m.end():], len(s)
+            return f"\\frac{{{num.strip()}}}{{{den.strip()}}}"
+        content, end = read_group(s, k)
+        if content is None:
+            break
+        rel = m.start() - (k + 1)
+        num, den = content[:rel], content[rel + len(r"\over"):]
+        s = s[:k] + f"\\frac{{{num.strip()}}}{{{den.strip()}}}" + s[end:]
+    return s
+
+
+def _mathpix_spacing(s: str, spaced: bool = False) -> str:
+    """Blanks next to ``_ ^``, inside ``{ }`` dropped; with ``spaced`` (Mathpix's blank between every token)
+    also around brackets and operators; letter-by-letter words inside text commands joined. Blanks after a
+    control word stay (``\\alpha x``); TeX ignores the others in math."""
+    s = re.sub(r"(?<!\\)\s*([_^])\s*", r"\1", s)
+    s = re.sub(r"(?<!\\)\{\s+", "{", s)
+    s = re.sub(r"(?<![\\\s])\s+\}", "}", s)
+    s = re.sub(r"(\\[A-Za-z]+)\s+\{", r"\1{", s)  # "\pmb {x}" -> "\pmb{x}"
+    if spaced:  # Mathpix's "C ( r ) = x" -> "C(r)=x"
+        s = re.sub(r"(?<!\\)\s+\{", "{", s)
+        s = re.sub(r"(?<!\\)\}\s+(?![A-Za-z\\])", "}", s)
+        s = re.sub(r"(?<![\\\s])\s+([()\[\]=+\-,|])", r"\1", s)
+        s = re.sub(r"(?<!\\)([(\[=+\-|])\s+(?=[^\s&])", r"\1", s)
+
+    def join(m: re.Match) -> str:
+        body = m.group(2)
+        if re.fullmatch(r"(?:\S\s)+\S", body.strip()):
+            body = body.replace(" ", "")
+        return f"\\{m.group(1)}{{{body}}}"
+
+    return re.sub(r"\\(mathrm|text|operatorname|mathit|mathsf|mathtt|mathbf)\{([^{}]*)\}", join, s)
+
+
+def _unicode_commands(s: str) -> str:
+    """Unicode pasted into LaTeX -> commands (``σ`` -> ``\\sigma``); what has no command stays."""
+    out = []
+    for ch in s:
+        if ch.isascii():
+            out.append(ch)
+            continue
+        tex = to_latex_char(ch)
+        if tex is None:
+            out.append(ch)
+        elif tex.startswith("\\") and re.match(r"\\[A-Za-z]+$", tex):
+            out.append(tex + " ")
+        else:
+            out.append(tex)
+    return "".join(out)
+
+
+def has_lost_backslashes(text: str) -> bool:
+    """Does ``text`` show markdown's lost escapes (``\\exp!\\left(``, ``{\\cal L}*{...}``)?"""
+    return bool(_LOST_EVIDENCE.search(text))
+
+
+def _restore_lost(s: str) -> str:
+    """With evidence of lost backslashes: ``!`` before a delimiter -> ``\\!``, ``,`` at the top level and
+    before more math -> ``\\,``, ``[2pt]`` -> a row break, a lone ``\\`` at a line end -> ``\\\\``."""
+    s = re.sub(r"(?<=[\w)}\s])!(?=\s*(?:\\(?:left|right|big|Big|bigg|Bigg)[lrm]?\b|\())", r"\\!", s)
+    s = re.sub(r"(?<!\\)\\\s*\n", r"\\\\ ", s)
+    s = re.sub(r"(?<!\\)(?<!\\\\)" + ROW_SPACING, r" \\\\ ", s)
+    out, depth, i = [], 0, 0
+    while i < len(s):
+        c = s[i]
+        if c == "\\":
+            m = re.match(r"\\(?:[A-Za-z]+|.)", s[i:])
+            tok = m.group(0) if m else c
+            if tok in (r"\left", r"\bigl", r"\Bigl", r"\biggl", r"\Biggl"):
+                depth += 1
+            elif tok in (r"\right", r"\bigr", r"\Bigr", r"\biggr", r"\Biggr"):
+                depth -= 1
+            out.append(tok)
+            i += len(tok)
+            if tok in (r"\left", r"\right") and i < len(s):  # the delimiter that follows is not a bracket
+                out.append(s[i])
+                i += 1
+            continue
+        if c in "([{":
+            depth += 1
+        elif c in ")]}":
+            depth -= 1
+        if c == "," and (depth <= 0 or re.match(r"d[a-z](?![A-Za-z])", s[i + 1:])):
+            rest = s[i + 1:]
+            before = "".join(out).rstrip()
+            spaced_already = before.endswith((r"\,", ",")) or re.match(r"\s*(?:\\quad|\\qquad|\\text)", rest)
+            if rest.strip() and not spaced_already:
+                out.append(r"\,")
+                i += 1
+                continue
+        out.append(c)
+        i += 1
+    return "".join(out)
+
+
+def normalize_latex(latex: str, lost_backslashes: bool | None = None) -> str:
+    """The canonical LaTeX of one equation (see the module's docstring). ``lost_backslashes``: whether the
+    source lost its escapes (markdown conversions); None decides from ``latex`` itself."""
+    s = latex or ""
+    if not s.strip():
+        return ""
+    if len(s) > MAX_NORMALIZE_CHARS:  # hostile or broken input: blanks only (latex_issues says it is too long)
+        return re.sub(r"\s+", " ", s).strip()
+    if lost_backslashes is None:
+        lost_backslashes = has_lost_backslashes(s)
+    s = s.replace("\r", "")
+    spaced = len(re.findall(r"\s[_^]\s*\{|\{\s\S\s|\s\(\s", s)) >= 2  # Mathpix: a blank between every token
+    s = re.sub(r"(?<!\\)%[^\n]*", "", s)  # comments
+    s = _LABEL_OR_TAG.sub("", s)
+    s = _unwrap_mathclose(s)
+    s = re.sub(r"\\operatorname\*", r"\\operatorname", s)
+    s = re.sub(r"\\(?:" + "|".join(MATH_CLASS_COMMANDS) + r")\s*(?=\{)", "", s)
+    if lost_backslashes:
+        s = _restore_lost(s)
+    s = LOST_SUBSCRIPT.sub("_{", s)
+    s = _over_to_frac(s)
+    s = _font_declarations(s)
+    s = re.sub(r"\\(?:" + "|".join(STYLE_COMMANDS + SIZE_COMMANDS) + r")(?![A-Za-z])\s*", " ", s)
+    s = re.sub(r"\\(?:[bB]igg?|[bB]igg?[lrm])(?![A-Za-z])\s*", "", s)
+    s = _FRACTION_VARIANT.sub(r"\\frac", s)
+    s = re.sub(r"\\(?:lVert|rVert|Vert)(?![A-Za-z])", r"\\|", s)
+    s = re.sub(r"\\(?:lvert|rvert|vert)(?![A-Za-z])", "|", s)
+    s = re.sub(r"\\(?:" + "|".join(TEXT_COMMANDS) + r")(?![A-Za-z])", r"\\text", s)
+    s = _map_commands(s, BOLD_COMMANDS, lambda name, arg: rf"\mathbf{{{_strip_braces(arg.strip())}}}")
+    s = _map_commands(s, _ARG_CMDS, lambda name, arg: rf"\{name}{{{arg.strip()}}}")
+    s = re.sub(r"\\mathbf\{\\mathbf\{([^{}]*)\}\}", r"\\mathbf{\1}", s)
+    s = re.sub(r"\\(?:mathbf|mathrm|mathcal|mathbb|mathit|mathsf|mathtt|boldsymbol|pmb|text|operatorname)\{\s*\}", "",
+               s)
+    s = _unwrap_arrays(s)
+    s = normalize_numbers(s)
+    s = _unicode_commands(s)
+    s = _THIN_SPACES.sub(" ", s)
+    s = re.sub(r"\\qquad(?![A-Za-z])", r"\\quad", s)
+    s = _mathpix_spacing(s, spaced)
+    s = re.sub(r"(?<![\^_A-Za-z}\\])\{(\\math[a-z]+\{[^{}]*\})\}", r"\1", s)
+    s = re.sub(r"(?<![\\A-Za-z])\{\}(?=[A-Za-z\\(])", "", s)  # empty groups before an atom
+    s = re.sub(r"[ \t]*\n[ \t]*", " ", s)
+    s = re.sub(r"\s{2,}", " ", s).strip()
+    s = re.sub(r"(?:\s|\\quad|\\,)*[.,;](?:\s|\\quad|\\,)*$", "", s).strip()  # the sentence's punctuation
+    s = re.sub(r"(?:\s|\\quad|\\\\)+$", "", s)
+    return _strip_braces(s)
+
+
+# --- the reader's form ---------------------------------------------------------------------------------------
+
+_READER_DROPPED = re.compile(r"\\(?:" + "|".join(STYLE_COMMANDS + SIZE_COMMANDS + MATH_CLASS_COMMANDS)
+                             + r"|mathopen\s*\{\s*\}|mathclose\s*\{\s*\})(?![A-Za-z])")
+_READER_FONT_DECLARATION = re.compile(r"\{\s*\\(" + "|".join(FONT_DECLARATIONS) + r"|mathcal|mathrm)\s+([^{}]*)\}")
+_READER_UNBOLD = re.compile(r"\\(?:" + "|".join(BOLD_COMMANDS + ("bf", "boldmath", "vec", "mathit", "mathnormal"))
+                            + r")(?![A-Za-z])")
+"""The reader drops bold, arrows and italics: ``\\mathbf{x}`` and ``x`` name the same symbol."""
 
 
 @dataclass
@@ -469,7 +906,7 @@ def normalize(latex: str) -> Normalized:
     m = _unicode(_scripts(Mapped(latex)))
     m = m.sub(r"(?<!\\)%[^\n]*", " ")
     m = m.sub(r"\\\\\s*\[[^\]\n]{0,12}\]", r"\\\\ ")  # \\[6pt]
-    m = m.sub(r"(?<!\\)\[\s*-?[0-9.]+\s*(?:pt|em|ex|mm|cm)\s*\]", r"\\\\ ")  # a lost \\ of \\[2pt]
+    m = m.sub(r"(?<!\\)" + ROW_SPACING, r"\\\\ ")  # a lost \\ of \\[2pt]
     m = m.sub(r"(?<!\\)\\[ \t]*\n", r"\\\\ ")  # a backslash ending a line: a lost \\
     m = read_numbers(m.sub(r"\s+", " "))
     number = None
@@ -477,24 +914,21 @@ def normalize(latex: str) -> Normalized:
     if tag:
         number = tag.group(1).strip()
     m = _drop_group_command(m, "tag|label|hspace|vspace|phantom|hphantom|vphantom|mspace")
-    m = m.sub(r"\\(?:nonumber|notag|displaystyle|textstyle|scriptstyle|scriptscriptstyle|limits|nolimits|"
-              r"mathop|mathopen\s*\{\s*\}|mathclose\s*\{\s*\}|mathord|mathbin|mathrel)(?![A-Za-z])", " ")
+    m = m.sub(_READER_DROPPED, " ")
     m = m.sub(r"\$+|\\\[|\\\]|\\\(|\\\)", " ")
     m = _environments(m)
     m = m.sub(r"\\(?:left|right|middle)\s*\.", " ")
     m = m.sub(r"\\(?:left|right|middle|[bB]igg?[lrm]?)(?![A-Za-z])", " ")
     m = m.sub(r"\\(?:qquad|quad)(?![A-Za-z])", r" \\quad ")
     m = m.sub(r"(?<!\\)\\[,;:!> ]|~|\\(?:kern|mkern|mskip|hskip)\s*-?[0-9.]+\s*(?:pt|em|mu|ex)?", " ")
-    m = m.sub(r"\{\s*\\(cal|rm|bf|it|mathcal|mathrm)\s+([^{}]*)\}",
-              lambda x: {"cal": r"\mathcal{", "mathcal": r"\mathcal{", "rm": r"\mathrm{",
-                         "mathrm": r"\mathrm{"}.get(x.group(1), "{") + x.group(2) + "}")
-    m = m.sub(r"\\(?:mathbf|boldsymbol|pmb|bm|mathbold|bf|vec|mathit|mathnormal|boldmath|textbf|bold)"
-              r"(?![A-Za-z])", " ")
-    m = m.sub(r"\\(?:dfrac|tfrac|cfrac)(?![A-Za-z])", r"\\frac")
+    m = m.sub(_READER_FONT_DECLARATION,
+              lambda x: FONT_DECLARATIONS.get(x.group(1), "\\" + x.group(1)) + "{" + x.group(2) + "}")
+    m = m.sub(_READER_UNBOLD, " ")
+    m = m.sub(_FRACTION_VARIANT, r"\\frac")
     m = m.sub(r"\\frac\s*([0-9])\s*([0-9])", r"\\frac{\1}{\2}")  # \frac12
     m = m.sub(r"\\operatorname\*", r"\\operatorname")
     m = m.sub(r"\\mathbb\s*E(?![A-Za-z])|\\mathbb\s*\{\s*E\s*\}", r"\\mathbb{E}")
-    m = m.sub(r"(?<=[A-Za-z0-9}])\*\s*\{", "_{")  # P*{\mathrm{new}}: a lost _
+    m = m.sub(LOST_SUBSCRIPT, "_{")  # P*{\mathrm{new}}: a lost _
     m = m.sub(r"(?<=[A-Za-z})\]])(\s*)!(?=\s*[\\({\[])", r"\1 ")  # \exp!\big(: a lost \!
     if r"\int" in m.text:  # \sigma(s),ds: the lost thin space before an integral's differential
         m = m.sub(r",(?=\s*d\s*[A-Za-z](?![A-Za-z]))", " ")

@@ -51,6 +51,11 @@ DEFINE_RELATIONS = {":=", r"\coloneqq", r"\triangleq", r"\doteq", r"\equiv"}
 APPROX_RELATIONS = {r"\approx", r"\simeq"}
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9]{0,31}")
 _LABEL = re.compile(r"[A-Za-z0-9'*+\-(),]{1,32}")
+_LABEL_SUP = re.compile(r"\([A-Za-z0-9+\-]{1,12}\)|[A-Za-z]+|\(?\\[A-Za-z]+\)?"
+                        r"|\\(?:mathrm|text|textrm|mathsf|operatorname|mbox)\{[^{}]*\}|\*|'+|\\prime|\\top")
+"""A superscript that labels rather than raises to a power (``x^{(k)}``, ``c^{\\mathrm{obj}}``, ``W^{\\top}``)."""
+_OPERAND_TYPES = (Symbol, Number, BinOp, Neg, Apply, Reduce, Integral, Concat, Cases, Expectation, Norm)
+"""What may stand after a binary operator."""
 
 
 class ReadError(Exception):
@@ -122,8 +127,7 @@ def _is_label_sup(sarg: _SArg) -> bool:
     raw = re.sub(r"\s", "", sarg.raw)
     if sarg.token is not None:
         return sarg.token.type in ("LETTERS", "GREEK", "ROMAN", "STAR", "PRIMECMD", "TOP")
-    return bool(re.fullmatch(r"\([A-Za-z0-9+\-]{1,12}\)|[A-Za-z]+|\(?\\[A-Za-z]+\)?|\\(?:mathrm|text|textrm|mathsf|operatorname|mbox)"
-                             r"\{[^{}]*\}|\*|'+|\\prime|\\top", raw)) and raw not in (r"\pi", r"\infty")
+    return bool(_LABEL_SUP.fullmatch(raw)) and raw not in (r"\pi", r"\infty")
 
 
 def _as_point(expr) -> bool:
@@ -138,7 +142,7 @@ def _product(items: list[tuple[str | None, object, int]]) -> Expr:
     if first_op is not None:
         raise ReadError("an operator without a left operand", pos, first_op)
     for op, value, pos in items[1:]:
-        if not isinstance(value, Symbol | Number | BinOp | Neg | Apply | Reduce | Integral | Concat | Cases | Expectation | Norm):
+        if not isinstance(value, _OPERAND_TYPES):
             raise ReadError("cannot be read here", pos, type(value).__name__)
         result = BinOp(ops[op], result, value)
     return result

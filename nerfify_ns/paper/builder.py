@@ -6,7 +6,7 @@ import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from nerfify_ns.equations.mathnorm import annotate_equations
+from nerfify_ns.paper.annotate import annotate_equations
 from nerfify_ns.paper.document import (
     Algorithm,
     Caption,

@@ -77,8 +77,8 @@ class Section(_Dictable):
 class Equation(_Dictable):
     """A display equation: its LaTeX from every input, number as printed ("3"), and how far to trust it.
 
-    ``latex`` is normalised (``equations/mathnorm.py``; the source's own spelling in ``latex_raw`` when that
-    differs); for a PDF it is reconstructed from the text layer (``paper/pdf_math.py``). ``source`` is
+    ``latex`` is normalised (``equations/normalize.py``; the source's own spelling in ``latex_raw`` when that
+    differs); for a PDF it is reconstructed from the text layer (``paper/pdf_math/``). ``source`` is
     tex | markdown | pdf | text; ``method`` how the LaTeX was obtained: source (written in the input),
     actualtext (a PDF's embedded LaTeX, e.g. axessibility), layout (rebuilt from glyphs and rules), none.
     ``page`` (1-based) and ``bbox`` (x0, y0, x1, y1 in PDF points) locate a PDF equation; ``confidence`` is

@@ -100,7 +100,8 @@ def test_huge_equations_are_refused_by_the_reader_the_normaliser_and_the_rendere
         from pathlib import Path
         from nerfify_ns.equations import parse_equations, parse_expression
         from nerfify_ns.equations.eqcheck import render_latex_png
-        from nerfify_ns.equations.mathnorm import latex_issues, normalize_latex
+        from nerfify_ns.equations.confidence import latex_issues
+        from nerfify_ns.equations.normalize import normalize_latex
         latex = Path({str(source)!r}).read_text()
         render_latex_png(r"y = \\frac{{a}}{{b}}", {str(tmp_path / 'warm.png')!r})  # warm up: matplotlib, mathtext
         parse_equations("y = x")
@@ -149,7 +150,8 @@ def test_a_paper_of_bombs_compiles_to_recorded_reasons(tmp_path):
     from nerfify_ns.synthesis.resources import load_reference_plan
 
     original = r"\mathbf{h}_{o} = [\mathbf{m} \odot \mathbf{h}_a, \mathbf{h}_b] \tag{3}"
-    nested = r"\mathbf{h}_{o} = \sum_{k=1}^{4096} \sum_{l=1}^{4096} \sum_{n=1}^{4096} [\mathbf{m} \odot \mathbf{h}_a, " \
+    nested = r"\mathbf{h}_{o} = \sum_{k=1}^{4096} \sum_{l=1}^{4096} \sum_{n=1}^{4096} " \
+             r"[\mathbf{m} \odot \mathbf{h}_a, " \
              r"\mathbf{h}_b] \tag{3}"
     assert original in GATENERF
     terms = " + ".join(f"x_{{{i}}}" for i in range(1, SUM_TERMS + 1))

@@ -10,8 +10,7 @@ import pytest
 
 from nerfify_ns.equations import Equation, Number, ParseFailure, parse_equation, parse_equations, parse_expression
 from nerfify_ns.equations.ir import BinOp, walk
-from nerfify_ns.equations.mathnorm import normalize_latex
-from nerfify_ns.equations.normalize import normalize_numbers
+from nerfify_ns.equations.normalize import normalize_latex, normalize_numbers
 from nerfify_ns.paper.hyperparams import extract_from_sentence, split_sentences
 
 

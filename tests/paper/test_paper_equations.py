@@ -12,10 +12,13 @@ import pymupdf
 import pytest
 
 from nerfify_ns.benchmarks.pdf_math_bench import MathWriter, make_math_pdf
+from nerfify_ns.equations.confidence import latex_issues
 from nerfify_ns.equations.eqcheck import render_checks_html, render_latex_png, to_mathtext, write_equation_checks
-from nerfify_ns.equations.mathnorm import equation_sentence, has_lost_backslashes, latex_issues, normalize_latex
+from nerfify_ns.equations.normalize import has_lost_backslashes, normalize_latex
 from nerfify_ns.paper import ingest
-from nerfify_ns.paper.pdf_math import _pdf_string, actual_texts, find_equations, make_glyph, reconstruct
+from nerfify_ns.paper.annotate import equation_sentence
+from nerfify_ns.paper.pdf_math import actual_texts, find_equations, make_glyph, reconstruct
+from nerfify_ns.paper.pdf_math.actualtext import _pdf_string
 
 # ------------------------------------------------------------------------------------------- normaliser
 
@@ -29,7 +32,8 @@ from nerfify_ns.paper.pdf_math import _pdf_string, actual_texts, find_equations,
     (r"\begin{array}{r}{\pmb v=\sum_{*}P_{*}\pmb v_{*}}\end{array}", r"\mathbf{v}=\sum_{*}P_{*}\mathbf{v}_{*}"),
     (r"\begin{array}{l} a=1 \\ b=2 \end{array}", r"a=1 \\ b=2"),
     (r"\exp\mathopen{}\mathclose{{\left(-\sigma_{i}\delta_{i}}}\right)", r"\exp\left(-\sigma_{i}\delta_{i}\right)"),
-    (r"L _ { \mathrm { r e c } } = \sum _ { \pmb { r } \in \mathcal { R } } | \pmb { C } ( \pmb { r } ) | _ { 2 } ^ { 2 } ,",
+    (r"L _ { \mathrm { r e c } } = \sum _ { \pmb { r } \in \mathcal { R } } "
+     r"| \pmb { C } ( \pmb { r } ) | _ { 2 } ^ { 2 } ,",
      r"L_{\mathrm{rec}}=\sum_{\mathbf{r} \in \mathcal{R}}|\mathbf{C}(\mathbf{r})|_{2}^{2}"),
     (r"\displaystyle a \,=\, \dfrac{1}{2}\Big( x \Big) \label{eq:a} .", r"a = \frac{1}{2}( x )"),
     (r"{a \over b} + \lVert x \rVert", r"\frac{a}{b} + \| x \|"),
@@ -44,7 +48,8 @@ def test_normaliser_keeps_clean_latex_and_is_idempotent():
     for clean in (r"C = \sum_i T_i \alpha_i c_i", r"T_i = \exp(-\sum_{j<i} \sigma_j \delta_j)", "a &= b", "z = 1",
                   r"M=\begin{pmatrix}a&0\\ 0&b\end{pmatrix}"):
         assert normalize_latex(clean) == clean
-    for raw in (r"{\cal L}*{\mathrm{reg}}=\alpha ,\overline{P*{\mathrm{deform}}}", r"T(t)=\exp!\left(-\int\sigma(s),ds\right)",
+    for raw in (r"{\cal L}*{\mathrm{reg}}=\alpha ,\overline{P*{\mathrm{deform}}}",
+                r"T(t)=\exp!\left(-\int\sigma(s),ds\right)",
                 r"\mathopen{}\mathclose{{\left[x}}\right]"):
         once = normalize_latex(raw)
         assert normalize_latex(once) == once
@@ -54,7 +59,8 @@ def test_lost_backslashes_are_restored_only_with_evidence():
     lost = r"T(t)=\exp!\left(-\int_{t_n}^{t}\sigma(s),ds\right)"
     assert has_lost_backslashes(lost)
     assert normalize_latex(lost) == r"T(t)=\exp \left(-\int_{t_n}^{t}\sigma(s) ds\right)"
-    assert normalize_latex(r"C(\mathbf r)=T(t),\sigma(t),dt", lost_backslashes=True) == r"C(\mathbf{r})=T(t) \sigma(t) dt"
+    lost_commas = r"C(\mathbf r)=T(t),\sigma(t),dt"
+    assert normalize_latex(lost_commas, lost_backslashes=True) == r"C(\mathbf{r})=T(t) \sigma(t) dt"
     assert normalize_latex(r"f(x,y)=x,y") == r"f(x,y)=x,y"  # no evidence: commas are commas
     assert normalize_latex(r"(\sigma,\mathbf c)", lost_backslashes=True) == r"(\sigma,\mathbf{c})"  # inside brackets
 
@@ -67,7 +73,8 @@ def test_latex_issues_name_what_is_wrong():
 
 
 def test_equation_sentence():
-    s = equation_sentence("We render rays. The colour is computed as follows:", "where T_i is the transmittance. Next.", "3")
+    s = equation_sentence("We render rays. The colour is computed as follows:",
+                          "where T_i is the transmittance. Next.", "3")
     assert s == "The colour is computed as follows: ⟨Eq. 3⟩ where T_i is the transmittance."
     assert equation_sentence("A sentence ends.", "Another starts.", "") == "⟨equation⟩"
 
@@ -99,7 +106,8 @@ def test_markdown_equations_are_typed_and_normalised(tmp_path):
     assert eq.latex == r"\hat{C}(\mathbf{r})=\sum_{i=1}^{N}T_i(1-\exp(-\sigma_i\delta_i))\mathbf{c}_i"
     assert r"\pmb" in eq.latex_raw and eq.page is None and eq.bbox is None
     assert eq.confidence == pytest.approx(0.95) and eq.notes == []
-    assert eq.sentence == "We render each ray with the quadrature rule: ⟨Eq. 3⟩ where $\\delta_i$ is the distance between samples."
+    assert eq.sentence == ("We render each ray with the quadrature rule: ⟨Eq. 3⟩ where $\\delta_i$ is the distance "
+                           "between samples.")
     assert loss.latex == r"\mathcal{L}_{\mathrm{rec}} = \| C - \hat{C} \|^2"
     assert loss.to_dict()["confidence"] == pytest.approx(0.95)
 
@@ -132,7 +140,8 @@ def test_scripts_limits_and_fraction_bars_are_recovered(math_pdf):
         assert e.method == "layout" and e.confidence >= 0.85 and not e.notes
     assert eqs[0].latex == r"T_{i}=\exp(-\sum_{j=1}^{i-1}\sigma_{j}\delta_{j})"
     assert eqs[1].latex == r"w=\frac{a}{b+c}+x^{2}"
-    assert eqs[0].sentence == "The transmittance is computed as follows: ⟨Eq. 1⟩ where each symbol is defined in the text above."
+    assert eqs[0].sentence == ("The transmittance is computed as follows: ⟨Eq. 1⟩ where each symbol is defined in the "
+                               "text above.")
     x0, y0, x1, y1 = eqs[2].bbox
     assert x0 > 306 and y1 - y0 < 40  # the right column's first equation, only its own lines
 
@@ -206,8 +215,9 @@ def test_extension_glyphs_with_unicode_hang_below_their_origin():
 
 
 def test_unmapped_glyphs_lower_the_confidence_and_say_so():
+    chars = [("x", "CMMI10"), ("=", "CMR10"), ("\x7f", "CMSY10"), ("y", "CMMI10")]
     glyphs = [make_glyph(c, f, 10.0, 0, (x, 0, x + 5, 10), (x, 100), "times")
-              for x, (c, f) in zip(range(0, 50, 6), [("x", "CMMI10"), ("=", "CMR10"), ("\x7f", "CMSY10"), ("y", "CMMI10")], strict=False)]
+              for x, (c, f) in zip(range(0, 50, 6), chars, strict=False)]
     latex, conf, notes = reconstruct(glyphs, [])
     assert latex == "x=?y" and conf < 0.7
     assert any("1 of 4 glyphs without a LaTeX mapping" in n for n in notes)
@@ -304,3 +314,14 @@ def test_html_partial_escapes_paper_text(tmp_path):
     html = render_checks_html([check])
     assert "<script>" not in html and "&lt;script&gt;" in html and "&lt;b&gt;note" in html
     assert "30%" in html and 'class="low"' in html
+
+
+def test_equation_check_cli_refuses_a_paper_it_cannot_read_in_one_line(tmp_path, capsys):
+    from nerfify_ns.paper.equation_check import main
+
+    out = tmp_path / "eqs"
+    assert main([str(tmp_path / "missing.pdf"), str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "missing.pdf" in err and "Traceback" not in err
+    assert not out.exists()
+    assert main([]) == 2

@@ -1,6 +1,7 @@
 """Reading any real paper never ends a run: the dry run of the real CLI over every paper of ../shared/papers and the
 examples (exit 0, 1 or 2, no traceback, bounded time and memory), MinerU-style numbers (spaced digits, whose
-unjoined digits would fold into a division by zero), and a fuzz of the reader with fragments cut at random (fixed seed) from those papers:
+unjoined digits would fold into a division by zero), and a fuzz of the reader with fragments cut at random (fixed
+seed) from those papers:
 paper ingestion, hyperparameters, notation, equation parsing and the compiler's parts, where only the project's
 own errors (PaperError) and ParseFailures may come out. Only robustness is asserted, never which holes a paper
 gets (the planner changes)."""
@@ -17,7 +18,8 @@ from pathlib import Path
 import pytest
 
 from nerfify_ns.equations import Equation, ParseFailure, parse_equations, parse_expression
-from nerfify_ns.equations.mathnorm import latex_issues, normalize_latex
+from nerfify_ns.equations.confidence import latex_issues
+from nerfify_ns.equations.normalize import normalize_latex
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.paper import ingest
 from nerfify_ns.paper.hyperparams import extract_from_sentence, split_sentences
@@ -289,12 +291,11 @@ def test_an_exception_in_one_form_or_binding_is_recorded_and_the_part_goes_on(tm
 
 
 def test_an_exception_in_one_sentence_or_equation_of_the_paper_is_recorded(tmp_path, monkeypatch):
-    from nerfify_ns.equations import mathnorm
-    from nerfify_ns.paper import hyperparams
+    from nerfify_ns.paper import annotate, hyperparams
     from nerfify_ns.synthesis.novel import implement_holes
     from nerfify_ns.synthesis.novel.notation import PaperWords
 
-    original_sentence, original_latex = hyperparams.extract_from_sentence, mathnorm.normalize_latex
+    original_sentence, original_latex = hyperparams.extract_from_sentence, annotate.normalize_latex
 
     def sentence(text, loc=None, section=""):
         if "learning rate" in text:
@@ -307,7 +308,7 @@ def test_an_exception_in_one_sentence_or_equation_of_the_paper_is_recorded(tmp_p
         return original_latex(text, lost_backslashes)
 
     monkeypatch.setattr(hyperparams, "extract_from_sentence", sentence)
-    monkeypatch.setattr(mathnorm, "normalize_latex", latex)
+    monkeypatch.setattr(annotate, "normalize_latex", latex)
     doc = _gatenerf(tmp_path)
     assert any("hyperparameters of a sentence not read (ValueError: an unreadable number)" in w for w in doc.warnings)
     assert any(h.name == "hidden_dim" for h in doc.hyperparameters)  # the other sentences are read
