@@ -15,7 +15,10 @@ from nerfify_ns.knowledge.text import alias_pattern, longest_non_overlapping
 CARDS_DIR = Path(__file__).resolve().parent / "cards"
 
 REQUIRED_FIELDS = ("name", "title", "aliases", "paper", "production", "parameters", "equation",
-                   "implementation", "signals", "requires")
+                   "signals", "requires")
+TERMINAL_FIELDS = ("implementation", "defaults", "params", "contract", "code")
+"""What a card must not say: how a technique is implemented, its defaults and contract live in its terminal
+(``nerfify_ns/registry/terminals/``), the one home; a card states paper knowledge only."""
 PAPER_FIELDS = ("title", "authors", "year", "venue", "arxiv")
 EQUATION_FIELDS = ("ref", "latex", "text")
 SIGNAL_FIELDS = ("hyperparameters", "equations", "phrases")
@@ -82,7 +85,8 @@ class HyperparameterMap:
 
 @dataclass(frozen=True)
 class Card:
-    """A NeRF technique: what it is called, who introduced it, where it goes in the grammar.
+    """A NeRF technique as papers state it: what it is called, who introduced it, its equation, what reveals it
+    in a paper, where it goes in the grammar. How it is implemented (class, defaults, contract) is its terminal's.
 
     ``parameters`` holds the paper's values keyed by the terminal's parameter names; a card covering
     several terminals keys them by terminal first (``{terminal: {param: value}}``): use
@@ -97,7 +101,6 @@ class Card:
     terminals: tuple[str, ...]
     parameters: dict[str, Any]
     equation: Equation
-    implementation: str
     signals: Signals
     requires: tuple[str, ...]
     notes: str = ""
@@ -169,7 +172,8 @@ def _hyperparameter(path: Path, name: str, raw: Any, terminal: str) -> Hyperpara
         raise _fail(path, f"hyperparameters.{terminal}.{name}.qualifiers must be a list")
     return HyperparameterMap(name=name, param=raw["param"], value=str(raw.get("value") or "value"),
                              also=tuple((str(k), v) for k, v in also.items()),
-                             qualifiers=tuple(str(q or "") for q in qualifiers), sentence=str(raw.get("sentence") or ""),
+                             qualifiers=tuple(str(q or "") for q in qualifiers),
+                             sentence=str(raw.get("sentence") or ""),
                              together=_strings(path, raw.get("together"), f"hyperparameters.{name}.together"),
                              card_used=bool(raw.get("card_used", False)))
 
@@ -197,6 +201,10 @@ def parse_card(data: Any, path: Path) -> Card:
     """A ``Card`` from the YAML mapping of ``path``; raises ``CardFormatError``."""
     if not isinstance(data, dict):
         raise _fail(path, "a card must be a YAML mapping")
+    misplaced = [k for k in TERMINAL_FIELDS if k in data]
+    if misplaced:
+        raise _fail(path, f"{', '.join(misplaced)} belong(s) to the terminal (nerfify_ns/registry/terminals/), "
+                          "not to the card")
     missing = [k for k in REQUIRED_FIELDS if k not in data]
     if "terminal" not in data and "terminals" not in data:
         missing.append("terminal (or terminals)")
@@ -230,7 +238,7 @@ def parse_card(data: Any, path: Path) -> Card:
             raise _fail(path, "a card with several terminals keys parameters by terminal "
                               f"({list(terminals)}); "
                               f"got {extra or list(parameters)}")
-    for key in ("title", "production", "implementation"):
+    for key in ("title", "production"):
         if not isinstance(data[key], str) or not data[key]:
             raise _fail(path, f"{key} must be a non-empty string")
     if not isinstance(equation["latex"], str) or not isinstance(equation["text"], str):
@@ -251,7 +259,6 @@ def parse_card(data: Any, path: Path) -> Card:
         equation=Equation(ref=None if equation["ref"] is None else str(equation["ref"]),
                           latex=equation["latex"], text=equation["text"],
                           canonical=_strings(path, equation.get("canonical") or [], "equation.canonical")),
-        implementation=data["implementation"],
         signals=Signals(hyperparameters=_strings(path, signals["hyperparameters"], "signals.hyperparameters"),
                         equations=_strings(path, signals["equations"], "signals.equations"),
                         phrases=_strings(path, signals["phrases"], "signals.phrases")),

@@ -28,6 +28,7 @@ from nerfify_ns.knowledge import (
     normalize_arxiv_id,
     normalize_title,
 )
+from nerfify_ns.knowledge.cards import TERMINAL_FIELDS
 
 ROOT = Path(__file__).resolve().parents[2]
 GRAMMAR_FILE = ROOT / "grammar_spec.yaml"
@@ -69,7 +70,6 @@ CARD_FIELDS = (
     "production",
     "parameters",
     "equation",
-    "implementation",
     "signals",
     "requires",
 )
@@ -157,7 +157,7 @@ def test_every_required_card_loads_with_every_field(cards):
         assert ("terminal" in raw) != ("terminals" in raw), f"{path.name}: terminal xor terminals"
         assert raw["name"] == path.stem
     for c in cards.values():
-        assert c.title and c.aliases and c.terminals and c.implementation and c.production
+        assert c.title and c.aliases and c.terminals and c.production
         assert c.paper.title and c.paper.authors and c.paper.year and c.paper.venue
         assert c.paper.arxiv is None or normalize_arxiv_id(c.paper.arxiv) == c.paper.arxiv
         assert c.equation.latex.strip() and c.equation.text.strip()
@@ -207,15 +207,16 @@ def test_card_parameters_are_params_of_their_terminal_and_valid(grammar, cards):
                 assert problem is None, f"card {c.name!r}, {t}.{key}: {problem}"
 
 
-def test_card_implementations_import_and_match_the_grammar(grammar, cards):
+def test_a_cards_terminals_are_implemented_and_the_card_does_not_say_how(grammar, cards):
+    """Implementation lives in the terminal only: every card's terminals resolve to a callable, and no card
+    file carries a field that is the terminal's (a second home that could disagree with it)."""
     terminals = grammar["terminals"]
     for c in cards.values():
-        assert c.implementation in {
-            terminals[t]["implementation"] for t in c.terminals
-        }, f"card {c.name!r}: implementation {c.implementation!r} is none of its terminals' implementations"
         for t in c.terminals:
             assert callable(resolve(terminals[t]["implementation"])), terminals[t]["implementation"]
-        assert callable(resolve(c.implementation))
+    for path in sorted(CARDS_DIR.glob("*.yaml")):
+        raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+        assert not set(raw) & set(TERMINAL_FIELDS), f"{path.name} states {set(raw) & set(TERMINAL_FIELDS)}"
 
 
 def test_aliases_are_unique_across_cards(cards):
@@ -282,10 +283,11 @@ def test_lookup_helpers_and_errors():
 
 def test_malformed_cards_raise_typed_errors(tmp_path):
     good = (CARDS_DIR / "rgb_l2.yaml").read_text(encoding="utf-8")
-    (tmp_path / "rgb_l2.yaml").write_text(
-        good.replace("implementation:", "implementation_typo:"), encoding="utf-8"
-    )
-    with pytest.raises(CardFormatError, match="implementation"):
+    (tmp_path / "rgb_l2.yaml").write_text(good.replace("equation:", "equation_typo:"), encoding="utf-8")
+    with pytest.raises(CardFormatError, match="equation"):
+        load_cards(tmp_path)
+    (tmp_path / "rgb_l2.yaml").write_text(good + "implementation: torch.nn.MSELoss\n", encoding="utf-8")
+    with pytest.raises(CardFormatError, match="belong.* to the terminal"):
         load_cards(tmp_path)
     other = tmp_path / "other"
     other.mkdir()
