@@ -1,4 +1,4 @@
-"""The equation compiler: a paper's LaTeX -> IR -> a verified torch ``nn.Module``.
+"""Stage 2 (``equations``): the equation compiler: a paper's LaTeX -> IR -> a verified torch ``nn.Module``.
 
 Offline, deterministic, no model. Binding symbols to Nerfstudio quantities and wiring the module into a
 plugin's ``components/`` are the caller's (the binder's, ``nerfify_ns.synthesis.novel``) job; this package
@@ -83,8 +83,8 @@ from .shapes import CompileError, ParamSpec, ShapeError
 from .show import show
 
 __all__ = [
-    "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Compiled", "Concat", "Conventions", "Equation",
-    "Expectation", "Index", "Integral", "Lowered", "LoweringError", "Neg", "Norm", "Number", "ParamSpec",
-    "ParseFailure", "Reduce", "ShapeError", "Symbol", "check_lowering", "compile_equations", "interpret", "lower", "lower_module",
-    "parse_equation", "parse_equations", "parse_expression", "show",
+    "Apply", "BinOp", "Cases", "CheckReport", "Compare", "CompileError", "Compiled", "Concat", "Conventions",
+    "Equation", "Expectation", "Index", "Integral", "Lowered", "LoweringError", "Neg", "Norm", "Number", "ParamSpec",
+    "ParseFailure", "Reduce", "ShapeError", "Symbol", "check_lowering", "compile_equations", "interpret", "lower",
+    "lower_module", "parse_equation", "parse_equations", "parse_expression", "show",
 ]

@@ -1,1 +1,1 @@
-"""Stage 4: training runs, metrics and visual feedback."""
+"""Stages 6 to 8 (``train``, ``patches``, the report): training runs, metrics and visual feedback."""

@@ -1,4 +1,4 @@
-"""Stage 3a: Nerfstudio as a grammar (``grammar_spec.yaml``); a plan is a derivation in it.
+"""Stage 3 (``plan``): Nerfstudio as a grammar (``grammar_spec.yaml``); a plan is a derivation in it.
 
     from nerfify_ns.grammar import load_grammar, validate, to_json_schema, to_gbnf
 """

@@ -1,4 +1,4 @@
-"""Stage 3c: the verification ladder for generated (or hand-written) Nerfstudio plugins.
+"""Stage 5 (``verify``): the verification ladder for generated (or hand-written) Nerfstudio plugins.
 
     from nerfify_ns.verify import run_ladder
     report = run_ladder("nerfify-out/kplanes-static")   # static -> contract -> stability -> smoke (+ repair)
