@@ -6,6 +6,7 @@ or segments), outputs and gradients, including edge cases.  Tolerances are state
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import subprocess
@@ -23,7 +24,6 @@ from nerfify_ns.runtime import nerfacc_cpu as nc
 nc.install(force=True)
 
 import nerfacc  # noqa: E402
-from nerfacc.data_specs import RayIntervals  # noqa: E402
 from nerfacc.grid import _ray_aabb_intersect  # noqa: E402
 
 C = nc.backend
@@ -92,14 +92,54 @@ def test_install_registers_backend_and_is_idempotent():
     assert nc.is_installed()
     assert sys.modules["nerfacc.cuda._backend"]._C is nc.backend
     assert nc.backend.is_cub_available() is False
-    for name in (
-        "ray_aabb_intersect", "traverse_grids", "inclusive_sum", "exclusive_sum", "exclusive_sum_by_key",
-        "inclusive_prod_forward", "inclusive_prod_backward",
-        "exclusive_prod_forward", "exclusive_prod_backward",
-        "searchsorted", "importance_sampling", "RaySegmentsSpec", "RaysSpec", "MultiScaleGridSpec",
-        "opencv_lens_undistortion", "opencv_lens_undistortion_fisheye",
-    ):
+    for name in ("ray_aabb_intersect", "traverse_grids", "exclusive_sum", "RaySegmentsSpec"):
         assert hasattr(nc.backend, name), name
+
+
+def test_unreached_ops_raise_a_clear_attribute_error():
+    """Ops Nerfstudio 1.1.5 never calls are not served; asking for one names what is served."""
+    for name in ("importance_sampling", "inclusive_prod_forward", "searchsorted", "opencv_lens_undistortion"):
+        assert not hasattr(nc.backend, name)
+        with pytest.raises(AttributeError, match="never calls it"):
+            getattr(nc.backend, name)
+    with pytest.raises(AttributeError, match="never calls it"):
+        nerfacc.inclusive_prod(torch.rand(5), torch.tensor([[0, 5]]))
+
+
+def test_served_ops_are_the_ones_nerfstudio_reaches():
+    """Trace the backend during instant-ngp and instant-ngp-bounded training steps (warm-up and sampled
+    occupancy updates) and evaluation: every served op is called, and nothing else is asked for."""
+    from nerfstudio.configs.method_configs import all_methods
+    from nerfstudio.engine.optimizers import Optimizers
+
+    from nerfify_ns.benchmarks import step_timing
+
+    called: set[str] = set()
+    saved = {name: getattr(nc.backend, name) for name in nc.OPS}
+    for name, fn in saved.items():
+        if callable(fn) and not isinstance(fn, type):
+            setattr(nc.backend, name, lambda *a, _fn=fn, _name=name, **k: called.add(_name) or _fn(*a, **k))
+    try:
+        for method in ("instant-ngp", "instant-ngp-bounded"):
+            config = copy.deepcopy(all_methods[method])
+            config.pipeline.model.grid_resolution = 16  # a small grid: the same code paths, fast
+            model = step_timing.build_model(config)
+            optimizers = Optimizers(config.optimizers, model.get_param_groups())
+            bundle, batch = step_timing.ray_batch(16)
+            model.train()
+            for step in (0, 256):
+                step_timing.run_before_iteration_callbacks(model, step)
+                outputs = model.get_outputs(bundle)
+                losses = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
+                sum(losses.values()).backward()
+                optimizers.optimizer_step_all()
+            model.eval()
+            with torch.no_grad():
+                model.get_outputs(bundle)
+    finally:
+        for name, fn in saved.items():
+            setattr(nc.backend, name, fn)
+    assert called == {"ray_aabb_intersect", "traverse_grids", "exclusive_sum"}
 
 
 def test_install_is_a_noop_when_cuda_is_available(monkeypatch):
@@ -132,7 +172,6 @@ def test_no_jit_build_is_ever_attempted(tmp_path):
         ri, t0, t1 = est.sampling(o, d, render_step_size=0.05,
                                   sigma_fn=lambda a, b, r: torch.ones_like(a))
         w, _, _ = nerfacc.render_weight_from_density(t0, t1, torch.ones_like(t0), ray_indices=ri, n_rays=1)
-        nerfacc.inclusive_prod(torch.rand(5), torch.tensor([[0, 5]]))
         est.train(); est.update_every_n_steps(0, lambda x: torch.ones_like(x[:, :1]))
         assert t0.numel() > 0 and torch.isfinite(w).all()
         assert "nerfacc.cuda._backend" in sys.modules
@@ -208,17 +247,17 @@ def test_ray_aabb_intersect_empty_and_single():
 CNTS = [3, 0, 1, 7, 2, 0, 40, 5]
 
 
-@pytest.mark.parametrize("exclusive", [False, True])
-def test_sum_scans_forward_backward(exclusive):
+def test_exclusive_sum_forward_backward():
     """Forward vs per-chunk torch.cumsum (atol 1e-5, float32); backward equals the reverse scan,
     and gradcheck in float64 through nerfacc's autograd Functions."""
+    exclusive = True
     g = torch.Generator().manual_seed(1)
     pi = _packed(CNTS)
     x = torch.randn(sum(CNTS), generator=g)
-    fn = nerfacc.exclusive_sum if exclusive else nerfacc.inclusive_sum
+    fn = nerfacc.exclusive_sum
     ref = _ref_scan(x, pi[:, 0], pi[:, 1], "sum", exclusive)
     torch.testing.assert_close(fn(x, pi), ref, atol=1e-5, rtol=0)
-    op = C.exclusive_sum if exclusive else C.inclusive_sum
+    op = C.exclusive_sum
     gy = torch.randn_like(x)
     back = op(pi[:, 0], pi[:, 1], gy, False, True)
     ref_back = _ref_scan(gy, pi[:, 0], pi[:, 1], "sum", exclusive, reverse=True)
@@ -232,33 +271,6 @@ def test_sum_scans_forward_backward(exclusive):
     torch.testing.assert_close(xd.grad, xr.grad, atol=1e-12, rtol=0)
 
 
-@pytest.mark.parametrize("exclusive", [False, True])
-def test_prod_scans_forward_backward(exclusive):
-    """Products vs per-chunk torch.cumprod (rtol 1e-5) and gradcheck (positive inputs: the kernel's
-    backward divides by the input, like nerfacc)."""
-    g = torch.Generator().manual_seed(2)
-    pi = _packed(CNTS)
-    x = torch.rand(sum(CNTS), generator=g) + 0.5
-    fn = nerfacc.exclusive_prod if exclusive else nerfacc.inclusive_prod
-    ref = _ref_scan(x, pi[:, 0], pi[:, 1], "prod", exclusive)
-    torch.testing.assert_close(fn(x, pi), ref, rtol=1e-5, atol=1e-6)
-    xd = (torch.rand(sum(CNTS), dtype=torch.float64, generator=g) + 0.5).requires_grad_(True)
-    assert torch.autograd.gradcheck(lambda v: fn(v, pi), (xd,), eps=1e-6, atol=1e-7)
-    xr = xd.detach().clone().requires_grad_(True)
-    gy = torch.randn(sum(CNTS), dtype=torch.float64, generator=g)
-    xd.grad = None
-    (fn(xd, pi) * gy).sum().backward()
-    (_ref_scan(xr, pi[:, 0], pi[:, 1], "prod", exclusive) * gy).sum().backward()
-    torch.testing.assert_close(xd.grad, xr.grad, atol=1e-10, rtol=1e-8)
-
-
-def test_scans_batched_paths_and_zero_in_product():
-    x = torch.rand(4, 6) + 0.1
-    torch.testing.assert_close(nerfacc.inclusive_prod(x), torch.cumprod(x, -1))
-    x0 = torch.tensor([0.5, 0.0, 2.0, 3.0])
-    torch.testing.assert_close(nerfacc.exclusive_prod(x0, _packed([4])), torch.tensor([1.0, 0.5, 0.0, 0.0]))
-
-
 def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     """Chunks that are neither contiguous nor ordered; normalize=True; inf inside one chunk must not
     leak into the others (the fast global-cumsum path must hand over to the per-chunk scan)."""
@@ -266,8 +278,8 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     x = torch.rand(30, generator=g)
     starts = torch.tensor([20, 0, 9, 14])
     cnts = torch.tensor([6, 5, 3, 0])
-    out = C.inclusive_sum(starts, cnts, x, False, False)
-    ref = _ref_scan(x, starts, cnts, "sum")
+    out = C.exclusive_sum(starts, cnts, x, False, False)
+    ref = _ref_scan(x, starts, cnts, "sum", True)
     covered = torch.zeros(30, dtype=torch.bool)
     for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
         covered[s : s + c] = True
@@ -276,52 +288,36 @@ def test_scans_gappy_unordered_chunks_normalize_and_nonfinite():
     back = C.exclusive_sum(starts, cnts, x, False, True)  # backward = reverse exclusive scan
     ref_back = _ref_scan(x, starts, cnts, "sum", True, reverse=True)
     torch.testing.assert_close(back[covered], ref_back[covered], atol=1e-6, rtol=0)
-    xp = x + 0.5
-    y = C.inclusive_prod_forward(starts, cnts, xp)
-    torch.testing.assert_close(y[covered], _ref_scan(xp, starts, cnts, "prod")[covered], rtol=1e-5, atol=0)
-    # normalize divides by the chunk total (which includes the last item, also for exclusive)
-    for excl in (False, True):
-        op = C.exclusive_sum if excl else C.inclusive_sum
-        outn = op(starts, cnts, x, True, False)
-        for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
-            if c:
-                tot = x[s : s + c].sum()
-                ref = _ref_scan(x, starts, cnts, "sum", excl)[s : s + c] / tot
-                torch.testing.assert_close(outn[s : s + c], ref)
+    # normalize divides by the chunk total (which includes the last item)
+    outn = C.exclusive_sum(starts, cnts, x, True, False)
+    for s, c in zip(starts.tolist(), cnts.tolist(), strict=False):
+        if c:
+            tot = x[s : s + c].sum()
+            ref = _ref_scan(x, starts, cnts, "sum", True)[s : s + c] / tot
+            torch.testing.assert_close(outn[s : s + c], ref)
     # inf / nan stay within their chunk
     y = torch.rand(12, generator=g)
     y[2] = float("inf")
     y[6] = float("nan")
     pi = _packed([4, 4, 4])
-    out = nerfacc.inclusive_sum(y, pi)
-    assert torch.isinf(out[2:4]).all() and torch.isnan(out[6:8]).all()
-    torch.testing.assert_close(out[8:], torch.cumsum(y[8:], 0))
-    torch.testing.assert_close(out[:2], torch.cumsum(y[:2], 0))
+    out = nerfacc.exclusive_sum(y, pi)
+    assert torch.isinf(out[3]).all() and torch.isnan(out[7]).all()
+    torch.testing.assert_close(out[8:], _ref_scan(y[8:], torch.tensor([0]), torch.tensor([4]), "sum", True))
+    torch.testing.assert_close(out[:3], _ref_scan(y[:3], torch.tensor([0]), torch.tensor([3]), "sum", True))
 
 
 def test_scans_empty_and_single():
     empty = torch.zeros(0)
     assert nerfacc.exclusive_sum(empty, torch.zeros(0, 2, dtype=torch.long)).shape == (0,)
-    assert nerfacc.inclusive_prod(empty, _packed([0, 0])).shape == (0,)
     one = torch.tensor([2.0])
     assert nerfacc.exclusive_sum(one, _packed([1])).tolist() == [0.0]
-    assert nerfacc.inclusive_prod(one, _packed([1])).tolist() == [2.0]
-
-
-def test_exclusive_sum_by_key():
-    keys = torch.tensor([0, 0, 0, 3, 3, 1, 1, 1, 1, 3])
-    x = torch.arange(1.0, 11.0)
-    fwd = C.exclusive_sum_by_key(keys, x, False)
-    bwd = C.exclusive_sum_by_key(keys, x, True)
-    assert fwd.tolist() == [0, 1, 3, 0, 4, 0, 6, 13, 21, 0]
-    assert bwd.tolist() == [5, 3, 0, 5, 0, 24, 17, 9, 0, 0]
 
 
 # ---------------------------------------------------------------------------------------------
 # volume rendering
 # ---------------------------------------------------------------------------------------------
 def test_volrend_weights_transmittance_visibility_and_grads():
-    """render_weight_from_density / _from_alpha / visibility / accumulate_along_rays vs the per-ray
+    """render_weight_from_density / visibility / accumulate_along_rays vs the per-ray
     formula; gradients w.r.t. sigmas vs autograd through the per-ray reference (atol 1e-10, float64)."""
     g = torch.Generator().manual_seed(4)
     cnts = [5, 0, 1, 12, 3]
@@ -349,35 +345,16 @@ def test_volrend_weights_transmittance_visibility_and_grads():
         lambda s: nerfacc.render_weight_from_density(t0, t1, s, packed_info=pi)[0],
         (sig.detach().requires_grad_(True),),
     )
-    # alpha based
-    alphas = (1 - torch.exp(-sig.detach() * (t1 - t0))).requires_grad_(True)
-    wa, Ta = nerfacc.render_weight_from_alpha(alphas, ray_indices=ri, n_rays=n_rays)
-    torch.testing.assert_close(wa, rw.detach(), atol=1e-10, rtol=0)
-    torch.testing.assert_close(Ta, rT.detach(), atol=1e-10, rtol=0)
-    assert torch.autograd.gradcheck(
-        lambda al: nerfacc.render_weight_from_alpha(al, packed_info=pi)[0],
-        (alphas.detach().clamp(0.05, 0.95).requires_grad_(True),),
-    )
     # visibility = (T >= eps) & (alpha >= thre)
     vis = nerfacc.render_visibility_from_density(
         t0, t1, sig.detach(), packed_info=pi, early_stop_eps=0.2, alpha_thre=0.1
     )
     assert torch.equal(vis, (rT.detach() >= 0.2) & (ra.detach() >= 0.1))
-    vis_a = nerfacc.render_visibility_from_alpha(
-        alphas.detach(), ray_indices=ri, n_rays=n_rays, early_stop_eps=0.2
-    )
-    assert torch.equal(vis_a, rT.detach() >= 0.2 - 1e-12)
     # accumulate
     rgb = torch.rand(n, 3, generator=g, dtype=torch.float64)
     col = nerfacc.accumulate_along_rays(w.detach(), rgb, ri, n_rays)
     ref = torch.stack([(rw.detach()[ri == r, None] * rgb[ri == r]).sum(0) for r in range(n_rays)])
     torch.testing.assert_close(col, ref)
-
-
-def test_transmittance_from_alpha_with_zero_rays():
-    no_rays = torch.zeros(0, dtype=torch.long)
-    w, T = nerfacc.render_weight_from_alpha(torch.zeros(0), ray_indices=no_rays, n_rays=0)
-    assert w.shape == (0,) and T.shape == (0,)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -697,128 +674,3 @@ def test_occgrid_update_every_n_steps_runs():
     o, d = torch.tensor([[0.0, 0.0, -3.0]]), torch.tensor([[0.0, 0.0, 1.0]])
     ri, t0, t1 = est.sampling(o, d, render_step_size=0.05)
     assert t0.numel() > 0 and ((t0 + t1) / 2 > 2.4).all() and ((t0 + t1) / 2 < 3.6).all()
-
-
-# ---------------------------------------------------------------------------------------------
-# pdf: searchsorted, importance_sampling, PropNetEstimator
-# ---------------------------------------------------------------------------------------------
-def _ref_searchsorted(keys, q):
-    """Kernel definition: p = #(keys[:-1] <= q); left = clamp(p - 1), right = clamp(p)."""
-    E = len(keys)
-    p = sum(1 for k in keys[:-1] if k <= q)
-    return min(max(p - 1, 0), E - 1), min(max(p, 0), E - 1)
-
-
-def test_searchsorted_batched_and_flattened():
-    g = torch.Generator().manual_seed(7)
-    keys = torch.sort(torch.rand(4, 6, generator=g), -1).values
-    q = torch.rand(4, 9, generator=g) * 1.4 - 0.2
-    il, ir = nerfacc.searchsorted(RayIntervals(vals=keys), RayIntervals(vals=q))
-    for r in range(4):
-        for i in range(9):
-            assert (il[r, i].item(), ir[r, i].item()) == _ref_searchsorted(keys[r].tolist(), q[r, i].item())
-    # flattened keys and queries (absolute indices)
-    kc, qc = [3, 5, 1], [2, 4, 3]
-    kf = torch.cat([torch.sort(torch.rand(c, generator=g)).values for c in kc])
-    qf = torch.rand(sum(qc), generator=g)
-    il, ir = nerfacc.searchsorted(
-        RayIntervals(vals=kf, packed_info=_packed(kc)), RayIntervals(vals=qf, packed_info=_packed(qc))
-    )
-    ks = _packed(kc)[:, 0].tolist()
-    qi = 0
-    for r, c in enumerate(qc):
-        for _ in range(c):
-            a, b = _ref_searchsorted(kf[ks[r] : ks[r] + kc[r]].tolist(), qf[qi].item())
-            assert (il[qi].item(), ir[qi].item()) == (a + ks[r], b + ks[r])
-            qi += 1
-
-
-def _ref_importance(tv, cdf, n):
-    """Kernel definition for one ray (non-stratified)."""
-    E = len(tv)
-    out = []
-    for i in range(n):
-        u = cdf[0] + (i + 0.5) * (cdf[-1] - cdf[0]) / n
-        p = sum(1 for c in cdf[:-1] if c <= u)
-        p0, p1 = min(max(p - 1, 0), E - 1), min(max(p, 0), E - 1)
-        if cdf[p1] - cdf[p0] < 1e-10:
-            out.append(0.5 * (tv[p0] + tv[p1]))
-        else:
-            out.append(tv[p0] + (u - cdf[p0]) * (tv[p1] - tv[p0]) / (cdf[p1] - cdf[p0]))
-    edges = [max(out[0] - (out[1] - out[0]) / 2, tv[0])]
-    edges += [(a + b) / 2 for a, b in zip(out[:-1], out[1:], strict=False)]
-    edges.append(min(out[-1] + (out[-1] - out[-2]) / 2, tv[-1]))
-    return out, edges
-
-
-def test_importance_sampling_int_and_tensor_counts():
-    g = torch.Generator().manual_seed(8)
-    tv = torch.sort(torch.rand(3, 7, generator=g, dtype=torch.float64), -1).values
-    w = torch.rand(3, 6, generator=g, dtype=torch.float64)
-    w[1, 2:4] = 0  # flat CDF pieces
-    cdf = torch.cumsum(w, -1) / w.sum(-1, keepdim=True)
-    cdf = torch.cat([torch.zeros(3, 1, dtype=torch.float64), cdf], -1)
-    iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv), cdf, 5, stratified=False)
-    assert sp.vals.shape == (3, 5) and iv.vals.shape == (3, 6)
-    for r in range(3):
-        s, e = _ref_importance(tv[r].tolist(), cdf[r].tolist(), 5)
-        torch.testing.assert_close(sp.vals[r], torch.tensor(s, dtype=torch.float64), atol=1e-12, rtol=0)
-        torch.testing.assert_close(iv.vals[r], torch.tensor(e, dtype=torch.float64), atol=1e-12, rtol=0)
-    # per-ray counts -> flattened outputs
-    cnt = torch.tensor([4, 0, 3])
-    iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv), cdf, cnt, stratified=False)
-    assert sp.packed_info[:, 1].tolist() == [4, 0, 3] and iv.packed_info[:, 1].tolist() == [5, 0, 4]
-    for r in (0, 2):
-        s, e = _ref_importance(tv[r].tolist(), cdf[r].tolist(), int(cnt[r]))
-        s, e = torch.tensor(s, dtype=torch.float64), torch.tensor(e, dtype=torch.float64)
-        torch.testing.assert_close(sp.vals[sp.ray_indices == r], s, atol=1e-12, rtol=0)
-        torch.testing.assert_close(iv.vals[iv.ray_indices == r], e, atol=1e-12, rtol=0)
-    assert iv.is_left.sum() == 7 and iv.is_right.sum() == 7
-    # flattened input intervals with an int count -> batched outputs
-    ec = [7, 4, 6]
-    tv_f = torch.cat([torch.sort(torch.rand(c, generator=g, dtype=torch.float64)).values for c in ec])
-    cdf_f = torch.cat([torch.linspace(0, 1, c, dtype=torch.float64) ** 2 for c in ec])
-    iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv_f, packed_info=_packed(ec)), cdf_f, 3)
-    assert sp.vals.shape == (3, 3) and iv.vals.shape == (3, 4)
-    st = _packed(ec)[:, 0].tolist()
-    for r, c in enumerate(ec):
-        s, e = _ref_importance(tv_f[st[r] : st[r] + c].tolist(), cdf_f[st[r] : st[r] + c].tolist(), 3)
-        torch.testing.assert_close(sp.vals[r], torch.tensor(s, dtype=torch.float64), atol=1e-12, rtol=0)
-        torch.testing.assert_close(iv.vals[r], torch.tensor(e, dtype=torch.float64), atol=1e-12, rtol=0)
-    # stratified: one jitter per ray, samples stay sorted and inside the ray's range
-    iv, sp = nerfacc.importance_sampling(RayIntervals(vals=tv), cdf, 16, stratified=True)
-    assert bool((sp.vals[:, 1:] >= sp.vals[:, :-1]).all())
-    assert bool((sp.vals >= tv[:, :1]).all()) and bool((sp.vals <= tv[:, -1:]).all())
-
-
-def test_prop_net_estimator_sampling_runs():
-    est = nerfacc.PropNetEstimator()
-    fn = lambda t0, t1: torch.exp(-((t0 + t1) / 2 - 3.0) ** 2) * 5  # noqa: E731
-    t0, t1 = est.sampling(
-        [fn, fn], [32, 16], 8, n_rays=5, near_plane=0.5, far_plane=6.0, stratified=True, requires_grad=True
-    )
-    assert t0.shape == (5, 8) and bool((t1 >= t0).all())
-    trans, _ = nerfacc.render_transmittance_from_density(t0, t1, fn(t0, t1))
-    loss = est.compute_loss(trans)
-    assert torch.isfinite(loss)
-
-
-# ---------------------------------------------------------------------------------------------
-# lens undistortion
-# ---------------------------------------------------------------------------------------------
-def test_lens_undistortion_roundtrip():
-    from nerfacc.cameras import (
-        _opencv_lens_distortion,
-        _opencv_lens_distortion_fisheye,
-        opencv_lens_undistortion,
-        opencv_lens_undistortion_fisheye,
-    )
-
-    g = torch.Generator().manual_seed(9)
-    uv = (torch.rand(100, 2, generator=g) - 0.5) * 0.8
-    params = torch.tensor([0.05, -0.02, 0.001, -0.001, 0.003, 0.0, 0.0, 0.0])
-    back = opencv_lens_undistortion(_opencv_lens_distortion(uv, params), params)
-    torch.testing.assert_close(back, uv, atol=1e-5, rtol=0)
-    fparams = torch.tensor([0.05, 0.01, -0.002, 0.001])
-    fback = opencv_lens_undistortion_fisheye(_opencv_lens_distortion_fisheye(uv, fparams), fparams)
-    torch.testing.assert_close(fback, uv, atol=1e-5, rtol=0)
