@@ -650,14 +650,14 @@ class PatchLoop:
                 summary = self._evaluate(patched, cand_folder, self.seeds[0], patch.rule)
                 results.append((patch, patched, cand_folder, summary))
             best_gain, best_index = None, None
-            for index, (patch, patched, cand_folder, summary) in enumerate(results):
+            for index, (_, _, _, summary) in enumerate(results):
                 psnr = summary.get("psnr")
                 gain = None if psnr is None or mean is None else psnr - mean
                 if psnr is not None and mean is None:
                     gain = math.inf  # the current plan does not even train; anything finite is better
                 if gain is not None and gain > threshold and (best_gain is None or gain > best_gain):
                     best_gain, best_index = gain, index
-            for index, (patch, patched, cand_folder, summary) in enumerate(results):
+            for index, (patch, _, cand_folder, summary) in enumerate(results):
                 psnr = summary.get("psnr")
                 gain = None if psnr is None or mean is None else psnr - mean
                 if index == best_index:
