@@ -779,7 +779,7 @@ def write_report(run_dir: Path) -> tuple[Path, Path]:
     try:
         builder = _Builder(run_dir)
         for section in SECTIONS:
-            _shaped(section.__name__, lambda: section(builder))
+            _shaped(section.__name__, lambda section=section: section(builder))
         outcome = _shaped("outcome", lambda: read_outcome(run_dir, builder.data))
         views, result = _shaped("headline", lambda: headline_views(run_dir, builder.images))
         outcome.update(views=views, result=result)
