@@ -33,10 +33,11 @@ class BenchResult:
 
 
 def run_bench(suite: Suite, out: Path, *, ablations: Sequence[str] = (), executor=None,
-              progress: Progress = Progress(), command: str = "") -> BenchResult:
+              progress: Progress | None = None, command: str = "") -> BenchResult:
     """Run (or resume) the suite into ``out``; write results.json, tables.md, tables.tex and plots/."""
     ablations = list(Ablations.of(ablations).names)  # unknown names refused before anything runs
     executor = executor or LocalExecutor()
+    progress = progress or Progress()
     out = Path(out).absolute()
     out.mkdir(parents=True, exist_ok=True)
     tasks = tasks_of(suite, ablations)
