@@ -204,7 +204,7 @@ class Probe:
         from nerfstudio.fields.base_field import Field
         from nerfstudio.models.base_model import Model, ModelConfig
 
-        for rel, cls in plugin_classes(modules):
+        for _, cls in plugin_classes(modules):
             file, line = self.class_line(cls)
             name = cls.__name__
             if name.endswith("ModelConfig") and not issubclass(cls, ModelConfig):
