@@ -118,7 +118,7 @@ def _offset(text: str, lineno: int, col: int) -> int:
     """The character offset of an AST position (``col`` counts UTF-8 bytes)."""
     lines = text.splitlines(True)
     line = lines[lineno - 1] if lineno - 1 < len(lines) else ""
-    return sum(len(l) for l in lines[: lineno - 1]) + len(line.encode()[:col].decode(errors="ignore"))
+    return sum(len(earlier) for earlier in lines[: lineno - 1]) + len(line.encode()[:col].decode(errors="ignore"))
 
 
 def _span(text: str, node: ast.AST) -> tuple[int, int]:
