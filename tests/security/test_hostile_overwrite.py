@@ -75,7 +75,7 @@ def test_our_own_output_is_replaced_and_a_killed_runs_staging_is_cleaned(tmp_pat
     assert done.returncode == 0, done.stdout + done.stderr
     assert (out / MARKER).is_file() and "method: nerfacto" in (out / "plan.yaml").read_text()
     assert not stale.exists() and unmarked.is_dir() and live.is_dir() and other.is_dir()
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".other.partial-%d-11111111" % dead.pid,
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([f".other.partial-{dead.pid}-11111111",
                                                                    unmarked.name, live.name, "out"])
 
 
