@@ -79,7 +79,7 @@ def test_bionerf_equations_against_a_reference_written_by_hand():
     p = {name: t.detach().numpy() for name, t in eq.named_parameters()}
     rng = np.random.default_rng(1)
     h_d, h_c, psi = (rng.normal(size=(5, 256)) for _ in range(3))
-    l = rng.normal(size=(5, 7))
+    l_in = rng.normal(size=(5, 7))
     hdc = np.concatenate([h_d, h_c], -1)
     f_d = sigmoid(h_d @ p["p_w_delta_f"].T + p["p_b_delta_f"])                       # (1)
     f_c = sigmoid(h_c @ p["p_w_c_f"].T + p["p_b_c_f"])                               # (2)
@@ -88,9 +88,9 @@ def test_bionerf_equations_against_a_reference_written_by_hand():
     gamma = np.tanh(hdc @ p["p_w_gamma"].T + p["p_b_gamma"])                         # (5)
     mu = f_mu * gamma                                                                # (6)
     psi_new = np.tanh((mu + f_psi * psi) @ p["p_w_psi"].T + p["p_b_psi"])            # (7)
-    h_d_new = np.concatenate([psi_new * f_d, l], -1)                                 # (8)
+    h_d_new = np.concatenate([psi_new * f_d, l_in], -1)                                 # (8)
     h_c_new = psi_new * f_c                                                          # (9), d: the field's
-    got = eq(*(torch.from_numpy(a) for a in (h_d, h_c, l, psi)))
+    got = eq(*(torch.from_numpy(a) for a in (h_d, h_c, l_in, psi)))
     for value, want in zip(got, (h_d_new, h_c_new, psi_new), strict=False):
         np.testing.assert_allclose(value.detach().numpy(), want, rtol=1e-10, atol=1e-12)
     assert module.get_out_dim() == 256 + 7 + 256
