@@ -28,7 +28,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 from nerfify_ns.agents.config import LLMConfig
 from nerfify_ns.agents.errors import LLMSetupError, ProviderError
@@ -389,7 +389,7 @@ class AnthropicProvider(Provider):
 
 
 # ------------------------------------------------------------------------------------------ scripted
-Answer = Union[str, dict, Callable[[Request], str | dict]]
+Answer = str | dict | Callable[[Request], str | dict]
 MAX_SCRIPT = 8 << 20
 """Bytes of a scripted answers file."""
 MAX_SCRIPT_NODES = 200_000
