@@ -14,13 +14,12 @@ its intrinsics, or too few views, is a one-line :class:`DatasetError`. A leaf pa
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Union
 
 from nerfify_ns.dataset.checks import check_dataset
 from nerfify_ns.dataset.formats import FORMATS, Format, dataparser_for, looked_for
 from nerfify_ns.dataset.model import Dataparser, Dataset, DatasetError, Frame, Intrinsics, one_line
 
-DataLike = Union[str, Path, Dataset]
+DataLike = str | Path | Dataset
 
 __all__ = ["FORMATS", "DataLike", "Dataparser", "Dataset", "DatasetError", "Format", "Frame", "Intrinsics",
            "as_dataset", "dataparser_for", "read_dataset"]
