@@ -26,7 +26,6 @@ import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Union
 
 from nerfify_ns import runfolder
 from nerfify_ns.dataset import DataLike
@@ -251,7 +250,7 @@ def read_curve_csv(path: Path) -> list[CurvePoint]:
         ]
 
 
-CurveSource = Union[str, Path, Curve, Sequence[CurvePoint]]
+CurveSource = str | Path | Curve | Sequence[CurvePoint]
 
 
 def plot_curves(
