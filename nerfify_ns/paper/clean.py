@@ -34,9 +34,11 @@ def clean_markdown(doc: Document) -> str:
             out += _dropped_summary(doc, s, head, eqs_by_sec.get(s.heading, []))
             continue
         out += [head, ""]
-        for p in s.paragraphs:
+        placed = _in_place(s.paragraphs, eqs_by_sec.get(s.heading, []))
+        for k, p in enumerate(s.paragraphs):
+            out += [_equation_md(e) for e in placed.get(k, [])]
             out += [p.text, ""]
-        out += [_equation_md(e) for e in eqs_by_sec.get(s.heading, [])]
+        out += [_equation_md(e) for e in placed.get(len(s.paragraphs), [])]
         out += [_algorithm_md(a) for a in algs_by_sec.get(s.heading, [])]
     orphans = eqs_by_sec.get("", [])
     if orphans:
@@ -60,6 +62,41 @@ def _group(items) -> dict:
     for it in items:
         groups.setdefault(it.section, []).append(it)
     return groups
+
+
+_MARK = re.compile(r"⟨Eq\.[^⟩]*⟩")
+_ANCHOR = 40
+
+
+def _flat(text: str) -> str:
+    return re.sub(r"[^0-9a-z]+", "", text.lower())
+
+
+def _in_place(paragraphs: list, equations: list) -> dict[int, list]:
+    """Paragraph index -> the display equations shown before it (``len(paragraphs)``: after the last), each where
+    the paper shows it: after the paragraph that introduces it (the text before it in its ``sentence``), else
+    before the paragraph that goes on after it; one without an anchor of its own follows the equation before it
+    (the first: the section's end). A rendering that moved every equation to the end of its section would detach it from
+    the sentences that say which part it defines."""
+    flats = [_flat(p.text) for p in paragraphs]
+    placed: dict[int, list] = {}
+    start, previous = 0, len(paragraphs)
+    for e in equations:
+        parts = _MARK.split(e.sentence or "", maxsplit=1)
+        before, after = (parts[0], parts[1]) if len(parts) == 2 else ("", "")
+        tail, head = _flat(before)[-_ANCHOR:], _flat(after)[:_ANCHOR]
+        where = None
+        if len(tail) >= 12:
+            where = next((k + 1 for k in range(start, len(flats)) if tail in flats[k]), None)
+        if where is None and len(head) >= 12:
+            where = next((k for k in range(start, len(flats)) if flats[k].startswith(head)), None)
+        if where is None:  # no anchor of its own ("and ⟨Eq. 9⟩"): beside the equation before it
+            where = previous
+        else:
+            start = max(start, where - 1)
+        placed.setdefault(where, []).append(e)
+        previous = where
+    return placed
 
 
 def _equation_md(e) -> str:
