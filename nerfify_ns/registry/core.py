@@ -129,9 +129,25 @@ def build_registry(productions_text: str | None = None) -> Registry:
             if t.name in terminals:
                 raise RegistryError(f"terminal {t.name} is defined twice")
             terminals[t.name] = t
-    registry = Registry(productions=yaml.safe_load(text), terminals=terminals, interfaces=dict(INTERFACES))
+    registry = Registry(productions=_with_declared(yaml.safe_load(text), terminals), terminals=terminals,
+                        interfaces=dict(INTERFACES))
     registry.check()
     return registry
+
+
+def _with_declared(productions: dict[str, Any], terminals: dict[str, TerminalDef]) -> dict[str, Any]:
+    """The productions with every terminal that names a choice, enum or set production among its alternatives or
+    members (after those ``productions.yaml`` lists, before ``custom``): a technique added as one terminal module
+    declares its production and needs no edit of ``productions.yaml``."""
+    for t in terminals.values():
+        nt = productions["nonterminals"].get(t.production)
+        if nt is None or nt.get("kind") not in ("choice", "enum", "set") or _listed(nt, t.name):
+            continue
+        key = "members" if "members" in nt else "alternatives"
+        listed = list(nt.get(key) or [])
+        at = listed.index("custom") if "custom" in listed else len(listed)
+        nt[key] = [*listed[:at], t.name, *listed[at:]]
+    return productions
 
 
 _DEFAULT: list[Registry] = []

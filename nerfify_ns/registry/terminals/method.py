@@ -115,10 +115,12 @@ def _ctor(cls: str, args: str) -> str:
 OPTIMIZER = "lr={{ p.lr }}, eps={{ p.eps }}, weight_decay={{ p.weight_decay }}"
 
 TERMINALS = [
-    TerminalDef("scene", "Method", Scene, "Facts about the target scene; pruning reads them and duties check against them.",
+    TerminalDef("scene", "Method", Scene,
+                "Facts about the target scene; pruning reads them and duties check against them.",
                 "nerfify_ns.synthesis.scene_probe.SceneFacts"),
     TerminalDef("trainer", "Method", Trainer, "Nerfstudio's TrainerConfig.", "nerfstudio.engine.trainer.TrainerConfig"),
-    TerminalDef("datamanager", "Method", DataManager, "Ray batches drawn from the training images (VanillaDataManager).",
+    TerminalDef("datamanager", "Method", DataManager,
+                "Ray batches drawn from the training images (VanillaDataManager).",
                 "nerfstudio.data.datamanagers.base_datamanager.VanillaDataManagerConfig",
                 code=Code(traits={"dataparsers": {
                     "blender": ["nerfstudio.data.dataparsers.blender_dataparser", "BlenderDataParserConfig"],
@@ -157,7 +159,8 @@ TERMINALS = [
                 code=Code(("from nerfstudio.engine.schedulers import MultiStepSchedulerConfig",),
                           ctor=_ctor("MultiStepSchedulerConfig", "max_steps={{ p.max_steps }}, gamma={{ p.gamma }}, "
                                      "milestones={{ p.milestones | list | tuple_literal }}"))),
-    TerminalDef("cosine_decay", "Scheduler", CosineDecay, "Linear warm-up then cosine decay to learning_rate_alpha * lr.",
+    TerminalDef("cosine_decay", "Scheduler", CosineDecay,
+                "Linear warm-up then cosine decay to learning_rate_alpha * lr.",
                 "nerfstudio.engine.schedulers.CosineDecaySchedulerConfig",
                 code=Code(("from nerfstudio.engine.schedulers import CosineDecaySchedulerConfig",),
                           ctor=_ctor("CosineDecaySchedulerConfig", "warm_up_end={{ p.warm_up_end }}, "

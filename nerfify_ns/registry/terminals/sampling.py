@@ -294,7 +294,8 @@ TERMINALS = [
                 "instant-ngp": {"near_plane": "near_plane", "far_plane": "far_plane"}},
         duties=({"requires_base": ["nerfacto", "instant-ngp"]},), constraints=(NEAR_BEFORE_FAR,)),
     TerminalDef(
-        "so3xr3", "CameraOptimizer", None, "Camera pose refinement, rotation on SO(3) and translation in R^3 (Nerfacto).",
+        "so3xr3", "CameraOptimizer", None,
+        "Camera pose refinement, rotation on SO(3) and translation in R^3 (Nerfacto).",
         "nerfstudio.cameras.camera_optimizers.CameraOptimizer", card="camera_optimizer", param_groups=("camera_opt",),
         contract=Contract(RAYS, {"origins": T("[R, 3]"), "directions": T("[R, 3]")}),
         code=Code(traits={"mode": "SO3xR3"}),

@@ -179,8 +179,8 @@ TERMINALS = [
                           {"features": T("[N, out_dim]", doc="time embedding appended to the backbone's input")},
                           doc="reads times; writes features"),
         code=Code((IMPORT.format("TimeEmbedding"),),
-                  ctor=ctor("TimeEmbedding", "num_frequencies={{ p.num_frequencies }}, layer_width={{ p.layer_width }}, "
-                            "num_layers={{ p.num_layers }}, out_dim={{ p.out_dim }}"),
+                  ctor=ctor("TimeEmbedding", "num_frequencies={{ p.num_frequencies }}, "
+                            "layer_width={{ p.layer_width }}, num_layers={{ p.num_layers }}, out_dim={{ p.out_dim }}"),
                   component=COMPONENT, traits={"stage": "condition", "schedulable": ["time_embedding"]}),
         harness=Harness(build=_conditioner_build("TimeEmbedding", "num_frequencies", "layer_width", "num_layers",
                                                  "out_dim"),
