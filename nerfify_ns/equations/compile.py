@@ -2,8 +2,10 @@
 
 ``compile_equations([(latex, number), ...], inputs, outputs, sizes, class_name)`` -> ``Compiled``: the
 equations read, the failures (each with its reason and column), the lowered module (or why not) and the
-check report. Nothing raises for a problem of the paper's equations; ``Compiled.ok`` says whether the module
-exists and passed its checks, ``Compiled.reason`` why not.
+check report. Items may also be equations already read (``Equation``: a caller that selected and rewrote
+them, as the binder of ``synthesis.novel`` does). Nothing raises for a problem of the paper's equations;
+``Compiled.ok`` says whether the module exists and passed its checks, ``Compiled.reason`` why not.
+``domains`` gives an input's value range in the check (a density is non-negative, a weight lies in [0, 1]).
 """
 
 from __future__ import annotations
@@ -35,12 +37,21 @@ class Compiled:
         return self.lowered.source if self.lowered is not None else ""
 
 
-def compile_equations(latex: Iterable[str | tuple[str, str | None]], inputs: dict, outputs: list[str],
+def _describe(err: BaseException) -> str:
+    message = " ".join(str(err).split())[:200]
+    return f"{type(err).__name__}: {message}" if message else type(err).__name__
+
+
+def compile_equations(latex: Iterable[str | tuple[str, str | None] | Equation], inputs: dict, outputs: list[str],
                       sizes: dict | None = None, class_name: str = "CompiledEquations", *, check: bool = True,
                       domains: dict | None = None) -> Compiled:
-    """Read every equation (a string, or (latex, number)), lower those the outputs need, check the module."""
+    """Read every equation (a string, (latex, number), or an ``Equation`` already read), lower those the outputs
+    need, check the module against the interpreter (``check=False``: lower only)."""
     out = Compiled()
     for item in latex:
+        if isinstance(item, Equation):
+            out.equations.append(item)
+            continue
         text, number = (item, None) if isinstance(item, str) else item
         for result in parse_equations(text, number=number):
             (out.equations if isinstance(result, Equation) else out.failures).append(result)
@@ -49,6 +60,9 @@ def compile_equations(latex: Iterable[str | tuple[str, str | None]], inputs: dic
     except CompileError as err:
         unread = "; ".join(f"({f.number or '?'}) {f}" for f in out.failures)
         out.reason = str(err) + (f" (equations not read: {unread})" if unread else "")
+        return out
+    except Exception as err:  # noqa: BLE001 - a lowering failure on what a paper wrote: the reason, never a raise
+        out.reason = f"lowering: {_describe(err)}"
         return out
     if check:
         out.report = check_lowering(out.equations, inputs, sizes, outputs, domains=domains, class_name=class_name)

@@ -66,7 +66,7 @@ def assemble(class_name: str, input_rows: list, output_rows: list, param_rows: d
     ]
     for key, ident, dims in input_rows:
         lines.append(f"#   {ident} <- {safe_comment(key, 60)} {_dims_text(dims)}  (input)")
-    for key, (attr, spec) in param_rows.items():
+    for _key, (attr, spec) in param_rows.items():
         kind = "parameter" if spec.learned else "fixed"
         lines.append(f"#   self.{attr} <- {safe_comment(key, 60)} {_dims_text(spec.shape)}  ({kind})")
     for key, ident in output_rows:
@@ -79,15 +79,15 @@ def assemble(class_name: str, input_rows: list, output_rows: list, param_rows: d
         "    def __init__(self):",
         "        super().__init__()",
     ]
-    for key, (attr, spec) in param_rows.items():
-        shape = ", ".join(str(int(s)) for s in spec.shape)
+    for _key, (attr, spec) in param_rows.items():
+        shape = ", ".join(str(int(s)) for s in spec.shape) or "()"  # () for one learned number
         if spec.learned:
             lines.append(f"        self.{attr} = nn.Parameter(torch.empty({shape}))")
         else:
             lines.append(f"        self.register_buffer({attr!r}, torch.empty({shape}))")
     lines += ["        self.reset_parameters()", "", "    def reset_parameters(self):"]
     init_lines: list[str] = []
-    for key, (attr, spec) in param_rows.items():
+    for _key, (attr, spec) in param_rows.items():
         target = f"self.{attr}"
         if spec.init == "normal":
             init_lines.append(f"nn.init.normal_({target}, std={float(spec.std)!r})")

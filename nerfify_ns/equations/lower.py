@@ -95,6 +95,7 @@ class Lowered:
     params: dict[str, tuple[str, ParamSpec]]    # key -> (attribute, spec)
     names: dict[str, str] = field(default_factory=dict)  # identifier -> key
     equations: list[str] = field(default_factory=list)   # numbers of the equations compiled, in order
+    layouts: dict[str, tuple] = field(default_factory=dict)  # output key -> its layout ('R', 'S' or both)
 
 
 _TORCH_UNARY = {"exp": "torch.exp", "log": "torch.log", "sin": "torch.sin", "cos": "torch.cos", "tan": "torch.tan",
@@ -559,9 +560,11 @@ def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None
                            result.tensor)
     output_rows = []
     returns = []
+    layouts = {}
     for key in outputs:
         ident, t, tensor = env[key]
         output_rows.append((key, ident))
+        layouts[key] = tuple(t.axes)
         returns.append(ident if tensor else f"torch.as_tensor({ident})")
     head = []
     if lw.uses_n_samples:
@@ -571,7 +574,7 @@ def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None
     source = assemble(class_name, input_rows, output_rows, param_rows, head + body, returns,
                       [eq.number or "" for eq in order])
     return Lowered(source, class_name, input_rows, output_rows, param_rows, dict(names.mapping),
-                   [eq.number or "" for eq in order])
+                   [eq.number or "" for eq in order], layouts)
 
 
 def lower(equations, inputs: dict, outputs: list[str], sizes: dict | None = None,

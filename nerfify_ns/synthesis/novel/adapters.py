@@ -95,6 +95,7 @@ class Wiring:
     loss_mean: bool = False                            # the paper's loss is per ray: its mean
     notes: list = field(default_factory=list)
     equations_args: str = ""                           # the equations module's constructor arguments (in_dim)
+    composite_output: bool = False                     # a per-sample output composited per ray with the weights
 
 
 ACTIVATIONS = {"sigmoid": "nn.Sigmoid()", "softplus": "nn.Softplus()", "relu": "nn.ReLU()", "tanh": "nn.Tanh()",
@@ -128,7 +129,8 @@ class Adapter:
     def lines_networks(self, w: Wiring, in_dim: str) -> list[str]:
         out = []
         for net in w.networks:
-            out.append(f"# {safe_comment(net.key, 40)}: a network of {self.network_input} ({safe_comment(net.evidence, 100)})")
+            out.append(f"# {safe_comment(net.key, 40)}: a network of {self.network_input} "
+                       f"({safe_comment(net.evidence, 100)})")
             out.append(f"self.{net.attr} = {_net_ctor(net, in_dim)}")
             if net.activation == "softplus" and self.production == "Renderer":
                 out.append("# a new non-negative coefficient starts near zero (softplus(-3) = 0.05): the part starts "
@@ -139,8 +141,9 @@ class Adapter:
     def lines_states(self, w: Wiring) -> list[str]:
         out = []
         for st, _ in w.states:
-            out.append(f"# {safe_comment(st.key, 40)}: persistent state, {st.rows} rows x {st.width} features, starts at "
-                       f"{float(st.init)!r}; kept across steps, detached, saved in checkpoints, unchanged at evaluation")
+            out.append(f"# {safe_comment(st.key, 40)}: persistent state, {st.rows} rows x {st.width} features, "
+                       f"starts at {float(st.init)!r}; kept across steps, detached, saved in checkpoints, unchanged "
+                       "at evaluation")
             out.append(f"self.register_buffer({st.attr!r}, torch.full(({int(st.rows)}, {int(st.width)}), "
                        f"{float(st.init)!r}))")
         return out
@@ -196,7 +199,8 @@ def _along_samples(value, n_samples):
 
 
 def _basis_sum(coefficients, basis, channels):
-    """sum over the basis functions of coefficient times basis value, per channel: [N, channels * B], [N, B] -> [N, channels]."""
+    """sum over the basis functions of coefficient times basis value, per channel:
+    [N, channels * B], [N, B] -> [N, channels]."""
     return torch.sum(coefficients.reshape(-1, channels, basis.shape[-1]) * basis[:, None, :], dim=-1)
 '''
 
@@ -228,7 +232,8 @@ class BackboneAdapter(Adapter):
                 "if self.project is not None:", "    hidden = self.project(hidden)",
                 "return hidden.reshape(*lead, hidden.shape[-1])"]
         lines = [f"class {w.cls}(nn.Module):",
-                 '    """Backbone compiled from the paper\'s equations: forward(features [N, in_dim]) -> hidden [N, get_out_dim()]."""',
+                 '    """Backbone compiled from the paper\'s equations: forward(features [N, in_dim]) -> hidden '
+                 '[N, get_out_dim()]."""',
                  "", "    def __init__(self, in_dim: int, out_dim: Optional[int] = None) -> None:"]
         lines += _indent(init, 2)
         lines += ["", "    def _own_dim(self) -> int:", f"        return int({w.out_dim})", "",
@@ -246,7 +251,8 @@ class RGBHeadAdapter(Adapter):
     output_roles = ("colour",)
 
     def provisions(self, context: dict) -> dict:
-        out = {"direction_encoding": Provision("direction_encoding", False, context.get("dir_dim"), "x[:, : self.dir_dim]",
+        out = {"direction_encoding": Provision("direction_encoding", False, context.get("dir_dim"),
+                                               "x[:, : self.dir_dim]",
                                                "the encoded direction (the plan's direction encoding)"),
                "hidden": Provision("hidden", False, RUNTIME, "x[:, self.dir_dim :]", "the geometry features")}
         if context.get("dir_encoding") == "sh":
@@ -268,8 +274,8 @@ class RGBHeadAdapter(Adapter):
         fwd += [f"return {ident}.reshape(*lead, {ident}.shape[-1])"]
         dir_dim = int(context.get("dir_dim") or 0)
         lines = [f"class {w.cls}(nn.Module):",
-                 '    """Colour head compiled from the paper\'s equations: forward(features [N, in_dim]) -> rgb [N, 3]; '
-                 'features = [encoded direction (dir_dim), geometry features]."""',
+                 '    """Colour head compiled from the paper\'s equations: forward(features [N, in_dim]) -> '
+                 'rgb [N, 3]; features = [encoded direction (dir_dim), geometry features]."""',
                  "", f"    def __init__(self, in_dim: int, dir_dim: int = {dir_dim}) -> None:"]
         lines += _indent(init, 2)
         lines += ["", "    def forward(self, features: torch.Tensor) -> torch.Tensor:"]
@@ -290,6 +296,11 @@ class RendererAdapter(Adapter):
     def provisions(self, context: dict) -> dict:
         return {
             "colour": Provision("colour", True, 3, "rgb", "the field's colour at every sample"),
+            "ray_colour": Provision("ray_colour", False, 3,
+                                    "self.combine_rgb(rgb, weights, background_color=self.background_color if "
+                                    "background_color is None else background_color)",
+                                    "the base's rendering of the ray: sum_i w_i c_i with the base's weights, blended "
+                                    "with the background (Nerfstudio's RGBRenderer.combine_rgb)"),
             "weight": Provision("weight", True, None, "weights[..., 0]", "the base's rendering weights"),
             "density": Provision("density", True, None, "densities[..., 0]", "the field's density at every sample"),
             "step": Provision("step", True, None, "ray_samples.deltas[..., 0]", "the step between samples"),
@@ -314,7 +325,8 @@ class RendererAdapter(Adapter):
                "    raise RuntimeError('the compiled renderer needs the samples: the field calls bind_samples')",
                "ray_samples, densities = self._samples",
                "if tuple(densities.shape[:2]) != tuple(weights.shape[:2]):",
-               "    raise RuntimeError(f'samples {tuple(densities.shape)} do not match weights {tuple(weights.shape)}')",
+               "    raise RuntimeError(f'samples {tuple(densities.shape)} do not match weights '"
+               "f'{tuple(weights.shape)}')",
                "n_samples = weights.shape[1]"]
         if w.networks:
             fwd += ["directions = ray_samples.frustums.directions[:, 0, :]",
@@ -322,10 +334,15 @@ class RendererAdapter(Adapter):
                     "encoded = self.direction_encoding(directions).to(dtype)"]
         fwd += self.lines_feeds(w, "encoded") + self.lines_call(w)
         (key, ident, width), = w.outputs[: len(w.outputs) - len(w.states)]
-        fwd += [f"rgb = {ident}", "if not self.training:", "    rgb = torch.clamp(rgb, 0.0, 1.0)", "return rgb"]
+        if w.composite_output:  # per-sample values: the volume-rendering composite with the base's weights
+            fwd += [f"rgb = torch.sum(weights * {ident}, dim=-2)" if width else
+                    f"rgb = torch.sum(weights[..., 0] * {ident}, dim=-1)"]
+        else:
+            fwd += [f"rgb = {ident}"]
+        fwd += ["if not self.training:", "    rgb = torch.clamp(rgb, 0.0, 1.0)", "return rgb"]
         lines = [f"class {w.cls}(RGBRenderer):",
-                 '    """Volume rendering compiled from the paper\'s equations: forward(rgb [R, S, 3], weights [R, S, 1]) '
-                 '-> rgb [R, 3], with the samples and densities the field binds (bind_samples)."""',
+                 '    """Volume rendering compiled from the paper\'s equations: forward(rgb [R, S, 3], weights '
+                 '[R, S, 1]) -> rgb [R, 3], with the samples and densities the field binds (bind_samples)."""',
                  "", "    def __init__(self, background_color='white', background: Optional[str] = None) -> None:"]
         lines += _indent(init, 2)
         lines += ["", "    def bind_samples(self, ray_samples, densities) -> None:",

@@ -49,7 +49,7 @@ from nerfify_ns.equations import (
     ParseFailure,
     Reduce,
     Symbol,
-    lower_module,
+    compile_equations,
     parse_equations,
     show,
 )
@@ -64,10 +64,12 @@ from nerfify_ns.synthesis.novel.adapters import (
     Adapter,
     Feed,
     NetSpec,
+    Provision,
     StateSpec,
     Wiring,
     component_source,
 )
+from nerfify_ns.synthesis.novel.causes import cause_of
 from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords
 from nerfify_ns.synthesis.novel.widths import WidthError, Widths
 
@@ -155,6 +157,7 @@ class HoleResult:
     section: str
     status: str = NOT_IMPLEMENTED
     reason: str = ""
+    cause: str = ""
     equations: list = field(default_factory=list)
     bindings: dict = field(default_factory=dict)
     sizes: dict = field(default_factory=dict)
@@ -169,7 +172,8 @@ class HoleResult:
 
     def to_dict(self) -> dict:
         out = {"id": self.id, "slot": self.slot, "production": self.production, "section": self.section,
-               "status": self.status, "reason": self.reason, "equations": self.equations,
+               "status": self.status, "reason": self.reason, **({"cause": self.cause} if self.cause else {}),
+               "equations": self.equations,
                "bindings": self.bindings, "sizes": self.sizes, "state": self.state, "notes": self.notes,
                "component": self.component, "checks": self.checks, "hash": self.hash}
         return out
@@ -217,7 +221,7 @@ class _Hole:
         self.adapter: Adapter | None = ADAPTERS.get(hole["production"])
         self.result = HoleResult(id=hole_id(hole), slot=hole["slot"], production=hole["production"],
                                  section=hole.get("section", ""))
-        self.provisions = self.adapter.provisions(context) if self.adapter else {}
+        self.provisions = _with_derived(self.adapter.provisions(context), notation) if self.adapter else {}
 
     # -------------------------------------------------------------- roles
     def role_of(self, sym: Symbol) -> Definition | None:
@@ -505,9 +509,20 @@ class _Hole:
             value, quote, where2 = stated
             return {"as": "constant", "role": role if kind == "constant" else "constant", "source": "paper",
                     "evidence": f"{where2}: \"{_short(quote)}\"", "value": value}
-        if role in self.provisions and role not in self._provision_used:
+        if role in self.provisions and role not in self._provision_used and not self._read_per_ray(sym, role):
             self._provision_used[role] = key
             return self._input(role, d.source, d.evidence())
+        composited = self._composited(sym, role, d)
+        if composited is not None:
+            return composited
+        learned = self.words.is_learned(sym)
+        if learned is not None and role not in self.provisions:
+            matrix = role == "weight_matrix" or (sym.name[:1].isupper() and sym.name.isalpha() and len(sym.name) == 1)
+            # a lower-case Greek letter (beta, tau) is a scalar by convention; other letters are sized by the equations
+            greek = len(sym.name) > 1 and sym.name.isalpha() and sym.name.islower() and not sym.subscripts
+            return {"as": "parameter", "role": "learned", "source": "paper",
+                    "evidence": f"{learned[1]}: \"{_short(learned[0])}\"", "matrix": matrix, "learned": True,
+                    **({"scalar": True} if greek and not matrix else {})}
         # a concatenation partner the paper's "concatenated with the ..." sentence names
         if isinstance(eq.rhs, Concat) and any(isinstance(i, Symbol) and i.key == key for i in eq.rhs.items):
             for role2, quote, where2 in self.words.concat_roles:
@@ -535,6 +550,31 @@ class _Hole:
         said = self.words.first_sentence(sym)
         paper = f"; the paper: \"{_short(said[0], 140)}\" ({said[1]})" if said else ""
         raise _Unbound(f"'{name}' ({where}): {what}{paper}")
+
+    def _read_per_ray(self, sym: Symbol, role: str | None) -> bool:
+        """A per-sample quantity read at a ray (``l(r)``, no sample index) in a production that renders rays."""
+        r = self.notation.roles.get(role or "")
+        if r is None or r.kind != "per_sample" or sym.index is not None or "weight" not in self.provisions:
+            return False
+        return any(isinstance(a, Symbol) and (self.role_of(a) or Definition("", "")).role == "ray" for a in sym.args)
+
+    def _composited(self, sym: Symbol, role: str | None, d: Definition | None) -> dict | None:
+        """A per-ray quantity whose per-sample counterpart the interface gives (a ray's colour, the mean luminance
+        along a ray): the volume-rendering composite sum_i w_i x_i with the renderer's weights, said in the record."""
+        r = self.notation.roles.get(role or "")
+        if r is None:
+            return None
+        source = r.composite_of if r.kind == "per_ray" else (role if self._read_per_ray(sym, role) else "")
+        prov, weight = self.provisions.get(source), self.provisions.get("weight")
+        if not source or prov is None or weight is None or not prov.per_sample or not weight.per_sample:
+            return None
+        weights = "weights" if prov.width is not None else "weights[..., 0]"
+        return {"as": "input", "role": role, "source": d.source if d else "table",
+                "evidence": d.evidence() if d else "", "code": f"torch.sum({weights} * {prov.code}, dim=1)",
+                "reads": f"{prov.doc}, composited per ray with the renderer's volume-rendering weights "
+                         "(sum_i w_i x_i, the base's weights)",
+                "composited": f"sum over the samples of the weights times {source}", "per_sample": False,
+                "width": prov.width}
 
     def _network(self, key, sym, d, corrected) -> dict:
         if not self.adapter.network_input:
@@ -586,6 +626,8 @@ class _Hole:
             if kind == "input":
                 width = b.get("width")
                 w.known(key, () if width is None else ((runtime_var,) if width == RUNTIME else (int(width),)))
+            elif kind == "parameter" and b.get("scalar"):
+                w.known(key, ())
             elif kind == "parameter":
                 w.matrix(key) if b.get("matrix") else w.vector(key)
             elif kind == "constant":
@@ -645,6 +687,10 @@ class _Hole:
             if b["as"] == "network" and w.open(key):
                 b["scalar"] = True  # nothing makes it a vector: one number per element
                 w.shapes[key] = ()
+            elif b["as"] == "parameter" and b.get("learned") and not b.get("matrix") and w.open(key) == [0]:
+                w.shapes[key] = ()  # a learned quantity nothing makes a vector: one learned number
+                evidence[key] = {"source": "paper", "evidence": b["evidence"] + " (one number: nothing in the "
+                                                                                "equations makes it a vector)"}
         w.run(att.equations)
         for key, b in bindings.items():
             if b["as"] in ("parameter", "state", "basis") and w.open(key):
@@ -652,6 +698,21 @@ class _Hole:
                                f"{self.adapter.production} contract or the paper's hyperparameters (set it in "
                                "equations.yaml: sizes)")
         return w, evidence
+
+
+def _with_derived(provisions: dict, notation: Notation) -> dict:
+    """The interface's quantities and those a standard formula derives from them (``notation.yaml``: derived; a
+    colour's luminance is the weighted sum of its channels)."""
+    out = dict(provisions)
+    for name, role in notation.roles.items():
+        if not role.derived or name in out or role.derived[0] not in provisions:
+            continue
+        src = provisions[role.derived[0]]
+        weights = ", ".join(repr(float(v)) for v in role.derived[1])
+        out[name] = Provision(name, src.per_sample, None,
+                              f"torch.sum({src.code} * {src.code}.new_tensor([{weights}]), dim=-1)",
+                              f"{role.doc}, from {src.doc}")
+    return out
 
 
 def _first_seen(pool: list[Item]) -> dict[str, tuple]:
@@ -683,10 +744,6 @@ def _find_symbol(eq: Equation, key: str) -> Symbol | None:
             if isinstance(node, Symbol) and node.key == key and not is_bound_variable(node):
                 return node
     return None
-
-
-def _sample_keys(equations: list[Equation]) -> set[str]:
-    return sample_indexed_keys(equations)
 
 
 def _composite(parts: list[Equation]) -> Equation:
@@ -796,6 +853,7 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
         except Exception as err:  # noqa: BLE001 - the per-part boundary: this part's reason, the run goes on
             result = _failed_part(merged, hid, local_items, err)
         result.seconds = time.perf_counter() - t0
+        result.cause = cause_of(result.reason) if result.status == NOT_IMPLEMENTED else ""
         if corr.get("recompiled_because"):  # its generated code was edited since: said, not reused
             result.notes = list(result.notes) + [str(corr["recompiled_because"])]
         records.append(result)
@@ -812,6 +870,8 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
             h["stands_in_base"] = h.get("stands_in", "")
             h["status"] = result.status
             h["reason"] = result.reason
+            if result.cause:
+                h["cause"] = result.cause
             h["compiled"] = result.component.get("module", "") if result.status != NOT_IMPLEMENTED else ""
             if result.status != NOT_IMPLEMENTED:
                 h["stands_in"] = result.component.get("stands_in") or (
@@ -963,29 +1023,13 @@ def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> 
         implementation.sources.pop(r.component.get("module", ""), None)
         r.status = NOT_IMPLEMENTED
         r.reason = f"compiled, but {reason}; the base's part stands in"
+        r.cause = cause_of(r.reason)
         r.checks["ladder"] = reason
         for h in plan.get("holes") or []:
             if h.get("slot") == r.slot:
-                h["status"], h["reason"], h["compiled"] = NOT_IMPLEMENTED, r.reason, ""
+                h["status"], h["reason"], h["compiled"], h["cause"] = NOT_IMPLEMENTED, r.reason, "", r.cause
                 h["stands_in"] = h.get("stands_in_base", h.get("stands_in", ""))
     return plan
-
-
-def _record_equation(it: Item, used: set, attempt_items: list) -> dict:
-    reading = "; ".join(show(p) if isinstance(p, Equation) else f"not read: {p}" for p in it.parsed)
-    status = "compiled" if any(it is a for a in attempt_items if a is not None) else (
-        "not read: " + "; ".join(str(f) for f in it.failures()) if it.failures() and not it.equations()
-        else "not needed by the component's outputs")
-    out = {"number": it.number, "latex": it.latex, "reading": reading, "status": status, "where": it.where}
-    if it.page:
-        out["page"] = it.page
-    if it.bbox:
-        out["bbox"] = [round(float(v), 2) for v in it.bbox]
-    if not it.number:
-        out["key"] = f"@{it.position}"
-    if it.corrected:
-        out["corrected"] = True
-    return out
 
 
 @dataclass
@@ -1029,27 +1073,26 @@ def _outputs(att: _Attempt, bindings: dict) -> list[str]:
     return list(att.outputs) + [k for k, b in bindings.items() if b["as"] == "state"]
 
 
-def _lower(att: _Attempt, bindings: dict, sized: _Sized, class_name: str, check: bool):
-    """Lower (and check) the equations; a Compiled-like record (ok, reason, report, lowered)."""
-    from nerfify_ns.equations.check import check_lowering
-    from nerfify_ns.equations.compile import Compiled
-
-    out = Compiled(equations=list(att.equations))
-    inputs = _inputs(att, bindings, sized)
-    outputs = _outputs(att, bindings)
-    try:
-        out.lowered = lower_module(att.equations, inputs, outputs, sized.params, class_name)
-    except CompileError as err:
-        out.reason = str(err)
-        return out
-    except Exception as err:  # noqa: BLE001 - a lowering failure on what a paper wrote: the part's reason
-        out.reason = f"lowering: {describe(err)}"
-        return out
-    if check:
-        out.report = check_lowering(att.equations, inputs, sized.params, outputs, class_name=class_name)
-        if not out.report.ok:
-            out.reason = out.report.reason
+def _domains(work: _Hole, bindings: dict) -> dict:
+    """The value range of each input in the check, from its role's range (a density is non-negative, a weight lies
+    in [0, 1]): the check's default range (0.1, 0.9) clipped to it."""
+    out = {}
+    for key, b in bindings.items():
+        role = work.notation.roles.get(b.get("role") or "")
+        if b["as"] in ("parameter", "constant") or role is None or role.range == (None, None):
+            continue
+        lo, hi = role.range
+        low = 0.1 if lo is None else max(0.1, float(lo) + 0.05)
+        high = 0.9 if hi is None else min(0.9, float(hi) - 0.05)
+        if low < high:
+            out[key] = (low, high)
     return out
+
+
+def _lower(work: _Hole, att: _Attempt, bindings: dict, sized: _Sized, class_name: str, check: bool):
+    """Lower (and check) the equations through the one compile path (``equations.compile_equations``)."""
+    return compile_equations(att.equations, _inputs(att, bindings, sized), _outputs(att, bindings), sized.params,
+                             class_name, check=check, domains=_domains(work, bindings))
 
 
 def _implement_one(work: _Hole) -> HoleResult:
@@ -1081,7 +1124,7 @@ def _implement_one(work: _Hole) -> HoleResult:
         try:
             att, bindings = work.attempt(root_eqs, root_items, composite, own, work.items)
             small = _sizes(work, att, bindings, SMALL_RUNTIME, small=True)
-            trial = _lower(att, bindings, small, "CheckedPart", check=False)
+            trial = _lower(work, att, bindings, small, "CheckedPart", check=False)
             if trial.lowered is None:
                 raise CompileError(trial.reason)
             chosen = (att, bindings, small)
@@ -1102,7 +1145,7 @@ def _implement_one(work: _Hole) -> HoleResult:
         return res
     att, bindings, small = chosen
     res.notes += att.dropped
-    checked = _lower(att, bindings, small, "CheckedPart", check=True)
+    checked = _lower(work, att, bindings, small, "CheckedPart", check=True)
     res.checks = {"lowering": str(checked.report) if checked.report else checked.reason,
                   "check_sizes": {k: list(v.shape) for k, v in small.params.items()}}
     extra = [it for it in att.items if it is not None and not any(it is c for c in considered)]
@@ -1113,7 +1156,7 @@ def _implement_one(work: _Hole) -> HoleResult:
     try:
         full = _sizes(work, att, bindings, FULL_RUNTIME, small=False)
         cls = _class_name(res.id)
-        full_lowered = _lower(att, bindings, full, f"{cls}Equations", check=False)
+        full_lowered = _lower(work, att, bindings, full, f"{cls}Equations", check=False)
         if full_lowered.lowered is None:
             raise CompileError(f"lowering at the paper's sizes: {full_lowered.reason}")
         wiring = _wiring(work, att, bindings, full_lowered.lowered, full, cls)
@@ -1132,7 +1175,7 @@ def _implement_one(work: _Hole) -> HoleResult:
         return res
     try:  # the component itself, built at the check's small sizes, on its interface's example inputs
         small_rt = _sizes(work, att, bindings, SMALL_SENTINEL, small=True)
-        small_lowered = _lower(att, bindings, small_rt, f"{cls}Equations", check=False).lowered
+        small_lowered = _lower(work, att, bindings, small_rt, f"{cls}Equations", check=False).lowered
         small_wiring = _wiring(work, att, copy.deepcopy(bindings), small_lowered, small_rt, cls, small=True)
         small_source = _runtime_width(small_lowered.source, SMALL_SENTINEL, small_wiring, work.adapter)
         problem = _selfcheck(component_source(work.adapter, small_wiring, small_source, work.context), cls,
@@ -1173,6 +1216,10 @@ def _implement_one(work: _Hole) -> HoleResult:
                          f"({', '.join(safe_comment(e.defines, 30) for e in att.roots)}), as NeRF's "
                          "C(r) = sum_i C_i(r)")
     res.notes += wiring.notes + _operator_discrepancies(work, att, full)
+    res.notes += [f"'{safe_comment(k, 30)}' is per ray where the interface gives it per sample: the "
+                  f"{safe_comment(str(b.get('role')), 30)} composited with the renderer's volume-rendering weights "
+                  "(sum_i w_i x_i), as the production's contract is per ray" for k, b in bindings.items()
+                  if b.get("composited")]
     unread = [e for e in res.equations if e["status"].startswith("not read")]
     not_needed = [e for e in res.equations if e["status"] == "not needed by the component's outputs"]
     touched = set(bindings) | {eq.defines for eq in att.equations}
@@ -1391,8 +1438,18 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
                        "concatenated into it; the field's density head reads all of it, and its colour head reads it "
                        "with the encoded direction")
     if production == "Renderer":
-        w.notes.append("the base's background blending is not applied: the paper's rendering equation has no "
-                       "background term (its own terms explain the whole ray)")
+        out_key = att.outputs[0] if att.outputs else ""
+        if "S" in (lowered.layouts.get(out_key) or ()):
+            w.composite_output = True
+            w.notes.append(f"the part's output '{safe_comment(out_key, 30)}' is per sample where the Renderer's "
+                           "contract is per ray: it is composited with the renderer's volume-rendering weights "
+                           "(sum_i w_i x_i)")
+        if any(b.get("role") == "ray_colour" and b["as"] == "input" for b in bindings.values()):
+            w.notes.append("the ray's colour the part reads is the base's rendering (its weights, blended with the "
+                           "background as Nerfstudio's RGBRenderer does)")
+        else:
+            w.notes.append("the base's background blending is not applied: the paper's rendering equation has no "
+                           "background term (its own terms explain the whole ray)")
     if production == "RGBHead":
         w.params = {"dir_dim": int(work.context.get("dir_dim") or 0)}
     if production == "RGBLoss":

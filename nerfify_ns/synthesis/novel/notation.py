@@ -44,6 +44,8 @@ class Role:
     doc: str = ""
     basis: str = ""
     nerfstudio: str = ""
+    composite_of: str = ""
+    derived: tuple = ()    # (source role, channel weights): a standard formula over another role's channels
 
 
 @dataclass
@@ -80,7 +82,10 @@ class Notation:
 
     def __init__(self, data: dict):
         self.roles = {name: Role(name, r["kind"], tuple(r.get("features") or ()), tuple(r.get("range") or (None, None)),
-                                 r.get("doc", ""), r.get("basis", ""), r.get("nerfstudio", ""))
+                                 r.get("doc", ""), r.get("basis", ""), r.get("nerfstudio", ""),
+                                 r.get("composite_of", ""),
+                                 (r["derived"]["from"], tuple(float(v) for v in r["derived"]["weights"]))
+                                 if r.get("derived") else ())
                       for name, r in data["roles"].items()}
         self.symbols: dict[str, dict] = data["symbols"]
         self.variants: list[dict] = data.get("variants") or []
@@ -212,6 +217,7 @@ class PaperWords:
     letters: dict = field(default_factory=dict)       # letter -> (value, quote, where): "h = 256"
     activations: dict = field(default_factory=dict)   # loose key -> (function, quote, where): "c^med via sigmoid"
     constants: dict = field(default_factory=dict)     # loose key -> (value, quote, where): "$\lambda=0.1$"
+    learned: dict = field(default_factory=dict)       # loose key -> (quote, where): "where $\beta$ is learned"
     operators: list = field(default_factory=list)     # (operator, what the paper calls it, quote, where)
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
@@ -246,7 +252,7 @@ class PaperWords:
         for m in ms:
             self.named.add(m.loose)
         # "where X and Y are the A and B, respectively" / "X denotes the A"
-        for m in re.finditer(rf"\s{_VERBS}\s+(?:the\s+|a\s+|an\s+|their\s+)?([^.;:]{{3,160}})", text):
+        for m in re.finditer(rf"\s{_VERBS}\s+(?:the\s+|a\s+|an\s+|their\s+)?(?=([^.;:]{{3,160}}))", text):
             before = [x for x in ms if x.end <= m.start() and m.start() - x.end < 80]
             if not before:
                 continue
@@ -261,7 +267,8 @@ class PaperWords:
             if not re.search(r"(where|while|and|,|^|\()\s*$", lead.strip() + " ") and group[0].start > 0 and \
                     not re.search(r"\b(where|while)\b", text[max(0, group[0].start - 40):group[0].start].lower()):
                 continue
-            phrase = re.split(r"\s(?:while|whereas|which|that|where)\s", m.group(1))[0]
+            # the phrase ends where the next clause starts ("... is learned and $l$ is the ...")
+            phrase = re.split(r"\s(?:while|whereas|which|that|where)\s|,?\s+and\s+(?=\$)", m.group(1))[0]
             parts = [phrase]
             if "respective" in phrase and len(group) > 1:
                 split = [p.strip() for p in re.split(r",\s*(?:and\s+)?|\s+and\s+", phrase.replace("respectively", ""))
@@ -273,6 +280,14 @@ class PaperWords:
                 role = notation.phrase_role(part)
                 if role and x.loose not in self.definitions:
                     self.definitions[x.loose] = Definition(role, "paper", part.strip(), text, where)
+        # "where $\beta$ is learned", "$W$ and $b$ are learnable", "a learned scalar $\beta$": learned parameters
+        for x in ms:
+            after, before = text[x.end:x.end + 60], text[max(0, x.start - 40):x.start]
+            if re.match(rf"\$?\s*(?:,\s*\S{{1,30}}\s*)*(?:and\s+\$[^$]{{1,40}}\$\s*)?{_VERBS}\s+(?:a\s+|an\s+|also\s+)?"
+                        r"(?:learn(?:ed|able|t)|trainable|optimi[sz]ed)\b", after, re.I) or \
+                    re.search(r"\b(?:learn(?:ed|able)|trainable)\s+(?:scalars?|parameters?|weights?|vectors?|matri(?:x|ces)|"
+                              r"coefficients?|factors?|offsets?|temperatures?)?\s*\$?\s*$", before, re.I):
+                self.learned.setdefault(x.loose, (text, where))
         # "$c^{med}$ via sigmoid", "$a^{attn}$ and $a^{bs}$ via softplus": the output activation of a network
         for m in re.finditer(r"\bvia\s+(?:a\s+|an\s+)?(sigmoid|softplus|relu|tanh|exp)", text, re.I):
             clause_start = max(text.rfind(";", 0, m.start()), text.rfind(":", 0, m.start()), 0)
@@ -311,6 +326,10 @@ class PaperWords:
             self.widths.append((int(m.group(1)), text, where))
 
     # ------------------------------------------------------------------ look-ups
+    def is_learned(self, sym: Symbol) -> tuple | None:
+        """(quote, where) of the sentence saying ``sym`` is learned, None when none does."""
+        return self.learned.get(symbol_loose_key(sym))
+
     def definition(self, sym: Symbol) -> Definition | None:
         return self.definitions.get(symbol_loose_key(sym))
 
