@@ -61,6 +61,11 @@ def _rules() -> dict:
         "generic": re.compile(data["generic_headings"], re.IGNORECASE),
         "run_in": re.compile(data["run_in"]), "run_in_not": re.compile(data["run_in_not"]),
         "schedule_phase": comp(data.get("schedule_phase") or []),
+        "component_use": {k: re.compile(v, re.IGNORECASE if k != "source" else 0)
+                          for k, v in (data.get("component_use") or {}).items()},
+        "several_fields": dict(data.get("several_fields") or {}),
+        "family_words": {k: set(v) for k, v in (data.get("family_words") or {}).items()},
+        "loss_split": dict(data.get("loss_split") or {}),
         "productions": {name: ([(re.compile(t, re.IGNORECASE), float(w)) for t, w in spec["terms"].items()],
                                list(spec.get("symbols") or []))
                         for name, spec in data["productions"].items()},
@@ -123,6 +128,8 @@ class Part:
     why: str = ""
     production: str = ""
     production_scores: dict = field(default_factory=dict)
+    orders: list = field(default_factory=list)
+    """The reading order of the paragraph of each sentence (to find the words around an equation)."""
     hole_equations: list | None = None
     """The equations its hole carries (None: every equation no card has, and those of cards the grammar does not
     compute; a part new through such a card carries that card's equations only)."""
@@ -136,6 +143,7 @@ class Part:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["sentences"] = [s[:400] for s in self.sentences[:12]]
+        d.pop("orders", None)
         return d
 
 
@@ -186,9 +194,13 @@ def _loc(loc: Any) -> tuple[int | None, int | None, int]:
 
 
 class _Reader:
-    def __init__(self, doc: Any, kb: Any, target_cards: set[str]):
+    def __init__(self, doc: Any, kb: Any, target_cards: set[str], family: str = ""):
         self.doc, self.kb, self.r = doc, kb, rules()
+        self.family = family
         self.roles = section_roles(doc, kb.rules)
+        self.field_labels = self._field_labels()
+        """The labels the paper writes on the field's own outputs (sigma^obj, c^med): two or more are several
+        fields."""
         self.index = CardEquations.of(kb)
         self.target_cards = target_cards
         self.claimless = False
@@ -279,6 +291,7 @@ class _Reader:
                         orders.append(porder)
                         continue
                     current.sentences.append(sentence)
+                    current.orders.append(porder)
             for e in equations:
                 if e.section != heading:
                     continue
@@ -290,7 +303,7 @@ class _Reader:
                     "where": ", ".join(x for x in (f"p.{e.loc.page}" if getattr(e.loc, "page", None) else "",
                                                    f"Sec. {heading}") if x),
                     "known": match.card if match else None, "how": match.how if match else "",
-                    "read": read})
+                    "read": read, "order": eorder})
             for h in hps:
                 if h.section == heading:
                     section_parts[-1 if len(section_parts) == 1 else 0].hyperparameters.append(
@@ -342,8 +355,8 @@ class _Reader:
         if unbuilt_eqs and not p.appendix:
             self._unbuilt(p, sorted({e["known"] for e in unbuilt_eqs}))
             if unmatched:
-                p.why += (f"; its other equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
-                          " are recorded with the part, not built")
+                p.why += (f"; its other equation(s) no card has (Eq. {_numbers(unmatched)}) are recorded with the "
+                          "part, not built")
             return
         if not p.claims and not p.own_claims:
             if self.claimless and not takes and not p.appendix and not (eqs and not unmatched) \
@@ -355,8 +368,8 @@ class _Reader:
                 return
             if unmatched and not takes and not p.appendix:
                 p.status = "new"
-                p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)}),"
-                         " in the method, not taken from earlier work (the paper claims it in no sentence)")
+                p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {_numbers(unmatched)}), in the method, not "
+                         "taken from earlier work (the paper claims it in no sentence)")
             else:
                 p.status, p.why = "unclaimed", "the paper claims nothing of it (a description, not a contribution)"
             return
@@ -379,14 +392,14 @@ class _Reader:
             return
         named = self._cards_named(p)
         if not eqs and named:
-            own = [s for s in p.own_claims if re.search(r"\bnovel\b|\bnew\b|\bpropos|\bintroduc|\bwe (?:call|present|design)",
-                                                        s, re.I)]
+            own = [s for s in p.own_claims
+                   if re.search(r"\bnovel\b|\bnew\b|\bpropos|\bintroduc|\bwe (?:call|present|design)", s, re.I)]
             mine = sorted(set(named) & self.target_cards)
             if mine or not own:
                 p.status, p.covered_by = "known", sorted(set(named))
-                p.why = (f"the card(s) {', '.join(mine)} are this paper's own technique(s), already in the knowledge base"
-                         if mine else f"it uses {', '.join(sorted(set(named)))} (named, no new equation, no claim of "
-                                      "its own)")
+                p.why = (f"the card(s) {', '.join(mine)} are this paper's own technique(s), already in the knowledge "
+                         "base" if mine else
+                         f"it uses {', '.join(sorted(set(named)))} (named, no new equation, no claim of its own)")
                 return
         p.status = "new"
         p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
@@ -442,19 +455,115 @@ class _Reader:
     def production(self, p: Part) -> None:
         scores = {}
         heading, claims = p.heading, " ".join(p.claims + p.own_claims)
-        body = " ".join(p.sentences[:30])
+        body = _plain(" ".join(p.sentences[:30]))
         lhs = " ".join(_lhs_name(e) for e in p.equations)
         new_lhs = " ".join(_lhs_words(e) for e in p.equations if not e["known"])
+        family_words = self.r["family_words"].get(self.family, set())
         for name, (terms, symbols) in self.r["productions"].items():
             score = 0.0
             for pattern, weight in terms:
+                in_body = 0.0 if pattern.pattern in family_words else math.sqrt(len(pattern.findall(body)))
                 score += weight * (HEADING_WEIGHT * bool(pattern.search(heading)) + 2 * bool(pattern.search(claims))
-                                   + math.sqrt(len(pattern.findall(body))) + 3 * bool(pattern.search(new_lhs)))
+                                   + in_body + 3 * bool(pattern.search(new_lhs)))
             score += 2.0 * sum(1 for s in symbols if s and re.search(rf"(?:^|\s){re.escape(s)}(?:\s|$)", lhs))
             scores[name] = round(score, 2)
         best = max(scores, key=lambda k: scores[k]) if scores else "Backbone"
         p.production = best if scores.get(best, 0) > 0 else "Backbone"
         p.production_scores = dict(sorted(scores.items(), key=lambda kv: -kv[1])[:4])
+        labels = self._labels_in(" ".join([*p.sentences, *(e["latex"] or e["text"] for e in p.equations)]))
+        if len(self.field_labels) >= 2 and labels and p.production in self.r["several_fields"].get("productions", ()):
+            p.production_scores = {**p.production_scores, "FieldWrapper": (
+                f"the paper writes the field's outputs with {len(self.field_labels)} labels "
+                f"({', '.join(sorted(self.field_labels))}: several fields) and this network makes the "
+                f"{', '.join(sorted(labels))} one")}
+            p.production = "FieldWrapper"
+
+    # ------------------------------------------------------------------ several fields
+    def _labels_in(self, text: str) -> set[str]:
+        spec = self.r["several_fields"]
+        if not spec.get("quantity"):
+            return set()
+        not_labels = {str(x).lower() for x in spec.get("not_labels") or ()}
+        return {m.group("label").lower() for m in re.finditer(spec["quantity"], text)} - not_labels
+
+    def _field_labels(self) -> set[str]:
+        texts = [e.latex or e.text or "" for e in getattr(self.doc, "equations", []) or []]
+        for i, s in enumerate(self.doc.sections):
+            if self.roles[i] == "method":
+                texts += [p.text for p in s.paragraphs]
+        return self._labels_in(" ".join(texts))
+
+    # ------------------------------------------------------------------ loss terms
+    def split_losses(self, parts: list[Part]) -> list[Part]:
+        """A new loss part whose equations do different things becomes several parts (``ledger.yaml:
+        loss_split``): the term comparing the rendered colour with the observed one stays (RGBLoss), each other
+        loss term is a regulariser of its own, with the words around its equation; a sum of the part's terms with
+        their weights stays with the part."""
+        spec = self.r["loss_split"]
+        if not spec:
+            return []
+        loss_lhs = re.compile(spec["loss_lhs"])
+        out: list[Part] = []
+        for p in parts:
+            if p.status != "new" or p.production != spec["from"] or p.hole_equations is not None:
+                continue
+            terms = [e for e in p.equations if loss_lhs.search(_lhs(e)) and not _sums_terms(e)]
+            reconstruction = [e for e in terms if _compares_render_and_target(e)]
+            others = [e for e in terms if e not in reconstruction and not e["known"]]
+            if not reconstruction or not others:
+                continue
+            for e in others:
+                at = e.get("order", 0)
+                placed = list(zip(p.sentences, p.orders, strict=False))
+                prev = max([x.get("order", 0) for x in p.equations if x.get("order", 0) < at], default=-1)
+                near = [s for s, o in placed if prev < o <= at] or [s for s, o in placed if o <= at][-1:]
+                after = [s for s, o in placed if at < o][:1]
+                title = _plain(near[-1] if near else f"Eq. {e['number'] or '?'}").strip(" :.")[:100]
+                p.equations.remove(e)
+                out.append(Part(f"p{len(parts) + len(out) + 1}", title, p.section, sentences=near + after,
+                                equations=[e], page=p.page, line=p.line, status="new", claims=list(p.claims),
+                                own_claims=[s for s in p.own_claims if s in near], production=spec["to"],
+                                production_scores={spec["to"]: f"a loss term on other quantities than the rendered "
+                                                               f"colour, split from {p.id} ({p.heading})"},
+                                why=f"{p.why}; a loss term of its own beside the reconstruction loss of {p.id}"))
+            split = ", ".join(x.id for x in out[-len(others):])
+            left = [e for e in p.equations if not _sums_terms(e)]
+            if left and all(e["known"] for e in left):  # what stays is a card's reconstruction loss
+                p.status, p.covered_by = "known", sorted({e["known"] for e in left})
+                p.why = (f"its reconstruction loss matches {', '.join(p.covered_by)} by structure; its other loss "
+                         f"term(s) are parts of their own ({split})")
+            else:
+                p.why += f"; its other loss term(s) are parts of their own ({split})"
+        return out
+
+    # ------------------------------------------------------------------ network components
+    def component_uses(self, parts: list[Part]) -> list[Part]:
+        """Network components the paper adds in its method in the first person, citing no source and naming no
+        card ("we use Layer Normalization after each fully-connected layer"), that no new part already holds: one
+        part each, at the production the sentence's meaning points to (``ledger.yaml: component_use``)."""
+        spec = self.r["component_use"]
+        if not spec:
+            return []
+        held = {x for p in parts if p.status in ("new", "merged") for x in p.sentences}
+        out: list[Part] = []
+        for i, s in enumerate(self.doc.sections):
+            if self.roles[i] != "method":
+                continue
+            for paragraph in s.paragraphs:
+                for sentence in split_sentences(paragraph.text):
+                    m = spec["components"].search(sentence)
+                    if sentence in held or m is None or not spec["verb"].search(sentence) \
+                            or spec["source"].search(sentence) or find_spans(sentence, self.kb.card_aliases):
+                        continue
+                    page, line, order = _loc(paragraph.loc)
+                    part = Part(f"p{len(parts) + len(out) + 1}", m.group(0), s.heading, sentences=[sentence],
+                                orders=[order], page=page, line=line, status="new", own_claims=[sentence],
+                                why="a network component the paper adds in its method (no source cited, no card "
+                                    "names it)")
+                    self.production(part)
+                    out.append(part)
+                    held.add(sentence)
+        return out
 
 
 def _production_of_slot(slot: str | None) -> str:
@@ -469,6 +578,49 @@ def _production_of_slot(slot: str | None) -> str:
         return symbol
     # an open production's path holds its terminal: the production is the nonterminal of that terminal
     return next((name for name, nt in g.nonterminals.items() if getattr(nt, "terminal", None) == symbol), symbol)
+
+
+def _numbers(equations: list) -> str:
+    return ", ".join(e["number"] or "?" for e in equations)
+
+
+def _plain(text: str) -> str:
+    """Text without markdown emphasis (``**stream**`` -> ``stream``)."""
+    return re.sub(r"\*\*|__|(?<!\w)\*(?=\w)|(?<=\w)\*(?!\w)", "", text)
+
+
+def _lhs(e: dict) -> str:
+    src = e.get("latex") or e.get("text") or ""
+    return src.split("=", 1)[0] if "=" in src else ""
+
+
+_LOSS_SYMBOL = re.compile(r"\\mathcal\s*\{?\s*[LR]\s*\}?|(?<![A-Za-z\\])[LR](?![A-Za-z])|\\ell\b")
+
+
+def _sums_terms(e: dict) -> bool:
+    """Whether the equation only adds loss terms with their weights (``L = L_rec + \\lambda L_reg``)."""
+    src = e.get("latex") or e.get("text") or ""
+    if "=" not in src:
+        return False
+    rhs = re.split(r"\\q?quad|,\s*\\|;", src.split("=", 1)[1])[0]
+    if len(_LOSS_SYMBOL.findall(rhs)) < 2:
+        return False
+    rest = _LOSS_SYMBOL.sub("", rhs)
+    rest = re.sub(r"_\s*\{(?:[^{}]|\{[^{}]*\})*\}|_\s*\\?\w+|\\(?:mathrm|text|rm|cdot|lambda|alpha|beta|gamma|mu|eta|"
+                  r"omega|tau|left|right)\b|\\[,;!]|[\d.]+|[+\s{}()\[\]]|\b[a-z]\b", "", rest)
+    return not rest
+
+
+def _compares_render_and_target(e: dict) -> bool:
+    """Whether a loss compares a rendered quantity with its observation: a hatted symbol and the same letter
+    unhatted, starred or ground truth (``\\hat C`` and ``C^*``, ``\\hat{\\mathbf C}(r)`` and ``C(r)``)."""
+    src = e.get("latex") or e.get("text") or ""
+    rhs = src.split("=", 1)[1] if "=" in src else src
+    rhs = re.sub(r"\\(?:mathbf|boldsymbol|bm|mathrm)\s*\{\s*([A-Za-z])\s*\}", r"\1", rhs)
+    hatted = set(re.findall(r"\\(?:hat|widehat|tilde)\s*\{?\s*([A-Za-z])", rhs)) | \
+        {"C" for _ in re.findall("\u0108", rhs)} | {"I" for _ in re.findall("\u00ce", rhs)}
+    plain = re.sub(r"\\(?:hat|widehat|tilde)\s*\{?\s*[A-Za-z]", " ", rhs)
+    return any(re.search(rf"(?<![A-Za-z\\]){x}(?![A-Za-z])", plain) for x in hatted)
 
 
 def _lhs_words(e: dict) -> str:
@@ -487,10 +639,11 @@ def _lhs_name(e: dict) -> str:
     return " ".join(lhs.split())
 
 
-def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None) -> Ledger:
+def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None, family: str = "") -> Ledger:
     """The ledger of ``doc`` (see the module docstring). ``target_cards``: cards whose technique the paper itself
-    introduced (the knowledge base already holds them: claiming them is not a hole)."""
-    reader = _Reader(doc, kb, set(target_cards or ()))
+    introduced (the knowledge base already holds them: claiming them is not a hole); ``family``: the paper's family
+    (its deciding words count little for where a part lands)."""
+    reader = _Reader(doc, kb, set(target_cards or ()), family)
     claims = reader.claims()
     parts = reader.parts()
     reader.link(claims, parts)
@@ -503,7 +656,8 @@ def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None) -> Ledg
             p.status, p.why = "unclaimed", "an appendix part that claims nothing itself (details of the method)"
             continue
         if p.lead:
-            p.status, p.why = "unclaimed", "it introduces the parts after it in its section (they are judged themselves)"
+            p.status = "unclaimed"
+            p.why = "it introduces the parts after it in its section (they are judged themselves)"
             continue
         if p.generic and not p.own_claims and not any(not e["known"] or reader.unbuilt(e["known"])
                                                       for e in p.equations):
@@ -512,8 +666,10 @@ def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None) -> Ledg
         reader.judge(p)
         if p.status == "new" and not p.production:
             reader.production(p)
+    parts += reader.split_losses(parts)
     _merge(parts)
     parts += reader.schedule_phases(parts)
+    parts += reader.component_uses(parts)
     return Ledger(claims, parts)
 
 
@@ -527,6 +683,7 @@ def _merge(parts: list[Part]) -> None:
         if last is not None and last.section == p.section and last.production == p.production:
             last.heading = f"{last.heading}; {p.heading}"
             last.sentences += p.sentences
+            last.orders += p.orders
             last.equations += p.equations
             last.hyperparameters += p.hyperparameters
             last.claims += [c for c in p.claims if c not in last.claims]

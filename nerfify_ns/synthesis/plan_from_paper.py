@@ -201,7 +201,8 @@ def _eval(node: ast.AST, names: dict[str, Any]) -> Any:
         return all(values) if isinstance(node.op, ast.And) else any(values)
     if isinstance(node, ast.IfExp):
         return _eval(node.body, names) if _eval(node.test, names) else _eval(node.orelse, names)
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS and not node.keywords:
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in FUNCTIONS \
+            and not node.keywords:
         args = [_eval(a, names) for a in node.args]
         return None if any(a is None for a in args) else FUNCTIONS[node.func.id](*args)
     raise HyperparameterError(f"{ast.unparse(node)!r} is not allowed in a card's hyperparameter expression")
@@ -388,7 +389,8 @@ class _Deriver:
             if other is not None and other.card in self.used and c.name in self.used and \
                     other.card in self.placed and self.used[other.card].confidence >= self.used[c.name].confidence:
                 self.notes.append(f"{c.name} ({c.title}) was also found in the paper, less surely "
-                                  f"({self.used[c.name].confidence:.2f} against {self.used[other.card].confidence:.2f}) "
+                                  f"({self.used[c.name].confidence:.2f} against "
+                                  f"{self.used[other.card].confidence:.2f}) "
                                   f"than {other.card}; {held} stays at {ts.slot}")
                 return  # two of the paper's own techniques for one slot: the surer detection wins
         specific, others = self._variants(c, ts)
@@ -537,7 +539,8 @@ class _Deriver:
         """The trainer's hyperparameters (no technique's): ray batch, iterations, optimiser and schedule."""
         h = self._hp("batch_size")
         if h is not None and isinstance(h.value, int) and (h.unit or "rays") in ("rays", "pixels"):
-            self._apply(plan, "datamanager.train_num_rays_per_batch", h.value, h, f"batch of {h.value} {h.unit or 'rays'}")
+            self._apply(plan, "datamanager.train_num_rays_per_batch", h.value, h,
+                        f"batch of {h.value} {h.unit or 'rays'}")
         iterations = self.iterations(plan)
         self.optimizer(plan, iterations)
 
@@ -546,7 +549,8 @@ class _Deriver:
         h = self._hp("num_iterations")
         if h is None:
             if (e := self._hp("num_epochs")) is not None:
-                self.notes.append(f"the paper states {e.raw} (epochs, not iterations); the base's iteration count is kept")
+                self.notes.append(f"the paper states {e.raw} (epochs, not iterations); the base's iteration count "
+                                  "is kept")
             return None
         value = max(h.value) if isinstance(h.value, list) else h.value
         if not isinstance(value, int | float) or value < 1:
@@ -576,7 +580,8 @@ class _Deriver:
             params = {"lr": float(h.value)}
             if kind == "adam":
                 params["eps"] = float(eps.value) if eps is not None and eps.sentence == h.sentence else \
-                    float(current["optimizer"].get(kind, {}).get("eps", 1e-15) if kind in current["optimizer"] else 1e-15)
+                    float(current["optimizer"].get(kind, {}).get("eps", 1e-15)
+                          if kind in current["optimizer"] else 1e-15)
             elif "eps" in current["optimizer"].get(kind, {}):
                 params["eps"] = current["optimizer"][kind]["eps"]
             self._apply(plan, f"optimizers.{group}.optimizer", {kind: params}, h,
@@ -604,8 +609,8 @@ class _Deriver:
                 lo, hi = int(named.group(1)), int(named.group(2) or named.group(1))
                 grp["numbers"] = [str(n) for n in range(lo, hi + 1)] if hi - lo < 20 else [named.group(1)]
             hole = self._hole_at(plan, part.production, grp)
-            hole.where = ", ".join(x for x in (f"p.{part.page}" if part.page else (f"l.{part.line}" if part.line else ""),
-                                               f"Sec. {part.section}") if x)
+            at = f"p.{part.page}" if part.page else (f"l.{part.line}" if part.line else "")
+            hole.where = ", ".join(x for x in (at, f"Sec. {part.section}") if x)
             hole.contribution = f"{part.id}: {part.heading}"
             hole.claim = (part.own_claims or part.claims or [""])[0][:400]
             hole.hyperparameters = [dict(h) for h in part.hyperparameters[:20]]
@@ -628,7 +633,8 @@ class _Deriver:
                     text=" ".join(_short(t, 600) for t in grp["text"][:4]),
                     equations=[{k: _short(str(v), 400) for k, v in eq.items()} for eq in grp["equations"]],
                     status="not implemented",
-                    stands_in=f"nothing: the base has no {production} (its behaviour without it)", section=grp["section"])
+                    stands_in=f"nothing: the base has no {production} (its behaviour without it)",
+                    section=grp["section"])
 
     def _hole_slot(self, plan: Plan, kind: str) -> tuple[str, str, str | None]:
         """(slot, production, the terminal standing in when the plan has none) of a hole of ``kind``, read
@@ -669,7 +675,8 @@ class _Deriver:
             text = f"{grp['why']}. Paper: {text}"
         equations = grp["equations"]
         if grp.get("numbers"):
-            equations = [{"number": n, "latex": "", "text": "", "where": grp["section"]} for n in grp["numbers"]] + equations
+            equations = [{"number": n, "latex": "", "text": "", "where": grp["section"]}
+                         for n in grp["numbers"]] + equations
         loc = grp.get("loc")
         return Hole(production=production, slot=slot, contract=_plainify(contract), text=text,
                     equations=[{k: _short(str(v), 400) for k, v in eq.items()} for eq in equations],
@@ -697,7 +704,7 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
     detections = list(detect_techniques(doc, kb) if detections is None else detections)
     graph = graph if graph is not None else build_citation_graph(doc, detections, kb=kb)
     family = detect_family(doc, kb.rules)
-    ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb))
+    ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb), family=family.name)
     detections = _without_claims(detections, ledger)
     d = _Deriver(doc, detections, graph, g, kb)
     d.novel_sentences = {x.strip(): p.production for p in ledger.new for x in p.sentences if len(x.strip()) > 20}

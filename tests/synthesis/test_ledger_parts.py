@@ -1,0 +1,177 @@
+"""The ledger's general mechanisms for where a paper's new parts are and where they land, each on a paper fragment
+of our own: a network component added by a first-person "we use" sentence, a second field beside the object field
+(the field's outputs written with several labels), a loss part whose terms do different things, and the words of
+the paper's family counting little for where a part lands."""
+
+from pathlib import Path
+
+from nerfify_ns.knowledge.kb import KnowledgeBase
+from nerfify_ns.paper import ingest
+from nerfify_ns.synthesis.ledger import read_ledger
+
+KB = KnowledgeBase.default()
+
+
+def _ledger(tmp_path: Path, text: str, family: str = ""):
+    paper = tmp_path / "paper.md"
+    paper.write_text(text)
+    return read_ledger(ingest(paper), KB, family=family)
+
+
+def _new(ledger) -> list[tuple[str, str]]:
+    return [(p.heading, p.production) for p in ledger.new]
+
+
+COMPONENT = """# DimNeRF: Radiance Fields for Dim Rooms
+
+## Abstract
+
+DimNeRF renders rooms lit by a single lamp. A radiance field is fitted to photographs of the room.
+
+## 1 Introduction
+
+Neural radiance fields model a scene as a field of density and colour rendered by volume rendering.
+
+## 3 Method
+
+### 3.1 Field
+
+The field maps an encoded position to a density and a feature vector, and the feature vector with the viewing
+direction to a colour. To keep the activations of dim rooms in range, we apply batch normalization after every
+hidden layer of the density network. The colour network has one hidden layer.
+
+### 3.2 Rendering
+
+Colours are composited along each ray with the usual volume rendering weights.
+
+## 4 Experiments
+
+We compare with NeRF on ten rooms.
+"""
+
+
+def test_a_network_component_the_paper_adds_is_a_part_of_its_own(tmp_path: Path):
+    ledger = _ledger(tmp_path, COMPONENT)
+    assert ("batch normalization", "Backbone") in _new(ledger), _new(ledger)
+    part = next(p for p in ledger.new if p.heading == "batch normalization")
+    assert part.sentences[0].startswith("To keep the activations")
+
+
+def test_a_component_taken_from_earlier_work_is_not_a_part(tmp_path: Path):
+    borrowed = COMPONENT.replace("we apply batch normalization after", "we apply batch normalization as in [4] after")
+    assert borrowed != COMPONENT
+    assert not any(p.heading == "batch normalization" for p in _ledger(tmp_path, borrowed).new)
+
+
+SEVERAL = """# HazeField: Radiance Fields Through Haze
+
+## Problem Setup
+
+Each ray crosses an opaque object and a homogeneous haze.
+
+## Rendering Through Haze
+
+The object and the haze add their light along the ray:
+$$
+C_r=\\int_{t_n}^{t_f}T(t)\\big(\\sigma^{\\mathrm{obj}}(t)\\mathbf c^{\\mathrm{obj}}(t)
++\\sigma^{\\mathrm{haze}}\\mathbf c^{\\mathrm{haze}}\\big)dt
+$$
+
+## Networks
+
+* **Object network:** $\\sigma^{\\mathrm{obj}}$ and $\\mathbf c^{\\mathrm{obj}}$ from position and view.
+* **Haze network (view only):** an MLP with 4 layers of 128 units predicting $\\mathbf c^{\\mathrm{haze}}$ and
+  $\\sigma^{\\mathrm{haze}}$ from the viewing direction alone.
+"""
+
+
+def test_a_network_making_one_of_several_labelled_fields_is_a_field_of_its_own(tmp_path: Path):
+    ledger = _ledger(tmp_path, SEVERAL)
+    assert ("Networks", "FieldWrapper") in _new(ledger), _new(ledger)
+    part = next(p for p in ledger.new if p.heading == "Networks")
+    assert "haze" in str(part.production_scores["FieldWrapper"])
+
+
+def test_one_field_with_one_label_stays_a_backbone(tmp_path: Path):
+    # the same network section in a paper whose field has one set of outputs: a backbone, not a second field
+    single = SEVERAL.replace("\\mathrm{haze}", "\\mathrm{obj}").replace("Haze network (view only)", "Object MLP")
+    ledger = _ledger(tmp_path, single)
+    assert ("Networks", "Backbone") in _new(ledger), _new(ledger)
+
+
+LOSSES = """# OpaqueNeRF: Radiance Fields with Opaque Surfaces
+
+## Rendering
+
+Colours are composited along each ray with the usual volume rendering weights $w_i$.
+
+## Losses
+
+* **Reconstruction:**
+  $$
+  \\mathcal L_{\\mathrm{rgb}}=\\sum_{\\mathbf r}\\left(\\frac{\\hat C_r-C_r}{\\hat C_r+\\epsilon}\\right)^2
+  $$
+* **Binary opacity prior on the accumulated weights (a beta distribution):**
+  $$
+  \\mathcal L_{\\mathrm{op}}=\\sum_{\\mathbf r}\\log(A(\\mathbf r))+\\log(1-A(\\mathbf r))
+  $$
+* **Total:**
+  $$
+  \\mathcal L=\\mathcal L_{\\mathrm{rgb}}+\\lambda\\,\\mathcal L_{\\mathrm{op}},\\quad \\lambda=0.01
+  $$
+"""
+
+
+def test_a_loss_part_splits_into_the_reconstruction_and_a_term_of_its_own(tmp_path: Path):
+    # a relative squared error (no card has it) and a prior on the accumulated weights: two parts, two productions
+    ledger = _ledger(tmp_path, LOSSES)
+    new = _new(ledger)
+    assert ("Losses", "RGBLoss") in new, new
+    prior = [p for p in ledger.new if p.production == "Regularizers"]
+    assert len(prior) == 1 and prior[0].heading.startswith("Binary opacity prior"), new
+    assert [e["latex"].split("=")[0] for e in prior[0].equations] == ["\\mathcal{L}_{\\mathrm{op}}"]
+    rgb = next(p for p in ledger.new if p.heading == "Losses")
+    # the weighted sum of the terms is not a term: it stays with the reconstruction part
+    assert len(rgb.equations) == 2 and "lambda" in rgb.equations[1]["latex"]
+
+
+def test_a_loss_part_with_one_kind_of_term_is_not_split(tmp_path: Path):
+    # both terms compare the rendered colour with the observed one: one reconstruction part
+    prior = "\\log(A(\\mathbf r))+\\log(1-A(\\mathbf r))"
+    one = LOSSES.replace(prior, "\\lvert\\hat C_r-C_r\\rvert")
+    assert one != LOSSES
+    assert [p.production for p in _ledger(tmp_path, one).new if p.section == "Losses"] == ["RGBLoss"]
+
+
+def test_a_cards_reconstruction_loss_beside_a_new_term_leaves_only_the_term(tmp_path: Path):
+    # the reconstruction term is the L2 card's: the part is known, its prior a part of its own
+    l2 = LOSSES.replace("\\left(\\frac{\\hat C_r-C_r}{\\hat C_r+\\epsilon}\\right)^2",
+                        "\\lVert\\hat C_r-C_r\\rVert^2")
+    assert l2 != LOSSES
+    ledger = _ledger(tmp_path, l2)
+    losses = next(p for p in ledger.parts if p.heading == "Losses")
+    assert losses.status == "known" and losses.covered_by == ["rgb_l2"], losses.why
+    assert [p.production for p in ledger.new if p.section == "Losses"] == ["Regularizers"]
+
+
+STREAM = """# FlowGrid: A Dynamic Scene Representation
+
+## Problem Setup
+
+A dynamic scene is captured by several cameras over time.
+
+## Shifting Feature Channels
+
+The hash table and voxel grid hold explicit features. Each time step adds two channels to every entry, and the
+features of a time between two frames are interpolated from the two frames; the channels of earlier times are
+dropped as time advances, so the representation stays temporal and compact.
+"""
+
+
+def test_the_words_of_the_papers_family_count_little_for_where_a_part_lands(tmp_path: Path):
+    # read as a static paper, the time words pull the part to the time wrappers; in a dynamic paper every part
+    # speaks of time, and the part is what it changes: the feature grid (PosEncoding)
+    assert _new(_ledger(tmp_path, STREAM, family="dynamic")) == [("Shifting Feature Channels", "PosEncoding")]
+    scores = _ledger(tmp_path, STREAM).new[0].production_scores
+    assert scores["FieldWrapper"] > _ledger(tmp_path, STREAM, family="dynamic").new[0].production_scores.get(
+        "FieldWrapper", 0)
