@@ -122,5 +122,6 @@ class Client:
             messages = messages + [{"role": "assistant", "content": response.text},
                                    {"role": "user", "content": "That answer was rejected:\n- " + "\n- ".join(
                                        problems[:10]) + "\nAnswer again, fixing these problems."}]
-        raise InvalidAnswer(f"the model's answer was rejected after {attempt + 1} tries: {problems[0] if problems else '?'}"
+        first = problems[0] if problems else "?"
+        raise InvalidAnswer(f"the model's answer was rejected after {attempt + 1} tries: {first}"
                             + (f" (+{len(problems) - 1} more)" if len(problems) > 1 else ""), problems)
