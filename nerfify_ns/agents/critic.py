@@ -124,9 +124,11 @@ def _problems(value: Any) -> list[str]:
             problems.append("each patch needs a list of edits")
             continue
         for e in p["edits"]:
-            if not isinstance(e, dict) or e.get("op") not in ("set", "add", "remove") or not isinstance(e.get("path"), str):
+            if not isinstance(e, dict) or e.get("op") not in ("set", "add", "remove") or not isinstance(
+                    e.get("path"), str):
                 problems.append(f"bad edit {e!r}: op must be set, add or remove, path a dot path")
     for f in value.get("findings") or []:
-        if not isinstance(f, dict) or not isinstance(f.get("name"), str) or not isinstance(f.get("severity"), int | float):
+        if not isinstance(f, dict) or not isinstance(f.get("name"), str) or not isinstance(
+                f.get("severity"), int | float):
             problems.append(f"bad finding {f!r}: needs name, severity, evidence")
     return problems
