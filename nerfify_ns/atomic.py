@@ -12,9 +12,9 @@ marker existed, the files only we write (:func:`is_ours`); never ``/``, the home
 ancestor of any of them, nor a folder that holds an input of the run. Anything else is an :class:`OverwriteRefused`
 (one line, nothing touched). Each staging folder carries :data:`STAGING_MARKER` (our process id and its start
 time); a run removes the stale staging folders of its own output that a killed run left behind (ours by name and
-marker, their process gone), and puts back an old output that a killed swap had moved aside. Staging folders are registered while they exist, so an interrupt
-(:mod:`nerfify_ns.interrupts`) removes them even when it lands between two statements; the final swap of
-an old folder for the new one is never cut in the middle by SIGINT or SIGTERM.
+marker, their process gone), and puts back an old output that a killed swap had moved aside. Staging folders are
+registered while they exist, so an interrupt (:mod:`nerfify_ns.interrupts`) removes them even when it lands between
+two statements; the final swap of an old folder for the new one is never cut in the middle by SIGINT or SIGTERM.
 """
 
 from __future__ import annotations
