@@ -44,7 +44,8 @@ def main() -> None:
         _, ingest_times = time_ingest(paper, ns.runs)
         times = [time_dry_run(paper) for _ in range(ns.runs)]
     median = statistics.median(times)
-    print(f"{paper.name if ns.paper else f'{ns.pages}-page two-column PDF'}: ns-nerfify --dry-run median {median:.2f} s "
+    name = paper.name if ns.paper else f"{ns.pages}-page two-column PDF"
+    print(f"{name}: ns-nerfify --dry-run median {median:.2f} s "
           f"over {ns.runs} runs (min {min(times):.2f}, max {max(times):.2f}); ingestion alone median "
           f"{statistics.median(ingest_times):.2f} s; target {TARGET_SECONDS:.0f} s -> "
           f"{'met' if median < TARGET_SECONDS else 'MISSED'} ({median / TARGET_SECONDS:.2f} of the budget)")
