@@ -74,7 +74,8 @@ def run(plans: int, seed: int, only: int | None = None, keep: Path = RESULTS, st
             failures.append({"seed": seed, "index": index, "failures": found})
     coverage = sampler.coverage.report(load_grammar())
     summary = {"seed": seed, "first": start if only is None else only, "plans": len(seconds),
-               "failed": len(failures), "failures": failures, "median_seconds": sorted(seconds)[len(seconds) // 2] if seconds else None, "coverage": coverage}
+               "failed": len(failures), "failures": failures,
+               "median_seconds": sorted(seconds)[len(seconds) // 2] if seconds else None, "coverage": coverage}
     (keep / f"summary-seed{seed}-from{summary['first']}.json").write_text(json.dumps(summary, indent=2))
     print(f"{len(seconds) - len(failures)} of {len(seconds)} plans compose and pass static + contract; coverage: "
           f"{coverage['terminals_sampled']}/{coverage['terminals_total']} terminals, "
