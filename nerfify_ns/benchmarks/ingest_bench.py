@@ -42,13 +42,14 @@ def make_two_column_pdf(path: Path, pages: int = 15) -> Path:
                 text = "".join(SENTENCE.format(n=(p * 7 + k + i) % 30 + 1) for i in range(3))
                 _box(page, pymupdf.Rect(x0, y, x0 + 246, y + 150), text, 8.5)
                 y += 150
-            _box(page, pymupdf.Rect(x0 + 20, y, x0 + 246, y + 20), f"C(r) = sum_i T_i alpha_i c_i      ({p * 2 + col + 1})", 9.5)
-            _box(page, pymupdf.Rect(x0, y + 24, x0 + 246, y + 60), f"Figure {p * 2 + col + 1}: Renderings of scene {col}.", 9)
+            number = p * 2 + col + 1
+            _box(page, pymupdf.Rect(x0 + 20, y, x0 + 246, y + 20), f"C(r) = sum_i T_i alpha_i c_i      ({number})", 9.5)
+            _box(page, pymupdf.Rect(x0, y + 24, x0 + 246, y + 60), f"Figure {number}: Renderings of scene {col}.", 9)
     page = doc.new_page(width=612, height=792)
     _box(page, pymupdf.Rect(50, 60, 296, 80), "References", 11, "hebo")
     for half, x0 in enumerate((50, 316)):
-        refs = "\n".join(f"[{i}] A. Author and B. Author. Radiance field paper {i}. In CVPR, 2021. arXiv:2003.{8900 + i}."
-                         for i in range(1 + 15 * half, 16 + 15 * half))
+        refs = "\n".join(f"[{i}] A. Author and B. Author. Radiance field paper {i}. In CVPR, 2021. "
+                         f"arXiv:2003.{8900 + i}." for i in range(1 + 15 * half, 16 + 15 * half))
         _box(page, pymupdf.Rect(x0, 84, x0 + 246, 760), refs, 7)
     doc.save(path)
     doc.close()
