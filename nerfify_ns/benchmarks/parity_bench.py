@@ -136,7 +136,8 @@ def pruning(scene: Path, out: Path, every: int, seed: int) -> dict:
                            _args("nerfacto", rays, seed), env=generated_env(plugin.out))
     horizon = min(r["curve"].points[-1].train_seconds for r in runs.values())
     plot_curves([r["curve"] for r in runs.values()], out / "curves.png")
-    return {"iterations": iterations, "speedup_sec_per_iter": runs["kept"]["sec_per_iter"] / runs["pruned"]["sec_per_iter"],
+    return {"iterations": iterations,
+            "speedup_sec_per_iter": runs["kept"]["sec_per_iter"] / runs["pruned"]["sec_per_iter"],
             "equal_time_seconds": horizon,
             "psnr_at_equal_time_kept": _psnr_at(runs["kept"]["curve"], horizon),
             "psnr_at_equal_time_pruned": _psnr_at(runs["pruned"]["curve"], horizon),
@@ -176,7 +177,8 @@ def main() -> None:
         EVERY.update({m: n // 2 for m, (n, _) in QUICK.items()})
     # Few test views: every checkpoint renders all of them, and the MLP-only NeRF renders ~100 rays/s.
     scene = write_scene("default", ns.out / "scene", resolution=ns.resolution, n_test=3, overwrite=True)
-    results = {"parity": [parity(m, scene, ns.out / m, ns.every, ns.seed, ns.repeats, train=not ns.timing_only) for m in ns.methods]}
+    results = {"parity": [parity(m, scene, ns.out / m, ns.every, ns.seed, ns.repeats, train=not ns.timing_only)
+                          for m in ns.methods]}
     for r in results["parity"]:
         print(_parity_line(r))
     if not (ns.skip_pruning or ns.timing_only):
