@@ -130,10 +130,12 @@ def steps(args: Args, peak_gflops: float, table: Table) -> dict:
             rps = {v: entry[f"{v}_rays_per_s"] for v in ("stock", "before", "after")}
             for v, value in rps.items():
                 entry[f"{v}_fraction_of_fp32_peak"] = value * fpr / (peak_gflops * 1e9) if fpr else None
-            entry["after_over_stock"], entry["after_over_before"] = rps["after"] / rps["stock"], rps["after"] / rps["before"]
+            entry["after_over_stock"] = rps["after"] / rps["stock"]
+            entry["after_over_before"] = rps["after"] / rps["before"]
             out[method] = entry
             frac = entry["after_fraction_of_fp32_peak"]
-            table.add_row(f"{method} step rays/s ({entry['rays']} rays): stock / before / after", f"{rps['stock']:,.0f}",
+            table.add_row(f"{method} step rays/s ({entry['rays']} rays): stock / before / after",
+                          f"{rps['stock']:,.0f}",
                           f"{rps['before']:,.0f} / {rps['after']:,.0f}",
                           f"{entry['after_over_stock']:.2f}x stock, {entry['after_over_before']:.2f}x before"
                           + (f", {100 * frac:.2f}% of fp32 peak" if frac else ""))
