@@ -1,7 +1,8 @@
 """Schedule hooks: training callbacks that change a part of the model or the data at given steps.
 
 A hook is a module with ``forward(steps [K] long) -> values [K]`` (its schedule: the value it writes at each
-step; the ScheduleHook contract of the grammar), ``write(value, model, datamanager)`` (what it changes; ``run(step, model, pipeline)`` writes the value of a step) and
+step; the ScheduleHook contract of the grammar), ``write(value, model, datamanager)`` (what it changes;
+``run(step, model, pipeline)`` writes the value of a step) and
 ``check(model)`` (called when the model is built: the part it changes exists). :func:`training_callbacks` turns
 the model's hooks into Nerfstudio ``TrainingCallback``s run before every training iteration with the trainer's
 ``TrainingCallbackAttributes`` (the pipeline, hence the datamanager).
