@@ -140,7 +140,8 @@ def _export_nerfstudio(frames: list[Frame], names: list[str], out: Path, *, mask
     meta["frames"] = rows
     if keep_split:
         for split in SPLITS:
-            meta[f"{split}_filenames"] = [f"images/{n}" for f, n in zip(frames, names, strict=False) if f.split == split]
+            meta[f"{split}_filenames"] = [f"images/{n}" for f, n in zip(frames, names, strict=False)
+                                          if f.split == split]
     (out / "transforms.json").write_text(json.dumps(meta, indent=2) + "\n")
 
 
