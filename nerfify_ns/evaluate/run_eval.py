@@ -88,7 +88,8 @@ def loss_stats(losses: dict) -> dict:
         "first": _finite(float(np.mean(values[:k]))) if finite else None,
         "last": _finite(float(np.mean(values[-k:]))) if finite else None,
         "min": _finite(min(good)) if good else None,
-        "first_nonfinite_step": None if finite else next(s for s, v in zip(steps, values, strict=False) if not math.isfinite(v)),
+        "first_nonfinite_step": None if finite else next(s for s, v in zip(steps, values, strict=False)
+                                                         if not math.isfinite(v)),
     }
 
 
