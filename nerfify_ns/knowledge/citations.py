@@ -43,8 +43,8 @@ __all__ = ["TARGET", "CitationPattern", "PatternSet", "CitationUse", "Component"
 TARGET = "target"
 _TOKEN = "\u27e6{}\u27e7"
 _MARKER = re.compile(r"\[([^\[\]]{1,200})\]")
-_APPENDIX = re.compile(r"\s*(?:[-:(]\s*)?(?:appendix|appendices|supplementary(?: material)?|supplemental(?: material)?)\)?\s*$",
-                       re.IGNORECASE)
+_APPENDIX = re.compile(r"\s*(?:[-:(]\s*)?(?:appendix|appendices|supplementary(?: material)?|"
+                       r"supplemental(?: material)?)\)?\s*$", re.IGNORECASE)
 
 
 # ------------------------------------------------------------------------------------------ data
@@ -312,7 +312,8 @@ class CitationGraph:
         # 1. components the paper names as taken from a cited work
         for u in self.uses:
             for card_name in u.components:
-                paper = next((p for p in u.papers if card_name in papers[p].provides), u.papers[0] if u.papers else TARGET)
+                paper = next((p for p in u.papers if card_name in papers[p].provides),
+                             u.papers[0] if u.papers else TARGET)
                 path = [TARGET] if paper == TARGET else [TARGET, paper]
                 take(card_name, paper, path, u.relation, u.sentence, u.section, u.page, u.line)
         # 2. techniques the paper itself is detected to use
