@@ -130,8 +130,8 @@ def detect_scene(doc: Any, kb: KnowledgeBase | None = None,
         for flag, value, patterns in kb.rules.scene_cues:
             if flag in found:
                 continue
-            m = next((m for pat in patterns for m in pat.finditer(unit.text) if not ctx.in_contrast(m.start(), m.end())),
-                     None)
+            m = next((m for pat in patterns for m in pat.finditer(unit.text)
+                      if not ctx.in_contrast(m.start(), m.end())), None)
             if m is not None:
                 found[flag] = SceneCue(flag, value, unit.text, unit.section, unit.page, unit.line, m.group(0))
     return found
@@ -212,7 +212,8 @@ def detect_techniques(doc: Any, kb: KnowledgeBase | None = None) -> list[Detecti
         w = read_sentence(h.sentence, role, rules).use_weight()
         name = names[0]
         if len(names) > 1:  # the candidate with the most other evidence (num_frequencies: PE or IPE)
-            name = max(names, key=lambda n: (sum(e.weight for e in found.get(n, []) if e.kind == "alias"), -names.index(n)))
+            name = max(names, key=lambda n: (sum(e.weight for e in found.get(n, []) if e.kind == "alias"),
+                                             -names.index(n)))
         add(name, Evidence(h.sentence, h.section, getattr(h.loc, "page", None), getattr(h.loc, "line", None),
                            "hyperparameter", f"{h.name} = {h.value}", role, round(sw["hyperparameter"] * w, 4)))
     # 4. citations: explicit "we use X of [k]" uses, then any sentence citing the technique's paper
