@@ -21,7 +21,7 @@ CAUSES: tuple[tuple[str, str], ...] = (
     ("another ladder rung", r"the ladder's \w+ rung|the ladder failed"),
     ("no adapter for the production", r"no adapter for the \w+ production"),
     ("prose only (no equation)", r"no equation of the paper belongs|names none the reader found"),
-    ("equation not read", r"^equations not read|could not read Eq|unknown operator|unexpected|parse"),
+    ("equation not read", r"equations not read|could not read Eq|unknown operator|unexpected|parse"),
     ("width", r"the size of '.*' is not fixed|\bwidths?\b.*(?:open|not stated|contradict)|WidthError|"
               r"is known only when the plugin is built"),
     ("reduction", r"\bsum over\b|\bproduct over\b|reduction|\bmax over\b|\bmin over\b|cumulative|packed samples"),

@@ -308,7 +308,9 @@ class _Hole:
                 if key in seen:
                     continue
                 seen.add(key)
-                candidates.append(([e for e, _ in group], [it for _ in group], _composite([e for e, _ in group])))
+                weighted = not any(self._weighs(e) for e, _ in group)
+                candidates.append(([e for e, _ in group], [it for _ in group],
+                                   _composite([e for e, _ in group], weighted)))
             else:
                 if eq.defines in seen:
                     continue
@@ -461,6 +463,17 @@ class _Hole:
             left, right = self._bind_bases(expr.left, eq, notes), self._bind_bases(expr.right, eq, notes)
             return expr if (left is expr.left and right is expr.right) else BinOp(expr.op, left, right)
         return expr
+
+    def _weighs(self, eq: Equation) -> bool:
+        """Whether a per-sample equation is a contribution already weighted along its ray (it reads a weight, a
+        transmittance, an opacity, or accumulates over the samples), rather than a per-sample value."""
+        for node in walk(eq.rhs):
+            if isinstance(node, Reduce):
+                return True
+            d = self.role_of(node) if isinstance(node, Symbol) else None
+            if d is not None and d.role in ("weight", "transmittance", "opacity"):
+                return True
+        return False
 
     def _providable(self, sym: Symbol) -> bool:
         d = self.role_of(sym)
@@ -746,13 +759,16 @@ def _find_symbol(eq: Equation, key: str) -> Symbol | None:
     return None
 
 
-def _composite(parts: list[Equation]) -> Equation:
-    """hat C(r) = sum_i (C_i^a(r) + C_i^b(r) ...): the per-sample contributions summed over the samples."""
+def _composite(parts: list[Equation], weighted: bool = False) -> Equation:
+    """hat C(r) = sum_i (C_i^a(r) + C_i^b(r) ...): the per-sample contributions summed over the samples; per-sample
+    values that are no contributions (``weighted``) are composited with the renderer's weights, sum_i w_i c_i."""
     body = None
     for eq in parts:
         lhs = eq.lhs
         term = Symbol(lhs.name, lhs.subscripts, lhs.superscript, lhs.decorations, Index("i"), ())
         body = term if body is None else BinOp("+", body, term)
+    if weighted:
+        body = BinOp("*", Symbol("w", ("composite",), None, (), Index("i"), ()), body)
     rhs = Reduce("sum", "i", None, None, None, body, axis="samples", mode="full")
     return Equation(Symbol("C", ("composite",), None, ("hat",)), rhs, None, "=", "", (), None)
 
@@ -1211,7 +1227,11 @@ def _implement_one(work: _Hole) -> HoleResult:
     res.state = {k: {"rows": int(b.get("rows", 1)), "initial": b.get("initial", 0.0), "note": b.get("note", ""),
                      **({"rows_evidence": b["rows_evidence"]} if b.get("rows_evidence") else {})}
                  for k, b in bindings.items() if b["as"] == "state"}
-    if att.composite is not None:
+    if att.composite is not None and "w_composite" in bindings:
+        res.notes.append("the paper's colour is per sample where the Renderer's contract is per ray: the rendered "
+                         f"colour is {', '.join(safe_comment(e.defines, 30) for e in att.roots)} composited with the "
+                         "renderer's volume-rendering weights, sum_i w_i c_i")
+    elif att.composite is not None:
         res.notes.append("the rendered colour is the sum over the samples of the per-sample contributions "
                          f"({', '.join(safe_comment(e.defines, 30) for e in att.roots)}), as NeRF's "
                          "C(r) = sum_i C_i(r)")
