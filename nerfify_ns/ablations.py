@@ -52,7 +52,7 @@ ABLATIONS: tuple[Ablation, ...] = (
     Ablation("no-citations", "w/o citation recovery", "Knowledge sources", "read"),
     Ablation("no-verify", "w/o verification ladder (smoke tests)", "Validation & feedback", "verify"),
     Ablation("no-visual-feedback", "w/o visual feedback (patch loop)", "Validation & feedback", "patches"),
-    Ablation("no-equations", "w/o equation compiler", "Novel parts", "read"),
+    Ablation("no-equations", "w/o equation compiler", "Novel parts", "equations"),
     Ablation("no-agents", "w/o model agents", "Novel parts", "read"),
     Ablation("one-shot", "one-shot composition (no file DAG)", "Planning strategy", "plugin"),
 )

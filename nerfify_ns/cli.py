@@ -7,7 +7,7 @@ import signal
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal
 
 import rich.markup
 import rich.progress
@@ -210,14 +210,15 @@ class Paper:
         budget = paper_budget(self.budget, self.iterations, self.every,
                               self.smoke_iterations)  # checked before anything heavy is imported
         agents = _agents(self) if self.llm else None
-        from nerfify_ns.pipeline import run_paper
+        from nerfify_ns.pipeline import PaperOptions, run_paper
 
         _set_lpips(self.lpips_weights)
         with ConsoleProgress() as progress:
-            result = run_paper(self.paper, self.out, data=self.data, scene=self.scene, budget=budget,
-                               until=self.until, dry_run=self.dry_run, keep_all=self.keep_all,
-                               patch_rounds=self.patch_rounds, overwrite=self.overwrite, progress=progress,
-                               equations=self.equations, ablations=Ablations.of(self.ablate), agents=agents)
+            options = PaperOptions(data=self.data, scene=self.scene, budget=budget, until=self.until,
+                                   dry_run=self.dry_run, keep_all=self.keep_all, patch_rounds=self.patch_rounds,
+                                   overwrite=self.overwrite, progress=progress, equations=self.equations,
+                                   ablations=Ablations.of(self.ablate), agents=agents)
+            result = run_paper(self.paper, self.out, options)
         for line in (agents.warnings if agents is not None else []):
             CONSOLE.print(f"[yellow]warning[/yellow] {_plain(line)}", soft_wrap=True, highlight=False)
         _print_plan(result)
@@ -298,7 +299,8 @@ def _print_plan(result) -> None:
         text = f"{hole['production']} ({hole['slot']}): {status}; {hole.get('stands_in', '')}"
         if status != "implemented" and hole.get("reason"):
             text += f" (why: {hole['reason']})"
-        colour = "bold red" if status == "not implemented" else "bold yellow" if status != "implemented" else "bold green"
+        colour = ("bold red" if status == "not implemented" else
+                  "bold yellow" if status != "implemented" else "bold green")
         CONSOLE.print(f"[{colour}]hole[/{colour}] {_plain(text)}", highlight=False)
     if result.out is None:
         CONSOLE.print(yaml.safe_dump(dict(result.plan), sort_keys=False, width=110), highlight=False, markup=False)
@@ -364,7 +366,7 @@ class Compose:
                          every=self.every if self.every is not None else (None if seconds else COMPOSE_BUDGET.every),
                          smoke_iterations=self.smoke_iterations,
                          scene={**COMPOSE_BUDGET.scene, "resolution": self.resolution})  # checked here, early
-        from nerfify_ns.pipeline import run_compose
+        from nerfify_ns.pipeline import RunOptions, run_compose
         from nerfify_ns.plan import Plan
         from nerfify_ns.synthesis.compose import sources_from_folder
         from nerfify_ns.synthesis.resources import load_reference_plan
@@ -373,9 +375,10 @@ class Compose:
         sources = sources_from_folder(self.components) if self.components is not None else None
         out = self.out or Path("nerfify-out") / str(plan.get("method", "plan"))
         with ConsoleProgress() as progress:
-            result = run_compose(plan, out, data=self.data, scene=self.scene, budget=budget, until=self._until(),
+            options = RunOptions(data=self.data, scene=self.scene, budget=budget, until=self._until(),
                                  keep_all=self.keep_all, patch_rounds=self.patch_rounds, overwrite=self.overwrite,
-                                 progress=progress, sources=sources)
+                                 progress=progress)
+            result = run_compose(plan, out, options, sources=sources)
         _print_compose(result)
         _conclude(result.outcome, result.out)
 
@@ -593,22 +596,22 @@ class Runtime:
         CONSOLE.print(f"LPIPS weights: {weights or 'none (LPIPS reported as null)'}")
 
 
-Commands = Union[
-    Annotated[Paper, tyro.conf.subcommand("paper")],
-    Annotated[Compose, tyro.conf.subcommand("compose")],
-    Annotated[Verify, tyro.conf.subcommand("verify")],
-    Annotated[Bench, tyro.conf.subcommand("bench")],
-    Annotated[Survey, tyro.conf.subcommand("survey")],
-    Annotated[Report, tyro.conf.subcommand("report")],
-    Annotated[GrammarExport, tyro.conf.subcommand("grammar")],
-    Annotated[Demo, tyro.conf.subcommand("demo")],
-    Annotated[Scene, tyro.conf.subcommand("scene")],
-    Annotated[LpipsWeights, tyro.conf.subcommand("lpips-weights")],
-    Annotated[Runtime, tyro.conf.subcommand("runtime")],
-]
+Commands = (
+    Annotated[Paper, tyro.conf.subcommand("paper")]
+    | Annotated[Compose, tyro.conf.subcommand("compose")]
+    | Annotated[Verify, tyro.conf.subcommand("verify")]
+    | Annotated[Bench, tyro.conf.subcommand("bench")]
+    | Annotated[Survey, tyro.conf.subcommand("survey")]
+    | Annotated[Report, tyro.conf.subcommand("report")]
+    | Annotated[GrammarExport, tyro.conf.subcommand("grammar")]
+    | Annotated[Demo, tyro.conf.subcommand("demo")]
+    | Annotated[Scene, tyro.conf.subcommand("scene")]
+    | Annotated[LpipsWeights, tyro.conf.subcommand("lpips-weights")]
+    | Annotated[Runtime, tyro.conf.subcommand("runtime")]
+)
 
-
-SUBCOMMANDS = ("paper", "compose", "verify", "bench", "survey", "report", "grammar", "demo", "scene", "lpips-weights", "runtime")
+SUBCOMMANDS = ("paper", "compose", "verify", "bench", "survey", "report", "grammar", "demo", "scene", "lpips-weights",
+               "runtime")
 
 
 def _plain(text: str) -> str:

@@ -31,7 +31,7 @@ from nerfify_ns.errors import NerfifyError
 LOG = logging.getLogger("nerfify.stages")
 
 STAGES: dict[str, tuple[str, ...]] = {
-    "paper": ("read", "plan", "plugin", "verify", "train", "patches"),
+    "paper": ("read", "equations", "plan", "plugin", "verify", "train", "patches"),
     "compose": ("plan", "plugin", "verify", "train", "patches"),
     "demo": ("scene", "train"),
 }

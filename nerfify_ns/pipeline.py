@@ -1,15 +1,26 @@
 """The whole nerfify flow on one screen.
 
-    paper -> knowledge -> plan (grammar) -> prune for the scene -> plugin -> verify -> train/evaluate -> report
+    1 read -> 2 equations -> 3 plan -> 4 plugin -> 5 verify -> 6 train -> 7 patches -> 8 report
 
-``run_paper`` starts from a paper, ``run_compose`` from a plan (a file or a reference plan); both then go
-through :func:`_build`, the same stages in the same order: the plan fitted to the scene, the plugin, the
-sandboxed verification ladder (static, contract, stability, smoke), training and evaluation only when the
-ladder passed, the patch loop, the report. ``until`` stops after a stage. A stage that fails (verification,
-training, evaluation) is recorded and the later ones are not run; the output folder is still written, with
-``run.json`` (which stages ran, failed or were not run, and why), ``nerfify.log`` (warnings and other
-packages' output) and the report. ``run_demo`` smoke-trains a built-in method. Every run writes its output
-folder atomically.
+1. ``read``: the paper ingested into one ``Document``, its techniques detected with evidence, its citations
+   followed, its family, base and plan derived (``paper/``, ``knowledge/``, ``synthesis/plan_from_paper.py``; the
+   planner agent with ``--llm``).
+2. ``equations``: the paper's novel parts compiled from its equations (``equations/``, ``synthesis/novel/``; the
+   coder agent with ``--llm``), written to ``equations.yaml`` for a person to correct.
+3. ``plan``: the plan validated and fitted to the scene (``grammar/``, ``synthesis/prune.py``).
+4. ``plugin``: the plan rendered into a pip-installable Nerfstudio plugin (``synthesis/compose.py``, ``templates/``).
+5. ``verify``: the sandboxed verification ladder: static, contract, stability, smoke (``verify/``).
+6. ``train``: training within the budget, then checkpoint evaluation, only after the ladder passed (``evaluate/``).
+7. ``patches``: the patch loop, ``--patch-rounds N`` (``evaluate/patch_loop.py``).
+8. report: ``run.json``, ``report.html`` and ``report.json``, always written (``evaluate/report.py``).
+
+``run_paper`` runs them all from a paper; ``run_compose`` starts at stage 3 from a plan (a file or a reference plan).
+Both take one options object (:class:`RunOptions`, :class:`PaperOptions`: the command line's flags) and run stages 3
+to 8 through :func:`_build`, in the same order. ``until`` stops after a stage. A stage that fails (verification,
+training, evaluation) is recorded and the later ones are not run; the output folder (its layout:
+``nerfify_ns.runfolder``) is still written, with ``run.json`` (which stages ran, failed or were not run, and why),
+``nerfify.log`` (warnings and other packages' output) and the report. ``run_demo`` smoke-trains a built-in method.
+Every run writes its output folder atomically.
 """
 
 from __future__ import annotations
@@ -19,7 +30,7 @@ import shutil
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,11 +67,54 @@ class FamilyError(NerfifyError):
 
     def __init__(self, family: Any, parts: int):
         super().__init__(f"a {family.headline()} paper: {family.why}; read {parts} novel part(s) of it "
-                         "(plan.yaml, report.html), built none")
+                         f"({runfolder.PLAN}, {runfolder.REPORT_HTML}), built none")
 
 
 LOG_FILE = runfolder.LOG
 """The run's log in its output folder: warnings and other packages' output, stage by stage."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a run goes, from a paper or from a plan: the command line's flags."""
+
+    data: Path | None = None
+    """A dataset to train on (any format ``nerfify_ns.dataset`` reads, read once); None: the procedural ``scene`` is
+    rendered into the output folder."""
+    scene: str = "default"
+    """The procedural scene rendered when no dataset is given (``ns-nerfify scene --list``)."""
+    budget: Budget | None = None
+    """The CPU budget (iterations, checkpoint cadence, wall-clock seconds, presets); None: the command's default
+    (``PAPER_BUDGET``, ``COMPOSE_BUDGET``). Its ``seconds`` bound the whole run, from its first stage."""
+    until: str | None = None
+    """Stop after this stage (plan, plugin, verify, train); the folder and its report are still written."""
+    keep_all: bool = False
+    """Keep every part of the plan (fitted to the scene, nothing pruned for it)."""
+    patch_rounds: int = 0
+    """Rounds of the patch loop after training (0: no patch loop)."""
+    overwrite: bool = False
+    """Replace an output folder nerfify-ns wrote earlier (anything else is refused)."""
+    progress: Progress = field(default_factory=Progress)
+    """What the user sees of the run (the CLI's bars); the default shows nothing."""
+    ablations: Ablations = FULL
+    """Stages switched off (``nerfify_ns.ablations``), recorded in run.json."""
+    agents: Any | None = None
+    """The model-backed agents (``nerfify_ns.agents.Agents``, built by the CLI for ``--llm``), or None: the
+    deterministic path only. The planner's plan is merged with the derived one, the coder works on the holes the
+    compiler left (not in a dry run), the critic in the patch loop, ``agents.json`` before the report; every model
+    failure is a warning and the deterministic result stands. The ablation no-agents sets them aside."""
+
+
+@dataclass(frozen=True)
+class PaperOptions(RunOptions):
+    """How a paper's run goes: :class:`RunOptions` and what only a paper has."""
+
+    dry_run: bool = False
+    """Stop after the equations stage and write nothing (the CLI prints the plan with its evidence and holes)."""
+    kb: KnowledgeBase | None = None
+    """The knowledge base every stage reads (None: the package's), one object for the whole run."""
+    equations: Path | None = None
+    """A person's corrected equations.yaml: its edited holes are recompiled, the others reused."""
 
 
 @dataclass
@@ -86,69 +140,28 @@ class ComposeResult:
     summary: dict | None = None
 
 
-def run_paper(
-    paper: Path,
-    out: Path | None = None,
-    *,
-    data: Path | None = None,
-    scene: str = "default",
-    budget: Budget | None = None,
-    until: str | None = None,
-    dry_run: bool = False,
-    keep_all: bool = False,
-    patch_rounds: int = 0,
-    overwrite: bool = False,
-    progress: Progress = Progress(),
-    kb: KnowledgeBase | None = None,
-    equations: Path | None = None,
-    ablations: Ablations = FULL,
-    agents: Any | None = None,
-) -> PaperResult:
-    """Paper -> plan with evidence -> the paper's novel parts compiled from its equations -> (unless dry_run) the
-    stages of :func:`_build`, up to ``until``. ``kb``: the knowledge base every stage reads (default: the
-    package's), one object for the whole run. ``equations``: a person's corrected equations.yaml (its edited holes
-    are recompiled, the others reused). ``ablations``: stages switched off (``nerfify_ns.ablations``), recorded in
-    run.json. ``agents``: the model-backed agents (``nerfify_ns.agents.Agents``, built by the CLI for ``--llm``;
-    None, the default: the deterministic path only): the planner's plan merged with the derived one, the coder on
-    the holes the compiler left (not in a dry run), the critic in the patch loop, ``agents.json`` for the report;
-    every model failure is a warning and the deterministic result stands. The ablation no-agents sets it aside."""
-    agents = agents if ablations.agents else None
-    outcome = Outcome("paper", until, progress, ablations=list(ablations.names))
-    budget = budget or PAPER_BUDGET
-    deadline = time.perf_counter() + budget.seconds if budget.seconds else None  # --budget bounds the whole run
-    dataset = None if dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
-    check_count("--patch-rounds", patch_rounds, 0)
-    corrections, reuse = read_corrections(equations) if equations is not None else ({}, {})
-    if out is not None and not dry_run:
-        check_target(Path(out), overwrite, inputs=(paper, data))  # before the paper is read: a bad --out costs nothing
-    kb = KnowledgeBase.of(kb)
-    with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
-        doc = ingest(paper)
-        require_nerf_paper(doc)
-        detections = detect_techniques(doc, kb)
-        graph = build_citation_graph(doc, detections, kb=kb, follow=ablations.citations)
-        derived = derive_plan(doc, detections, graph, kb=kb, reference_plans=ablations.reference_plans)
-        if agents is not None:
-            stage.note("asking the model for a plan (planner agent)")
-            derived.plan = agents.plan(doc, derived)
-        buildable = derived.family is None or derived.family.buildable
-        if buildable:
-            stage.note("compiling the paper's novel parts from its equations")
-        implementation = (implement_holes(doc, derived.plan, corrections=corrections, reuse=reuse, kb=kb)
-                          if ablations.equations and buildable else
-                          Implementation(Plan.of(derived.plan), sources={}, records=[]))
-        if agents is not None and not dry_run:
-            stage.note("asking the model for the parts the equations left open (coder agent, sandboxed ladder)")
-            agents.code(implementation)
-        derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
-        stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
-                         f"{len(derived.holes)} hole(s); {implementation.headline()}"
-                         + (f"; {agents.summary()}" if agents is not None else ""))
-    if dry_run:
+def run_paper(paper: Path, out: Path | None = None, options: PaperOptions | None = None) -> PaperResult:
+    """Stages 1 to 8 from a paper (a dry run: 1 and 2, nothing written), up to ``options.until``; ``out``: the output
+    folder (default ``nerfify-out/METHOD``)."""
+    options = options or PaperOptions()
+    options = replace(options, budget=options.budget or PAPER_BUDGET,
+                      agents=options.agents if options.ablations.agents else None)
+    outcome = Outcome("paper", options.until, options.progress, ablations=list(options.ablations.names))
+    deadline = time.perf_counter() + options.budget.seconds if options.budget.seconds else None
+    data = options.data
+    dataset = None if options.dry_run else _read_data(data)  # a bad dataset is refused before the paper is read
+    check_count("--patch-rounds", options.patch_rounds, 0)
+    corrections = read_corrections(options.equations) if options.equations is not None else ({}, {})
+    if out is not None and not options.dry_run:  # before the paper is read: a bad --out costs nothing
+        check_target(Path(out), options.overwrite, inputs=(paper, data))
+    kb = KnowledgeBase.of(options.kb)
+    doc, derived, graph = _read(paper, options, outcome, kb)
+    implementation = _compile_equations(doc, derived, options, outcome, kb, corrections)
+    if options.dry_run:
         return PaperResult(None, doc, derived, graph, derived.plan, outcome, implementation=implementation)
     final = Path(out or Path("nerfify-out") / derived.plan["method"]).absolute()
-    if not buildable:  # the plan and what was read are written; nothing is built that would pretend
-        with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
+    if not _buildable(derived):  # the plan and what was read are written; nothing is built that would pretend
+        with atomic_dir(final, options.overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
             _write_paper_artefacts(staging, doc, derived, graph)
             (staging / runfolder.PLAN).write_text(Plan.of(derived.plan).dump())
             with outcome.stage("plan", "checking that the grammar can build the paper's method",
@@ -157,18 +170,198 @@ def run_paper(
             _report(staging, outcome)
             _rewrite_saved_paths(staging, final)
         return PaperResult(final, doc, derived, graph, derived.plan, outcome, implementation=implementation)
-    scene = _scene_for_family(scene, dataset, derived, outcome)
-    with atomic_dir(final, overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
+    options = replace(options, scene=_scene_for_family(options.scene, dataset, derived))
+    with atomic_dir(final, options.overwrite, inputs=(paper, data)) as staging, run_log(staging / LOG_FILE):
         _write_paper_artefacts(staging, doc, derived, graph)
         write_records(staging, implementation, doc, images=True)
-        plan, summary = _build(derived.plan, staging, dataset, scene, keep_all, budget, patch_rounds,
-                               outcome, implementation.sources, _fallback(implementation, staging, doc), ablations,
-                               agents, deadline)
+        plan, summary = _build(derived.plan, staging, dataset, options, outcome, deadline, implementation.sources,
+                               _fallback(implementation, staging, doc))
         _rewrite_saved_paths(staging, final)
     return PaperResult(final, doc, derived, graph, plan, outcome, summary, implementation)
 
 
-def _scene_for_family(scene: str, dataset: Dataset | None, derived: DerivedPlan, outcome: Outcome) -> str:
+def run_compose(plan: dict, out: Path, options: RunOptions | None = None, *,
+                sources: dict[str, str] | None = None) -> ComposeResult:
+    """Stages 3 to 8 from a plan (validated first), up to ``options.until``. ``sources``: the code of the plan's
+    custom components (``components.<name>`` -> source)."""
+    options = options or RunOptions()
+    options = replace(options, budget=options.budget or COMPOSE_BUDGET)
+    outcome = Outcome("compose", options.until, options.progress)
+    deadline = time.perf_counter() + options.budget.seconds if options.budget.seconds else None
+    dataset = _read_data(options.data)  # a bad dataset is bad input: nothing is written
+    check_count("--patch-rounds", options.patch_rounds, 0)
+    validate(plan)  # a plan the grammar rejects is bad input: nothing is written
+    final = Path(out).absolute()
+    with atomic_dir(final, options.overwrite, inputs=(options.data,)) as staging, run_log(staging / LOG_FILE):
+        plan, summary = _build(plan, staging, dataset, options, outcome, deadline, sources)
+        files = _plugin_files(staging)
+        _rewrite_saved_paths(staging, final)
+    return ComposeResult(final, plan, outcome, files, summary)
+
+
+def _build(plan: dict, folder: Path, data: Dataset | None, options: RunOptions, outcome: Outcome,
+           deadline: float | None, sources: dict[str, str] | None = None,
+           fallback: Callable | None = None) -> tuple[dict, dict | None]:
+    """Stages 3 to 8: plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the
+    ladder passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary.
+    ``data``: the dataset, read once and shared by every stage (None: the procedural ``options.scene`` is
+    rendered). ``deadline``: the ``time.perf_counter()`` by which the whole run ends (``budget.seconds``): training
+    gets the iterations that fit the time left after the ladder (:func:`_fit_training`). ``fallback``: see
+    :func:`_verify`."""
+    budget, proxy_scene = _proxy_budget(plan, options.budget, data)  # a budgeted run's smaller procedural scene
+    with outcome.stage("plan", "fitting the plan to the scene") as stage:
+        plan, data = _plan_for_scene(plan, folder, data, options.scene, options.keep_all, budget, stage)
+    if outcome.wants("plugin"):
+        with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
+            written = write_plugin(plan, folder, sources=sources, one_shot=not options.ablations.dag)
+            stage.summary = f"{len(written.files)} files" + (
+                "" if options.ablations.dag else " (one shot, no file DAG)")
+    plan, timing = _verify(plan, folder, data, options, budget, outcome, deadline, sources, fallback)
+    summary, run = _train(plan, folder, data, budget, outcome, deadline, timing, proxy_scene)
+    _patches(plan, folder, data, options, budget, outcome, run)
+    if options.agents is not None:
+        options.agents.write(folder)
+    _report(folder, outcome)
+    return plan, summary
+
+
+def _read(paper: Path, options: PaperOptions, outcome: Outcome,
+          kb: KnowledgeBase) -> tuple[Document, DerivedPlan, CitationGraph]:
+    """Stage 1: the paper read, its techniques detected, its citations followed, its plan derived (and, with the
+    agents, the planner's plan merged with it)."""
+    with outcome.stage("read", f"reading {Path(paper).name}, detecting techniques, following citations") as stage:
+        doc = ingest(paper)
+        require_nerf_paper(doc)
+        detections = detect_techniques(doc, kb)
+        graph = build_citation_graph(doc, detections, kb=kb, follow=options.ablations.citations)
+        derived = derive_plan(doc, detections, graph, kb=kb, reference_plans=options.ablations.reference_plans)
+        if options.agents is not None:
+            stage.note("asking the model for a plan (planner agent)")
+            derived.plan = options.agents.plan(doc, derived)
+        stage.summary = (f"base {derived.base}, {sum(d.used for d in derived.detections)} techniques used, "
+                         f"{len(derived.holes)} hole(s)")
+    return doc, derived, graph
+
+
+def _buildable(derived: DerivedPlan) -> bool:
+    return derived.family is None or derived.family.buildable
+
+
+def _compile_equations(doc: Document, derived: DerivedPlan, options: PaperOptions, outcome: Outcome,
+                       kb: KnowledgeBase, corrections: tuple[dict, dict]) -> Implementation:
+    """Stage 2: the paper's novel parts (the plan's holes) compiled from its equations, ``corrections``: a person's
+    equations.yaml (edited holes, reusable ones); with the agents (not in a dry run) the coder on the parts the
+    equations left open. The derived plan takes the compiled parts."""
+    implementation = Implementation(Plan.of(derived.plan), sources={}, records=[])
+    if not options.ablations.equations:
+        outcome.skip("equations", "switched off (ablation no-equations)")
+    elif not _buildable(derived):
+        outcome.skip("equations", f"a {derived.family.headline()} paper: nothing is built")
+    else:
+        with outcome.stage("equations", "compiling the paper's novel parts from its equations") as stage:
+            implementation = implement_holes(doc, derived.plan, corrections=corrections[0], reuse=corrections[1],
+                                             kb=kb)
+            if options.agents is not None and not options.dry_run:
+                stage.note("asking the model for the parts the equations left open (coder agent, sandboxed ladder)")
+                options.agents.code(implementation)
+            stage.summary = implementation.headline() + (
+                f"; {options.agents.summary()}" if options.agents is not None else "")
+    derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
+    return implementation
+
+
+def _verify(plan: dict, folder: Path, data: Dataset, options: RunOptions, budget: Budget, outcome: Outcome,
+            deadline: float | None, sources: dict[str, str] | None,
+            fallback: Callable | None) -> tuple[dict, dict]:
+    """Stage 5: the verification ladder on the plugin, ``verify.json``. Returns the plan (the fallback's when it
+    stood in) and what the smoke rung measured of the plugin's speed (empty when the ladder did not run). When the
+    ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and their sources):
+    the plugin is regenerated from it and the ladder run again, once."""
+    from nerfify_ns.verify import run_ladder
+
+    if not outcome.wants("verify"):
+        return plan, {}
+    if not options.ablations.verify:
+        outcome.skip("verify", "switched off (ablation no-verify)")
+        return plan, {}
+    with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
+                       total=smoke_iterations(plan["base"], budget.smoke_iterations),
+                       failures=(NerfifyError,)) as stage:
+        smoke_args, smoke_values = smoke_samples(plan) if budget.proxy and deadline is not None else ([], {})
+
+        def ladder_run():
+            left = deadline - time.perf_counter() if deadline is not None else None
+            return run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
+                              smoke_iterations=budget.smoke_iterations,
+                              timeout=check_limit(budget, left).timeout, smoke_limit=smoke_limit(budget, left),
+                              smoke_args=smoke_args,
+                              on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
+                                                         "verification ladder: judging the smoke run"))
+        ladder = ladder_run()
+        # a smoke rung that ran out of time is no fault of the compiled parts: nothing is reverted
+        retry = fallback(ladder) if fallback is not None and not ladder.ok and not _smoke_timed_out(ladder) else None
+        if retry is not None:  # the compiled parts failed: the base's parts stand in, the ladder runs again
+            stage.note("verification ladder: again, the base's parts standing in for the compiled ones")
+            plan, sources = _plan_for_scene(retry[0], folder, data, options.scene, options.keep_all, budget,
+                                            stage)[0], retry[1]
+            _regenerate(plan, folder, sources)
+            ladder = ladder_run()
+        if _smoke_timed_out(ladder):  # not verified for want of time: kept as it is, training goes on
+            _note_unverified(plan, folder, ladder, budget)
+        (folder / runfolder.VERIFY).write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
+        timing = _smoke_timing(ladder, smoke_values)
+        _judge_ladder(ladder, stage)
+    return plan, timing
+
+
+def _train(plan: dict, folder: Path, data: Dataset, budget: Budget, outcome: Outcome, deadline: float | None,
+           timing: dict, proxy_scene: dict | None) -> tuple[dict | None, TrainingRun | None]:
+    """Stage 6: training for the iterations that fit (:func:`_fit_training`), then the checkpoints evaluated
+    (``eval/``). Returns the evaluation's summary and the run (None, None when the stage did not run)."""
+    from nerfify_ns.evaluate.run_eval import evaluate_run
+
+    summary, run = None, None
+    if not outcome.wants("train"):
+        return summary, run
+    label = "training within the budget" if deadline is not None else f"training for {budget.iterations} iterations"
+    with outcome.stage("train", f"{label}, evaluating its checkpoints", total=budget.iterations,
+                       failures=(NerfifyError,)) as stage:
+        run = _fit_training(plan, folder, budget, data, timing, deadline, proxy_scene)
+        stage.advance(0, run.iterations)
+        if run.proxy:
+            stage.note(run.proxy["headline"])
+        stage.note(f"training {plan['method']} for {run.iterations} iterations")
+        summary = evaluate_run(folder, data, folder / runfolder.EVAL_DIR, iterations=run.iterations, every=run.every,
+                               label=plan["method"], method_args=[*_train_args(plan, budget), *run.args],
+                               timeout=run.limit.timeout, limit=run.limit,
+                               on_progress=_step_progress(stage, f"training {plan['method']}",
+                                                          "rendering and scoring the checkpoints"))
+        summary = _record_run(folder, summary, run)
+        _judge_evaluation(summary, stage, run)
+    return summary, run
+
+
+def _patches(plan: dict, folder: Path, data: Dataset, options: RunOptions, budget: Budget, outcome: Outcome,
+             run: TrainingRun | None) -> None:
+    """Stage 7: the patch loop (``options.patch_rounds`` rounds; the critic agent's diagnoses with the agents)."""
+    if not options.ablations.visual_feedback:
+        outcome.skip("patches", "switched off (ablation no-visual-feedback)")
+    elif not options.patch_rounds:
+        outcome.skip("patches", "not requested (--patch-rounds 0)")
+    elif outcome.wants("patches"):
+        from nerfify_ns.evaluate.patch_loop import run_patch_loop
+
+        with outcome.stage("patches", f"patch loop ({options.patch_rounds} rounds)",
+                           failures=(NerfifyError,)) as stage:
+            loop = run_patch_loop(plan, data, folder / "patches", rounds=options.patch_rounds,
+                                  iterations=run.iterations if run is not None else budget.iterations,
+                                  sources=plugin_sources(folder, plan),
+                                  **({"critic": options.agents.critic()} if options.agents is not None else {}))
+            stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
+                             f"{loop.history.get('stopped')}")
+
+
+def _scene_for_family(scene: str, dataset: Dataset | None, derived: DerivedPlan) -> str:
     """The procedural scene a paper trains on when the user named none: a dynamic paper gets the first catalogued
     scene with timestamps (its time parts are kept, not pruned for a static scene); otherwise ``scene``."""
     family = derived.family
@@ -205,129 +398,6 @@ def _fallback(implementation: Implementation, folder: Path, doc: Document) -> Ca
         write_records(folder, implementation, doc)
         return plan, implementation.sources
     return fallback
-
-
-def run_compose(
-    plan: dict,
-    out: Path,
-    *,
-    data: Path | None = None,
-    scene: str = "default",
-    budget: Budget | None = None,
-    until: str | None = None,
-    keep_all: bool = False,
-    patch_rounds: int = 0,
-    overwrite: bool = False,
-    progress: Progress = Progress(),
-    sources: dict[str, str] | None = None,
-) -> ComposeResult:
-    """Plan -> validate -> the stages of :func:`_build` (the same as a paper's), up to ``until``. ``sources``:
-    the code of the plan's custom components (``components.<name>`` -> source)."""
-    outcome = Outcome("compose", until, progress)
-    budget = budget or COMPOSE_BUDGET
-    deadline = time.perf_counter() + budget.seconds if budget.seconds else None
-    dataset = _read_data(data)  # a bad dataset is bad input: nothing is written
-    check_count("--patch-rounds", patch_rounds, 0)
-    validate(plan)  # a plan the grammar rejects is bad input: nothing is written
-    final = Path(out).absolute()
-    with atomic_dir(final, overwrite, inputs=(data,)) as staging, run_log(staging / LOG_FILE):
-        plan, summary = _build(plan, staging, dataset, scene, keep_all, budget, patch_rounds, outcome, sources,
-                               deadline=deadline)
-        files = _plugin_files(staging)
-        _rewrite_saved_paths(staging, final)
-    return ComposeResult(final, plan, outcome, files, summary)
-
-
-def _build(plan: dict, folder: Path, data: Dataset | None, scene: str, keep_all: bool, budget: Budget,
-           patch_rounds: int, outcome: Outcome, sources: dict[str, str] | None = None,
-           fallback: Callable | None = None, ablations: Ablations = FULL,
-           agents: Any | None = None, deadline: float | None = None) -> tuple[dict, dict | None]:
-    """Plan for the scene -> plugin -> verification ladder -> training and evaluation (only after the ladder
-    passed) -> patch loop -> run.json and the report. Returns the plan and the evaluation's summary. ``data``:
-    the dataset, read once and shared by every stage (None: the procedural ``scene`` is rendered). ``fallback``:
-    when the ladder fails, ``fallback(ladder)`` may give a plan without the compiled components to blame (and
-    its sources): the plugin is regenerated from it and the ladder run again, once. ``ablations``: the ladder, the
-    patch loop or the file-DAG composition switched off. ``agents``: the model-backed agents of the run (the patch
-    loop's critic; ``agents.json`` before the report), or None. ``deadline``: the ``time.perf_counter()`` by which
-    the whole run ends (``budget.seconds``): training gets the iterations that fit the time left after the ladder
-    (:func:`_fit_training`)."""
-    from nerfify_ns.evaluate.run_eval import evaluate_run
-    from nerfify_ns.verify import run_ladder
-
-    budget, proxy_scene = _proxy_budget(plan, budget, data)  # a budgeted run's smaller procedural scene
-    with outcome.stage("plan", "fitting the plan to the scene") as stage:
-        plan, data = _plan_for_scene(plan, folder, data, scene, keep_all, budget, stage)
-    if outcome.wants("plugin"):
-        with outcome.stage("plugin", f"generating the plugin '{plan['method']}'") as stage:
-            written = write_plugin(plan, folder, sources=sources, one_shot=not ablations.dag)
-            stage.summary = f"{len(written.files)} files" + ("" if ablations.dag else " (one shot, no file DAG)")
-    timing: dict = {}  # the smoke rung's measured speed (none when the ladder did not run)
-    ladder_wanted = outcome.wants("verify")
-    if ladder_wanted and not ablations.verify:
-        outcome.skip("verify", "switched off (ablation no-verify)")
-    elif ladder_wanted:
-        with outcome.stage("verify", "verification ladder: static, contract and stability checks (sandboxed)",
-                           total=smoke_iterations(plan["base"], budget.smoke_iterations),
-                           failures=(NerfifyError,)) as stage:
-            smoke_args, smoke_values = smoke_samples(plan) if budget.proxy and deadline is not None else ([], {})
-
-            def ladder_run():
-                left = deadline - time.perf_counter() if deadline is not None else None
-                return run_ladder(folder, scene=data, out_dir=folder / "verify", repair="apply",
-                                  smoke_iterations=budget.smoke_iterations,
-                                  timeout=check_limit(budget, left).timeout, smoke_limit=smoke_limit(budget, left),
-                                  smoke_args=smoke_args,
-                                  on_progress=_step_progress(stage, "verification ladder: smoke-training rung",
-                                                             "verification ladder: judging the smoke run"))
-            ladder = ladder_run()
-            # a smoke rung that ran out of time is no fault of the compiled parts: nothing is reverted
-            retry = fallback(ladder) if fallback is not None and not ladder.ok and not _smoke_timed_out(ladder) \
-                else None
-            if retry is not None:  # the compiled parts failed: the base's parts stand in, the ladder runs again
-                stage.note("verification ladder: again, the base's parts standing in for the compiled ones")
-                plan, sources = _plan_for_scene(retry[0], folder, data, scene, keep_all, budget, stage)[0], retry[1]
-                _regenerate(plan, folder, sources)
-                ladder = ladder_run()
-            if _smoke_timed_out(ladder):  # not verified for want of time: kept as it is, training goes on
-                _note_unverified(plan, folder, ladder, budget)
-            (folder / runfolder.VERIFY).write_text(json.dumps(ladder.to_dict(), indent=2, default=str))
-            timing = _smoke_timing(ladder, smoke_values)
-            _judge_ladder(ladder, stage)
-    summary, run = None, None
-    if outcome.wants("train"):
-        label = "training within the budget" if deadline is not None else f"training for {budget.iterations} iterations"
-        with outcome.stage("train", f"{label}, evaluating its checkpoints", total=budget.iterations,
-                           failures=(NerfifyError,)) as stage:
-            run = _fit_training(plan, folder, budget, data, timing, deadline, proxy_scene)
-            stage.advance(0, run.iterations)
-            if run.proxy:
-                stage.note(run.proxy["headline"])
-            stage.note(f"training {plan['method']} for {run.iterations} iterations")
-            summary = evaluate_run(folder, data, folder / "eval", iterations=run.iterations, every=run.every,
-                                   label=plan["method"], method_args=[*_train_args(plan, budget), *run.args],
-                                   timeout=run.limit.timeout, limit=run.limit,
-                                   on_progress=_step_progress(stage, f"training {plan['method']}",
-                                                              "rendering and scoring the checkpoints"))
-            summary = _record_run(folder, summary, run)
-            _judge_evaluation(summary, stage, run)
-    if not ablations.visual_feedback:
-        outcome.skip("patches", "switched off (ablation no-visual-feedback)")
-    elif not patch_rounds:
-        outcome.skip("patches", "not requested (--patch-rounds 0)")
-    elif outcome.wants("patches"):
-        from nerfify_ns.evaluate.patch_loop import run_patch_loop
-
-        with outcome.stage("patches", f"patch loop ({patch_rounds} rounds)", failures=(NerfifyError,)) as stage:
-            loop = run_patch_loop(plan, data, folder / "patches", rounds=patch_rounds,
-                                  iterations=run.iterations if run is not None else budget.iterations,
-                                  sources=plugin_sources(folder, plan),
-                                  **({"critic": agents.critic()} if agents is not None else {}))
-            stage.summary = (f"{len(loop.kept())} patch(es) kept, best PSNR {loop.best_psnr} dB; stopped: "
-                             f"{loop.history.get('stopped')}")
-    if agents is not None:
-        agents.write(folder)
-    _report(folder, outcome)
-    return plan, summary
 
 
 @dataclass
@@ -604,10 +674,10 @@ def run_demo(
     data: Path | None = None,
     iterations: int = 100,
     overwrite: bool = False,
-    progress: Progress = Progress(),
+    progress: Progress | None = None,
 ) -> DemoResult:
     """Make (or take) a scene, smoke-train ``method`` on it on the CPU, evaluate, write ``out``."""
-    outcome = Outcome("demo", progress=progress)
+    outcome = Outcome("demo", progress=progress or Progress())
     dataset = _read_data(data)
     check_count("--iterations", iterations)
     final = Path(out).absolute()

@@ -84,12 +84,12 @@ def test_no_verify_and_no_visual_feedback_skip_their_stages(tmp_path, monkeypatc
     --patch-rounds asks for one; run.json says which ablations and why the stages did not run. Without them the
     ladder runs (its stand-in raises, which the full pipeline propagates)."""
     from nerfify_ns.budget import Budget
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     budget = Budget(iterations=2, every=2, scene={"resolution": 16, "n_train": 4, "n_val": 1, "n_test": 1})
     stand_ins = _StandIns(monkeypatch)
-    result = run_paper(GRIDLITE, tmp_path / "ablated", budget=budget, patch_rounds=1,
-                       ablations=Ablations.parse("no-verify,no-visual-feedback"))
+    result = run_paper(GRIDLITE, tmp_path / "ablated", options=PaperOptions(budget=budget, patch_rounds=1,
+                                                                            ablations=Ablations.parse("no-verify,no-visual-feedback")))
     assert stand_ins.calls == ["train"]
     run = json.loads((result.out / "run.json").read_text())
     assert run["ablations"] == ["no-verify", "no-visual-feedback"]
@@ -98,15 +98,15 @@ def test_no_verify_and_no_visual_feedback_skip_their_stages(tmp_path, monkeypatc
     assert stages["train"]["status"] == "failed"
     stand_ins.calls.clear()
     with pytest.raises(RuntimeError, match="stand-in ladder"):
-        run_paper(GRIDLITE, tmp_path / "full", budget=budget, patch_rounds=1)
+        run_paper(GRIDLITE, tmp_path / "full", options=PaperOptions(budget=budget, patch_rounds=1))
     assert stand_ins.calls == ["verify"]
 
 
 def test_no_equations_leaves_every_hole_to_the_base():
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    full = run_paper(GLINTFIELD, dry_run=True)
-    ablated = run_paper(GLINTFIELD, dry_run=True, ablations=Ablations.parse("no-equations"))
+    full = run_paper(GLINTFIELD, options=PaperOptions(dry_run=True))
+    ablated = run_paper(GLINTFIELD, options=PaperOptions(dry_run=True, ablations=Ablations.parse("no-equations")))
     assert full.implementation.records and not ablated.implementation.records
     assert not any("custom" in json.dumps(h) for h in ablated.plan.get("holes") or [] if h.get("status"))
 
@@ -143,7 +143,7 @@ def test_one_shot_composition_writes_what_the_file_dag_would_refuse(tmp_path, mo
 def test_no_agents_sets_the_model_agents_aside():
     """With agents given (a stand-in for ``nerfify_ns.agents.Agents``), the planner is asked for a plan; with the
     ablation no-agents it is not, and the dry run's plan is the deterministic one."""
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     class StandInAgents:
         warnings: list = []
@@ -159,8 +159,8 @@ def test_no_agents_sets_the_model_agents_aside():
             return "stand-in"
 
     agents = StandInAgents()
-    run_paper(GRIDLITE, dry_run=True, agents=agents)
+    run_paper(GRIDLITE, options=PaperOptions(dry_run=True, agents=agents))
     assert agents.calls == ["plan"]
     agents.calls.clear()
-    run_paper(GRIDLITE, dry_run=True, agents=agents, ablations=Ablations.parse("no-agents"))
+    run_paper(GRIDLITE, options=PaperOptions(dry_run=True, agents=agents, ablations=Ablations.parse("no-agents")))
     assert agents.calls == []

@@ -28,8 +28,8 @@ def stage_statuses(out: Path) -> dict:
 
 
 @pytest.mark.parametrize("until, ran, not_run", [
-    ("plan", ["read", "plan"], ["plugin", "verify", "train", "patches"]),
-    ("plugin", ["read", "plan", "plugin"], ["verify", "train", "patches"]),
+    ("plan", ["read", "equations", "plan"], ["plugin", "verify", "train", "patches"]),
+    ("plugin", ["read", "equations", "plan", "plugin"], ["verify", "train", "patches"]),
 ])
 def test_until_writes_an_honest_folder_and_keeps_the_console_quiet(until, ran, not_run, tmp_path):
     out = tmp_path / "out"

@@ -46,7 +46,7 @@ class GreyRenders(AssertionError):
     "recorded) fails the test"))
 def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path):
     from nerfify_ns.budget import PAPER_BUDGET
-    from nerfify_ns.pipeline import run_compose
+    from nerfify_ns.pipeline import RunOptions, run_compose
     from nerfify_ns.plan import Plan
     from nerfify_ns.synthesis.proxy import proxy_scene
     from nerfify_ns.synthesis.resources import load_reference_plan
@@ -60,7 +60,7 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
     budget = replace(PAPER_BUDGET, seconds=seconds,
                      scene={k: scene[k] for k in ("resolution", "n_test")})
     start = time.perf_counter()
-    result = run_compose(plan, tmp_path / "out", budget=budget)
+    result = run_compose(plan, tmp_path / "out", options=RunOptions(budget=budget))
     wall = time.perf_counter() - start
     summary = result.summary
     assert result.outcome.ok, result.outcome.failed

@@ -30,10 +30,10 @@ def test_paper_to_report_end_to_end(tiny_scene, tmp_path):
     # a quiet console: one line per finished stage, no warnings from other packages (they are in the log)
     assert done.stderr == "" and "Warning" not in done.stdout and "failed" not in done.stdout
     assert [line.split()[1].rstrip(":") for line in done.stdout.splitlines() if line.startswith("done ")] == \
-        ["read", "plan", "plugin", "verify", "train", "report"]
+        ["read", "equations", "plan", "plugin", "verify", "train", "report"]
     assert "FutureWarning" in (out / "nerfify.log").read_text()
     stages = {s["name"]: s for s in json.loads((out / "run.json").read_text())["stages"]}
-    assert [stages[n]["status"] for n in ("read", "plan", "plugin", "verify", "train")] == ["ran"] * 5
+    assert [stages[n]["status"] for n in ("read", "equations", "plan", "plugin", "verify", "train")] == ["ran"] * 6
     assert stages["patches"]["status"] == "not run" and "psnr" in stages["train"]["summary"].lower()
 
     plan = yaml.safe_load((out / "plan.yaml").read_text())
@@ -84,10 +84,11 @@ def test_the_main_job_renders_colour_not_grey(tmp_path):
 
     from nerfify_ns.ablations import Ablations
     from nerfify_ns.budget import PAPER_BUDGET
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     budget = replace(PAPER_BUDGET, seconds=None, iterations=MINUTE_ITERATIONS, every=MINUTE_ITERATIONS)
-    result = run_paper(EXAMPLE, tmp_path / "out", budget=budget, ablations=Ablations.of(["no-verify"]))
+    result = run_paper(EXAMPLE, tmp_path / "out", options=PaperOptions(budget=budget,
+                                                                       ablations=Ablations.of(["no-verify"])))
     summary = result.summary
     assert result.outcome.ok and summary["status"] == "ok" and summary["iterations_done"] == MINUTE_ITERATIONS
     diagnostics = summary["diagnostics"]

@@ -87,15 +87,16 @@ def test_an_evaluation_failure_is_a_failed_stage_with_the_folder_written(tiny_sc
     from nerfify_ns.budget import Budget
     from nerfify_ns.errors import NerfifyError
     from nerfify_ns.evaluate import run_eval
-    from nerfify_ns.pipeline import run_compose
+    from nerfify_ns.pipeline import RunOptions, run_compose
     from nerfify_ns.synthesis.resources import load_reference_plan
 
     def failing_evaluation(*args, **kwargs):
         raise NerfifyError("ns-eval found no frame to score (stand-in)")
 
     monkeypatch.setattr(run_eval, "evaluate_run", failing_evaluation)
-    result = run_compose(load_reference_plan("kplanes-static"), tmp_path / "out", data=tiny_scene,
-                         budget=Budget(iterations=10, every=10, smoke_iterations=20))
+    result = run_compose(load_reference_plan("kplanes-static"), tmp_path / "out",
+                         options=RunOptions(data=tiny_scene,
+                                            budget=Budget(iterations=10, every=10, smoke_iterations=20)))
     outcome = result.outcome
     assert [r.status for r in outcome.records] == ["ran", "ran", "ran", "failed", "not run"]
     assert "no frame to score" in outcome.failed.reason and result.summary is None

@@ -74,9 +74,9 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     from nerfify_ns.agents.local_server import LlamaServer
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    base = run_paper(Path(args.paper), dry_run=True)
+    base = run_paper(Path(args.paper), options=PaperOptions(dry_run=True))
     print(f"paper {args.paper}: deterministic plan base {base.plan['base']}", flush=True)
     with LlamaServer() as server:
         sides = [_side(server.url, base.derived, base.document, args.plans, True, args),
@@ -90,7 +90,8 @@ def main(argv=None) -> int:
               f"{s['seconds_median'] or 0:>7.1f} {s['output_tokens_median'] or 0:>11.0f}")
     gbnf, free = sides
     if gbnf["plans"] and free["plans"]:
-        print(f"valid after decoding: GBNF {gbnf['valid'] / gbnf['plans']:.0%}, free {free['valid'] / free['plans']:.0%}")
+        print(f"valid after decoding: GBNF {gbnf['valid'] / gbnf['plans']:.0%}, "
+              f"free {free['valid'] / free['plans']:.0%}")
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "sides": sides}, indent=1))

@@ -186,11 +186,11 @@ def _read_paper(paper: Path, out: Path) -> int:
     """The child of one survey row: the paper's read stage (ingest, families, ledger, plan, the equation compiler),
     as ``ns-nerfify PAPER --dry-run`` runs it, with the plan written to ``out/plan.yaml``. 2: bad input, one line."""
     from nerfify_ns.errors import NerfifyError
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
     from nerfify_ns.plan import Plan
 
     try:
-        result = run_paper(paper, dry_run=True)
+        result = run_paper(paper, options=PaperOptions(dry_run=True))
     except NerfifyError as exc:
         print(f"error: {exc}")
         return 2

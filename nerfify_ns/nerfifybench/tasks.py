@@ -145,7 +145,7 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
     from nerfify_ns.budget import Budget
     from nerfify_ns.errors import NerfifyError
     from nerfify_ns.nerfifybench.novelty import coverage, score_items, to_dict
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     b = entry.budget
     ablations = Ablations.of([] if task.config == FULL else [task.config])
@@ -155,8 +155,8 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
     result: dict = {"status": "ok", "reason": ""}
     try:
         data = _scene(suite, entry, task, folder)
-        run_paper(entry.input, run_dir, data=data, budget=budget, patch_rounds=b.patch_rounds,
-                  ablations=ablations, overwrite=True)
+        run_paper(entry.input, run_dir, options=PaperOptions(data=data, budget=budget, patch_rounds=b.patch_rounds,
+                                                             ablations=ablations, overwrite=True))
     except NerfifyError as exc:
         result.update(status="failed", reason=f"{type(exc).__name__}: {exc}")
     run = _json(run_dir / runfolder.OUTCOME) or {}
@@ -173,7 +173,7 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
         executability=_executability(summary, _json(run_dir / runfolder.VERIFY), stages.get("verify", {}).get(
             "status") == "ran"),
         metrics=_metrics(summary), curve=_curve(run_dir / "eval"),
-        generation_seconds=seconds("read", "plan", "plugin"), verify_seconds=seconds("verify"),
+        generation_seconds=seconds("read", "equations", "plan", "plugin"), verify_seconds=seconds("verify"),
         usage=_usage(run_dir), novelty={"items": to_dict(scores), "coverage": coverage(scores)},
         base=_plan_base(run_dir))
     return result
@@ -213,14 +213,14 @@ def run_reference(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
 
 def _reference_plan(entry: PaperEntry, task: Task, data: Path, folder: Path) -> dict:
     from nerfify_ns.budget import Budget
-    from nerfify_ns.pipeline import run_compose
+    from nerfify_ns.pipeline import RunOptions, run_compose
     from nerfify_ns.plan import Plan
 
     b = entry.budget
     budget = Budget(iterations=b.iterations, every=b.every, smoke_iterations=b.smoke_iterations, timeout=b.timeout,
                     train_args=train_args(b, task.seed))
-    result = run_compose(Plan.load(entry.reference.plan), folder / "compose", data=data, budget=budget,
-                         overwrite=True)
+    result = run_compose(Plan.load(entry.reference.plan), folder / "compose",
+                         options=RunOptions(data=data, budget=budget, overwrite=True))
     eval_dir = folder / "compose" / "eval"
     if eval_dir.is_dir():
         os.symlink(eval_dir, folder / "eval")

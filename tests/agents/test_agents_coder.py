@@ -43,9 +43,9 @@ def test_coder_stops_within_its_rounds_with_the_diagnosis(tmp_path):
     """CI's case (cheap checks): a syntax error (the composer refuses it), then an import of a missing module (the
     sandboxed static rung), with a bound of two rounds: each diagnosis goes back, then the loop stops, the compiler's result
     stands and the record, the warning and agents.json carry the last diagnosis."""
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    impl = run_paper(EXAMPLE, dry_run=True).implementation
+    impl = run_paper(EXAMPLE, options=PaperOptions(dry_run=True)).implementation
     rgb_head_hole(impl)
     broken = RGB_HEAD.replace("def forward(self, features):", "def forward(self, features)")
     missing = RGB_HEAD.replace("import torch\n", "import torch\nimport gridlite_colour_tables  # noqa\n", 1)
@@ -69,10 +69,10 @@ def test_coder_stops_within_its_rounds_with_the_diagnosis(tmp_path):
 @pytest.mark.slow
 def test_coder_feeds_back_the_diagnosis_and_installs_the_node(tmp_path):
     from nerfify_ns.evaluate.report import write_report
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
     from nerfify_ns.synthesis.novel.records import write_records
 
-    run = run_paper(EXAMPLE, dry_run=True)
+    run = run_paper(EXAMPLE, options=PaperOptions(dry_run=True))
     impl = run.implementation
     record = rgb_head_hole(impl)
     agents, provider = scripted([rgb_answer(RGB_HEAD_FOUR), rgb_answer(RGB_HEAD)])
@@ -140,7 +140,7 @@ def test_bionerf_three_wrong_answers_stop_with_the_diagnosis(tmp_path):
 @pytest.mark.slow
 def test_bionerf_right_in_the_fourth_round_passes_every_rung_trains_and_replays(tmp_path):
     from nerfify_ns.budget import Budget
-    from nerfify_ns.pipeline import run_compose
+    from nerfify_ns.pipeline import RunOptions, run_compose
 
     _, impl = _bionerf(tmp_path)
     cache = ResponseCache(tmp_path / "cache.sqlite")
@@ -153,7 +153,7 @@ def test_bionerf_right_in_the_fourth_round_passes_every_rung_trains_and_replays(
     budget = Budget(iterations=80, every=80, cpu_presets=True, timeout=3600,
                     train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                     scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
-    run = run_compose(impl.plan, tmp_path / "run", sources=impl.sources, budget=budget)
+    run = run_compose(impl.plan, tmp_path / "run", options=RunOptions(budget=budget), sources=impl.sources)
     assert run.outcome.failed is None, run.outcome.failed
     assert run.summary["status"] == "ok" and math.isfinite(run.summary["psnr"])
     # a rerun with the cache: the same four rounds, no call

@@ -117,9 +117,9 @@ def test_cache_replays_and_keys_by_content(tmp_path):
 # ------------------------------------------------------------------------------------------ the planner
 @pytest.fixture(scope="module")
 def paper_run():
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    return run_paper(EXAMPLE, dry_run=True)
+    return run_paper(EXAMPLE, options=PaperOptions(dry_run=True))
 
 
 def test_planner_merge_quotes_decide(paper_run):
@@ -149,13 +149,13 @@ def test_planner_invalid_model_plan_falls_back_with_one_warning(paper_run):
     """A model plan our grammar rejects (three times, re-asked with the violations) -> one warning line and the
     deterministic plan, unchanged."""
     from nerfify_ns.agents import Agents
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     bad = copy.deepcopy(dict(paper_run.plan))
     bad["model"]["sampler"] = {"proposal": {"nerf_samples": -3}}
     provider = ScriptedProvider({"planner": [json.dumps(bad)] * 3})
     agents = Agents(LLMConfig(backend="scripted", model="m"), provider, ResponseCache(None))
-    result = run_paper(EXAMPLE, dry_run=True, agents=agents)
+    result = run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=agents))
     assert result.plan == paper_run.plan
     assert len(agents.warnings) == 1 and agents.warnings[0].startswith("llm planner: the model's answer was rejected "
                                                                        "after 3 tries: ")

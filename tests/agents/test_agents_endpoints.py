@@ -23,9 +23,9 @@ CANARY = "sk-nerfify-canary-7f3a9c1e5b"
 
 @pytest.fixture(scope="module")
 def deterministic():
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    return run_paper(EXAMPLE, dry_run=True).plan
+    return run_paper(EXAMPLE, options=PaperOptions(dry_run=True)).plan
 
 
 def agents_for(url: str, tmp_path: Path, **settings):
@@ -43,11 +43,11 @@ def agents_for(url: str, tmp_path: Path, **settings):
     ("500", "answered HTTP 500"),
 ])
 def test_a_failing_endpoint_is_one_warning_and_the_deterministic_plan(mode, needle, deterministic, tmp_path):
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     with FakeEndpoint(mode, hang_s=3.0) as endpoint:
         agents = agents_for(endpoint.url, tmp_path, max_tokens=64)
-        result = run_paper(EXAMPLE, dry_run=True, agents=agents)
+        result = run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=agents))
     assert len(agents.warnings) == 1, agents.warnings
     line = agents.warnings[0]
     assert "\n" not in line and needle in line and line.startswith("llm planner:"), line
@@ -60,14 +60,14 @@ def test_a_failing_endpoint_is_one_warning_and_the_deterministic_plan(mode, need
 def test_the_key_is_sent_but_never_written(tmp_path, monkeypatch):
     """The key goes to the endpoint (the Authorization header) and nowhere else: not in warnings, agents.json,
     nerfify.log, the report, plan.yaml or the response cache."""
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     monkeypatch.setenv("OPENAI_API_KEY", CANARY)
     model_plan = yaml.safe_load((ROOT / "method_configs" / "nerfacto.yaml").read_text())
     with FakeEndpoint("ok", answer=json.dumps(model_plan)) as endpoint:
         agents = agents_for(endpoint.url, tmp_path)
         out = tmp_path / "run"
-        run_paper(EXAMPLE, out, until="plan", agents=agents)
+        run_paper(EXAMPLE, out, options=PaperOptions(until="plan", agents=agents))
     headers = {k.lower(): v for k, v in endpoint.requests[0]["headers"].items()}
     assert headers.get("authorization") == f"Bearer {CANARY}"
     written = [p for p in out.rglob("*") if p.is_file()] + [tmp_path / "cache.sqlite"]
@@ -85,16 +85,16 @@ def test_the_key_is_sent_but_never_written(tmp_path, monkeypatch):
 def test_rerun_with_the_cache_makes_no_calls(tmp_path, deterministic):
     """The response cache is keyed by backend, model, messages, constraint and parameters: a rerun (another
     process, another port) gets the same answer and the same plan without any request."""
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     model_plan = yaml.safe_load((ROOT / "method_configs" / "nerfacto.yaml").read_text())
     with FakeEndpoint("ok", answer=json.dumps(model_plan)) as first:
         agents = agents_for(first.url, tmp_path)
-        plan1 = run_paper(EXAMPLE, dry_run=True, agents=agents).plan
+        plan1 = run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=agents)).plan
     assert len(first.requests) == 1 and agents.ledger.total().calls == 1
     with FakeEndpoint("500") as second:  # it would fail if it were asked
         again = agents_for(second.url, tmp_path)
-        plan2 = run_paper(EXAMPLE, dry_run=True, agents=again).plan
+        plan2 = run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=again)).plan
     assert second.requests == [] and again.ledger.total().cache_hits == 1 and again.ledger.total().calls == 0
     assert plan1 == plan2 and not again.warnings
 
@@ -137,20 +137,20 @@ def test_anthropic_sdk_forced_tool_over_http(tmp_path, deterministic):
     answer; its stop reason max_tokens is a cut answer."""
     pytest.importorskip("anthropic", reason="the [llm] extra is not installed")
     from nerfify_ns.agents import Agents, LLMConfig
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
     model_plan = yaml.safe_load((ROOT / "method_configs" / "nerfacto.yaml").read_text())
     with FakeEndpoint("ok", answer=json.dumps(model_plan)) as endpoint:
         config = LLMConfig.parse("anthropic:claude-test", endpoint.url, cache=tmp_path / "c.sqlite", timeout=5.0)
         agents = Agents(config)
-        run_paper(EXAMPLE, dry_run=True, agents=agents)
+        run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=agents))
     sent = endpoint.requests[0]
     assert sent["path"].endswith("/messages") and sent["json"]["tool_choice"] == {"type": "tool", "name": "plan"}
     assert sent["json"]["tools"][0]["input_schema"]["type"] == "object" and sent["json"]["system"]
     assert agents.planner["used_model"] and not agents.warnings
     with FakeEndpoint("length", answer=json.dumps(model_plan)) as endpoint:
         cut = Agents(config.with_(base_url=endpoint.url, cache=None, max_tokens=32))
-        assert run_paper(EXAMPLE, dry_run=True, agents=cut).plan == deterministic
+        assert run_paper(EXAMPLE, options=PaperOptions(dry_run=True, agents=cut)).plan == deterministic
     assert len(cut.warnings) == 1 and "cut at max_tokens=32" in cut.warnings[0]
 
 

@@ -67,14 +67,14 @@ FORGED = (RGB_HEAD.replace("import torch\n", "import json\n\nimport torch\n", 1)
 def test_a_forging_model_component_is_rejected_and_not_counted(tmp_path):
     from nerfify_ns.agents import Agents, LLMConfig
     from nerfify_ns.evaluate.report import write_report
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
     from nerfify_ns.synthesis.novel.records import write_records
 
     assert FORGED.count("* float(\"nan\")") == 1 and "_forge()" in FORGED
     answers = tmp_path / "answers.yaml"
     answers.write_text(yaml.safe_dump({"coder": [rgb_answer(FORGED)]}))
     agents = Agents(LLMConfig.parse(f"scripted:{answers}", cache=tmp_path / "c.sqlite", coder_rounds=1))
-    run = run_paper(EXAMPLE, dry_run=True)
+    run = run_paper(EXAMPLE, options=PaperOptions(dry_run=True))
     impl = run.implementation
     record = rgb_head_hole(impl)
 

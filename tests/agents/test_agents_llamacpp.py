@@ -29,9 +29,9 @@ def server():
 
 @pytest.fixture(scope="module")
 def paper():
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    return run_paper(EXAMPLE, dry_run=True)
+    return run_paper(EXAMPLE, options=PaperOptions(dry_run=True))
 
 
 @pytest.mark.slow

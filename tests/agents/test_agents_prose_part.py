@@ -50,10 +50,10 @@ def tint_paper():
 
 
 def _tint_hole(paper):
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
     from nerfify_ns.synthesis.novel import NOT_IMPLEMENTED
 
-    impl = run_paper(paper, dry_run=True).implementation
+    impl = run_paper(paper, options=PaperOptions(dry_run=True)).implementation
     tint = [r for r in impl.records if "tint network" in " ".join(
         str(h.get("text", "")) for h in impl.plan["holes"] if h.get("slot") == r.slot)]
     assert len(tint) == 1, [(r.id, r.production) for r in impl.records]

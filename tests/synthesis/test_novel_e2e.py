@@ -13,7 +13,7 @@ import yaml
 from novel_papers import GATENERF
 
 from nerfify_ns.budget import Budget
-from nerfify_ns.pipeline import run_compose, run_paper
+from nerfify_ns.pipeline import PaperOptions, RunOptions, run_compose, run_paper
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, implement_holes
 from nerfify_ns.synthesis.novel.records import EquationsFileError
 
@@ -33,7 +33,7 @@ def gatenerf(tmp_path) -> Path:
 def test_the_run_folder_records_and_a_corrupted_equation_leaves_the_base_part(gatenerf, tmp_path):
     """--until plan: equations.yaml and the rendered equations are written; a person's corrupted equation (an
     unknown operator) is reported with its reason, the run finishes with the base's backbone; fixing it compiles it."""
-    first = run_paper(gatenerf, tmp_path / "first", until="plan", budget=SMALL)
+    first = run_paper(gatenerf, tmp_path / "first", options=PaperOptions(until="plan", budget=SMALL))
     assert first.outcome.failed is None
     records = yaml.safe_load((first.out / "equations.yaml").read_text())
     (hole,) = records["holes"]
@@ -48,7 +48,8 @@ def test_the_run_folder_records_and_a_corrupted_equation_leaves_the_base_part(ga
     hole["equations"][1]["latex"] = good.replace(r"\tanh(", r"\mathcal{F}(")
     corrected = tmp_path / "equations.yaml"
     corrected.write_text(yaml.safe_dump(records, sort_keys=False))
-    broken = run_paper(gatenerf, tmp_path / "broken", until="plan", budget=SMALL, equations=corrected)
+    broken = run_paper(gatenerf, tmp_path / "broken", options=PaperOptions(until="plan", budget=SMALL,
+                                                                           equations=corrected))
     assert broken.outcome.failed is None
     (hole_b,) = yaml.safe_load((broken.out / "equations.yaml").read_text())["holes"]
     assert hole_b["status"] == NOT_IMPLEMENTED and "unknown operator" in hole_b["reason"]
@@ -58,7 +59,8 @@ def test_the_run_folder_records_and_a_corrupted_equation_leaves_the_base_part(ga
     records = yaml.safe_load((broken.out / "equations.yaml").read_text())
     records["holes"][0]["equations"][1]["latex"] = good
     corrected.write_text(yaml.safe_dump(records, sort_keys=False))
-    fixed = run_paper(gatenerf, tmp_path / "fixed", until="plan", budget=SMALL, equations=corrected)
+    fixed = run_paper(gatenerf, tmp_path / "fixed", options=PaperOptions(until="plan", budget=SMALL,
+                                                                         equations=corrected))
     (hole_f,) = yaml.safe_load((fixed.out / "equations.yaml").read_text())["holes"]
     assert hole_f["status"] == IMPLEMENTED
 
@@ -67,7 +69,7 @@ def test_a_bad_equations_file_writes_nothing(gatenerf, tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("- not: a mapping\n")
     with pytest.raises(EquationsFileError):
-        run_paper(gatenerf, tmp_path / "out", until="plan", equations=bad)
+        run_paper(gatenerf, tmp_path / "out", options=PaperOptions(until="plan", equations=bad))
     assert not (tmp_path / "out").exists()
 
 
@@ -88,7 +90,7 @@ def test_the_cli_refuses_a_bad_equations_file_in_one_line(gatenerf, tmp_path):
 @pytest.mark.slow
 def test_a_paper_never_seen_passes_every_rung(gatenerf, tmp_path):
     """GateNeRF's compiled backbone (gates and a memory) in the plugin: static, contract, stability and smoke."""
-    result = run_paper(gatenerf, tmp_path / "run", until="verify", budget=SMALL)
+    result = run_paper(gatenerf, tmp_path / "run", options=PaperOptions(until="verify", budget=SMALL))
     assert result.outcome.failed is None, result.outcome.failed
     ladder = json.loads((result.out / "verify.json").read_text())
     assert ladder["ok"] and [r["name"] for r in ladder["rungs"]] == ["static", "contract", "stability", "smoke"]
@@ -126,7 +128,8 @@ def test_shared_papers_compiled_parts_pass_every_rung_and_train(paper, tmp_path)
     budget = Budget(iterations=80, every=80, cpu_presets=True, timeout=3600,
                     train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                     scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
-    result = run_compose(implementation.plan, tmp_path / "run", sources=implementation.sources, budget=budget)
+    result = run_compose(implementation.plan, tmp_path / "run", options=RunOptions(budget=budget),
+                         sources=implementation.sources)
     assert result.outcome.failed is None, result.outcome.failed
     ok, what = _loss_fell(result.out)
     assert ok, what

@@ -23,9 +23,9 @@ PAPER = Path(__file__).resolve().parents[1] / "data" / "papers" / "prose_sizes.m
 
 @pytest.fixture(scope="module")
 def built():
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
 
-    return run_paper(PAPER, dry_run=True).implementation
+    return run_paper(PAPER, options=PaperOptions(dry_run=True)).implementation
 
 
 def _part(record, name):
@@ -129,13 +129,13 @@ def test_a_member_stated_elsewhere_by_citing_sentence_is_not_built():
 @pytest.mark.slow
 def test_the_paper_passes_every_rung_of_the_sandboxed_ladder_and_trains(tmp_path):
     from nerfify_ns.budget import Budget
-    from nerfify_ns.pipeline import run_paper
+    from nerfify_ns.pipeline import PaperOptions, run_paper
     from nerfify_ns.runtime.events import losses, read_scalars
 
     budget = Budget(iterations=40, every=40, cpu_presets=True,
                     train_args=("--pipeline.datamanager.train-num-rays-per-batch", "256"),
                     scene={"resolution": 32, "n_train": 12, "n_val": 2, "n_test": 2})
-    result = run_paper(PAPER, tmp_path / "run", budget=budget)
+    result = run_paper(PAPER, tmp_path / "run", options=PaperOptions(budget=budget))
     assert result.outcome.failed is None, result.outcome.failed
     ladder = json.loads((result.out / "verify.json").read_text())
     assert ladder["ok"] and [r["name"] for r in ladder["rungs"]] == ["static", "contract", "stability", "smoke"]
