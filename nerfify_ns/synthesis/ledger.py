@@ -199,7 +199,7 @@ class _Reader:
         self.family = family
         self.roles = section_roles(doc, kb.rules)
         self.field_labels = self._field_labels()
-        """The labels the paper writes on the field's own outputs (sigma^obj, c^med): two or more are several
+        """The labels the paper writes on the field's density (sigma^obj, sigma^med): two or more are several
         fields."""
         self.index = CardEquations.of(kb)
         self.target_cards = target_cards
@@ -470,7 +470,8 @@ class _Reader:
         best = max(scores, key=lambda k: scores[k]) if scores else "Backbone"
         p.production = best if scores.get(best, 0) > 0 else "Backbone"
         p.production_scores = dict(sorted(scores.items(), key=lambda kv: -kv[1])[:4])
-        labels = self._labels_in(" ".join([*p.sentences, *(e["latex"] or e["text"] for e in p.equations)]))
+        labels = self._labels_in(" ".join([*p.sentences, *(e["latex"] or e["text"] for e in p.equations)])) \
+            & self.field_labels
         if len(self.field_labels) >= 2 and labels and p.production in self.r["several_fields"].get("productions", ()):
             p.production_scores = {**p.production_scores, "FieldWrapper": (
                 f"the paper writes the field's outputs with {len(self.field_labels)} labels "
@@ -479,19 +480,18 @@ class _Reader:
             p.production = "FieldWrapper"
 
     # ------------------------------------------------------------------ several fields
-    def _labels_in(self, text: str) -> set[str]:
+    def _labels_in(self, text: str, quantities: tuple[str, ...] = ("density", "colour")) -> set[str]:
         spec = self.r["several_fields"]
-        if not spec.get("quantity"):
-            return set()
         not_labels = {str(x).lower() for x in spec.get("not_labels") or ()}
-        return {m.group("label").lower() for m in re.finditer(spec["quantity"], text)} - not_labels
+        return {m.group("label").lower() for q in quantities if spec.get(q)
+                for m in re.finditer(spec[q], text)} - not_labels
 
     def _field_labels(self) -> set[str]:
         texts = [e.latex or e.text or "" for e in getattr(self.doc, "equations", []) or []]
         for i, s in enumerate(self.doc.sections):
             if self.roles[i] == "method":
                 texts += [p.text for p in s.paragraphs]
-        return self._labels_in(" ".join(texts))
+        return self._labels_in(" ".join(texts), ("density",))
 
     # ------------------------------------------------------------------ loss terms
     def split_losses(self, parts: list[Part]) -> list[Part]:

@@ -99,6 +99,14 @@ def test_one_field_with_one_label_stays_a_backbone(tmp_path: Path):
     assert ("Networks", "Backbone") in _new(ledger), _new(ledger)
 
 
+def test_a_colour_split_in_two_with_one_density_is_not_several_fields(tmp_path: Path):
+    # diffuse and specular colours of one field (one density): the network is the field's own, not a second field
+    split = SEVERAL.replace("\\sigma^{\\mathrm{haze}}", "\\sigma").replace("\\sigma^{\\mathrm{obj}}", "\\sigma")
+    split = split.replace("\\mathrm{haze}", "\\mathrm{spec}").replace("\\mathrm{obj}", "\\mathrm{diff}")
+    assert "haze}" not in split and "obj}" not in split
+    assert ("Networks", "FieldWrapper") not in _new(_ledger(tmp_path, split))
+
+
 LOSSES = """# OpaqueNeRF: Radiance Fields with Opaque Surfaces
 
 ## Rendering
