@@ -158,7 +158,7 @@ def _data_uri(path: Path) -> str | None:
     return f"data:{mime};base64,{base64.b64encode(data).decode('ascii')}"
 
 
-# ------------------------------------------------------------------------------------ blocks (the template renders them)
+# ---------------------------------------------------------------------------- blocks (the template renders them)
 
 Block = dict[str, Any]
 
@@ -274,7 +274,8 @@ class _Builder:
                              ["plan entry", "evidence"])]
             data["plan_evidence"] = plan_evidence
             pruned = plan.get("pruned") or []
-            blocks += [heading("Left out for the scene (pruned)"), table(pruned, ["path", "action", "from", "to", "reason"]),
+            blocks += [heading("Left out for the scene (pruned)"),
+                       table(pruned, ["path", "action", "from", "to", "reason"]),
                        folded(runfolder.PLAN, yaml.safe_dump(plan, sort_keys=False))]
             data["pruned"] = pruned
         else:
@@ -697,7 +698,8 @@ def headline_views(run_dir: Path, images: list[str]) -> tuple[list[Block], str |
     views, _ = _read_json(run_dir / "eval" / runfolder.ERROR_MAPS)
     summary, _ = _read_json(run_dir / "eval" / runfolder.SUMMARY)
     blocks: list[Block] = []
-    scored = [v for v in views or [] if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), int | float)]
+    scored = [v for v in views or []
+              if isinstance(v, dict) and v.get("panel") and isinstance(v.get("psnr"), int | float)]
     if scored:
         ranked = sorted(scored, key=lambda v: v["psnr"], reverse=True)
         for label, v in (("best", ranked[0]), ("worst", ranked[-1]))[: 1 if len(ranked) == 1 else 2]:
