@@ -269,13 +269,15 @@ def totals(rows: list[PaperRow]) -> dict:
             "implemented": sum(i["implemented"] for i in items),
             "implemented_share_of_found": round(sum(i["implemented"] for i in items) / found, 3) if found else None,
             "holes": holes, "spurious": spurious, "spurious_share": round(spurious / holes, 3) if holes else 0.0,
-            "family_ok": sum(1 for r in rows if r.family_ok), "family_labelled": sum(1 for r in rows if r.family_expected),
+            "family_ok": sum(1 for r in rows if r.family_ok),
+            "family_labelled": sum(1 for r in rows if r.family_expected),
             "tracebacks": sum(1 for r in rows if r.error.startswith("a traceback")), "not_built_causes": causes(rows)}
 
 
 def table(rows: list[PaperRow]) -> str:
     """The survey as a markdown table, then the totals."""
-    lines = ["| paper | family | base | contributions (new/known) | novel parts: found / implemented | spurious holes | exit |",
+    lines = ["| paper | family | base | contributions (new/known) | novel parts: found / implemented | spurious holes "
+             "| exit |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:
         new = sum(1 for c in r.contributions if c.get("status") == "new")
