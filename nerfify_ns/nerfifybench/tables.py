@@ -168,8 +168,8 @@ class Tables:
                f"{m['date']}, executor {m['executor']}, {m['machine']}." + (f" Command: `{m['command']}`."
                                                                             if m.get("command") else ""), ""]
         out += ["## Quality at equal iterations (Table 2 layout)", "",
-                "| Paper | Reported PSNR | SSIM | LPIPS | Reference | PSNR | SSIM | LPIPS | NeRFify PSNR | SSIM | LPIPS "
-                "| iterations |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                "| Paper | Reported PSNR | SSIM | LPIPS | Reference | PSNR | SSIM | LPIPS | NeRFify PSNR | SSIM "
+                "| LPIPS | iterations |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         notes = []
         for paper, s in summaries.items():
             rep, ref, gen = s["reported"], s["reference_metrics"], s["generated_metrics"]
@@ -183,11 +183,13 @@ class Tables:
                 notes.append(f"{paper}: reported on {rep['dataset']}")
         out += [""] + [f"- {n}" for n in notes] + ([""] if notes else [])
         out += ["## Quality at equal wall-clock", "",
-                "| Paper | training seconds | Reference PSNR | SSIM | NeRFify PSNR | SSIM |", "|---|---|---|---|---|---|"]
+                "| Paper | training seconds | Reference PSNR | SSIM | NeRFify PSNR | SSIM |",
+                "|---|---|---|---|---|---|"]
         for paper, s in summaries.items():
             e = s["equal_time"]
             first = {side: "" if e[f"{side}_psnr"] is not None or e[f"{side}_first_checkpoint"] is None else
-                     f" (first checkpoint at {e[f'{side}_first_checkpoint']:.1f} s)" for side in ("reference", "generated")}
+                     f" (first checkpoint at {e[f'{side}_first_checkpoint']:.1f} s)"
+                     for side in ("reference", "generated")}
             out.append(f"| {paper} | {_fmt(e['seconds'], 1)} | {_fmt(e['reference_psnr'])}{first['reference']} | "
                        f"{_fmt(e['reference_ssim'], 3)} | {_fmt(e['generated_psnr'])}{first['generated']} | "
                        f"{_fmt(e['generated_ssim'], 3)} |")
@@ -257,7 +259,8 @@ class Tables:
         sym = {"✓": r"\checkmark", "✗": r"\texttimes", DASH: "-"}
         for name, key in (("Imports Resolve", "imports"), ("Compiles/Trainable", "trains"),
                           ("Training Stability", "stable"), ("Converges", "converges")):
-            cells = [sym.get(_mark(s["executability"][key]), _mark(s["executability"][key])) for s in summaries.values()]
+            marks = [_mark(s["executability"][key]) for s in summaries.values()]
+            cells = [sym.get(m, m) for m in marks]
             out.append(f"{name} & " + " & ".join(cells) + r" \\")
         out += [r"\bottomrule", r"\end{tabular}", "",
                 r"\begin{tabular}{l|" + "|".join(["ccccc"] * len(self.configs)) + "}", r"\hline",
