@@ -63,8 +63,8 @@ def bib_entries(text: str, max_entries: int | None = None, source: str = "") -> 
             continue
         n += 1
         if max_entries is not None and n > max_entries:
-            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} bibliography entries (the "
-                                  "limit); pass the paper's own .bib or .bbl")
+            raise PaperLimitError(f"{source or 'the bibliography'}: more than {max_entries:,} bibliography entries "
+                                  "(the limit); pass the paper's own .bib or .bbl")
         fields, i = {}, m.end()
         while True:
             f = _FIELD.match(text, i)
