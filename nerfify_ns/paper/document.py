@@ -201,7 +201,8 @@ class Document(_Dictable):
     def _items(self) -> Iterator[tuple[str, Location, str]]:
         """(text, location, section) of every text-bearing element, in reading order."""
         if self.title:
-            yield self.title, Location(page=1 if self.kind == "pdf" else None, line=1 if self.kind != "pdf" else None), ""
+            pdf = self.kind == "pdf"
+            yield self.title, Location(page=1 if pdf else None, line=None if pdf else 1), ""
         if self.abstract:
             yield self.abstract, Location(), "Abstract"
         for s in self.sections:
