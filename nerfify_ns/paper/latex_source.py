@@ -215,8 +215,9 @@ class SourceTree:
                                   "pass the paper's own sources")
         self.bytes_read += len(data)
         if self.bytes_read > self.limits.max_archive_bytes:
-            raise PaperLimitError(f"{shown}: reading the paper's sources goes past {size_text(self.limits.max_archive_bytes)} "
-                                  "(the limit); pass the paper's own folder")
+            raise PaperLimitError(f"{shown}: reading the paper's sources goes past "
+                                  f"{size_text(self.limits.max_archive_bytes)} (the limit); pass the paper's own "
+                                  "folder")
         text = data.decode("utf-8", errors="replace")
         self._cache[real] = text
         return text
@@ -486,8 +487,9 @@ class MacroBudget:
         self.chars += chars
         where = f"{self.source}: " if self.source else ""
         if self.steps > self.limits.max_macro_steps:
-            raise PaperLimitError(f"{where}expanding the paper's macros takes more than {self.limits.max_macro_steps:,} "
-                                  f"steps (the limit; last \\{macro}); does a macro expand into itself?")
+            raise PaperLimitError(f"{where}expanding the paper's macros takes more than "
+                                  f"{self.limits.max_macro_steps:,} steps (the limit; last \\{macro}); does a macro "
+                                  "expand into itself?")
         if self.chars > self.limits.max_macro_output_chars:
             raise PaperLimitError(f"{where}expanding the paper's macros produces more than "
                                   f"{self.limits.max_macro_output_chars:,} characters (the limit; last \\{macro}); "
