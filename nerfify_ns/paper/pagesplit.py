@@ -21,7 +21,8 @@ from nerfify_ns.paper.document import Location
 PAGE_MARK = re.compile(r"^\s*#{1,3}\s*Page\s+(\d{1,4})\s*$", re.IGNORECASE)
 _RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
 # "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
-_HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)(?P<title>(?:[A-Z]|\d[A-Z]\b)[^\n]{1,90})$")
+_HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)"
+                      r"(?P<title>(?:[A-Z]|\d[A-Z]\b)[^\n]{1,90})$")
 # a heading glued to the end of the previous line: "...Research.1. Introduction"
 _GLUED = re.compile(r"^(?P<before>.*[a-z.)\]])(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
                     r"(?: [A-Za-z-]+){0,6})$")
