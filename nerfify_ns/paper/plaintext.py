@@ -12,7 +12,8 @@ from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
 from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
 
-NUMBERED_HEADING = re.compile(r"^(?:\d+(?:\.\d+){0,3}\.?|[A-Z]\.(?:\d+\.?)*|Appendix [A-Z0-9]+\.?)\s+[A-Z][^.!?]{1,90}$")
+NUMBERED_HEADING = re.compile(r"^(?:\d+(?:\.\d+){0,3}\.?|[A-Z]\.(?:\d+\.?)*|Appendix [A-Z0-9]+\.?)"
+                              r"\s+[A-Z][^.!?]{1,90}$")
 NAMED_HEADING = re.compile(r"^(?:abstract|references|bibliography|acknowledge?ments?|introduction|related work|"
                            r"conclusions?|method|methods|experiments|results|appendix)\s*:?$", re.IGNORECASE)
 EQ_LINE = re.compile(r"^(?P<body>.*\S)\s+\((?P<num>\d+[a-z]?)\)\s*$")
