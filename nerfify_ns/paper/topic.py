@@ -40,7 +40,8 @@ def require_nerf_paper(doc: Document, threshold: float = THRESHOLD) -> float:
     """The score, or NotANerfPaperError when the document is not about NeRF / radiance fields."""
     score, hits = nerf_score(doc)
     if score < threshold:
-        found = ", ".join(f"'{re.sub(r'[^a-z -]', '', p)[:20]}' x{n}" for p, n in list(hits.items())[:4]) or "no NeRF terms"
+        found = ", ".join(f"'{re.sub(r'[^a-z -]', '', p)[:20]}' x{n}"
+                          for p, n in list(hits.items())[:4]) or "no NeRF terms"
         name = doc.title or doc.source
         raise NotANerfPaperError(f"'{name[:80]}' does not look like a NeRF / radiance-field paper (score {score:.1f} < "
                                  f"{threshold}; found {found}); pass a NeRF paper")
