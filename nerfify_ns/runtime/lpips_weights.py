@@ -101,7 +101,8 @@ def linear_heads_match_torchmetrics(params: dict) -> bool:
     """True when the pickle's LPIPS heads equal torchmetrics' shipped ``alex.pth`` heads."""
     import torchmetrics.functional.image as tm_image
 
-    shipped = torch.load(Path(tm_image.__file__).parent / "lpips_models" / "alex.pth", map_location="cpu", weights_only=True)
+    shipped = torch.load(Path(tm_image.__file__).parent / "lpips_models" / "alex.pth", map_location="cpu",
+                         weights_only=True)
     for i in range(5):
         ours = torch.from_numpy(params[f"NetLinLayer_{i}"]["Conv_0"]["kernel"].transpose(3, 2, 0, 1))
         theirs = shipped[f"lin{i}.model.1.weight"]
