@@ -12,8 +12,8 @@ result (``mode`` and the ``isolation`` tags, which the ladder writes into ``veri
     ``/bin``, ``/lib*`` links), an allow-list of ``/etc`` files (no ``shadow``, ``gshadow``, keys or
     ``sudoers``), the Python installation, the virtual environment, the nerfify-ns checkout, the built
     kernel cache, what the interpreter's site-packages reach (editable installs, linked packages) and
-    ``readonly``; ``workdir`` is the one writable bind (owned by the sandbox's user while it runs). ``/proc`` is the sandbox's own
-    (its PID namespace), ``/dev`` a minimal one (null, zero, random, tty...) that cannot be written,
+    ``readonly``; ``workdir`` is the one writable bind (owned by the sandbox's user while it runs). ``/proc`` is the
+    sandbox's own (its PID namespace), ``/dev`` a minimal one (null, zero, random, tty...) that cannot be written,
     ``/tmp`` and ``/dev/shm`` private size-limited tmpfs, ``HOME`` a folder inside ``workdir``. Nothing of
     ``/root``, ``/home``, ``/run``, ``/var`` or ``/sys`` (but ``/sys/devices/system/cpu``) is there. bwrap
     keeps only CAP_SETUID, CAP_SETGID and CAP_SETPCAP for ``setpriv``, which then becomes uid/gid 65534
