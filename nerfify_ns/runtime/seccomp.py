@@ -12,8 +12,8 @@ Two programs, both classic BPF assembled here with :mod:`struct` (no dependency)
   ``ENETUNREACH`` and is recorded with its address; an open for writing outside the run folder (and
   ``/tmp``, ``/dev/shm``, ``/dev/null``) into a folder that exists in the sandbox goes on to the kernel, which
   refuses it (read-only file system, permissions), and is recorded with its path (a library writing its
-  cache into a folder the sandbox does not have, ``/var/cache``, is not recorded). The record lives in our process: what the plugin prints or writes cannot
-  change it.
+  cache into a folder the sandbox does not have, ``/var/cache``, is not recorded). The record lives in our process:
+  what the plugin prints or writes cannot change it.
 * :func:`kill_filter` (the fallback, passed to ``bwrap --seccomp``): the same calls kill the process with
   ``SECCOMP_RET_KILL_PROCESS`` (SIGSYS, which bubblewrap reports as exit 159): the rung fails saying that a
   forbidden call killed it, without its name.
