@@ -204,7 +204,8 @@ def scene_dict(spec: Mapping[str, Any], time: float | None = None) -> dict[str, 
     mi = mitsuba()
     env = spec.get("environment", {})
     visible = bool(env.get("visible", True))
-    out: dict[str, Any] = {"type": "scene", "integrator": {"type": "path", "max_depth": 4, "hide_emitters": not visible}}
+    out: dict[str, Any] = {"type": "scene",
+                           "integrator": {"type": "path", "max_depth": 4, "hide_emitters": not visible}}
     out["sky"] = {"type": "envmap", "bitmap": _sky_bitmap(), "scale": float(env.get("strength", 1.0)),
                   "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90)}  # the panorama is z-up, Mitsuba's y-up
     sun = spec.get("sun")
