@@ -139,8 +139,8 @@ def _file_hash(path: Path) -> str:
 def cache_key(settings: RealisticSettings) -> str:
     """SHA-256 of everything that decides the scene's bytes."""
     spec = realistic_spec(settings.name)
-    assets = sorted({o["mesh"] for o in spec.get("objects", []) if "mesh" in o} | {o["texture"] for o in spec.get("objects", [])
-                                                                     if o.get("texture")}
+    objects = spec.get("objects", [])
+    assets = sorted({o["mesh"] for o in objects if "mesh" in o} | {o["texture"] for o in objects if o.get("texture")}
                     | ({spec["ground"]["texture"]} if spec.get("ground", {}).get("texture", "meadow") != "meadow"
                        else set()))
     code = {m: _file_hash(Path(__file__).with_name(m)) for m in ("pbr.py", "realistic.py", "sfm.py", "cameras.py")}
