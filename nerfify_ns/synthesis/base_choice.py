@@ -154,7 +154,8 @@ def _reason(best: BaseScore, n_candidates: int, scores: Sequence[BaseScore]) -> 
             f"({', '.join(best.covered) or 'none'}){miss} (score {best.score:.2f}; next: {others})")
 
 
-def _from_statement(statements: Sequence[BaseStatement], available: Iterable[str]) -> tuple[BaseStatement, list[str]] | None:
+def _from_statement(statements: Sequence[BaseStatement],
+                    available: Iterable[str]) -> tuple[BaseStatement, list[str]] | None:
     """The first statement naming an available base, and the available bases it names."""
     known = set(available)
     for st in statements:
@@ -172,7 +173,8 @@ def choose_base(candidates: Mapping[str, float], hosted: Mapping[str, frozenset]
     if stated is not None:
         st, named = stated
         best = next(s for s in scores if s.name in named)
-        among = f" (of {', '.join(named)} it names, {best.name} hosts the most of its techniques)" if len(named) > 1 else ""
+        among = (f" (of {', '.join(named)} it names, {best.name} hosts the most of its techniques)"
+                 if len(named) > 1 else "")
         reason = (f"the paper says it builds on {best.name}{among}: \"{st.quote}\" ({st.where}); "
                   + _reason(best, len(candidates), scores))
         return BaseDecision(base=best.name, reason=reason, scores=scores, statement=st, criterion="statement")
