@@ -220,7 +220,8 @@ def capture_facts(dataset: Dataset, alpha: bool, exact_poses: bool) -> CaptureFa
     obs = read_observations(folder) if folder is not None else None
     if obs is not None:
         photos = dataset.root / "images"
-        n = len([p for p in photos.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")]) if photos.is_dir() else 0
+        n = len([p for p in photos.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")]) \
+            if photos.is_dir() else 0
         evidence["registered"] = f"COLMAP registered {len(obs.image_names)} of {max(n, len(obs.image_names))} images"
     forward_facing = layout.forward_facing
     if dataset.format == "llff" or forward_facing:
