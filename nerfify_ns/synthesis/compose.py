@@ -93,7 +93,8 @@ def _environment() -> jinja2.Environment:
 def _component_source(module: str) -> str:
     """Our component module, copied into the plugin so it stands alone."""
     source = resources.files("nerfify_ns.components").joinpath(f"{module}.py").read_text()
-    return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import", "from . import")
+    return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import",
+                                                                           "from . import")
 
 
 def _ruff(args: list[str], code: str, path: str) -> str:
