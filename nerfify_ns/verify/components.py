@@ -102,7 +102,8 @@ def check_component(contract: Contract, build, call, params: dict[str, Any], cas
     except NotApplicable as exc:
         return CaseResult(case, "n/a", [str(exc)])
     except Exception as exc:  # noqa: BLE001 - component code may fail in any way: that is the finding
-        return CaseResult(case, "fail", [f"raised {type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"])
+        first = str(exc).splitlines()[0][:200] if str(exc) else ""
+        return CaseResult(case, "fail", [f"raised {type(exc).__name__}: {first}"])
     return CaseResult(case, "fail" if problems else "pass", problems)
 
 
@@ -172,8 +173,8 @@ def record_spec(cap, spec: dict[str, Any], package: str, case: str) -> tuple:
 
         return record_case(cap, spec["contract"], build, interface.call, spec["params"], case)
     defn = spec["defn"]
-    return record_case(cap, spec["contract"], _terminal_build(defn), defn.harness.call or _default_call(spec["contract"]),
-                       spec["params"], case)
+    return record_case(cap, spec["contract"], _terminal_build(defn),
+                       defn.harness.call or _default_call(spec["contract"]), spec["params"], case)
 
 
 def _terminal_build(defn: TerminalDef):
