@@ -18,9 +18,9 @@ RGB_KEYS = ("rgb", "rgb_fine")
 
 
 def install(pipe) -> None:
-    """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed absolute output of
-    every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value per call since
-    the previous step: a part whose NaN the model masks is still seen)."""
+    """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed
+    absolute output of every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value
+    per call since the previous step: a part whose NaN the model masks is still seen)."""
     from nerfstudio.pipelines.base_pipeline import VanillaPipeline
 
     from nerfify_ns.verify.checker import ModuleWatch, watched_modules
