@@ -129,8 +129,9 @@ def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[t
         first, last = float(np.mean(finite[:q])), float(np.mean(finite[-q:]))
         details.update({"photometric_first_recomputed": first, "photometric_last_recomputed": last})
         if not last < LEARNING_RATIO * first:
-            failures.append(("no-learning", f"the photometric error recomputed from the rendered colours does not "
-                             f"decrease: first quarter {first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)"))
+            failures.append(("no-learning", "the photometric error recomputed from the rendered colours does not "
+                             f"decrease: first quarter {first:.4g}, last quarter {last:.4g} "
+                             f"(needs < {LEARNING_RATIO} x)"))
     step, ckpt = checkpoint_problems(run_dir)
     details["checkpoint_step"] = step
     failures += [("checkpoint", p) for p in ckpt if "not finite" in p]
