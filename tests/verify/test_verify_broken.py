@@ -3,7 +3,7 @@ rule and message; those with a deterministic fix are repaired and then pass; san
 stopped and reported while our process survives."""
 
 import pytest
-from verify_helpers import broken_plugin, corpus, load_case, reference_plugins  # noqa: F401  (fixture)
+from verify_helpers import broken_plugin, corpus, load_case
 
 from nerfify_ns.verify import run_ladder
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import pytest
 from rich.console import Console
-from verify_helpers import broken_plugin, corpus, load_case, reference_plugins  # noqa: F401  (fixture)
+from verify_helpers import broken_plugin, corpus, load_case
 
 from nerfify_ns.runtime.sandbox import Limits, available_modes
 from nerfify_ns.verify import run_ladder

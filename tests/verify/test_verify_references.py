@@ -6,7 +6,6 @@ import json
 import shutil
 
 import pytest
-from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 from nerfify_ns.synthesis.resources import reference_plans
 from nerfify_ns.verify import component_suite, run_ladder

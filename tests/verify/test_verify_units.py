@@ -5,7 +5,6 @@ import json
 import sys
 
 import pytest
-from verify_helpers import reference_plugins  # noqa: F401  (fixture)
 
 from nerfify_ns.runtime.sandbox import available_modes, isolation_available, run_sandboxed
 from nerfify_ns.verify import Diagnosis, LadderReport, NotAPluginError, RungResult

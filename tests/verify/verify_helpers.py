@@ -6,7 +6,6 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import pytest
 import yaml
 
 BROKEN = Path(__file__).parent / "broken_plugins"
@@ -20,15 +19,6 @@ def compose_reference(name: str, scene: Path, out: Path) -> Path:
 
     plan = prune_plan(load_reference_plan(name), probe_scene(scene))
     return compose(plan, out, overwrite=True, record=False).out
-
-
-@pytest.fixture(scope="session")
-def reference_plugins(tiny_scene, tmp_path_factory):
-    """name -> pristine plugin folder (composed once per session; copy before changing it)."""
-    from nerfify_ns.synthesis.resources import reference_plans
-
-    root = tmp_path_factory.mktemp("reference_plugins")
-    return {name: compose_reference(name, tiny_scene, root / name) for name in reference_plans()}
 
 
 def corpus(hostile: bool = False) -> list:
