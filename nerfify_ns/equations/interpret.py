@@ -204,6 +204,13 @@ class _Eval:
         }
         if f in unary:
             return Val(unary[f](args[0].a), args[0].axes)
+        if f == "softmax":  # over the features (a temperature is the paper's division of the argument)
+            x = args[0]
+            if x.a.ndim <= len(x.axes):
+                raise CompileError(f"{self.where}: a softmax over a quantity without features (one number per "
+                                   "element)")
+            z = np.exp(x.a - np.max(x.a, axis=-1, keepdims=True))
+            return Val(z / np.sum(z, axis=-1, keepdims=True), x.axes)
         if f in ("min", "max"):
             return self.binary(np.minimum if f == "min" else np.maximum, args[0], args[1])
         if f == "clamp":

@@ -35,7 +35,7 @@ Expr = Union["Symbol", "Number", "BinOp", "Neg", "Apply", "Compare", "Reduce", "
 #: functions ``Apply.func`` may name, with their arity (None: one or more)
 FUNCTIONS: dict[str, int | None] = {
     "exp": 1, "log": 1, "sin": 1, "cos": 1, "tan": 1, "tanh": 1, "sigmoid": 1, "relu": 1, "softplus": 1,
-    "abs": 1, "sqrt": 1, "ceil": 1, "floor": 1, "stopgrad": 1, "min": 2, "max": 2, "clamp": 3, "mse": 2,
+    "abs": 1, "sqrt": 1, "ceil": 1, "floor": 1, "stopgrad": 1, "min": 2, "max": 2, "clamp": 3, "mse": 2, "softmax": 1,
 }
 
 

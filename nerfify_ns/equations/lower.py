@@ -291,6 +291,12 @@ class _Lower:
             if f == "stopgrad":
                 return _C(f"{_paren(x, _ATOM)}.detach()", _ATOM, x.t)
             return _C(f"{_TORCH_UNARY[f]}({x.code})", _ATOM, x.t)
+        if f == "softmax":  # over the features (a temperature is the paper's division of the argument)
+            x = args[0]
+            if not x.t.feat:
+                raise LoweringError(f"{self.where}: a softmax over a quantity without features (one number per "
+                                    "element)")
+            return _C(f"torch.softmax({x.code}, dim=-1)", _ATOM, x.t)
         if f in ("min", "max"):
             a, b = args
             if not a.tensor and not b.tensor:

@@ -35,7 +35,7 @@ FUNCTION_WORDS = {
     "exp": "exp", "log": "log", "ln": "log", "sin": "sin", "cos": "cos", "tan": "tan", "tanh": "tanh",
     "sigmoid": "sigmoid", "relu": "relu", "softplus": "softplus", "abs": "abs", "sqrt": "sqrt", "ceil": "ceil",
     "floor": "floor", "min": "min", "max": "max", "clamp": "clamp", "clip": "clamp", "sg": "stopgrad",
-    "stopgrad": "stopgrad", "mse": "mse",
+    "stopgrad": "stopgrad", "mse": "mse", "softmax": "softmax",
 }
 _CASE_WORDS = {"if", "otherwise", "else", "when", "for", "where"}
 _DECORATIONS = {"hat": "hat", "widehat": "hat", "bar": "bar", "overline": "bar", "underline": "bar",

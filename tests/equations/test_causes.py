@@ -1,0 +1,96 @@
+"""Operators and constraints the compiler reads, one per cause, each with an equation written for this test and
+checked against torch code written by hand (values and gradients), through the one compile path."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from nerfify_ns.equations import Equation, compile_equations, parse_equation
+
+
+def _run(compiled, *args, params: dict | None = None):
+    namespace: dict = {}
+    exec(compile(compiled.source, "<compiled>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[compiled.lowered.class_name]().double()
+    with torch.no_grad():
+        for key, value in (params or {}).items():
+            attr, _ = compiled.lowered.params[key]
+            getattr(module, attr).copy_(value)
+    return module, module(*args)
+
+
+def _grads_match(got, want, inputs):
+    g1 = torch.autograd.grad(got.sum(), inputs, retain_graph=True)
+    g2 = torch.autograd.grad(want.sum(), inputs, retain_graph=True)
+    for a, b in zip(g1, g2, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_softmax_with_a_temperature_over_the_components():
+    compiled = compile_equations([(r"\mathbf{a} = \operatorname{softmax}(\mathbf{z} / \tau)", "1")],
+                                 {"z": ("R", 5), "tau": ("R",)}, ["a"])
+    assert compiled.ok, compiled.reason
+    z = torch.randn(4, 5, dtype=torch.float64, requires_grad=True)
+    tau = torch.rand(4, dtype=torch.float64, requires_grad=True) + 0.5
+    _, got = _run(compiled, z, tau)
+    want = torch.exp(z / tau[:, None]) / torch.exp(z / tau[:, None]).sum(dim=-1, keepdim=True)
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (z, tau))
+
+
+def test_a_softmax_of_one_number_per_element_is_refused_with_its_reason():
+    compiled = compile_equations([r"a = \mathrm{softmax}(x)"], {"x": ("R",)}, ["a"])
+    assert not compiled.ok and "softmax over a quantity without features" in compiled.reason
+
+
+def test_constraints_sigmoid_softplus_exp_clamp_and_normalise():
+    latex = [(r"\mathbf{g} = \mathrm{sigmoid}(\mathbf{x}) \odot \mathrm{softplus}(\mathbf{x}) "
+              r"+ \exp(-\mathbf{x})", "1"),
+             (r"\mathbf{y} = \mathrm{clamp}(\mathbf{g}, 0, 1)", "2"),
+             (r"\mathbf{n} = \frac{\mathbf{x}}{\lVert \mathbf{x} \rVert_2}", "3")]
+    compiled = compile_equations(latex, {"x": ("R", 3)}, ["y", "n"])
+    assert compiled.ok, compiled.reason
+    x = torch.randn(6, 3, dtype=torch.float64, requires_grad=True)
+    _, (y, n) = _run(compiled, x)
+    g = torch.sigmoid(x) * torch.nn.functional.softplus(x) + torch.exp(-x)
+    torch.testing.assert_close(y, torch.clamp(g, 0.0, 1.0), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(n, x / x.norm(dim=-1, keepdim=True), rtol=1e-10, atol=1e-12)
+    _grads_match(n, x / x.norm(dim=-1, keepdim=True), (x,))
+
+
+def test_a_learned_dictionary_mixes_its_signatures_by_softmax_abundances():
+    """K learned signatures (a matrix) mixed by abundances a softmax with a temperature gives."""
+    latex = [(r"\mathbf{a} = \operatorname{softmax}(\mathbf{z} / \tau)", "1"),
+             (r"\mathbf{c} = \mathrm{clamp}(\mathbf{M} \mathbf{a}, 0, 1)", "2")]
+    compiled = compile_equations(latex, {"z": ("R", 4), "tau": ("R",)}, ["c"], {"M": (3, 4)})
+    assert compiled.ok, compiled.reason
+    m = torch.rand(3, 4, dtype=torch.float64)
+    z = torch.randn(5, 4, dtype=torch.float64, requires_grad=True)
+    tau = torch.full((5,), 0.7, dtype=torch.float64)
+    module, got = _run(compiled, z, tau, params={"M": m})
+    want = torch.clamp(torch.softmax(z / 0.7, dim=-1) @ m.T, 0.0, 1.0)
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    got.sum().backward()
+    assert all(p.grad is not None for p in module.parameters())
+
+
+@pytest.mark.parametrize("text,value", [(r"1.5\times10^{-2}", 0.015), (r"5 \cdot 10^{-4}", 5e-4),
+                                        (r"\frac{1}{3}", 1 / 3), (r"10^{3}", 1000.0), (r"0.25", 0.25),
+                                        (r"2^{-1}", 0.5)])
+def test_numbers_in_every_notation(text, value):
+    compiled = compile_equations([rf"y = {text} x"], {"x": ("R",)}, ["y"])
+    assert compiled.ok, compiled.reason
+    x = torch.rand(3, dtype=torch.float64)
+    _, got = _run(compiled, x)
+    torch.testing.assert_close(got, value * x, rtol=1e-12, atol=0.0)
+
+
+def test_equations_already_read_compile_through_the_same_path():
+    eq = parse_equation(r"y = \exp(\beta x)", number="4")
+    assert isinstance(eq, Equation)
+    compiled = compile_equations([eq], {"x": ("R",)}, ["y"], {"beta": ()})
+    assert compiled.ok, compiled.reason
+    x = torch.rand(3, dtype=torch.float64)
+    _, got = _run(compiled, x, params={"beta": torch.tensor(0.5, dtype=torch.float64)})
+    torch.testing.assert_close(got, torch.exp(0.5 * x))
