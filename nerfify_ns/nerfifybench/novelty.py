@@ -4,8 +4,10 @@ Computed from the run's own records, never by a language model (the paper's Tabl
 its deterministic counterpart):
 
 * **Where an item is.** A compiled component whose ``implements`` names one of the item's equations (its ``where``:
-  "Eqs. 1-9"), else the first of the item's ``plan`` paths present in ``plan.yaml``; the plan's evidence link for
-  that path (``plan.evidence``: a quote with its page and section, or "from the base plan") is kept with it.
+  "Eqs. 1-9"), else the first of the item's ``plan`` paths present in ``plan.yaml``, else the slot of a hole the
+  run built for the item (compiled, coded or from the paper's sentences; matched as the survey matches it); the
+  plan's evidence link for that path (``plan.evidence``: a quote with its page and section, or "from the base
+  plan") is kept with it.
 * **Its status.** Not found: M. Found with a check: the check (a reference function of the suite, run in the
   sandbox on the generated component: :mod:`.checkrun`) passes: C; it fails (``AssertionError`` or ``False``): I;
   it raises anything else: I, with the error shown as the row's failure. Found without a check: **I, never C**
@@ -136,7 +138,26 @@ def locate(item: NoveltyItem, plan: dict) -> tuple[str, dict | None]:
         if found:
             return path, value.get("custom") if isinstance(value, dict) and isinstance(value.get("custom"), dict) \
                 else None
+    hole = built_hole(item, plan)
+    if hole is not None:
+        value = lookup(plan, hole["slot"])[1]
+        return hole["slot"], value.get("custom") if isinstance(value, dict) and isinstance(value.get("custom"),
+                                                                                           dict) else None
     return "", None
+
+
+def built_hole(item: NoveltyItem, plan: dict) -> dict | None:
+    """The plan's hole built for ``item`` (compiled, coded or built from the paper's sentences, and not reverted):
+    at the item's production and about it (the survey's match: its phrases or its equations), whose slot the plan
+    holds. An item the suite gives no plan path for is found there (a field wrapper, a schedule hook)."""
+    from nerfify_ns.nerfifybench.survey import _matches
+
+    for hole in plan.get("holes") or []:
+        if not isinstance(hole, dict) or hole.get("status") in (None, "not implemented") or not hole.get("slot"):
+            continue
+        if item.production and _matches(item, hole) and lookup(plan, hole["slot"])[0]:
+            return hole
+    return None
 
 
 def score_items(entry: PaperEntry, run_dir: Path | None, work: Path, *, timeout: float) -> list[ItemScore]:

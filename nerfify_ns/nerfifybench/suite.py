@@ -230,6 +230,23 @@ def card_names() -> tuple[str, ...]:
     return tuple(sorted(p.stem for p in CARDS_DIR.glob("*.yaml")))
 
 
+def named_check(folder: Path, paper_id: str, item_id: str) -> tuple[Path, str] | None:
+    """The check of an item the suite names none for, by name: ``checks/<paper id>.py`` in the suite folder, its
+    function named as the item (``-`` read as ``_``), found without running the file; None when there is none."""
+    import ast
+
+    path = Path(folder) / "checks" / f"{paper_id}.py"
+    func = item_id.replace("-", "_")
+    if not path.is_file() or not func.isidentifier():
+        return None
+    try:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+    except (SyntaxError, UnicodeDecodeError, OSError):
+        return None
+    names = {n.name for n in tree.body if isinstance(n, ast.FunctionDef)}
+    return (path.resolve(), func) if func in names else None
+
+
 def resolve_scene(folder: Path, scene: str) -> Path | None:
     if "/" in scene or scene.startswith("."):
         return (folder / scene).resolve()
@@ -386,6 +403,7 @@ class _Reader:
         if not isinstance(data["novelty"], list):
             raise self.fail(f"{where}.novelty", "expected a list of novelty items")
         items = [self.item(v, f"{where}.novelty[{k}]", family) for k, v in enumerate(data["novelty"])]
+        items = [i if i.check else replace(i, check=named_check(self.path.parent, pid, i.id)) for i in items]
         ids = [i.id for i in items]
         if len(set(ids)) != len(ids):
             raise self.fail(f"{where}.novelty", f"item id {next(i for i in ids if ids.count(i) > 1)!r} repeated")

@@ -38,3 +38,15 @@ def memory_size(target):
     assert target.record is not None, "no equations.yaml record for the backbone"
     rows = (target.record.get("state") or {}).get("Psi", {}).get("rows")
     assert rows == 8192, f"memory rows {rows}, the paper's z is 8,192"
+
+
+def loss(target):
+    """Eq. 10: L = MSE(r(Delta, c), g), the mean squared error between the rendered and the true pixel colour."""
+    import importlib.util
+    from pathlib import Path
+
+    assert "l2" in (target.value or {}), f"the plan's colour loss is {target.value}, Eq. 10 is a mean squared error"
+    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
+    refs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(refs)
+    refs.mse(torch.nn.MSELoss())

@@ -16,3 +16,42 @@ def sh_colour_head(target):
     net = next(m for name, m in head.named_children() if name.startswith("net_"))
     want = torch.sigmoid((net(geometry).reshape(8, 3, 9) * y[:, None, :]).sum(-1))
     torch.testing.assert_close(head(torch.cat([y, geometry], -1)), want, rtol=1e-10, atol=1e-12)
+
+
+def _refs():
+    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def integrated_positional_encoding(target):
+    """Eqs. 8-9 (mip-NeRF's integrated positional encoding): for a Gaussian (mu, Sigma), gamma = [sin(2^l mu)
+    exp(-2^(2l-1) diag Sigma), cos(2^l mu) exp(-2^(2l-1) diag Sigma)], l = 0 .. L-1: the encoding the plan builds
+    (Nerfstudio's NeRFEncoding with covariances) against it, frequencies octave-spaced as in Eq. 8."""
+    import numpy as np
+    from nerfstudio.field_components.encodings import NeRFEncoding
+
+    v = target.value
+    freqs = 2.0 ** np.linspace(v["min_freq_exp"], v["max_freq_exp"], v["num_frequencies"])
+    assert np.allclose(freqs[1:] / freqs[:-1], 2.0), f"frequencies are not octaves (ratio {freqs[1] / freqs[0]:.3f})"
+    enc = NeRFEncoding(in_dim=3, num_frequencies=v["num_frequencies"], min_freq_exp=v["min_freq_exp"],
+                       max_freq_exp=v["max_freq_exp"], include_input=False)
+    g = torch.Generator().manual_seed(0)
+    mu = torch.rand(4, 3, generator=g, dtype=torch.float64) * 0.1
+    var = torch.rand(4, 3, generator=g, dtype=torch.float64) * 1e-4
+    got = enc(mu, covs=torch.diag_embed(var)).numpy()
+    w = 2 * np.pi * freqs  # Nerfstudio scales its inputs by 2 pi
+    arg = (mu.numpy()[..., None] * w).reshape(4, -1)
+    damp = np.exp(-0.5 * (var.numpy()[..., None] * w ** 2)).reshape(4, -1)
+    np.testing.assert_allclose(got, np.concatenate([np.sin(arg) * damp, np.cos(arg) * damp], -1), atol=1e-5)
+
+
+def coarse_to_fine(target):
+    """Eq. 10: the fine samples drawn from the coarse weights' piecewise-constant PDF by inverse transform
+    sampling (the plan's hierarchical sampler)."""
+    _refs().inverse_transform_sampling(int(target.value["num_importance_samples"]))

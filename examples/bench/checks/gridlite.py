@@ -5,7 +5,8 @@ import torch
 
 
 def distortion_loss(target):
-    """Eq. 1: L_dist(s, w) = sum_{i,j} w_i w_j |(s_i + s_{i+1})/2 - (s_j + s_{j+1})/2| + 1/3 sum_i w_i^2 (s_{i+1} - s_i),
+    """Eq. 1: L_dist(s, w) = sum_{i,j} w_i w_j |(s_i + s_{i+1})/2 - (s_j + s_{j+1})/2|
+    + 1/3 sum_i w_i^2 (s_{i+1} - s_i),
     against the distortion loss the plan uses (Nerfstudio's, on its normalised spacing)."""
     from nerfstudio.cameras.rays import Frustums, RaySamples
     from nerfstudio.model_components.losses import distortion_loss as ns_distortion

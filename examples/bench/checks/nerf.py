@@ -47,3 +47,66 @@ def volume_rendering(target):
     trans = np.exp(-np.concatenate([np.zeros((4, 1)), np.cumsum(s * d, 1)[:, :-1]], 1))
     want = ((trans * (1 - np.exp(-s * d)))[..., None] * rgb.numpy()).sum(1)
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+def _refs():
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def hierarchical_sampling(target):
+    """Sec. 5.2, Eq. 5: N_c = 64 coarse samples, N_f = 128 fine ones drawn by inverse transform sampling from the
+    piecewise-constant PDF of the normalised coarse weights w_i / sum_j w_j."""
+    v = target.value
+    assert (v["num_coarse_samples"], v["num_importance_samples"]) == (64, 128), f"N_c, N_f = {v}, the paper's 64, 128"
+    _refs().inverse_transform_sampling(v["num_importance_samples"])
+
+
+def mlp(target):
+    """Sec. 3 and Fig. 3: 8 fully-connected ReLU layers of 256 channels, the input concatenated again to the fifth
+    layer's activation (Nerfstudio's skip index 4): the plan's backbone built as the plan builds it (Nerfstudio's
+    MLP) has the fifth layer reading 256 + the input's width."""
+    from nerfstudio.field_components.mlp import MLP
+
+    v = target.value
+    assert (v["num_layers"], v["layer_width"], list(v["skip_connections"])) == (8, 256, [4]), v
+    net = MLP(in_dim=63, num_layers=v["num_layers"], layer_width=v["layer_width"],
+              skip_connections=tuple(v["skip_connections"]), out_activation=torch.nn.ReLU())
+    widths = [layer.in_features for layer in net.layers]
+    assert widths == [63] + [256] * 3 + [256 + 63] + [256] * 3, widths
+    assert net(torch.zeros(2, 63)).shape == (2, 256)
+
+
+def photometric_loss(target):
+    """Eq. 6: the squared error between rendered and true pixel colours (of the coarse and the fine rendering):
+    the plan's l2 colour loss (Nerfstudio's MSELoss) is its mean over rays and channels."""
+    assert "l2" in (target.value or {}) or target.path.endswith(".l2"), f"colour loss {target.value}, not L2"
+    _refs().mse(torch.nn.MSELoss())
+
+
+def schedule(target):
+    """Sec. 5.3: Adam with a learning rate that begins at 5e-4 and decays exponentially to 5e-5 over the course of
+    optimisation: Nerfstudio's exponential decay with the plan's numbers reaches the final rate at the last step."""
+    from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
+
+    v = target.value
+    lr = target.plan["optimizers"]["fields"]["optimizer"]["adam"]["lr"]
+    assert np.isclose(lr, 5e-4) and np.isclose(v["lr_final"], 5e-5), \
+        f"lr {lr} -> {v['lr_final']}, the paper's 5e-4 -> 5e-5"
+    param = torch.nn.Parameter(torch.zeros(1))
+    opt = torch.optim.Adam([param], lr=lr)
+    sched = ExponentialDecaySchedulerConfig(lr_final=v["lr_final"], max_steps=100).setup().get_scheduler(opt, lr)
+    for _ in range(100):
+        opt.step()
+        sched.step()
+    assert np.isclose(opt.param_groups[0]["lr"], 5e-5, rtol=1e-3), opt.param_groups[0]["lr"]
+
+
+def batch(target):
+    """Sec. 5.3: a batch size of 4096 rays."""
+    assert target.value == 4096, f"{target.value} rays per batch, the paper's 4096"

@@ -1,0 +1,51 @@
+"""Checks of 4D Gaussian Splatting (Wu et al. 2024) items: reference functions written from the paper."""
+
+import torch
+
+
+def _refs():
+    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def structure_encoder(target):
+    """Eq. 7: the spatial-temporal structure encoder: multi-resolution planes over (x, y), (x, z), (y, z), (x, t),
+    (y, t), (z, t), each read by bilinear interpolation, the six features of a resolution multiplied (Hadamard)
+    and the resolutions concatenated: six planes per resolution, combined by product."""
+    v = target.value
+    assert v.get("reduce") == "product", f"planes combined by {v.get('reduce')}, Eq. 7 by product"
+    assert len(v["resolutions"]) >= 1 and v.get("time_resolution", 0) > 1, v
+    from nerfify_ns.components.kplanes import MultiScaleKPlanes
+
+    enc = MultiScaleKPlanes(resolutions=[8], num_components=2, time_resolution=5, reduce=v["reduce"]).double()
+    assert len(enc.plane_pairs) == 6, f"{len(enc.plane_pairs)} planes per resolution, Eq. 7 has six"
+    values = [(k + 2) / 4 for k in range(6)]
+    with torch.no_grad():
+        for plane, value in zip(enc.grids[0], values, strict=True):
+            plane.fill_(value)  # a constant plane reads its constant at every point (bilinear interpolation)
+    x = torch.rand(5, 3, dtype=torch.float64) * 2 - 1
+    got = enc(x, torch.rand(5, 1, dtype=torch.float64))
+    want = torch.full((5, 2), float(torch.tensor(values).prod()), dtype=torch.float64)
+    torch.testing.assert_close(got, want)
+
+
+def l1_loss(target):
+    """Eq. 9: the L1 colour loss, |C_hat - C| as a mean."""
+    from nerfstudio.model_components.losses import L1Loss
+
+    assert target.path.endswith(".l1"), f"colour loss at {target.path}, not L1"
+    g = torch.Generator().manual_seed(0)
+    pred, gt = torch.rand(32, 3, generator=g), torch.rand(32, 3, generator=g)
+    torch.testing.assert_close(L1Loss()(pred, gt), (pred - gt).abs().mean())
+
+
+def tv_loss(target):
+    """Eq. 9: the grid-based total variation loss on the planes."""
+    assert float(target.value.get("weight", 0)) > 0, "the TV loss has no weight"
+    _refs().plane_tv()

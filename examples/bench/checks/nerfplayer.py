@@ -1,0 +1,60 @@
+"""Checks of NeRFPlayer (Song et al. 2023) items: reference functions written from the paper, run against the
+generated component (a typed field wrapper of the plan, built from the paper's sentences)."""
+
+import torch
+
+
+def _refs():
+    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def decomposition(target):
+    """Sec. 3.2: the scene is decomposed into static, deforming and new areas, each with its own field; a
+    decomposition field gives every sample the probabilities (P_static, P_deform, P_new) of belonging to each
+    (a softmax), and the sample's density and colour are the probability-weighted sums of the three fields'."""
+    from nerfify_ns.components.field_wrappers import FieldBlend
+
+    params = (target.value or {}).get("field_blend")
+    assert params, "no blend of fields in the plan"
+    assert params["num_fields"] == 3, f"{params['num_fields']} fields, the paper's static, deforming and new"
+    assert params["mode"] == "mixer", \
+        f"blended by {params['mode']}, the paper by the decomposition field's probabilities"
+    blend = FieldBlend(num_fields=3, mode="mixer", mixer_width=params["mixer_width"],
+                       mixer_layers=params["mixer_layers"]).double()
+    g = torch.Generator().manual_seed(0)
+    x, t = torch.rand(6, 3, generator=g, dtype=torch.float64), torch.rand(6, 1, generator=g, dtype=torch.float64)
+    sigma = torch.rand(6, 3, 1, generator=g, dtype=torch.float64) * 3
+    rgb = torch.rand(6, 3, 3, generator=g, dtype=torch.float64)
+    p = blend.weights(x, t)
+    torch.testing.assert_close(p.sum(-1), torch.ones(6, dtype=torch.float64))
+    assert (p >= 0).all()
+    density, colour = blend(sigma, rgb, x, t)
+    torch.testing.assert_close(density, (p[..., None] * sigma).sum(1))
+    torch.testing.assert_close(colour, (p[..., None] * rgb).sum(1))
+
+
+def deformation_field(target):
+    """Sec. 3.2 (after D-NeRF): the deforming area's field is queried at a canonical position x + Delta x(x, t),
+    Delta x predicted by a deformation network from the position and the time: the plan's deformation moves
+    samples by a learned offset that depends on t and keeps the time."""
+    from nerfify_ns.components.field_wrappers import DeformationNetwork
+
+    params = (target.value or {}).get("deformation")
+    assert params, "no deformation into a canonical space in the plan"
+    net = DeformationNetwork(**params).double()
+    torch.nn.init.normal_(net.network[-1].weight, std=0.1)  # trained weights: the offset is no longer zero
+    g = torch.Generator().manual_seed(0)
+    x = torch.rand(5, 3, generator=g, dtype=torch.float64)
+    cams = torch.zeros(5, dtype=torch.long)
+    moved_a, t_a, _ = net(x, torch.full((5, 1), 0.3, dtype=torch.float64), cams)
+    moved_b, _, _ = net(x, torch.full((5, 1), 0.7, dtype=torch.float64), cams)
+    assert moved_a.shape == x.shape and torch.equal(t_a, torch.full((5, 1), 0.3, dtype=torch.float64))
+    assert not torch.allclose(moved_a, moved_b), "the offset does not depend on the time"
+    assert not torch.allclose(moved_a, x), "the samples are not moved"
