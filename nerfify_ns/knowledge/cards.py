@@ -20,6 +20,7 @@ TERMINAL_FIELDS = ("implementation", "defaults", "params", "contract", "code")
 """What a card must not say: how a technique is implemented, its defaults and contract live in its terminal
 (``nerfify_ns/registry/terminals/``), the one home; a card states paper knowledge only."""
 PAPER_FIELDS = ("title", "authors", "year", "venue", "arxiv")
+"""A card's ``paper`` may also give ``key``: its key among the known papers where ``papers.yaml`` lacks it."""
 EQUATION_FIELDS = ("ref", "latex", "text")
 SIGNAL_FIELDS = ("hyperparameters", "equations", "phrases")
 
@@ -33,6 +34,7 @@ class PaperRef:
     year: int | None
     venue: str | None
     arxiv: str | None
+    key: str | None = None
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,13 @@ class Card:
     hyperparameters: Mapping[str, tuple[HyperparameterMap, ...]] = field(default_factory=dict, compare=False)
     implements_equation: bool = True
     equation_slot: str | None = None
+    hyperparameter_patterns: Mapping[str, Mapping[str, Any]] = field(default_factory=dict, compare=False)
+    """How papers state the hyperparameters this technique introduces: name -> ``patterns`` (regular expressions
+    with ``{num}`` / ``{int}``), ``unit``, ``self_qualified`` (the name says which part it sets: no coarse/fine
+    qualifier is read after it), ``signals`` (a paper stating it signals the card, as ``detect.yaml``'s
+    ``hyperparameter_cards``). ``paper/hyperparams.py`` reads them beside the generic ``hyperparams.yaml``."""
+    notation: Mapping[str, str] = field(default_factory=dict, compare=False)
+    """The notation of the card's equation: symbol name -> role of ``synthesis/novel/notation.yaml``."""
 
     @property
     def terminal(self) -> str:
@@ -252,7 +261,8 @@ def parse_card(data: Any, path: Path) -> Card:
         paper=PaperRef(title=str(paper["title"]), authors=_strings(path, paper["authors"], "paper.authors"),
                        year=int(year) if year is not None else None,
                        venue=None if paper["venue"] is None else str(paper["venue"]),
-                       arxiv=None if arxiv is None else str(arxiv)),
+                       arxiv=None if arxiv is None else str(arxiv),
+                       key=None if paper.get("key") is None else str(paper["key"])),
         production=data["production"],
         terminals=terminals,
         parameters=parameters,
@@ -269,7 +279,32 @@ def parse_card(data: Any, path: Path) -> Card:
         hyperparameters=_hyperparameters(path, data.get("hyperparameters"), terminals),
         implements_equation=bool(data.get("implements_equation", True)),
         equation_slot=None if data.get("equation_slot") is None else str(data["equation_slot"]),
+        hyperparameter_patterns=_patterns(path, data.get("hyperparameter_patterns")),
+        notation=_notation(path, data.get("notation")),
     )
+
+
+def _patterns(path: Path, raw: Any) -> dict[str, dict]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise _fail(path, "hyperparameter_patterns must map a hyperparameter name to its patterns")
+    out = {}
+    for name, entry in raw.items():
+        if not isinstance(entry, dict) or not _strings(path, entry.get("patterns"), f"{name}.patterns"):
+            raise _fail(path, f"hyperparameter_patterns.{name} needs a list of patterns")
+        out[str(name)] = {"patterns": list(entry["patterns"]), "unit": str(entry.get("unit") or ""),
+                          "self_qualified": bool(entry.get("self_qualified", False)),
+                          "signals": bool(entry.get("signals", False))}
+    return out
+
+
+def _notation(path: Path, raw: Any) -> dict[str, str]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict) or not all(isinstance(v, str) for v in raw.values()):
+        raise _fail(path, "notation must map a symbol name to a role")
+    return {str(k): v for k, v in raw.items()}
 
 
 def load_card_file(path: Path) -> Card:
@@ -307,6 +342,11 @@ def card(name: str, cards: Mapping[str, Card] | None = None) -> Card:
     except KeyError:
         known = ", ".join(sorted(cards))
         raise UnknownCardError(f"no knowledge card named {name!r}; known cards: {known}") from None
+
+
+def card_notation(directory: Path | str = CARDS_DIR) -> dict[str, dict[str, str]]:
+    """The notation of every card's equation that states one (card name -> symbol name -> role)."""
+    return {c.name: dict(c.notation) for c in read_cards(directory).values() if c.notation}
 
 
 def cards_for_terminal(terminal: str, cards: Mapping[str, Card] | None = None) -> list[Card]:

@@ -37,7 +37,14 @@ from nerfify_ns.knowledge.cards import (
     read_cards,
 )
 from nerfify_ns.knowledge.errors import KnowledgeError
-from nerfify_ns.knowledge.papers import PAPERS_FILE, KnownPaper, _match_paper, find_papers_by_alias, read_papers
+from nerfify_ns.knowledge.papers import (
+    PAPERS_FILE,
+    KnownPaper,
+    _match_paper,
+    find_papers_by_alias,
+    read_papers,
+    with_card_sources,
+)
 from nerfify_ns.knowledge.patterns import BASES_FILE, PATTERNS_FILE, BaseRules, PatternSet, read_bases, read_patterns
 from nerfify_ns.knowledge.sentences import DETECT_FILE, Rules, read_rules
 from nerfify_ns.knowledge.text import alias_pattern, normalize_arxiv_id, normalize_title
@@ -66,9 +73,14 @@ class KnowledgeBase:
     def __init__(self, cards: dict[str, Card], papers: dict[str, KnownPaper], rules: Rules, patterns: PatternSet,
                  bases: BaseRules, sources: dict[str, Path] | None = None):
         self.cards = cards
-        self.papers = {k: _known_cards_only(p, cards) for k, p in papers.items()}
+        self.papers = {k: _known_cards_only(p, cards) for k, p in with_card_sources(papers, cards).items()}
+        signalled = {name: list(names) for name, names in rules.hyperparameter_cards.items()}
+        for c in cards.values():  # a card's own hyperparameters signal it (its `hyperparameter_patterns`)
+            for name, entry in c.hyperparameter_patterns.items():
+                if entry.get("signals") and c.name not in signalled.setdefault(name, []):
+                    signalled[name].append(c.name)
         self.rules = dataclasses.replace(rules, hyperparameter_cards={
-            name: [c for c in names if c in cards] for name, names in rules.hyperparameter_cards.items()
+            name: [c for c in names if c in cards] for name, names in signalled.items()
             if any(c in cards for c in names)})
         self.patterns = patterns
         self.bases = bases

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -106,6 +109,25 @@ def read_papers(path: Path | str = PAPERS_FILE) -> dict[str, KnownPaper]:
             raise PaperRegistryError(f"{file}: {p.key!r}.builds_on must list known paper keys, got "
                                      f"{list(p.builds_on)!r}; fix papers.yaml")
     return {p.key: p for p in papers}
+
+
+def with_card_sources(papers: dict[str, KnownPaper], cards: Mapping[str, Any]) -> dict[str, KnownPaper]:
+    """The known papers with each card's own paper (``card.paper``) providing it: the paper of the same arXiv id or
+    title gains the card in ``provides``; a card whose paper is not known adds it (key: ``paper.key``, else the
+    card's name). ``papers.yaml`` then lists what a paper provides besides the techniques it introduced."""
+    out = dict(papers)
+    for c in sorted(cards.values(), key=lambda c: c.name):
+        ref = c.paper
+        arxiv = normalize_arxiv_id(ref.arxiv) if ref.arxiv else None
+        source = next((p for p in out.values() if (arxiv and p.arxiv == arxiv)
+                       or p.normalized_title == normalize_title(ref.title)), None)
+        if source is None:
+            key = ref.key or c.name
+            out[key] = KnownPaper(key=key, title=ref.title, authors=ref.authors, year=ref.year, venue=ref.venue,
+                                  arxiv=arxiv, provides=(c.name,))
+        elif c.name not in source.provides:
+            out[source.key] = dataclasses.replace(source, provides=(*source.provides, c.name))
+    return out
 
 
 def load_papers(path: Path | None = None) -> dict[str, KnownPaper]:

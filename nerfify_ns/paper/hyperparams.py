@@ -1,4 +1,5 @@
-"""Hyperparameter extraction from sentences; the name patterns live in ``hyperparams.yaml``."""
+"""Hyperparameter extraction from sentences. The name patterns of generic hyperparameters live in
+``hyperparams.yaml``; those a technique introduces live in its knowledge card (``hyperparameter_patterns``)."""
 
 from __future__ import annotations
 
@@ -87,14 +88,23 @@ def parse_number(text: str) -> Value:
 
 # ----- patterns ---------------------------------------------------------------------------------------
 @cache
-def load_specs(path: str = str(PATTERNS_FILE)) -> tuple:
-    """(name, unit, [compiled patterns]) for each entry of the YAML file."""
-    specs = []
-    for entry in yaml.safe_load(Path(path).read_text(encoding="utf-8")):
-        pats = [re.compile(p.replace("{num}", NUMBER).replace("{int}", INTEGER), re.IGNORECASE)
-                for p in entry["patterns"]]
-        specs.append((entry["name"], entry.get("unit", ""), pats))
-    return tuple(specs)
+def load_specs(path: str = str(PATTERNS_FILE), cards: bool = True) -> tuple:
+    """(name, unit, [compiled patterns], self-qualified) for each entry of the YAML file, then (``cards``) for each
+    hyperparameter a technique card introduces (``hyperparameter_patterns``, cards in name order)."""
+    entries = [(e["name"], e.get("unit", ""), e["patterns"], bool(e.get("self_qualified")))
+               for e in yaml.safe_load(Path(path).read_text(encoding="utf-8"))]
+    if cards:
+        entries += [(name, p["unit"], p["patterns"], p["self_qualified"]) for name, p in card_patterns()]
+    return tuple((name, unit, [re.compile(p.replace("{num}", NUMBER).replace("{int}", INTEGER), re.IGNORECASE)
+                               for p in patterns], qualified) for name, unit, patterns, qualified in entries)
+
+
+def card_patterns() -> list[tuple[str, dict]]:
+    """(hyperparameter name, its patterns) of every technique card of the packaged knowledge base."""
+    from nerfify_ns.knowledge.cards import CARDS_DIR, read_cards
+
+    return [(name, p) for c in sorted(read_cards(CARDS_DIR).values(), key=lambda c: c.name)
+            for name, p in c.hyperparameter_patterns.items()]
 
 
 _QUALIFIERS = [("direction",
@@ -102,13 +112,12 @@ _QUALIFIERS = [("direction",
                ("position", r"^\s*(?:for|of|on)?\s*(?:the\s+)?(?:γ\s*\(\s*x\s*\)|\(?x\)|position|location)"),
                ("coarse", r"^[^.;,]{0,25}\bcoarse\b"), ("fine", r"^[^.;,]{0,25}\bfine\b"),
                ("proposal", r"^[^.;,]{0,25}\bproposal\b")]
-_SELF_QUALIFIED = {"num_coarse_samples", "num_fine_samples", "num_proposal_samples"}
 _STOP_SUBS = {"a", "the", "loss", "an", "with", "and", "of", "its", "each", "this", "same", "total", "initial"}
 
 
-def _qualifier(after: str, hp_name: str) -> str:
+def _qualifier(after: str, self_qualified: bool) -> str:
     for name, pat in _QUALIFIERS:
-        if hp_name in _SELF_QUALIFIED and name not in ("direction", "position"):
+        if self_qualified and name not in ("direction", "position"):
             continue
         if re.search(pat, after, re.IGNORECASE):
             return name
@@ -120,10 +129,10 @@ def extract_from_sentence(sentence: str, loc: Location | None = None, section: s
     norm = normalize_math(sentence)
     found: list[Hyperparameter] = []
     seen: set = set()
-    for name, unit, pats in load_specs():
+    for name, unit, pats, self_qualified in load_specs():
         for pat in pats:
             for m in pat.finditer(norm):
-                h = _make(name, unit, m, norm, sentence, loc, section)
+                h = _make(name, unit, m, norm, sentence, loc, section, self_qualified)
                 key = (h.name, str(h.value), h.qualifier) if h else None
                 if h and key not in seen:
                     seen.add(key)
@@ -131,7 +140,7 @@ def extract_from_sentence(sentence: str, loc: Location | None = None, section: s
     return found
 
 
-def _make(name, unit, m, norm, sentence, loc, section) -> Hyperparameter | None:
+def _make(name, unit, m, norm, sentence, loc, section, self_qualified=False) -> Hyperparameter | None:
     try:
         value = parse_number(m.group("num"))
     except (ValueError, OverflowError):
@@ -144,7 +153,7 @@ def _make(name, unit, m, norm, sentence, loc, section) -> Hyperparameter | None:
             return None
         name = "lambda_" + "_".join(words)
     return Hyperparameter(name=name, value=value, unit=groups.get("unit") or unit, sentence=sentence.strip(),
-                          raw=m.group(0).strip(), qualifier=_qualifier(norm[m.end():m.end() + 60], name),
+                          raw=m.group(0).strip(), qualifier=_qualifier(norm[m.end():m.end() + 60], self_qualified),
                           loc=loc or Location(), section=section)
 
 

@@ -125,3 +125,69 @@ def test_card_terminals_are_registry_terminals():
     for card in load_cards().values():
         for terminal in card.terminals:
             assert terminal in REGISTRY, f"card {card.name} names unknown terminal {terminal}"
+
+
+# ------------------------------------------------------------------ a technique is a card and one terminal
+PACKAGE = ROOT / "nerfify_ns"
+
+
+def _generic_hyperparameters() -> dict[str, dict]:
+    import yaml
+
+    return {e["name"]: e for e in yaml.safe_load((PACKAGE / "paper" / "hyperparams.yaml").read_text())}
+
+
+def test_a_hyperparameter_one_technique_maps_lives_in_its_card():
+    """A name of the generic hyperparameter file that exactly one card maps is that card's: its patterns belong in
+    the card (``hyperparameter_patterns``), so adding a technique never edits ``paper/hyperparams.yaml``."""
+    users: dict[str, set[str]] = {}
+    for c in load_cards().values():
+        for terminal in c.terminals:
+            for m in c.hyperparameters_for(terminal):
+                users.setdefault(m.name, set()).add(c.name)
+    generic = _generic_hyperparameters()
+    misplaced = {n: sorted(u) for n, u in users.items() if n in generic and len(u) == 1 and n not in GENERIC_NAMES}
+    assert not misplaced, f"move these patterns into their card's hyperparameter_patterns: {misplaced}"
+    own = {n: c.name for c in load_cards().values() for n in c.hyperparameter_patterns}
+    assert not set(own) & set(generic), f"patterns both in hyperparams.yaml and a card: {set(own) & set(generic)}"
+
+
+GENERIC_NAMES = {"lambda", "num_frequencies"}
+"""Generic names a card may map (a loss weight of any term; the frequency count of several encodings)."""
+
+
+def test_a_techniques_notation_and_signals_live_in_its_card():
+    import yaml
+
+    notation = yaml.safe_load((PACKAGE / "synthesis" / "novel" / "notation.yaml").read_text())
+    assert not notation.get("cards"), "a card's notation belongs in the card (`notation:`), not in notation.yaml"
+    detect = yaml.safe_load((PACKAGE / "knowledge" / "detect.yaml").read_text())["hyperparameter_cards"]
+    own = {n for c in load_cards().values() for n in c.hyperparameter_patterns}
+    assert not own & set(detect), f"signalled in detect.yaml and declared by a card: {own & set(detect)}"
+
+
+def test_every_card_is_provided_by_its_own_paper():
+    """A card's source paper comes from the card: the known paper of its arXiv id or title provides it (a card
+    whose paper ``papers.yaml`` lacks adds that paper), so adding a technique never edits ``papers.yaml``."""
+    from nerfify_ns.knowledge.papers import load_papers, normalize_title
+
+    papers = load_papers()
+    for c in load_cards().values():
+        sources = [p for p in papers.values() if (c.paper.arxiv and p.arxiv == c.paper.arxiv)
+                   or p.normalized_title == normalize_title(c.paper.title)]
+        assert sources and any(c.name in p.provides for p in sources), c.name
+
+
+def test_a_technique_needs_no_registry_file_beyond_its_terminal():
+    """Terminal modules are found, not listed, and a terminal joins the production it names."""
+    import pkgutil
+
+    from nerfify_ns.registry import terminals
+
+    found = {m.name for m in pkgutil.iter_modules(terminals.__path__)}
+    assert found == {m.__name__.rsplit(".", 1)[1] for m in terminals.MODULES}
+    for t in REGISTRY:
+        if t.production in REGISTRY.nonterminals:
+            nt = REGISTRY.nonterminals[t.production]
+            assert t.name in (nt.get("alternatives") or nt.get("members") or [t.name]) or nt.get("kind") in (
+                "sequence", "open", "map"), t.name

@@ -26,6 +26,7 @@ import yaml
 from nerfify_ns.equations import ParseFailure, parse_expression
 from nerfify_ns.equations.ir import Symbol, walk
 from nerfify_ns.equations.mathsym import GREEK
+from nerfify_ns.knowledge.cards import card_notation
 
 NOTATION_FILE = Path(__file__).resolve().parent / "notation.yaml"
 _GREEK_NAMES = {u: tex.lstrip("\\") for u, tex in GREEK.items()}
@@ -91,7 +92,7 @@ class Notation:
         self.variants: list[dict] = data.get("variants") or []
         self.phrases = [(re.compile(p["pattern"], re.I), p["role"]) for p in data.get("phrases") or []]
         self.bases: dict[str, dict] = data.get("bases") or {}
-        self.cards: dict[str, dict] = data.get("cards") or {}
+        self.cards: dict[str, dict] = {**card_notation(), **(data.get("cards") or {})}
         for name, entry in self.symbols.items():
             if entry["role"] not in self.roles:
                 raise ValueError(f"notation.yaml: symbol {name} has the unknown role {entry['role']}")
