@@ -49,6 +49,7 @@ from .shapes import (
     ShapeError,
     check_cost,
     check_layout,
+    component_base,
     is_bound_variable,
     named_sizes,
     param_specs,
@@ -78,6 +79,7 @@ class _Eval:
         self.order: list[str] = [RAY]
         self.sample_vars: list[str] = []
         self.ranges: dict[str, float] = {}
+        self.range_lo: dict[str, int] = {}
         self.where = ""
         self.iterations = 0  # of finite ranges, all together: the static check's bound, kept while running
 
@@ -157,6 +159,16 @@ class _Eval:
                 return Val(np.asarray(self.ranges[s.name], dtype=np.float64), ())
         key = s.key
         looped = [lab for lab in s.subscripts + ((s.superscript,) if s.superscript else ()) if lab in self.ranges]
+        base = component_base(s, set(self.ranges)) if looped else s
+        if base is not s and base.key in self.values:  # a_k in a sum over k: the k-th component of a's features
+            v = self.symbol(base)
+            (var,) = [lab for lab in s.subscripts if lab in self.ranges]
+            if v.a.ndim > len(v.axes):
+                k = int(self.ranges[var]) - self.range_lo[var]
+                if not 0 <= k < v.a.shape[len(v.axes)]:
+                    raise CompileError(f"{self.where}: component {k} of '{base.key}' is past its "
+                                       f"{v.a.shape[len(v.axes)]} features")
+                return Val(np.take(v.a, k, axis=len(v.axes)), v.axes)
         if looped:
             raise CompileError(f"{self.where}: '{key}' is indexed by the range variable '{looped[0]}': not "
                                "evaluated (bind the sum, e.g. a spherical-harmonics basis, instead)")
@@ -307,6 +319,7 @@ class _Eval:
             if self.iterations > MAX_RANGE_ITERATIONS:
                 raise CompileError(f"{self.where}: more than {MAX_RANGE_ITERATIONS:,} iterations of finite ranges")
             self.ranges[r.index] = float(k)
+            self.range_lo[r.index] = lo_i
             term = self.ev(r.body)
             acc = self.binary(np.add if r.kind == "sum" else np.multiply, acc, term)
         self.ranges.pop(r.index, None)

@@ -52,6 +52,7 @@ from .shapes import (
     ShapeError,
     check_cost,
     check_layout,
+    component_base,
     is_bound_variable,
     named_sizes,
     param_specs,
@@ -129,6 +130,7 @@ class _Lower:
         self.order: list[str] = [RAY]
         self.sample_vars: list[str] = []
         self.loop_vars: dict[str, str] = {}
+        self.loop_lo: dict[str, str] = {}
         self.pre: list[str] = []
         self.indent = 0
         self.uses_n_samples = self.uses_n_rays = False
@@ -229,6 +231,13 @@ class _Lower:
             return _C(f"float({self.loop_vars[s.name]})", _ATOM, _T((), ()), False)
         key = s.key
         looped = [lab for lab in s.subscripts + ((s.superscript,) if s.superscript else ()) if lab in self.loop_vars]
+        base = component_base(s, set(self.loop_vars)) if looped else s
+        if base is not s and base.key in self.env:  # a_k in a sum over k: the k-th component of a's features
+            c = self.symbol(base)
+            (var,) = [lab for lab in s.subscripts if lab in self.loop_vars]
+            if c.t.feat:
+                return _C(f"{_paren(c, _ATOM)}.select({-len(c.t.feat)}, {self.loop_vars[var]} - "
+                          f"({self.loop_lo[var]}))", _ATOM, _T(c.t.axes, c.t.feat[1:]), c.tensor)
         if looped:
             raise LoweringError(f"{self.where}: '{safe_comment(key, 40)}' is indexed by the range variable "
                                 f"'{safe_comment(looped[0], 20)}': not lowered (bind the sum, e.g. a spherical-"
@@ -488,6 +497,7 @@ class _Lower:
         self._emit(f"{acc} = {0.0 if r.kind == 'sum' else 1.0}")
         self._emit(f"for {loop} in range({lo}, {stop}):")
         self.loop_vars[r.index] = loop
+        self.loop_lo[r.index] = lo
         self.indent += 1
         try:
             body = self.lo(r.body)
@@ -496,6 +506,7 @@ class _Lower:
         finally:
             self.indent -= 1
             self.loop_vars.pop(r.index, None)
+            self.loop_lo.pop(r.index, None)
         return _C(acc, _ATOM, body.t, body.tensor)
 
 

@@ -100,19 +100,31 @@ def is_bound_variable(sym: Symbol) -> bool:
 
 
 def uses(eq: Equation) -> set[str]:
-    """The keys the right-hand side reads (a field's evaluation point is not read)."""
-    out, stack = set(), [eq.rhs]
+    """The keys the right-hand side reads (a field's evaluation point is not read; ``a_k`` inside a sum over the
+    range of ``k`` reads ``a``, whose component k it is)."""
+    out, stack = set(), [(eq.rhs, frozenset())]
     while stack:
-        node = stack.pop()
+        node, ranges = stack.pop()
         if isinstance(node, Symbol):
             if not is_bound_variable(node):
-                out.add(node.key)
+                out.add(component_base(node, ranges).key)
             continue  # not its args
         if isinstance(node, Reduce) and node.axis != "range":
-            stack.append(node.body)  # limits over samples or rays are read, not evaluated
+            stack.append((node.body, ranges))  # limits over samples or rays are read, not evaluated
             continue
-        stack.extend(children(node))
+        inner = ranges | {node.index} if isinstance(node, Reduce) else ranges
+        stack.extend((c, inner if c is getattr(node, "body", None) else ranges) for c in children(node))
     return out
+
+
+def component_base(sym: Symbol, ranges) -> Symbol:
+    """``a_k`` read inside a sum over the range of ``k``: the symbol ``a`` whose k-th component it is (one range
+    subscript); any other symbol is itself."""
+    looped = [lab for lab in sym.subscripts if lab in ranges]
+    if len(looped) != 1 or (sym.superscript and sym.superscript in ranges):
+        return sym
+    return Symbol(sym.name, tuple(lab for lab in sym.subscripts if lab != looped[0]), sym.superscript,
+                  sym.decorations, sym.index, sym.args)
 
 
 def schedule(equations: list[Equation], outputs: list[str], available: set[str]) -> list[Equation]:

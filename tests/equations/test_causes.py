@@ -94,3 +94,27 @@ def test_equations_already_read_compile_through_the_same_path():
     x = torch.rand(3, dtype=torch.float64)
     _, got = _run(compiled, x, params={"beta": torch.tensor(0.5, dtype=torch.float64)})
     torch.testing.assert_close(got, torch.exp(0.5 * x))
+
+
+def test_indexed_sums_and_products_over_components_and_levels():
+    """a_k inside a sum over k is the k-th component of a's features; m_k of a learned K x 3 dictionary its k-th
+    signature; a product over levels multiplies the components."""
+    latex = [(r"y = \sum_{k=1}^{K} a_k s_k", "1"), (r"\mathbf{c} = \sum_{k=1}^{K} a_k \mathbf{m}_k", "2"),
+             (r"p = \prod_{l=0}^{K-1} s_l", "3")]
+    compiled = compile_equations(latex, {"a": ("R", 4), "s": ("R", 4)}, ["y", "c", "p"], {"K": 4, "m": (4, 3)})
+    assert compiled.ok, compiled.reason
+    a = torch.rand(5, 4, dtype=torch.float64, requires_grad=True)
+    s = torch.rand(5, 4, dtype=torch.float64, requires_grad=True)
+    m = torch.rand(4, 3, dtype=torch.float64)
+    module, (y, c, p) = _run(compiled, a, s, params={"m": m})
+    torch.testing.assert_close(y, (a * s).sum(dim=-1), rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(c, a @ m, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(p, s.prod(dim=-1), rtol=1e-10, atol=1e-12)
+    _grads_match(y + p, (a * s).sum(dim=-1) + s.prod(dim=-1), (a, s))
+    c.sum().backward()
+    assert all(q.grad is not None and torch.isfinite(q.grad).all() for q in module.parameters())
+
+
+def test_a_component_past_the_features_is_refused():
+    compiled = compile_equations([r"y = \sum_{k=1}^{K} a_k"], {"a": ("R", 3)}, ["y"], {"K": 5})
+    assert not compiled.ok and ("past its 3 features" in compiled.reason or "out of range" in compiled.reason)
