@@ -44,10 +44,12 @@ from nerfify_ns.interrupts import run_interruptible
 CONSOLE = Console(width=120)
 
 #: The runtime's fused paths (nerfify_ns.runtime.fused); "before" leaves them out.
-FUSED_PATCHES = "denormals,fused_optimizer,contraction,occupancy_chunks"
+FUSED_PATCHES = "denormals,fused_optimizer,contraction,occupancy_chunks,freed_memory,density_reuse"
 #: What each variant leaves out of the runtime. "stock" keeps LPIPS (offline start), nerfacc (instant-ngp
 #: cannot run on the CPU without it; nerfacto and vanilla-nerf never reach it) and the seeded workers.
 VARIANT_SKIP = {"stock": f"hashgrid,cpu_default,{FUSED_PATCHES}", "before": FUSED_PATCHES, "after": ""}
+#: The variants of ``steps`` mode (``nerfify_ns.benchmarks.step_timing.VARIANTS``).
+STEP_VARIANTS = ("stock", "before", "fused", "after")
 PLUGIN = "gridlite"
 """The main job's plugin (examples/gridlite_paper.md), trained as nerfify's generated method."""
 PLUGIN_PAPER = Path(__file__).resolve().parents[2] / "examples" / "gridlite_paper.md"
@@ -95,11 +97,14 @@ def flops_per_ray(method: str, plugin: Path | None) -> float | None:
     return float(json.loads(lines[-1])["flops_per_ray"])
 
 
-def step_variants(method: str, plugin: Path | None, repeats: int, threads: int) -> dict | None:
-    """:func:`nerfify_ns.benchmarks.step_timing.time_variants` in a fresh subprocess pinned to ``threads``."""
+def step_variants(method: str, plugin: Path | None, repeats: int, threads: int,
+                  variants: tuple[str, ...] = STEP_VARIANTS, grid_updates: int = 1) -> dict | None:
+    """:func:`nerfify_ns.benchmarks.step_timing.time_variants` in a fresh subprocess pinned to ``threads``, at
+    each method's real batch (Instant-NGP: Nerfstudio's dynamic batch, about 262,144 samples a step)."""
     rays = int(E2E_ARGS[method][-1])
     cmd = [sys.executable, "-m", "nerfify_ns.benchmarks.step_timing", "--variants",
-           "nerfacto" if method == PLUGIN else method, "--rays", str(rays), "--repeats", str(repeats)]
+           "nerfacto" if method == PLUGIN else method, "--rays", str(rays), "--repeats", str(repeats),
+           "--which", ",".join(variants), "--real-batch", "--grid-updates", str(grid_updates)]
     if method == PLUGIN:
         cmd += ["--plugin", str(plugin)]
     env = {**os.environ, "PYTHONWARNINGS": "ignore", "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
@@ -112,34 +117,39 @@ def step_variants(method: str, plugin: Path | None, repeats: int, threads: int) 
 
 
 def steps(args: Args, peak_gflops: float, table: Table) -> dict:
-    """In-process training steps under stock / before / after, interleaved, per method (see
-    :func:`step_variants`), with each variant's fraction of the fp32 FLOP bound."""
+    """In-process training steps under the :data:`STEP_VARIANTS`, interleaved, per method (see
+    :func:`step_variants`), with each variant's fraction of the fp32 FLOP bound. A method with an occupancy
+    grid is rated with its grid updates amortised (one every 16 steps, as the trainer runs them)."""
     out: dict = {}
+    variants = tuple(args.step_variants)
     with tempfile.TemporaryDirectory() as tmp:
         plugin = args.plugin
         if PLUGIN in args.methods and plugin is None:
             plugin = build_plugin(Path(tmp) / "plugin")
         for method in args.methods:
             load = os.getloadavg()
-            entry = step_variants(method, plugin, args.step_repeats, args.threads)
+            entry = step_variants(method, plugin, args.step_repeats, args.threads, variants, args.grid_updates)
             if entry is None:
                 continue
             entry["load_before"], entry["load_after"] = load, os.getloadavg()
             fpr = flops_per_ray(method, plugin)
             entry["flops_per_ray"] = fpr
-            rps = {v: entry[f"{v}_rays_per_s"] for v in ("stock", "before", "after")}
+            key = "rays_per_s_with_grid_updates" if "grid_update_seconds" in entry else "rays_per_s"
+            rps = {v: entry[f"{v}_{key}"] for v in variants}
             for v, value in rps.items():
                 entry[f"{v}_fraction_of_fp32_peak"] = value * fpr / (peak_gflops * 1e9) if fpr else None
-            entry["after_over_stock"] = rps["after"] / rps["stock"]
-            entry["after_over_before"] = rps["after"] / rps["before"]
+            for v in variants:
+                if v != "after" and "after" in rps:
+                    entry[f"after_over_{v}"] = rps["after"] / rps[v]
             out[method] = entry
-            frac = entry["after_fraction_of_fp32_peak"]
-            table.add_row(f"{method} step rays/s ({entry['rays']} rays): stock / before / after",
-                          f"{rps['stock']:,.0f}",
-                          f"{rps['before']:,.0f} / {rps['after']:,.0f}",
-                          f"{entry['after_over_stock']:.2f}x stock, {entry['after_over_before']:.2f}x before"
-                          + (f", {100 * frac:.2f}% of fp32 peak" if frac else ""))
-            CONSOLE.print(f"{method}: {json.dumps({k: entry[k] for k in entry if k.endswith('rays_per_s')})}")
+            frac = entry.get("after_fraction_of_fp32_peak")
+            batch = "real batch" if entry.get("real_batch") else f"{entry['rays']} rays"
+            ratios = [f"{entry[f'after_over_{v}']:.2f}x {v}" for v in variants if f"after_over_{v}" in entry]
+            table.add_row(f"{method} rays/s ({batch}{', grid updates' if key != 'rays_per_s' else ''}): "
+                          + " / ".join(variants), "", " / ".join(f"{rps[v]:,.0f}" for v in variants),
+                          ", ".join(ratios) + (f", {100 * frac:.2f}% of fp32 peak" if frac else "")
+                          + f" (load {load[0]:.1f}-{entry['load_after'][0]:.1f})")
+            CONSOLE.print(f"{method}: {json.dumps({k: entry[k] for k in entry if 'rays_per_s' in k})}")
     return out
 
 
@@ -275,6 +285,11 @@ class Args:
     to a shared machine's load); ``e2e``: real ns-train processes (start-up and data loading included); ``both``."""
     step_repeats: int = 5
     """Timed steps per variant in ``steps`` mode (after 2 warm-up steps; medians reported)."""
+    step_variants: list[str] = field(default_factory=lambda: list(STEP_VARIANTS))
+    """Runtime variants of ``steps`` mode (``stock``, ``before``, ``fused``, ``after``: see
+    ``nerfify_ns.benchmarks.step_timing.VARIANTS``)."""
+    grid_updates: int = 1
+    """Warm-up occupancy-grid updates timed per variant in ``steps`` mode (methods with a grid; 0: none)."""
     threads: int = 1
     """Torch threads of the ``steps`` subprocesses (pinned; 1 keeps a loaded machine's stragglers out of every
     parallel op)."""

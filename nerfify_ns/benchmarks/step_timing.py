@@ -104,27 +104,51 @@ def time_steps(plugin_dir: str, builtin: str, rays: int, repeats: int, warmup: i
             "throughput_ratio": median["builtin"] / median["generated"]}
 
 
-VARIANTS = ("stock", "before", "after")
+VARIANTS = ("stock", "before", "fused", "after")
 """``stock``: Nerfstudio's own code paths; ``before``: our runtime without its fused paths (the hash-grid kernel
-only); ``after``: the runtime as shipped (:mod:`nerfify_ns.runtime.fused` too)."""
+only); ``fused``: with the fused optimiser, contraction, chunked occupancy updates and flushed denormals;
+``after``: the runtime as shipped (also the reused heap memory and the alpha test's reused encodings)."""
+
+#: The runtime patches of :mod:`nerfify_ns.runtime.fused` each variant switches on.
+VARIANT_PATCHES = {"stock": (), "before": (),
+                   "fused": ("denormals", "fused_optimizer", "contraction", "occupancy_chunks"),
+                   "after": ("denormals", "fused_optimizer", "contraction", "occupancy_chunks", "freed_memory",
+                             "density_reuse")}
 
 
-def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", warmup: int = 2) -> dict[str, object]:
+def _dynamic_batch(config) -> tuple[int, int] | None:
+    """``(target samples, first rays)`` of Nerfstudio's ``DynamicBatchPipeline`` (Instant-NGP): it starts at
+    ``target // max samples per ray`` rays and then scales the rays so each step has about ``target`` samples."""
+    target = getattr(config.pipeline, "target_num_samples", None)
+    if not target:
+        return None
+    return int(target), int(target) // int(config.pipeline.max_num_samples_per_ray)
+
+
+def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", warmup: int = 2,
+                  variants: tuple[str, ...] = VARIANTS, real_batch: bool = False,
+                  grid_updates: int = 1) -> dict[str, object]:
     """A full training step (callbacks, forward, losses, backward, optimiser step) of one method under the
-    three runtime :data:`VARIANTS`, interleaved in one process, so the machine's load hits all alike.
+    runtime ``variants`` (:data:`VARIANTS`), interleaved in one process, so the machine's load hits all alike.
 
     Each variant trains its own model (same seed, same ray batch) with its own optimisers (built by the
     variant's ``OptimizerConfig.setup``); before each step the variant's code paths are switched in:
-    Nerfstudio's hash-encoding fallback or ours, the stock or fused contraction, occupancy-grid update and
-    optimiser, denormals kept or flushed. Must run in a fresh process (it captures the stock code before
-    the runtime patches it)."""
+    Nerfstudio's hash-encoding fallback or ours, then the patches of :data:`VARIANT_PATCHES`. With
+    ``real_batch`` a method trained by Nerfstudio's dynamic batch (Instant-NGP) gets its real batch: each
+    variant's rays per step follow the pipeline's rule (about 262,144 samples a step) instead of ``rays``.
+    A method with an occupancy grid also has ``grid_updates`` of its warm-up updates (all cells, every 16
+    steps under the trainer) timed per variant, interleaved; ``*_rays_per_s_with_grid_updates`` adds a
+    sixteenth of one to each step, as the trainer's wall time does. Must run in a fresh process (it
+    captures the stock code before the runtime patches it)."""
     import sys
 
+    import nerfacc.estimators.occ_grid as occ_grid
     import torch
     from nerfacc.estimators.occ_grid import OccGridEstimator
     from nerfstudio.engine.optimizers import OptimizerConfig, Optimizers
     from nerfstudio.field_components.encodings import HashEncoding
     from nerfstudio.field_components.spatial_distortions import SceneContraction
+    from nerfstudio.model_components.ray_samplers import VolumetricSampler
 
     if "nerfstudio.configs.method_configs" in sys.modules:
         raise RuntimeError("time_variants must capture Nerfstudio's code before the runtime is activated")
@@ -132,23 +156,29 @@ def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", wa
     from nerfstudio.configs.method_configs import all_methods
 
     from nerfify_ns.runtime import activate, hashgrid_ext
-    from nerfify_ns.runtime.fused import fused_optimizer_setup
+    from nerfify_ns.runtime.fused import fused_optimizer_setup, reuse_freed_memory
 
     activate(force=True)
     ours_hash = HashEncoding.__dict__["pytorch_fwd"]
     ours_contraction, ours_update = SceneContraction.forward, OccGridEstimator._update
+    ours_sigma, ours_vis = VolumetricSampler.get_sigma_fn, occ_grid.render_visibility_from_density
     stock_contraction = getattr(ours_contraction, "_nerfify_stock", ours_contraction)
     stock_update = getattr(ours_update, "_nerfify_stock", ours_update)
+    stock_sigma, stock_vis = getattr(ours_sigma, "_nerfify_stock", ours_sigma), getattr(ours_vis, "_nerfify_stock",
+                                                                                       ours_vis)
     ext = hashgrid_ext.load()
 
     def switch(variant: str) -> None:
-        after = variant == "after"
+        on = set(VARIANT_PATCHES[variant])
         HashEncoding.pytorch_fwd = stock_hash if variant == "stock" else ours_hash
-        SceneContraction.forward = ours_contraction if after else stock_contraction
-        OccGridEstimator._update = ours_update if after else stock_update
-        torch.set_flush_denormal(after)
+        SceneContraction.forward = ours_contraction if "contraction" in on else stock_contraction
+        OccGridEstimator._update = ours_update if "occupancy_chunks" in on else stock_update
+        VolumetricSampler.get_sigma_fn = ours_sigma if "density_reuse" in on else stock_sigma
+        occ_grid.render_visibility_from_density = ours_vis if "density_reuse" in on else stock_vis
+        reuse_freed_memory("freed_memory" in on)
+        torch.set_flush_denormal("denormals" in on)
         if ext is not None and hasattr(ext, "set_flush_denormal_all_threads"):
-            ext.set_flush_denormal_all_threads(after)
+            ext.set_flush_denormal_all_threads("denormals" in on)
 
     if plugin_dir:
         from nerfify_ns.synthesis.plugin_lookup import load_plugin_method
@@ -156,32 +186,67 @@ def time_variants(method: str, rays: int, repeats: int, plugin_dir: str = "", wa
         config = load_plugin_method(plugin_dir).config
     else:
         config = all_methods[method]
-    bundle, batch = ray_batch(rays)
-    trainers = {}
-    for variant in VARIANTS:
+    dynamic = _dynamic_batch(config) if real_batch else None
+    models, optimizers = {}, {}
+    for variant in variants:
         switch(variant)
-        model = build_model(config)
-        OptimizerConfig.setup = fused_optimizer_setup if variant == "after" else stock_setup
-        optimizers = Optimizers(config.optimizers, model.get_param_groups())
-        trainers[variant] = (_step_fn(model, bundle, batch), optimizers)
+        models[variant] = build_model(config)
+        OptimizerConfig.setup = fused_optimizer_setup if "fused_optimizer" in VARIANT_PATCHES[variant] else stock_setup
+        optimizers[variant] = Optimizers(config.optimizers, models[variant].get_param_groups())
     OptimizerConfig.setup = fused_optimizer_setup
-    times: dict[str, list[float]] = {v: [] for v in VARIANTS}
+    batch_rays = {v: dynamic[1] if dynamic else rays for v in variants}
+    times: dict[str, list[float]] = {v: [] for v in variants}
+    step_rays: dict[str, list[int]] = {v: [] for v in variants}
+    samples: dict[str, list[int]] = {v: [] for v in variants}
     for k in range(warmup + repeats):
-        for variant in VARIANTS[k % 3:] + VARIANTS[:k % 3]:
+        for variant in variants[k % len(variants):] + variants[:k % len(variants)]:
             switch(variant)
-            step, optimizers = trainers[variant]
-            seconds = step()
-            start = time.perf_counter()
-            optimizers.optimizer_step_all()
-            optimizers.zero_grad_all()
-            seconds += time.perf_counter() - start
+            bundle, batch = ray_batch(batch_rays[variant], seed=1 + k)
+            seconds, n_samples = _train_step(models[variant], optimizers[variant], bundle, batch, k)
             if k >= warmup:
                 times[variant].append(seconds)
-    median = {v: statistics.median(t) for v, t in times.items()}
-    return {"method": method, "plugin": plugin_dir or None, "rays": rays, "repeats": repeats,
-            "threads": torch.get_num_threads(), "step_seconds": times,
-            **{f"{v}_median_step_seconds": m for v, m in median.items()},
-            **{f"{v}_rays_per_s": rays / m for v, m in median.items()}}
+                step_rays[variant].append(batch_rays[variant])
+                samples[variant].append(n_samples)
+            if dynamic and n_samples:
+                batch_rays[variant] = int(batch_rays[variant] * (dynamic[0] / n_samples))
+    rays_per_s = {v: statistics.median(r / t for r, t in zip(step_rays[v], times[v], strict=True)) for v in variants}
+    out: dict[str, object] = {
+        "method": method, "plugin": plugin_dir or None, "rays": rays if not dynamic else "dynamic",
+        "real_batch": bool(dynamic), "repeats": repeats, "threads": torch.get_num_threads(), "step_seconds": times,
+        "step_rays": step_rays, "step_samples": samples,
+        **{f"{v}_median_step_seconds": statistics.median(times[v]) for v in variants},
+        **{f"{v}_rays_per_s": rays_per_s[v] for v in variants}}
+    if grid_updates and all(hasattr(m, "occupancy_grid") for m in models.values()):
+        updates: dict[str, list[float]] = {v: [] for v in variants}
+        for j in range(grid_updates):
+            for variant in variants[j % len(variants):] + variants[:j % len(variants)]:
+                switch(variant)
+                models[variant].train()
+                start = time.perf_counter()
+                run_before_iteration_callbacks(models[variant], 16 * (j + 1))  # inside the 256-step warm-up
+                updates[variant].append(time.perf_counter() - start)
+        out["grid_update_seconds"] = updates
+        for v in variants:
+            per_step = statistics.median(times[v]) + statistics.median(updates[v]) / 16
+            out[f"{v}_rays_per_s_with_grid_updates"] = statistics.median(step_rays[v]) / per_step
+    switch("after")
+    return out
+
+
+def _train_step(model, optimizers, bundle, batch, step: int) -> tuple[float, int]:
+    """One training step as the trainer runs it (callbacks, forward, losses, backward, optimiser step and
+    zeroing): its seconds and its samples (``num_samples_per_batch``, 0 where the model does not report it)."""
+    model.train()
+    start = time.perf_counter()
+    run_before_iteration_callbacks(model, step)
+    outputs = model.get_outputs(bundle)
+    metrics = model.get_metrics_dict(outputs, batch)
+    losses = model.get_loss_dict(outputs, batch, metrics)
+    sum(losses.values()).backward()
+    optimizers.optimizer_step_all()
+    optimizers.zero_grad_all()
+    seconds = time.perf_counter() - start
+    return seconds, int(metrics.get("num_samples_per_batch", 0))
 
 
 def _flop_counter_class():
@@ -248,9 +313,19 @@ def main() -> None:
     parser.add_argument("--flops", metavar="METHOD", help="count one training step's FLOPs of METHOD instead")
     parser.add_argument("--variants", metavar="METHOD", help="time METHOD's step under stock/before/after instead")
     parser.add_argument("--plugin", default="", help="with --flops/--variants: the plugin folder of METHOD's config")
+    parser.add_argument("--which", default=",".join(VARIANTS), help="with --variants: the variants, comma-separated")
+    parser.add_argument("--real-batch", action="store_true",
+                        help="with --variants: Nerfstudio's dynamic batch where the method has one (Instant-NGP)")
+    parser.add_argument("--grid-updates", type=int, default=1,
+                        help="with --variants: warm-up occupancy-grid updates timed per variant (0: none)")
     ns = parser.parse_args()
     if ns.variants:
-        print(json.dumps(time_variants(ns.variants, ns.rays, ns.repeats, ns.plugin)))
+        which = tuple(v.strip() for v in ns.which.split(",") if v.strip())
+        unknown = set(which) - set(VARIANTS)
+        if unknown:
+            parser.error(f"unknown variants {sorted(unknown)}; known: {', '.join(VARIANTS)}")
+        print(json.dumps(time_variants(ns.variants, ns.rays, ns.repeats, ns.plugin, variants=which,
+                                       real_batch=ns.real_batch, grid_updates=ns.grid_updates)))
         return
     if ns.flops:
         print(json.dumps(step_flops(ns.flops, ns.rays, ns.plugin)))

@@ -16,8 +16,11 @@ nothing when CUDA is available, unless forced. Each patch is small and named:
 * ``denormals``     denormal floats flushed to zero in every compute thread;
 * ``fused_optimizer`` Adam/AdamW built with their fused CPU kernel;
 * ``contraction``   the scene contraction's L-inf norm as ``abs().amax()``;
-* ``occupancy_chunks`` the occupancy grid's density evaluated in chunks during its updates
-                    (the last four: :mod:`nerfify_ns.runtime.fused`, each exact to float rounding).
+* ``occupancy_chunks`` the occupancy grid's density evaluated in chunks during its updates;
+* ``freed_memory``  glibc reuses freed blocks instead of unmapping them (no page faults per activation);
+* ``density_reuse`` the hash encodings of nerfacc's alpha test reused by the field's pass over the
+                    surviving samples (the last six: :mod:`nerfify_ns.runtime.fused`, each exact to
+                    float rounding).
 
 One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
 device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
@@ -128,6 +131,24 @@ def _patch_occupancy_chunks() -> None:
         OccGridEstimator._update = make_chunked_occupancy_update(OccGridEstimator._update)
 
 
+def _patch_freed_memory() -> None:
+    from nerfify_ns.runtime.fused import reuse_freed_memory
+
+    reuse_freed_memory()
+
+
+def _patch_density_reuse() -> None:
+    import nerfacc.estimators.occ_grid as occ_grid
+    from nerfstudio.model_components.ray_samplers import VolumetricSampler
+
+    from nerfify_ns.runtime.fused import make_recording_sigma_fn, make_visibility_recorder
+
+    if not hasattr(VolumetricSampler.get_sigma_fn, "_nerfify_stock"):
+        VolumetricSampler.get_sigma_fn = make_recording_sigma_fn(VolumetricSampler.get_sigma_fn)
+    if not hasattr(occ_grid.render_visibility_from_density, "_nerfify_stock"):
+        occ_grid.render_visibility_from_density = make_visibility_recorder(occ_grid.render_visibility_from_density)
+
+
 PATCHES: dict[str, Callable[[], None]] = {
     "lpips": _patch_lpips,
     "nerfacc": _patch_nerfacc,
@@ -138,6 +159,8 @@ PATCHES: dict[str, Callable[[], None]] = {
     "fused_optimizer": _patch_fused_optimizer,
     "contraction": _patch_contraction,
     "occupancy_chunks": _patch_occupancy_chunks,
+    "freed_memory": _patch_freed_memory,
+    "density_reuse": _patch_density_reuse,
 }
 
 

@@ -30,7 +30,9 @@ CPU tensors whenever it is built, else this torch path. ``NERFIFY_HASHGRID_IMPL`
 
 from __future__ import annotations
 
+import contextlib
 import os
+import threading
 
 import torch
 from torch import Tensor
@@ -177,13 +179,79 @@ def _use_cpp(positions: Tensor, table: Tensor) -> bool:
     return True
 
 
+class _Recorded:
+    """One no-gradient encoding inside :func:`recording_encodings`: its positions, its output, the table
+    (and the table's version: an in-place update invalidates it) and, once the alpha test has run, the
+    rows the field will evaluate."""
+
+    __slots__ = ("positions", "out", "table", "version", "rows")
+
+    def __init__(self, positions: Tensor, out: Tensor, table: Tensor) -> None:
+        self.positions, self.out, self.table, self.version = positions, out, table, table._version
+        self.rows: Tensor | None = None
+
+
+_recording = threading.local()
+
+
+def _records() -> dict[int, _Recorded]:
+    if not hasattr(_recording, "records"):
+        _recording.records, _recording.active = {}, False
+    return _recording.records
+
+
+@contextlib.contextmanager
+def recording_encodings():
+    """Within this context each no-gradient C++ encoding is recorded (the latest per table; earlier
+    records are dropped on entry), so the next differentiable encoding of a subset of those positions
+    with the same, unchanged table takes the recorded values instead of recomputing them (Instant-NGP:
+    nerfacc's alpha test evaluates every marched sample's density, then the field evaluates the
+    surviving ones again with gradients)."""
+    _records().clear()
+    _recording.active = True
+    try:
+        yield
+    finally:
+        _recording.active = False
+
+
+def keep_recorded_rows(mask: Tensor) -> None:
+    """The alpha test's boolean mask over the recorded positions: the rows a later pass will ask for."""
+    for record in _records().values():
+        if record.rows is None and mask.dim() == 1 and mask.shape[0] == record.positions.shape[0]:
+            record.rows = mask.nonzero().squeeze(1)
+
+
+def _reusable(flat: Tensor, table: Tensor) -> _Recorded | None:
+    """The record (removed from the cache) whose kept rows are bitwise ``flat`` with ``table`` unchanged."""
+    records = _records()
+    record = records.pop(id(table), None) if records else None
+    if record is None or record.table is not table or record.version != table._version or record.rows is None:
+        return None
+    if record.rows.shape[0] != flat.shape[0] or flat.dtype != record.positions.dtype:
+        return None
+    return record if torch.equal(record.positions.index_select(0, record.rows), flat) else None
+
+
 def hash_encode(positions: Tensor, table: Tensor, scalings: Tensor, table_size: int) -> Tensor:
-    """Encode ``positions`` ``[..., 3]`` with the hash ``table`` ``[L * T, F]`` -> ``[..., L * F]``."""
+    """Encode ``positions`` ``[..., 3]`` with the hash ``table`` ``[L * T, F]`` -> ``[..., L * F]``.
+
+    Inside :func:`recording_encodings` a no-gradient C++ encoding is recorded; a differentiable one whose
+    positions are bitwise the kept rows of a record (same table, not updated since) returns those rows'
+    recorded values, with the same backward (:class:`~nerfify_ns.runtime.hashgrid_ext.HashGridReusedFunction`).
+    """
     levels = scalings.shape[0]
     flat = positions.reshape(-1, 3)
     if _use_cpp(flat, table):
-        cpp_fn = hashgrid_ext.HashGridCppFunction
-        out = cpp_fn.apply(flat.contiguous(), table, scalings.to(positions), table_size)
+        flat = flat.contiguous()
+        scalings = scalings.to(positions)
+        record = _reusable(flat, table) if torch.is_grad_enabled() else None
+        if record is not None:
+            out = hashgrid_ext.HashGridReusedFunction.apply(flat, table, scalings, table_size, record.out, record.rows)
+        else:
+            out = hashgrid_ext.HashGridCppFunction.apply(flat, table, scalings, table_size)
+            if getattr(_recording, "active", False) and not torch.is_grad_enabled():
+                _records()[id(table)] = _Recorded(flat, out, table)
     else:
         out = HashGridFunction.apply(flat, table, scalings.to(positions), table_size)
     return out.reshape(*positions.shape[:-1], levels * table.shape[1])

@@ -171,6 +171,25 @@ class HashGridCppFunction(torch.autograd.Function):
         return (grad_pos if need_pos else None), (grad_table if need_table else None), None, None
 
 
+class HashGridReusedFunction(torch.autograd.Function):
+    """The C++ hash-grid lookup of ``positions`` whose values were computed already: ``computed[rows]``,
+    rows of an earlier no-gradient encoding of a superset of these positions with the same table (checked
+    by the caller, :func:`nerfify_ns.runtime.hashgrid.hash_encode`). Backward is
+    :class:`HashGridCppFunction`'s: the table (and position) gradients recomputed from the positions."""
+
+    @staticmethod
+    def forward(ctx, positions: Tensor, table: Tensor, scalings: Tensor,  # type: ignore[override]
+                table_size: int, computed: Tensor, rows: Tensor):
+        ctx.table_size = table_size
+        ctx.save_for_backward(positions.detach().contiguous(), table.detach(), scalings.detach().contiguous())
+        return computed.index_select(0, rows)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad_out: Tensor):  # type: ignore[override]
+        return (*HashGridCppFunction.backward(ctx, grad_out), None, None)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m nerfify_ns.runtime.hashgrid_ext",
                                      description="Build or inspect the C++ hash-grid kernel.")

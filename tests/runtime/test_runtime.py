@@ -50,7 +50,8 @@ def probe(prelude: str = "", env: dict | None = None) -> dict:
 def test_active_without_cuda():
     state = probe(env=AUTO)
     assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers", "denormals",
-                                "fused_optimizer", "contraction", "occupancy_chunks"]
+                                "fused_optimizer", "contraction", "occupancy_chunks", "freed_memory",
+                                "density_reuse"]
     assert state["lpips"] == "OfflineLPIPS"
     assert {state[k] for k in ("optimizer", "contraction", "occupancy")} == {"nerfify_ns.runtime.fused"}
     assert state["denormal_kept"] is False
