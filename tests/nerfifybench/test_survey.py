@@ -67,12 +67,12 @@ def test_the_survey_of_the_development_suite(tmp_path):
     assert t["tracebacks"] == 0 and t["family_ok"] == t["family_labelled"] == 10, data["totals"]
     assert rows["nerf"]["holes"] == []
     for pid in ("nerfplayer", "hexplane", "dynerf"):
-        assert rows[pid]["family"] == "dynamic"
+        assert rows[pid]["family"] == "dynamic" and rows[pid]["base"] == "kplanes-time", rows[pid]["base"]
         assert any(i["found"] for i in rows[pid]["items"]), rows[pid]["items"]
     for pid in ("deformable_3dgs", "scaffold_gs", "4dgs"):
         assert rows[pid]["exit_code"] == 1 and "splatting" in rows[pid]["error"], rows[pid]
     # the measured floor of today's mechanism (docs/novelty.md has the figures): it may only rise
-    assert t["found_share"] >= 0.75 and t["spurious_share"] <= 0.1, t
+    assert t["found_share"] >= 0.9 and t["spurious_share"] <= 0.1, t
 
 
 @pytest.mark.parametrize("reason, expected", [
