@@ -235,6 +235,17 @@ def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_se
                    render)
 
 
+def within_budget(record: dict | None, summary: dict) -> bool | None:
+    """Whether a budgeted run's training and evaluation fit its wall-clock budget (``within_budget`` of the run's
+    ``eval/summary.json``): every iteration it planned trained and its checkpoints evaluated without reaching the
+    limit, which is the time the budget had left when training started. ``record``: the run's budget record (the
+    summary's ``budget``); None without a wall-clock budget (``--iterations`` alone). A budget that left too little
+    to train at all ends the train stage with the budget's own error before any summary is written."""
+    if not record or record.get("seconds") is None:
+        return None
+    return summary.get("status") == "ok" and int(summary.get("iterations_done") or 0) >= int(record["iterations"])
+
+
 DEFAULT_BUDGET_SECONDS = 240.0
 """``ns-nerfify PAPER`` without ``--iterations`` or ``--budget``: 4 minutes of wall-clock, everything included."""
 PAPER_BUDGET = Budget(iterations=30000, every=None, seconds=DEFAULT_BUDGET_SECONDS, scale_schedule=True,

@@ -74,3 +74,15 @@ def test_the_time_it_says_it_needs_is_enough():
     need = float(raised.value.args[0].split("need about ")[1].split(" s")[0])
     assert need > 150.0 > 2 * 15.0 + POST_SECONDS + MIN_ITERATIONS * 2.48
     assert fit_iterations(need + 1.0, *args, budget).iterations >= MIN_ITERATIONS
+
+
+def test_within_budget_says_whether_training_fit_the_wall_clock_budget():
+    from nerfify_ns.budget import within_budget
+
+    record = {"seconds": 240.0, "iterations": 300}
+    assert within_budget(record, {"status": "ok", "iterations_done": 300}) is True
+    # stopped by the limit (the time the budget had left): trained fewer than planned, or failed
+    assert within_budget(record, {"status": "failed", "iterations_done": 241}) is False
+    assert within_budget(record, {"status": "failed", "iterations_done": 300}) is False  # rendering cut off
+    assert within_budget(None, {"status": "ok", "iterations_done": 300}) is None  # --iterations alone: no budget
+    assert within_budget({"seconds": None, "iterations": 300}, {"status": "ok", "iterations_done": 300}) is None

@@ -36,7 +36,6 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable
-from typing import Dict, List
 
 ENV_SWITCH = "NERFIFY_RUNTIME"
 ENV_SKIP = "NERFIFY_RUNTIME_SKIP"
@@ -84,10 +83,38 @@ def _patch_hashgrid() -> None:
 
 
 def _patch_cpu_default() -> None:
-    """Registered methods train on the CPU unless ``--machine.device-type`` says otherwise."""
+    """Registered methods train on the CPU unless ``--machine.device-type`` says otherwise: a machine config made
+    from now on defaults to ``cpu``, and :func:`cpu_default_sweep` moves the configs already made."""
+    from nerfstudio.configs.base_config import MachineConfig
+
+    defaults = list(MachineConfig.__init__.__defaults__ or ())
+    if "cuda" in defaults:
+        defaults[defaults.index("cuda")] = "cpu"
+        MachineConfig.__init__.__defaults__ = tuple(defaults)
+    cpu_default_sweep()
+
+
+def cpu_default_sweep() -> None:
+    """``cpu`` for every method config Nerfstudio registers: its own, and those of the plugins' entry points (a
+    pip-installed plugin's config is made when its module is imported, which may be before this runtime was: the
+    entry points are loaded here, as Nerfstudio's discovery would load them, and the same objects are registered).
+    Runs whenever the runtime is activated while Nerfstudio discovers its methods."""
     module = sys.modules.get("nerfstudio.configs.method_configs")
-    configs = getattr(module, "method_configs", {}) if module is not None else {}
-    for config in configs.values():
+    if module is None:
+        return
+    configs = list(getattr(module, "method_configs", {}).values())
+    from importlib.metadata import entry_points
+
+    for point in entry_points(group="nerfstudio.method_configs"):
+        loading = sys.modules.get(point.module)
+        if loading is not None and not hasattr(loading, point.attr or ""):
+            continue  # being imported right now (our own entry point): it is made after the runtime
+        try:
+            spec = point.load()
+        except Exception:  # noqa: BLE001 - Nerfstudio's discovery reports a plugin that does not load
+            continue
+        configs.append(getattr(spec, "config", None))
+    for config in configs:
         machine = getattr(config, "machine", None)
         if machine is not None and machine.device_type == "cuda":
             machine.device_type = "cpu"
@@ -193,6 +220,8 @@ def activate(force: bool = False) -> list[str]:
         if name not in _applied and name not in skipped:
             patch()
             _applied.append(name)
+        elif name == "cpu_default" and name in _applied:
+            cpu_default_sweep()  # activated before Nerfstudio discovered its methods: move those made since
     return list(_applied)
 
 

@@ -225,7 +225,7 @@ def ns_train(
     method_args: Sequence[str] = (),
     dataparser: str | None = None,
     dataparser_args: Sequence[str] = (),
-    timeout: float = 900,
+    timeout: float = math.inf,
     env: dict | None = None,
     offline: bool = True,
     on_progress: ProgressHook | None = None,
@@ -235,7 +235,8 @@ def ns_train(
     dataparser as for :func:`train_command`. ``sandbox``: the method runs code we do not trust (a generated
     plugin), so the run goes through :func:`nerfify_ns.runtime.sandbox.run_sandboxed` with these folders (the
     plugin) and the data's readable and ``out_dir`` the only writable one; ``env`` is then all it gets of ours
-    beyond the sandbox's allow-list."""
+    beyond the sandbox's allow-list. ``timeout``: the caller's limit (none by default: a limit is the caller's,
+    derived from its budget and named when reached)."""
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
     layout = RunLayout(out_dir, method)
@@ -272,7 +273,7 @@ def run_logged(cmd: Sequence[str], log_path: Path, cwd: Path, *, timeout: float,
     return run_process(cmd, log_path, cwd=cwd, timeout=timeout, env=launch_env(env))
 
 
-def ns_eval(config_path: Path, output_path: Path, *, timeout: float = 900, env: dict | None = None) -> dict:
+def ns_eval(config_path: Path, output_path: Path, *, timeout: float = math.inf, env: dict | None = None) -> dict:
     """Evaluate a trained run with ``ns-eval``; returns its headline metrics (LPIPS ``None`` when unavailable)
     merged over all of ``results``."""
     output_path = Path(output_path).resolve()

@@ -23,6 +23,7 @@ import difflib
 import json
 import shutil
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -66,6 +67,10 @@ class _Settings:
     """The smoke rung's time limit and where it comes from (None: ``timeout``, as for the check rungs)."""
     smoke_args: list[str] = field(default_factory=list)
     """ns-train arguments of the smoke rung (a budgeted run's proxy samples)."""
+    overlap: bool = True
+    """Start the smoke rung beside the checks (static, contract, stability: one sandboxed process) once the files
+    parse, so the two Nerfstudio start-ups overlap on a machine with two cores; it is called off (killed) and
+    skipped when a check fails, as if it had run after them."""
 
 
 @dataclass
@@ -92,25 +97,66 @@ def _round(plugin_dir: Path, work: Path, st: _Settings) -> list[RungResult]:
         if not ast_result.ok:
             return [ast_result] + [RungResult(r, "skip", notes=["an earlier rung failed"]) for r in rungs[1:]]
     probe_rungs = [r for r in rungs if r in PROBE_RUNGS]
-    if probe_rungs:
-        found = run_probe(info, probe_rungs, work / "probe", timeout=st.timeout, limits=st.limits)
-        for name in probe_rungs:
-            results.append(found.get(name) or RungResult(name, "skip", notes=["an earlier rung failed"]))
-        if info.plan is None and "contract" in rungs:
-            note = (
-                "no plan.yaml: plan-based contract checks skipped; the assembled field and model were checked"
-            )
-            next(r for r in results if r.name == "contract").notes.append(note)
+    beside = None
+    if "smoke" in rungs and probe_rungs and st.overlap and all(r.status == "pass" for r in results):
+        beside = _Beside(lambda cancel: _smoke(info, work, st, cancel))
+    finished = False
+    try:
+        if probe_rungs:
+            found = run_probe(info, probe_rungs, work / "probe", timeout=st.timeout, limits=st.limits)
+            for name in probe_rungs:
+                results.append(found.get(name) or RungResult(name, "skip", notes=["an earlier rung failed"]))
+            if info.plan is None and "contract" in rungs:
+                note = (
+                    "no plan.yaml: plan-based contract checks skipped; the assembled field and model were checked"
+                )
+                next(r for r in results if r.name == "contract").notes.append(note)
+        finished = True
+    finally:  # a failed check (or an interrupt) calls the smoke rung off
+        checks_passed = finished and all(r.status == "pass" for r in results)
+        if beside is not None and not checks_passed:
+            beside.call_off()
     if "smoke" in rungs:
-        if all(r.status == "pass" for r in results):
-            scene = st.scene or _scene(work)
-            limit = st.smoke_limit or Limit(st.timeout, "each verification process")
-            results.append(smoke_rung(info, scene, work / "smoke", iterations=st.smoke_iterations,
-                                      timeout=limit.timeout, limit=limit, extra_args=st.smoke_args or None,
-                                      on_progress=st.on_progress, limits=st.limits))
+        if checks_passed:
+            results.append(beside.result() if beside is not None else _smoke(info, work, st))
         else:
             results.append(RungResult("smoke", "skip", notes=["an earlier rung failed"]))
     return results
+
+
+def _smoke(info, work: Path, st: _Settings, cancel=None) -> RungResult:
+    scene = st.scene or _scene(work)
+    limit = st.smoke_limit or Limit(st.timeout, "each verification process")
+    return smoke_rung(info, scene, work / "smoke", iterations=st.smoke_iterations, timeout=limit.timeout,
+                      limit=limit, extra_args=st.smoke_args or None, on_progress=st.on_progress, limits=st.limits,
+                      cancel=cancel)
+
+
+class _Beside:
+    """The smoke rung running in a thread beside the checks; :meth:`call_off` kills it and waits for it."""
+
+    def __init__(self, run: Callable) -> None:
+        self._cancel = threading.Event()
+        self._out: dict = {}
+
+        def target() -> None:
+            try:
+                self._out["result"] = run(self._cancel)
+            except BaseException as exc:  # noqa: BLE001 - handed to the ladder's thread (result)
+                self._out["error"] = exc
+
+        self._thread = threading.Thread(target=target, name="smoke-rung", daemon=True)
+        self._thread.start()
+
+    def call_off(self) -> None:
+        self._cancel.set()
+        self._thread.join()
+
+    def result(self) -> RungResult:
+        self._thread.join()
+        if "error" in self._out:
+            raise self._out["error"]
+        return self._out["result"]
 
 
 def _scene(work: Path) -> Path:

@@ -49,6 +49,25 @@ SMOKE_ARGS = [
     "--logging.max-buffer-size",
     "1",
 ]
+class SmokeCancelled(Exception):
+    """The smoke rung was called off while it ran (the ladder's checks running beside it failed)."""
+
+
+def cancellable(poll, cancel):
+    """``poll`` (or nothing) that first raises :class:`SmokeCancelled` once ``cancel`` (an Event) is set: the
+    process runner then kills the training's process group."""
+    if cancel is None:
+        return poll
+
+    def check() -> None:
+        if cancel.is_set():
+            raise SmokeCancelled("the smoke rung was called off")
+        if poll is not None:
+            poll()
+
+    return check
+
+
 LEARNING_RATIO = 0.9
 """The photometric loss over the last quarter must be below this fraction of the first quarter's."""
 
@@ -125,10 +144,12 @@ def smoke_rung(
     on_progress: ProgressHook | None = None,
     limits: Limits | None = None,
     limit: Limit | None = None,
+    cancel=None,
 ) -> RungResult:
     """Train the plugin (as ``GENERATED_METHOD``) for ``iterations`` on ``scene`` (a dataset or its folder; the
     dataset's Nerfstudio dataparser) in the sandbox and judge the run. ``limit``: the time limit and where it comes
-    from (named in the message when it is reached; default ``timeout`` seconds)."""
+    from (named in the message when it is reached; default ``timeout`` seconds). ``cancel``: an Event that calls
+    the run off (its process group killed, :class:`SmokeCancelled` raised), for a rung run beside the checks."""
     limit = limit or Limit(timeout, "the smoke rung")
     timeout = limit.timeout
     r = RungResult("smoke")
@@ -142,7 +163,8 @@ def smoke_rung(
     reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
     try:
         result = run_sandboxed(recorded(cmd, reader.write_fd), workdir, timeout=timeout, log_name=layout.log_name,
-                               env=env, poll=progress_poll(layout.run_dir, iterations, on_progress),
+                               env=env, poll=cancellable(progress_poll(layout.run_dir, iterations, on_progress),
+                                                         cancel),
                                readonly=[info.root, scene.root], limits=limits, pass_fds=(reader.write_fd,))
     finally:
         records = decode(reader.finish())[0]
