@@ -8,8 +8,10 @@
 
 Modules: ``notation.yaml`` / ``notation.py`` (what symbols stand for: the shared table, the cards, the paper's own
 sentences), ``widths.py`` (sizes from the equations), ``adapters.py`` (a production's interface around the
-compiled module), ``implement.py`` (selection, binding, compile, check, placement), ``records.py``
-(equations.yaml: the record a person corrects, and the cache of what compiled).
+compiled module), ``implement.py`` (orchestration and placement) with ``items.py`` (the equations as read),
+``binding.py`` (selection, bindings, sizes), ``component.py`` (compile, check, wiring), ``results.py`` (the
+records), ``causes.py`` (why a part was not built), ``records.py`` (equations.yaml: the record a person corrects,
+and the cache of what compiled).
 """
 
 from nerfify_ns.synthesis.novel.implement import (
