@@ -152,7 +152,8 @@ def _char_name(ch: str) -> str:
 # a symbol in a PDF's text layer: one letter, then up to three script letters (Greek or Latin lower case, digits,
 # primes), each either attached or after one space ("W f ∆", "h′∆", "bγ", "Ψ")
 _TEXT_SYMBOL = re.compile(
-    rf"(?<![A-Za-z{_GREEK_CHARS}])([A-Za-z{_GREEK_CHARS}])([′']?)((?:[ ]?[a-z0-9{_GREEK_CHARS}′](?![A-Za-z{_GREEK_CHARS}]))"
+    rf"(?<![A-Za-z{_GREEK_CHARS}])([A-Za-z{_GREEK_CHARS}])([′']?)"
+    rf"((?:[ ]?[a-z0-9{_GREEK_CHARS}′](?![A-Za-z{_GREEK_CHARS}]))"
     rf"{{0,3}})(?![A-Za-z])")
 _WORDS = {"an", "as", "at", "be", "by", "do", "go", "if", "in", "is", "it", "me", "my", "no", "of", "on", "or", "so",
           "to", "up", "us", "we", "he", "am", "a", "e", "i", "s"}
@@ -298,13 +299,15 @@ class PaperWords:
         # "$\lambda=0.1$, $\alpha=0.01$": a symbol's value stated in the text
         for m in _INLINE_MATH.finditer(text):
             for part in re.split(r",\s*(?=\\?[A-Za-z])", m.group(1)):
-                c = re.fullmatch(r"\s*(\\?[A-Za-z]+(?:_\{?[A-Za-z0-9]+\}?)?)\s*=\s*([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)\s*", part)
+                c = re.fullmatch(r"\s*(\\?[A-Za-z]+(?:_\{?[A-Za-z0-9]+\}?)?)\s*=\s*"
+                                 r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)\s*", part)
                 if c:
                     expr = parse_expression(c.group(1))
                     if isinstance(expr, Symbol):
                         self.constants.setdefault(symbol_loose_key(expr), (float(c.group(2)), text, where))
         # "where ⊗ represents the dot product": what the paper calls an operator (checked against the shapes)
-        for m in re.finditer(r"(⊗|⊙|∘|\\otimes|\\odot|\\circ)\s*\$?\s*(?:represents|denotes|is)\s+(?:the\s+|a\s+|an\s+)?"
+        for m in re.finditer(r"(⊗|⊙|∘|\\otimes|\\odot|\\circ)\s*\$?\s*(?:represents|denotes|is)\s+"
+                             r"(?:the\s+|a\s+|an\s+)?"
                              r"(dot|inner|scalar|element-?wise|hadamard|outer|kronecker|matrix)\s+product", text, re.I):
             self.operators.append((m.group(1), m.group(2).lower(), text, where))
         # "concatenated with the camera 3D coordinates"
@@ -313,7 +316,8 @@ class PaperWords:
             if role:
                 self.concat_roles.append((role, text, where))
         # "Psi in R^{z x h}" (text layer: "Ψ ∈Rz×h"; LaTeX: \Psi \in \mathbb{R}^{z \times h})
-        for m in re.finditer(r"(\S{1,12})\s*(?:∈|\\in)\s*(?:R|ℜ|\\mathbb\{R\}|\\mathbb R)\s*\^?\{?\s*([A-Za-z0-9]{1,6})\s*"
+        for m in re.finditer(r"(\S{1,12})\s*(?:∈|\\in)\s*(?:R|ℜ|\\mathbb\{R\}|\\mathbb R)\s*\^?\{?\s*"
+                             r"([A-Za-z0-9]{1,6})\s*"
                              r"(?:×|\\times)\s*([A-Za-z0-9]{1,6})\s*\}?", text):
             expr = parse_expression(m.group(1).lstrip("$"))
             keys = [symbol_loose_key(expr)] if isinstance(expr, Symbol) else [x.loose for x in mentions(m.group(1))]
