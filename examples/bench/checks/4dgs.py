@@ -18,7 +18,7 @@ def structure_encoder(target):
     """Eq. 7: the spatial-temporal structure encoder: multi-resolution planes over (x, y), (x, z), (y, z), (x, t),
     (y, t), (z, t), each read by bilinear interpolation, the six features of a resolution multiplied (Hadamard)
     and the resolutions concatenated: six planes per resolution, combined by product."""
-    v = target.value
+    v = _refs().as_derived(target)
     assert v.get("reduce") == "product", f"planes combined by {v.get('reduce')}, Eq. 7 by product"
     assert len(v["resolutions"]) >= 1 and v.get("time_resolution", 0) > 1, v
     from nerfify_ns.components.kplanes import MultiScaleKPlanes

@@ -68,3 +68,26 @@ def plane_tv() -> None:
     p = plane.numpy()
     want = np.mean((p[..., 1:, :] - p[..., :-1, :]) ** 2) + np.mean((p[..., 1:] - p[..., :-1]) ** 2)
     assert np.isclose(got, want, rtol=1e-5), f"the plan's plane TV gives {got}, Eq. {want}"
+
+
+def as_derived(target):
+    """The item's plan value as the pipeline derived it from the paper: a value the scene's pruning changed (the
+    plan's ``pruned`` records: path, from, to) is read as it was before (the sizes a 32 px CPU scene clamps are
+    not the paper's method)."""
+    import copy
+
+    value = copy.deepcopy(target.value)
+    for record in target.plan.get("pruned") or []:
+        path = str(record.get("path") or "")
+        if "from" not in record or record.get("action") in ("removed", "kept"):
+            continue
+        if path == target.path:
+            return copy.deepcopy(record["from"])
+        if path.startswith(target.path + ".") and isinstance(value, dict):
+            node = value
+            keys = path[len(target.path) + 1:].split(".")
+            for key in keys[:-1]:
+                node = node.setdefault(key, {}) if isinstance(node, dict) else {}
+            if isinstance(node, dict):
+                node[keys[-1]] = copy.deepcopy(record["from"])
+    return value

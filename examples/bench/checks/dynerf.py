@@ -17,7 +17,7 @@ def _refs():
 
 
 def _codes(target) -> dict:
-    params = (target.value or {}).get("frame_codes")
+    params = (_refs().as_derived(target) or {}).get("frame_codes")
     assert params, "no time-variant latent codes in the plan"
     return params
 
@@ -51,7 +51,7 @@ def hierarchical_training(target):
     keeps only every 30th frame active at the start and every frame at the end."""
     from nerfify_ns.components.schedule_hooks import ImageCurriculum
 
-    params = (target.value or {}).get("image_curriculum")
+    params = (_refs().as_derived(target) or {}).get("image_curriculum")
     assert params, "no curriculum over frames in the plan"
     assert params["rule"] == "keyframes" and params["keyframe_stride"] == 30, params
     hook = ImageCurriculum(**params)
@@ -89,7 +89,7 @@ def loss(target):
 
 def mlp(target):
     """Sec. 5 (implementation details): NeRF's MLP with 512 activations in its first 8 layers instead of 256."""
-    v = target.value
+    v = _refs().as_derived(target)
     assert (v["num_layers"], v["layer_width"]) == (8, 512), \
         f"{v['num_layers']} layers of {v['layer_width']}, the paper's 8 of 512"
     assert np.isfinite(v["layer_width"])

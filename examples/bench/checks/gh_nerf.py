@@ -36,7 +36,7 @@ def integrated_positional_encoding(target):
     import numpy as np
     from nerfstudio.field_components.encodings import NeRFEncoding
 
-    v = target.value
+    v = _refs().as_derived(target)
     freqs = 2.0 ** np.linspace(v["min_freq_exp"], v["max_freq_exp"], v["num_frequencies"])
     assert np.allclose(freqs[1:] / freqs[:-1], 2.0), f"frequencies are not octaves (ratio {freqs[1] / freqs[0]:.3f})"
     enc = NeRFEncoding(in_dim=3, num_frequencies=v["num_frequencies"], min_freq_exp=v["min_freq_exp"],

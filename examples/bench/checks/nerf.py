@@ -62,7 +62,7 @@ def _refs():
 def hierarchical_sampling(target):
     """Sec. 5.2, Eq. 5: N_c = 64 coarse samples, N_f = 128 fine ones drawn by inverse transform sampling from the
     piecewise-constant PDF of the normalised coarse weights w_i / sum_j w_j."""
-    v = target.value
+    v = _refs().as_derived(target)
     assert (v["num_coarse_samples"], v["num_importance_samples"]) == (64, 128), f"N_c, N_f = {v}, the paper's 64, 128"
     _refs().inverse_transform_sampling(v["num_importance_samples"])
 
@@ -73,7 +73,7 @@ def mlp(target):
     MLP) has the fifth layer reading 256 + the input's width."""
     from nerfstudio.field_components.mlp import MLP
 
-    v = target.value
+    v = _refs().as_derived(target)
     assert (v["num_layers"], v["layer_width"], list(v["skip_connections"])) == (8, 256, [4]), v
     net = MLP(in_dim=63, num_layers=v["num_layers"], layer_width=v["layer_width"],
               skip_connections=tuple(v["skip_connections"]), out_activation=torch.nn.ReLU())
@@ -94,7 +94,7 @@ def schedule(target):
     optimisation: Nerfstudio's exponential decay with the plan's numbers reaches the final rate at the last step."""
     from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
 
-    v = target.value
+    v = _refs().as_derived(target)
     lr = target.plan["optimizers"]["fields"]["optimizer"]["adam"]["lr"]
     assert np.isclose(lr, 5e-4) and np.isclose(v["lr_final"], 5e-5), \
         f"lr {lr} -> {v['lr_final']}, the paper's 5e-4 -> 5e-5"
@@ -109,4 +109,5 @@ def schedule(target):
 
 def batch(target):
     """Sec. 5.3: a batch size of 4096 rays."""
-    assert target.value == 4096, f"{target.value} rays per batch, the paper's 4096"
+    rays = _refs().as_derived(target)
+    assert rays == 4096, f"{rays} rays per batch, the paper's 4096"

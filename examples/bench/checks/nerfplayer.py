@@ -21,7 +21,7 @@ def decomposition(target):
     (a softmax), and the sample's density and colour are the probability-weighted sums of the three fields'."""
     from nerfify_ns.components.field_wrappers import FieldBlend
 
-    params = (target.value or {}).get("field_blend")
+    params = (_refs().as_derived(target) or {}).get("field_blend")
     assert params, "no blend of fields in the plan"
     assert params["num_fields"] == 3, f"{params['num_fields']} fields, the paper's static, deforming and new"
     assert params["mode"] == "mixer", \
@@ -46,7 +46,7 @@ def deformation_field(target):
     samples by a learned offset that depends on t and keeps the time."""
     from nerfify_ns.components.field_wrappers import DeformationNetwork
 
-    params = (target.value or {}).get("deformation")
+    params = (_refs().as_derived(target) or {}).get("deformation")
     assert params, "no deformation into a canonical space in the plan"
     net = DeformationNetwork(**params).double()
     torch.nn.init.normal_(net.network[-1].weight, std=0.1)  # trained weights: the offset is no longer zero
