@@ -153,3 +153,37 @@ def test_the_paper_passes_every_rung_of_the_sandboxed_ladder_and_trains(tmp_path
     values = [v for _, v in sorted(losses(read_scalars(runs[0])).items())]
     k = max(1, len(values) // 5)
     assert all(math.isfinite(v) for v in values) and sum(values[-k:]) / k < sum(values[:k]) / k, values
+
+
+def test_branches_and_a_time_embedding_with_sizes_in_words():
+    from test_field_wrappers import small
+
+    from nerfify_ns.plan import Plan
+    from nerfify_ns.synthesis.novel.implement import HoleResult
+    from nerfify_ns.synthesis.resources import load_reference_plan
+
+    plan = small(Plan.of(load_reference_plan("vanilla-nerf")), "prose-words")
+    text = ["We embed the continuous time with a small MLP into a learned time embedding.",
+            "The time embedding network has three layers of forty-eight units and outputs a twelve-dimensional "
+            "time embedding."]
+    hole = {"production": "FieldWrapper", "slot": "model.field_wrappers", "section": "3 Method",
+            "text": " ".join(text), "claim": "", "where": "Sec. 3"}
+    compiled = HoleResult(id="field_wrappers", slot=hole["slot"], production="FieldWrapper", section="3 Method",
+                          reason="no equation")
+    result = prose.build(hole, [(s, "Sec. 3", "3 Method") for s in text], plan, None, compiled)
+    embedding = plan["model"]["field_wrappers"]["time_embedding"]
+    assert (embedding["num_layers"], embedding["layer_width"], embedding["out_dim"]) == (3, 48, 12), embedding
+    assert result.status == IMPLEMENTED and set(result.asked) == {"time_embedding.num_frequencies"}
+
+    plan = Plan.of(load_reference_plan("vanilla-nerf"))
+    text = ["After the shared trunk the network has separate branches for density and colour.",
+            "The density branch has two layers of sixty-four units, and the colour branch has one layer of "
+            "ninety-six units."]
+    hole = {"production": "Backbone", "slot": "model.field.MLPField.backbone", "section": "3 Method",
+            "text": " ".join(text), "claim": "", "where": "Sec. 3"}
+    compiled = HoleResult(id="backbone", slot=hole["slot"], production="Backbone", section="3 Method",
+                          reason="no equation")
+    prose.build(hole, [(s, "Sec. 3", "3 Method") for s in text], plan, None, compiled)
+    backbone = plan.get("model.field.MLPField.backbone")
+    assert (backbone["density_layers"], backbone["density_width"], backbone["color_layers"],
+            backbone["color_width"]) == (2, 64, 1, 96), backbone
