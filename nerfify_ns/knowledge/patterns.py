@@ -118,13 +118,23 @@ def _model(name: str, raw: Any, path: Path) -> BaseModel:
     return BaseModel(name=name, names=names, papers=tuple(str(p) for p in raw.get("papers") or ()))
 
 
+def _models(data: dict) -> dict[str, Any]:
+    """The reference models of a ``bases.yaml`` (``models``), else those of the base models' one definition
+    (``nerfify_ns/registry/bases.yaml``: each base's ``reference_plans``)."""
+    if "models" in data:
+        return data["models"]
+    from nerfify_ns.registry.bases import reference_models
+
+    return reference_models()
+
+
 def read_bases(path: Path | str = BASES_FILE) -> BaseRules:
     """The base models, statement patterns and choice weights of a ``bases.yaml``."""
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
         prefix = data.get("prefix") or ""
-        models = tuple(_model(str(k), v, path) for k, v in data["models"].items())
+        models = tuple(_model(str(k), v, path) for k, v in _models(data).items())
         statements = tuple((s["name"], re.compile(s["regex"].replace("{base}", prefix + BASE_GROUP), re.IGNORECASE))
                            for s in data["statements"])
         for name, regex in statements:

@@ -1,4 +1,5 @@
-"""CPU presets of Nerfstudio's built-in methods (``runtime/smoke_presets.yaml``): the ns-train arguments that
+"""CPU presets of Nerfstudio's built-in methods (each base's in ``registry/bases.yaml``, other variants in
+``runtime/smoke_presets.yaml``): the ns-train arguments that
 shrink a method for a small CPU scene, exactly as a user would type them, and how long a smoke run of each
 must be for its loss to move."""
 
@@ -15,8 +16,12 @@ DEFAULT_SMOKE_ITERATIONS = 20
 
 @lru_cache(maxsize=1)
 def smoke_presets() -> dict[str, dict]:
+    """Every CPU preset by method name: each base model's (``smoke`` of its one definition,
+    ``nerfify_ns/registry/bases.yaml``), then the variants of ``smoke_presets.yaml`` that are no base."""
+    from nerfify_ns.registry.bases import smoke_presets as base_presets
+
     text = resources.files("nerfify_ns.runtime").joinpath("smoke_presets.yaml").read_text()
-    return yaml.safe_load(text)
+    return {**base_presets(), **(yaml.safe_load(text) or {})}
 
 
 def preset_args(method: str) -> list[str]:

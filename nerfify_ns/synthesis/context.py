@@ -1,7 +1,7 @@
 """From a validated plan to the values the plugin templates render.
 
 Terminal code comes from the terminal registry (``nerfify_ns/registry``: each terminal's ``Code``) and
-base models from ``templates/bases.yaml``;
+base models from their one definition (``nerfify_ns/registry/bases.yaml``);
 base-model config values come from each terminal's ``config`` mapping in ``grammar_spec.yaml``.
 Every value carries the plan entry it comes from, so the generated code can say so.
 """
@@ -21,10 +21,10 @@ from nerfify_ns.knowledge import KnowledgeBase
 from nerfify_ns.knowledge import card as load_card
 from nerfify_ns.plan import Plan, package_name
 from nerfify_ns.registry import default_registry
+from nerfify_ns.registry.bases import plugin_facts as bases
 from nerfify_ns.registry.snippets import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
-from nerfify_ns.synthesis.resources import bases
 
 
 def one(mapping: dict) -> tuple[str, Any]:
@@ -279,7 +279,8 @@ def mlp_field(ctx: Context) -> dict:
         geo = "self.backbone.color_dim"
     else:
         geo = str(dh["geo_feat_dim"]) if split else "self.backbone.get_out_dim()"
-    rgb_in = " + ".join(["self.direction_encoding.get_out_dim()", geo] + ([str(appearance["dim"])] if appearance else []))
+    rgb_in = " + ".join(["self.direction_encoding.get_out_dim()", geo]
+                        + ([str(appearance["dim"])] if appearance else []))
     if custom_rgb:
         imports.append(custom_rgb["import"])
         rgb_ctor = call(custom_rgb["cls"], f"in_dim={rgb_in}", custom_rgb["kwargs"])
@@ -585,41 +586,54 @@ def _derived_values(ctx: Context, base_name: str, fields: dict[str, Any]) -> lis
         has = "appearance_embedding" in mlp
         inverted = "use_appearance_embedding" in bases()[base_name].get("inverted_flags", [])
         out.append(KW("use_appearance_embedding", py(has != inverted),
-                      "model.field.MLPField.appearance_embedding" + (" (the base inverts this flag)" if inverted else "")))
+                      "model.field.MLPField.appearance_embedding"
+                      + (" (the base inverts this flag)" if inverted else "")))
     if "average_init_density" in fields and ctx.used("model.field.MLPField.density_head.density_split"):
         value = ctx.params("model.field.MLPField.density_head.density_split")["init_density"]
-        out.append(KW("average_init_density", py(value), "model.field.MLPField.density_head.density_split.init_density"))
+        out.append(KW("average_init_density", py(value),
+                      "model.field.MLPField.density_head.density_split.init_density"))
     if "camera_optimizer" in fields:
-        mode = {"so3xr3": "SO3xR3", "se3": "SE3"}.get(one(model["camera_optimizer"])[0]) if "camera_optimizer" in model else "off"
-        out.append(KW("camera_optimizer", f"CameraOptimizerConfig(mode={mode!r})", "model.camera_optimizer (absent: off)"))
+        mode = {"so3xr3": "SO3xR3", "se3": "SE3"}.get(one(model["camera_optimizer"])[0]) \
+            if "camera_optimizer" in model else "off"
+        out.append(KW("camera_optimizer", f"CameraOptimizerConfig(mode={mode!r})",
+                      "model.camera_optimizer (absent: off)"))
     if ctx.used("model.sampler.proposal") and "proposal_net_args_list" in fields:
         p = ctx.params("model.sampler.proposal")
-        out.append(KW("num_proposal_iterations", py(len(p["samples_per_ray"])), "model.sampler.proposal.samples_per_ray"))
+        out.append(KW("num_proposal_iterations", py(len(p["samples_per_ray"])),
+                      "model.sampler.proposal.samples_per_ray"))
     if ctx.used("model.sampler.proposal"):
         # Also for k-planes proposal networks, which replace the base's: Nerfacto builds its own first, one per
         # round or exactly one with use_same_proposal_network (it asserts a one-entry list then).
         p = ctx.params("model.sampler.proposal")
         nets = [{"hidden_dim": p["network_hidden_dim"], "log2_hashmap_size": p["network_log2_hashmap_size"],
-                 "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False} for r in proposal_resolutions(p)]
-        out.append(KW("proposal_net_args_list", "[" + ", ".join(py(n) for n in nets) + "]", "model.sampler.proposal.network_*"))
-    out += _loss_coefficients(ctx, base_name)
+                 "num_levels": p["network_num_levels"], "max_res": r, "use_linear": False}
+                for r in proposal_resolutions(p)]
+        out.append(KW("proposal_net_args_list", "[" + ", ".join(py(n) for n in nets) + "]",
+                      "model.sampler.proposal.network_*"))
+    out += _loss_coefficients(ctx, base_name, fields)
     return out
 
 
-def _loss_coefficients(ctx: Context, base_name: str) -> list[KW]:
-    if base_name in ("vanilla-nerf", "mipnerf"):
-        weight = ctx.params("model.sampler.hierarchical")["coarse_loss_weight"]
-        return [KW("loss_coefficients", py({"rgb_loss_coarse": weight, "rgb_loss_fine": 1.0}),
-                   "model.sampler.hierarchical.coarse_loss_weight")]
-    if base_name != "tensorf":
+def _loss_coefficients(ctx: Context, base_name: str, fields: dict[str, Any]) -> list[KW]:
+    """The base config's loss coefficients: as the base's definition gives them (``loss_coefficients`` in
+    ``registry/bases.yaml``, each a number or a plan path), or TensoRF's from its decomposition and regularisers
+    (a base config with ``tensorf_encoding`` and ``regularization``)."""
+    given = bases()[base_name].get("loss_coefficients")
+    if given:
+        values = {k: ctx.params(v.rsplit(".", 1)[0])[v.rsplit(".", 1)[1]] if isinstance(v, str) else v
+                  for k, v in given.items()}
+        return [KW("loss_coefficients", py(values), ", ".join(v for v in given.values() if isinstance(v, str)))]
+    if "tensorf_encoding" not in fields or "regularization" not in fields:
         return []
     dec, _ = one(ctx.plan.get("model.field.TensorialField.decomposition"))
-    out = [KW("tensorf_encoding", py({"tensor_vm": "vm", "tensor_cp": "cp"}[dec]), "model.field.TensorialField.decomposition")]
+    out = [KW("tensorf_encoding", py({"tensor_vm": "vm", "tensor_cp": "cp"}[dec]),
+              "model.field.TensorialField.decomposition")]
     coeffs = {"rgb_loss": 1.0}
     regularization = "none"
     if ctx.used("model.regularizers.tensor_tv"):
         p = ctx.params("model.regularizers.tensor_tv")
-        regularization, coeffs = "tv", {**coeffs, "tv_reg_density": p["density_weight"], "tv_reg_color": p["color_weight"]}
+        regularization = "tv"
+        coeffs = {**coeffs, "tv_reg_density": p["density_weight"], "tv_reg_color": p["color_weight"]}
     if ctx.used("model.regularizers.tensor_l1"):
         regularization, coeffs = "l1", {**coeffs, "l1_reg": ctx.params("model.regularizers.tensor_l1")["weight"]}
     out.append(KW("regularization", py(regularization), "model.regularizers (tensor_l1 / tensor_tv)"))
@@ -669,7 +683,8 @@ def config_context(ctx: Context, base: dict) -> dict:
         "imports": sorted(set(imports)),
         "trainer": [KW(k, py(v), f"trainer.{k}") for k, v in trainer.items()],
         "datamanager_cls": datamanager["cls"],
-        "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}") for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")]
+        "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}")
+                        for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")]
         + ([KW("pixel_sampler", f"{sampler['config_cls']}()", sampler["source"])] if sampler else []),
         "pixel_sampler": sampler,
         "dataparser": dataparser["ctor"],

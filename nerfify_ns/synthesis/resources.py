@@ -7,7 +7,6 @@ finds them there or, in an installed wheel, inside the package.
 
 from __future__ import annotations
 
-from functools import lru_cache
 from pathlib import Path
 
 import yaml
@@ -26,10 +25,11 @@ def templates_dir() -> Path:
 
 
 
-@lru_cache(maxsize=1)
 def bases() -> dict[str, dict]:
-    """Base models (``templates/bases.yaml``)."""
-    return yaml.safe_load((templates_dir() / "bases.yaml").read_text())
+    """What the plugin templates read of each base model (its one definition: ``nerfify_ns/registry/bases.yaml``)."""
+    from nerfify_ns.registry.bases import plugin_facts
+
+    return plugin_facts()
 
 
 def reference_plans() -> list[str]:

@@ -191,3 +191,33 @@ def test_a_technique_needs_no_registry_file_beyond_its_terminal():
             nt = REGISTRY.nonterminals[t.production]
             assert t.name in (nt.get("alternatives") or nt.get("members") or [t.name]) or nt.get("kind") in (
                 "sequence", "open", "map"), t.name
+
+
+def test_a_base_model_is_defined_once():
+    """``registry/bases.yaml`` is the one definition of a base: the Base terminals, the templates' facts, the smoke
+    presets and the knowledge base's reference models read it; no other file names a base's facts."""
+    import re
+
+    import yaml
+
+    from nerfify_ns.knowledge.patterns import read_bases
+    from nerfify_ns.registry.bases import base_definitions, plugin_facts, reference_models
+    from nerfify_ns.runtime.presets import smoke_presets
+    from nerfify_ns.synthesis.resources import reference_plans
+
+    defined = base_definitions()
+    assert [t.name for t in REGISTRY.of_production("Base")] == list(defined)
+    assert set(plugin_facts()) == set(defined) and set(defined) <= set(smoke_presets())
+    assert not (ROOT / "templates" / "bases.yaml").exists()
+    presets = yaml.safe_load((PACKAGE / "runtime" / "smoke_presets.yaml").read_text()) or {}
+    assert not set(presets) & set(defined), "a base's smoke preset belongs in registry/bases.yaml"
+    assert "models" not in yaml.safe_load((PACKAGE / "knowledge" / "bases.yaml").read_text())
+    assert set(reference_models()) == set(reference_plans()) == set(read_bases().order)
+    for plan, entry in reference_models().items():
+        from nerfify_ns.synthesis.resources import load_reference_plan
+
+        assert load_reference_plan(plan)["base"] == entry["base"], plan
+    context = (PACKAGE / "synthesis" / "context.py").read_text()
+    names = "|".join(re.escape(n) for n in defined)
+    assert not re.search(rf"base_name\s*(?:==|!=|in)\s*[\(\[\"'](?:[^)\]]*[\"'](?:{names})[\"'])?", context), \
+        "a base's special case belongs in its definition (registry/bases.yaml), not in synthesis/context.py"

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from nerfify_ns.registry.bases import base_definitions
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
 
@@ -99,13 +100,13 @@ class CosineDecay:
     """Iterations of the schedule."""
 
 
-def base(name: str, doc: str, model: str, config_class: str, card: str, sampler: str, field: str,
-         groups=("fields",)) -> TerminalDef:
-    """A base model: the Nerfstudio model whose loop (sampling, rendering, losses) the plugin reuses."""
-    return TerminalDef(name, "Base", None, doc, model, card=card, config_class=config_class, param_groups=groups,
-                       harness=Harness(in_model=True),
-                       duties=({"requires_terminal": {"slot": "model.sampler", "any_of": [sampler, "custom"]}},
-                               {"requires_terminal": {"slot": "model.field", "any_of": [field, "custom"]}}))
+def base(name: str, b: dict) -> TerminalDef:
+    """A base model: the Nerfstudio model whose loop (sampling, rendering, losses) the plugin reuses, as
+    ``registry/bases.yaml`` defines it (its one definition: templates, smoke presets and reference plans read it)."""
+    return TerminalDef(name, "Base", None, b["doc"], b["model"], card=b["card"], config_class=b["config"],
+                       param_groups=tuple(b.get("groups") or ("fields",)), harness=Harness(in_model=True),
+                       duties=({"requires_terminal": {"slot": "model.sampler", "any_of": [b["sampler"], "custom"]}},
+                               {"requires_terminal": {"slot": "model.field", "any_of": [b["field"], "custom"]}}))
 
 
 def _ctor(cls: str, args: str) -> str:
@@ -127,21 +128,7 @@ TERMINALS = [
                     "nerfstudio": ["nerfstudio.data.dataparsers.nerfstudio_dataparser", "NerfstudioDataParserConfig"],
                     "dnerf": ["nerfstudio.data.dataparsers.dnerf_dataparser", "DNeRFDataParserConfig"],
                     "colmap": ["nerfstudio.data.dataparsers.colmap_dataparser", "ColmapDataParserConfig"]}})),
-    base("nerfacto", "Nerfacto's loop (proposal sampling, near/far collider, appearance, camera optimiser).",
-         "nerfstudio.models.nerfacto.NerfactoModel", "nerfstudio.models.nerfacto.NerfactoModelConfig", "nerfacto",
-         "proposal", "MLPField"),
-    base("vanilla-nerf", "NeRF's loop (coarse and fine fields, hierarchical sampling).",
-         "nerfstudio.models.vanilla_nerf.NeRFModel", "nerfstudio.models.vanilla_nerf.VanillaModelConfig",
-         "hierarchical_sampling", "hierarchical", "MLPField"),
-    base("mipnerf", "Mip-NeRF's loop (one field queried with conical frustums, coarse then fine).",
-         "nerfstudio.models.mipnerf.MipNerfModel", "nerfstudio.models.vanilla_nerf.VanillaModelConfig",
-         "integrated_positional_encoding", "hierarchical", "MLPField"),
-    base("instant-ngp", "Instant-NGP's loop (nerfacc occupancy grid, volumetric sampling).",
-         "nerfstudio.models.instant_ngp.NGPModel", "nerfstudio.models.instant_ngp.InstantNGPModelConfig",
-         "occupancy_grid", "occupancy_grid", "MLPField"),
-    base("tensorf", "TensoRF's loop (uniform then importance samples, grid upsampling, L1/TV on factors).",
-         "nerfstudio.models.tensorf.TensoRFModel", "nerfstudio.models.tensorf.TensoRFModelConfig", "tensorf_vm",
-         "hierarchical", "TensorialField", groups=("fields", "encodings")),
+    *(base(name, b) for name, b in base_definitions().items()),
     TerminalDef("adam", "Optimizer", Adam, "Adam.", "nerfstudio.engine.optimizers.AdamOptimizerConfig",
                 code=Code(("from nerfstudio.engine.optimizers import AdamOptimizerConfig",),
                           ctor=_ctor("AdamOptimizerConfig", OPTIMIZER))),
