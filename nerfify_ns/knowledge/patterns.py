@@ -118,14 +118,19 @@ def _model(name: str, raw: Any, path: Path) -> BaseModel:
     return BaseModel(name=name, names=names, papers=tuple(str(p) for p in raw.get("papers") or ()))
 
 
+BASE_DEFINITIONS = Path(__file__).resolve().parents[1] / "registry" / "bases.yaml"
+"""The base models' one definition (read as data: the knowledge base imports no other package of the project)."""
+
+
 def _models(data: dict) -> dict[str, Any]:
-    """The reference models of a ``bases.yaml`` (``models``), else those of the base models' one definition
-    (``nerfify_ns/registry/bases.yaml``: each base's ``reference_plans``)."""
+    """The reference models of a ``bases.yaml`` (``models``), else those of the base models' one definition: each
+    base's ``reference_plans`` (name -> names, papers, base), by ``preference`` (plainest first)."""
     if "models" in data:
         return data["models"]
-    from nerfify_ns.registry.bases import reference_models
-
-    return reference_models()
+    bases = yaml.safe_load(BASE_DEFINITIONS.read_text(encoding="utf-8"))
+    plans = [(plan, {**entry, "base": name}) for name, base in bases.items()
+             for plan, entry in (base.get("reference_plans") or {}).items()]
+    return dict(sorted(plans, key=lambda p: p[1].get("preference", 0)))
 
 
 def read_bases(path: Path | str = BASES_FILE) -> BaseRules:

@@ -1,5 +1,6 @@
 """The base models, defined once (``bases.yaml``): the registry's ``Base`` terminals, the plugin templates' facts,
-the CPU smoke presets and the reference plans with the names papers give them all read this one file."""
+the CPU smoke presets and the reference plans with the names papers give them all read this one file (the knowledge
+base reads ``reference_plans`` as data: ``knowledge/patterns.py``)."""
 
 from __future__ import annotations
 
@@ -38,11 +39,3 @@ def plugin_facts() -> dict[str, dict[str, Any]]:
 def smoke_presets() -> dict[str, dict[str, Any]]:
     """The CPU smoke preset of each base's built-in Nerfstudio method (``smoke`` of ``bases.yaml``)."""
     return {name: base["smoke"] for name, base in base_definitions().items() if base.get("smoke")}
-
-
-def reference_models() -> dict[str, dict[str, Any]]:
-    """The reference plans of every base, plainest first: name -> ``names``, ``papers``, ``base``."""
-    plans = [(plan, {**entry, "base": name}) for name, base in base_definitions().items()
-             for plan, entry in (base.get("reference_plans") or {}).items()]
-    return {plan: {k: v for k, v in entry.items() if k != "preference"}
-            for plan, entry in sorted(plans, key=lambda p: p[1].get("preference", 0))}

@@ -201,7 +201,7 @@ def test_a_base_model_is_defined_once():
     import yaml
 
     from nerfify_ns.knowledge.patterns import read_bases
-    from nerfify_ns.registry.bases import base_definitions, plugin_facts, reference_models
+    from nerfify_ns.registry.bases import base_definitions, plugin_facts
     from nerfify_ns.runtime.presets import smoke_presets
     from nerfify_ns.synthesis.resources import reference_plans
 
@@ -212,11 +212,12 @@ def test_a_base_model_is_defined_once():
     presets = yaml.safe_load((PACKAGE / "runtime" / "smoke_presets.yaml").read_text()) or {}
     assert not set(presets) & set(defined), "a base's smoke preset belongs in registry/bases.yaml"
     assert "models" not in yaml.safe_load((PACKAGE / "knowledge" / "bases.yaml").read_text())
-    assert set(reference_models()) == set(reference_plans()) == set(read_bases().order)
-    for plan, entry in reference_models().items():
-        from nerfify_ns.synthesis.resources import load_reference_plan
+    from nerfify_ns.synthesis.resources import load_reference_plan
 
-        assert load_reference_plan(plan)["base"] == entry["base"], plan
+    assert set(reference_plans()) == set(read_bases().order)
+    for name, base in defined.items():
+        for plan in base["reference_plans"]:
+            assert load_reference_plan(plan)["base"] == name, plan
     context = (PACKAGE / "synthesis" / "context.py").read_text()
     names = "|".join(re.escape(n) for n in defined)
     assert not re.search(rf"base_name\s*(?:==|!=|in)\s*[\(\[\"'](?:[^)\]]*[\"'](?:{names})[\"'])?", context), \
