@@ -486,6 +486,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     from nerfify_ns.synthesis.schedule import scale_schedule
 
     iterations, every, record, proxy = budget.iterations, budget.cadence(budget.iterations), None, None
+    width = 1.0  # the proxy's MLP width over the paper's (the learning rates follow it)
     limit = training_limit(budget, None)
     rays = _rays(_train_args(plan, budget))
     paper_rays = int((plan.get("datamanager") or {}).get("train_num_rays_per_batch") or 0) or None
@@ -513,6 +514,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
             fit, step = fitted_proxy.time, fitted_proxy.seconds_per_iteration
             if fitted_proxy.active:
                 proxy, args, rays = fitted_proxy.record(paper_rays), fitted_proxy.args(), fitted_proxy.rays
+                width = fitted_proxy.width_ratio
         else:
             step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** exponent
             fit = fit_iterations(left, step, timing["startup_seconds"], rendered, rays, budget, most=most,
@@ -527,7 +529,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
                   "reason": fit.describe()}
     schedule = None
     if budget.scale_schedule or proxy:
-        fitted = scale_schedule(plan, iterations, rays=rays) if budget.scale_schedule else None
+        fitted = scale_schedule(plan, iterations, rays=rays, width=width) if budget.scale_schedule else None
         if proxy or (fitted is not None and fitted.scaled):
             schedule = {**(fitted.record() if fitted is not None else {}), **({"proxy": proxy} if proxy else {})}
             args = [*args, *(fitted.args if fitted is not None else [])]
@@ -549,7 +551,10 @@ def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
     """The evaluation summary with how its length was chosen (budget, schedule), written back."""
     from nerfify_ns.evaluate.run_eval import write_json
 
-    summary = {**summary, "budget": run.budget, "schedule": run.schedule}
+    from nerfify_ns.budget import within_budget
+
+    summary = {**summary, "budget": run.budget, "schedule": run.schedule,
+               "within_budget": within_budget(run.budget, summary)}
     write_json(folder / "eval" / runfolder.SUMMARY, summary)
     return summary
 

@@ -33,17 +33,7 @@ def machine_share() -> float:
     return max(1.0, wall / max(cpu, 1e-3))
 
 
-class GreyRenders(AssertionError):
-    """The renders' foreground carries less than half the ground truth's colour spread."""
-
-
-@pytest.mark.bench  # about 5 minutes on two cores, and its colour bar is not met yet: the benchmark lane
-@pytest.mark.slow
-@pytest.mark.xfail(raises=GreyRenders, strict=False, reason=(
-    "vanilla NeRF at its 8 x 256 width does not render colour within a CPU budget: 0.22x the ground truth's colour "
-    "spread after 353 iterations of a 729 s budget (2026-11-26, docs/cpu-budget.md); the proxy's width knob needs a "
-    "config field for the generated MLP's width. Anything else that fails here (the budget overrun, no proxy "
-    "recorded) fails the test"))
+@pytest.mark.slow  # about 4 minutes on two cores (the default budget; longer on a loaded machine, in proportion)
 def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path):
     from nerfify_ns.budget import PAPER_BUDGET
     from nerfify_ns.pipeline import RunOptions, run_compose
@@ -65,6 +55,7 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
     summary = result.summary
     assert result.outcome.ok, result.outcome.failed
     assert wall <= OVERRUN * seconds, f"{wall:.0f} s for a {seconds:.0f} s budget ({share:.1f}x the machine's pace)"
+    assert summary["within_budget"] is True  # what the survey's table reads
 
     proxy = summary["schedule"]["proxy"]  # recorded in the plan and the summary, named in the report's headline
     assert proxy["headline"].startswith("trained a CPU proxy: ") and "samples per ray" in proxy["headline"]
@@ -83,7 +74,6 @@ def test_a_budgeted_vanilla_nerf_run_fits_its_budget_and_renders_colour(tmp_path
 
     diagnostics = summary["diagnostics"]
     assert diagnostics["colour_spread_gt"] > 0 and diagnostics["colour_spread"] is not None
-    if not diagnostics["colour_spread_ratio"] >= 0.5:
-        raise GreyRenders(f"grey renders: colour spread {diagnostics['colour_spread']:.4f} against the ground "
-                          f"truth's {diagnostics['colour_spread_gt']:.4f} after {summary['iterations_done']} "
-                          f"iterations ({proxy['headline']})")
+    assert diagnostics["colour_spread_ratio"] >= 0.5, (
+        f"grey renders: colour spread {diagnostics['colour_spread']:.4f} against the ground truth's "
+        f"{diagnostics['colour_spread_gt']:.4f} after {summary['iterations_done']} iterations ({proxy['headline']})")

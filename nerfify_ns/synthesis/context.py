@@ -238,8 +238,8 @@ def mlp_field(ctx: Context) -> dict:
     elif branches:
         imports += _imports(ctx, {"imports": ["from .components.mlp_branches import BranchedMLP"],
                                   "component": "mlp_branches"})
-        backbone_ctor = call("BranchedMLP", f"in_dim={backbone_in}", f"num_layers={backbone['num_layers']}",
-                             f"layer_width={backbone['layer_width']}",
+        backbone_ctor = call("BranchedMLP", f"in_dim={backbone_in}", "num_layers=num_layers",
+                             "layer_width=layer_width",
                              f"skip_connections={py(backbone_skips(backbone)) if backbone_skips(backbone) else None}",
                              *(f"{k}={backbone[k]}" for k in ("density_layers", "density_width", "color_layers",
                                                               "color_width")), 'implementation="tcnn"')
@@ -294,6 +294,9 @@ def mlp_field(ctx: Context) -> dict:
                          f"{backbone['color_layers']} x {backbone['color_width']} colour branch")
     return {
         "cls": f"{ctx.names.prefix}Field",
+        "widths": backbone_widths(backbone) if backbone else [],
+        "kwargs": "".join(f", {w['param']}=self.config.{w['name']}" for w in backbone_widths(backbone)) if backbone
+        else "",
         "summary": f"Radiance field of the plan: {pe_name} positions, {de_name} directions, "
                    f"{architecture}, {dh_name} density.",
         "imports": sorted(set(imports)),
@@ -318,6 +321,15 @@ def mlp_field(ctx: Context) -> dict:
         "shares_samples": _renderer_needs_samples(ctx),
         "parts": [p for p in ctx.parts if p.file == "field.py"],
     }
+
+
+def backbone_widths(backbone: dict) -> list[dict]:
+    """The backbone's depth and width as fields of the generated model config (the plan's values their defaults):
+    the field reads them from the config, so a run may train narrower (a CPU proxy) without editing the code."""
+    return [{"name": f"mlp_{param}", "param": param, "value": int(backbone[param]), "doc": doc}
+            for param, doc in (("num_layers", "Hidden layers of the field's backbone MLP (the plan's value)."),
+                               ("layer_width", "Units per hidden layer of the field's backbone MLP (the plan's "
+                                               "value; a CPU proxy may train narrower)."))]
 
 
 def field_wrappers(ctx: Context) -> dict:

@@ -105,7 +105,8 @@ def knobs(plan: dict, rays: int) -> list[Knob]:
                 value = (plan.get(path) or {}).get(name, params[name].default if name in params else None)
                 if not isinstance(value, int | list) or isinstance(value, bool):
                     continue
-                fields = (terminals[terminal].config or {}).get(base) or {}
+                fields = {**((terminals[terminal].config or {}).get(base) or {}),
+                          **({name: knob["config"]} if knob.get("config") else {})}
                 flag = f"--pipeline.model.{_flag(fields[name])}" if name in fields else None
                 found[kind].append(Knob(kind, f"{path}.{name}", flag, value, int(knob["floor"]),
                                         float(knob.get("weight", knob.get("exponent", 1.0))),
@@ -134,7 +135,7 @@ class Measured:
     startup_seconds: float
     rays: int
     samples: dict[str, Any] = field(default_factory=dict)
-    """The sample counts it trained with, by plan path (missing: the plan's)."""
+    """The sample counts and MLP widths it trained with, by plan path (missing: the plan's)."""
 
 
 @dataclass
@@ -150,6 +151,11 @@ class ProxyFit:
     train_pixels: int
     scene: dict | None = None
     """The smaller procedural scene the run rendered for itself (:func:`proxy_scene`), or None."""
+
+    @property
+    def width_ratio(self) -> float:
+        """The MLP's width over the paper's (1.0: the paper's): the learning rates follow it (``schedule.yaml``)."""
+        return min([k.total() / k.total(k.paper) for k in self.changed if k.kind == "width"], default=1.0)
 
     @property
     def changed(self) -> list[Knob]:
@@ -232,7 +238,7 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
     settings = knobs(plan, rays)
     target = proxy_spec()["target"]
     base_cost = sample_cost(settings, measured.samples)
-    base_width = width_cost(settings)
+    base_width = width_cost(settings, measured.samples)
 
     def attempt() -> tuple[TimeFit | None, float, int]:
         step, r = _predict(measured, settings, exponent, base_cost, base_width)
@@ -293,14 +299,18 @@ def with_scene(budget: Budget, scene: dict | None) -> Budget:
 
 
 def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
-    """The smoke rung of a budgeted run trains at the proxy's floors (the cheapest settings the run may take):
-    ns-train arguments and the sample counts by plan path (what :class:`Measured` records)."""
-    settings = [k for k in knobs(plan, 1) if k.kind == "samples" and k.flag is not None]
+    """The smoke rung of a budgeted run trains at the proxy's floors (the cheapest settings the run may take: the
+    samples per ray and the MLP widths, the learning rates following the width as in training): ns-train arguments
+    and the values by plan path (what :class:`Measured` records)."""
+    from nerfify_ns.synthesis.schedule import width_learning_rates
+
+    settings = [k for k in knobs(plan, 1) if k.kind in ("samples", "width") and k.flag is not None]
     args: list[str] = []
     values: dict[str, Any] = {}
     for k in settings:
         value = [min(v, k.floor) for v in k.paper] if isinstance(k.paper, list) else min(k.paper, k.floor)
         values[k.path] = value
         args += [k.flag, *([str(v) for v in value] if isinstance(value, list) else [str(value)])]
-    return args, values
+    width = min([k.total(values[k.path]) / k.total(k.paper) for k in settings if k.kind == "width"], default=1.0)
+    return [*args, *width_learning_rates(plan, width)], values
 

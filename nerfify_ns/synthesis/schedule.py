@@ -51,6 +51,9 @@ class ScheduleFit:
     batch: dict | None = None
     """When the run's ray batch is smaller than the paper's: ``paper_rays``, ``run_rays``, ``factor`` (the learning
     rates' scale) and ``rule``; the scaled learning rates are among ``changes``."""
+    width: dict | None = None
+    """When the run's MLP is narrower than the paper's (a CPU proxy): ``ratio`` (run / paper), ``factor`` (the
+    learning rates' scale) and ``rule``; folded into the same scaled learning rates."""
 
     @property
     def scaled(self) -> bool:
@@ -67,9 +70,13 @@ class ScheduleFit:
         elif self.batch:
             why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per "
                     f"step with the paper's learning rates (the base's rule: {self.batch['rule']})")
+        if self.width:
+            why += (f"; its MLP is {self.width['ratio']:.4g} of the paper's width: every learning rate is scaled by "
+                    f"{self.width['factor']:.4g} ({self.width['rule']})")
         why += " (the plugin's code keeps the paper's values)"
         return {"paper_iterations": self.paper_iterations, "run_iterations": self.run_iterations,
-                "factor": round(self.factor, 6), **({"batch": self.batch} if self.batch else {}), "reason": why,
+                "factor": round(self.factor, 6), **({"batch": self.batch} if self.batch else {}),
+                **({"width": self.width} if self.width else {}), "reason": why,
                 "scaled": self.changes, "ns_train_args": list(self.args),
                 **({"not_scaled": self.skipped} if self.skipped else {})}
 
@@ -93,10 +100,11 @@ def _values(value: Any) -> list[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 
-def scale_schedule(plan: dict, iterations: int, rays: int | None = None) -> ScheduleFit:
+def scale_schedule(plan: dict, iterations: int, rays: int | None = None, width: float = 1.0) -> ScheduleFit:
     """The schedule of ``plan`` fitted to a run of ``iterations`` on ``rays`` rays per step: its step counts when
     the run is shorter than the paper's ``trainer.max_num_iterations``, its learning rates when ``rays`` is fewer
-    than the paper's ``datamanager.train_num_rays_per_batch``."""
+    than the paper's ``datamanager.train_num_rays_per_batch`` and when ``width`` (the run's MLP width over the
+    paper's, a CPU proxy's) is below 1."""
     plan = Plan.of(plan)
     used = derive(plan, load_grammar()).used
     paper = int(((plan.get("trainer") or {}).get("max_num_iterations")) or 0)
@@ -105,10 +113,25 @@ def scale_schedule(plan: dict, iterations: int, rays: int | None = None) -> Sche
     else:
         fit = ScheduleFit(paper, iterations, iterations / paper)
         _scale_steps(plan, used, fit)
-    if rays:
-        _scale_learning_rates(plan, used, rays, fit)
+    if rays or width < 1.0:
+        _scale_learning_rates(plan, used, rays, fit, width)
     return fit
 
+
+def width_factor(width: float) -> tuple[float, str]:
+    """The learning rates' scale for an MLP ``width`` times the paper's (``schedule.yaml``'s ``width``), and the
+    rule's name."""
+    rule = step_parameters()["width"]
+    return (1.0 if width >= 1.0 else width ** -float(rule["exponent"])), rule["rule"]
+
+
+def width_learning_rates(plan: dict, width: float) -> list[str]:
+    """ns-train arguments that scale ``plan``'s learning rates for an MLP ``width`` times the paper's (the smoke
+    rung of a budgeted run, which trains at the proxy's floors), nothing else scaled."""
+    fit = ScheduleFit(0, 0, 1.0)
+    plan = Plan.of(plan)
+    _scale_learning_rates(plan, derive(plan, load_grammar()).used, None, fit, width)
+    return fit.args
 
 def _value(plan: Plan, path: str, terminal: str, name: str) -> Any:
     """A terminal's parameter as the plan gives it, else the terminal's default (None: no such parameter)."""
@@ -116,17 +139,22 @@ def _value(plan: Plan, path: str, terminal: str, name: str) -> Any:
     return (plan.get(path) or {}).get(name, defaults[name].default if name in defaults else None)
 
 
-def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int, fit: ScheduleFit) -> None:
-    """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step
-    (``used``: the plan's terminals by path)."""
+def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int | None, fit: ScheduleFit,
+                          width: float = 1.0) -> None:
+    """The learning rates of ``schedule.yaml``'s ``batch`` section scaled for a run of ``rays`` rays per step and an
+    MLP ``width`` times the paper's (``used``: the plan's terminals by path)."""
     paper_rays = int(((plan.get("datamanager") or {}).get("train_num_rays_per_batch")) or 0)
     rule = step_parameters()["batch"]
-    if paper_rays <= 0 or rays >= paper_rays:
-        return
-    own = (rule.get("bases") or {}).get(plan.get("base")) or {}  # a base measured to need its own rule
-    factor = (rays / paper_rays) ** own.get("exponent", rule["exponent"])
-    fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6),
-                 "rule": own.get("rule", rule["rule"])}
+    factor = 1.0
+    if rays and 0 < paper_rays and rays < paper_rays:
+        own = (rule.get("bases") or {}).get(plan.get("base")) or {}  # a base measured to need its own rule
+        factor = (rays / paper_rays) ** own.get("exponent", rule["exponent"])
+        fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6),
+                     "rule": own.get("rule", rule["rule"])}
+    if width < 1.0:
+        scale, name = width_factor(width)
+        fit.width = {"ratio": round(width, 6), "factor": round(scale, 6), "rule": name}
+        factor *= scale
     if factor == 1.0:
         return
     for path, terminal in used.items():
@@ -159,13 +187,13 @@ def _scale_steps(plan: Plan, used: dict[str, str], fit: ScheduleFit) -> None:
             continue
         if path.startswith("optimizers."):  # optimizers.<group>.scheduler.<terminal>
             group = path.split(".")[1]
-            flag = lambda name: f"--optimizers.{_flag(group)}.scheduler.{_flag(name)}"  # noqa: E731
+            flag = lambda name, group=group: f"--optimizers.{_flag(group)}.scheduler.{_flag(name)}"  # noqa: E731
         else:
             fields: dict[str, str] = (terminals[terminal].config or {}).get(base) or {}
             if not fields:
                 fit.skipped += [f"{path}.{n}: the base {base!r} has no config field for {terminal}" for n in names]
                 continue
-            flag = lambda name: f"--pipeline.model.{_flag(fields.get(name, name))}"  # noqa: E731
+            flag = lambda name, fields=fields: f"--pipeline.model.{_flag(fields.get(name, name))}"  # noqa: E731
         for name in names:
             before = _value(plan, path, terminal, name)
             after = _scale(before, factor, 0 if "warmup" in name and before == 0 else 1)

@@ -186,7 +186,10 @@ _BUILD = textwrap.dedent('''
 # Config entries a generated plugin may set differently from the built-in method: its names, the
 # device (our runtime picks it at ns-train time), logging/viewer and evaluation chunk sizes.
 MAY_DIFFER = re.compile(r"^(method_name|machine\.device_type|vis|pipeline\.model\._target|"
-                        r"viewer\.num_rays_per_chunk)$")
+                        r"viewer\.num_rays_per_chunk|"
+                        # the generated field's backbone depth and width, fields of the generated config only (the
+                        # plan's values their defaults: a CPU proxy may set the width)
+                        r"pipeline\.model\.mlp_(num_layers|layer_width))$")
 
 
 def _unexplained_config_differences(result: dict) -> list:

@@ -22,8 +22,13 @@ def _nerf_plan():
     return plan
 
 
-def _fit(plan, left, seconds_per_iteration=0.6, **kw):
-    """A proxy fitted to ``left`` seconds from a smoke rung that trained 128 rays at the proxy's floors."""
+WIDE = (256 / 64) ** proxy_spec()["width"]["mlp"]["layer_width"]["exponent"]
+"""How much slower a step of the paper's 256-wide MLP is predicted than one at the proxy's floor of 64."""
+
+
+def _fit(plan, left, seconds_per_iteration=0.6 / WIDE, **kw):
+    """A proxy fitted to ``left`` seconds from a smoke rung that trained 128 rays at the proxy's floors (samples and
+    width; by default 0.6 s a step at the paper's width)."""
     measured = Measured(seconds_per_iteration, 15.0, 128, smoke_samples(plan)[1])
     return fit_proxy(plan, measured, seconds_left=left, rays=512, exponent=1.0, rays_per_checkpoint=4 * PIXELS,
                      train_pixels=24 * PIXELS, budget=PAPER_BUDGET, most=kw.pop("most", 30000), **kw)
@@ -36,7 +41,8 @@ def test_the_knobs_of_a_vanilla_nerf_plan_in_order():
         ("rays", "train_num_rays_per_batch"), ("width", "layer_width")]
     flags = {k.path.rsplit(".", 1)[-1]: k.flag for k in found}
     assert flags["num_coarse_samples"] == "--pipeline.model.num-coarse-samples"
-    assert flags["layer_width"] is None  # the generated field's width: no ns-train argument, never scaled
+    # the generated field reads its backbone's width from its model config (the plan's value the default)
+    assert flags["layer_width"] == "--pipeline.model.mlp-layer-width"
 
 
 def test_enough_time_keeps_the_papers_settings():
@@ -89,8 +95,27 @@ def test_the_record_says_what_was_scaled_and_why():
         "num_importance_samples"] == (128, 16)
     assert record["ns_train_args"] == fit.args() and "the proxy scales samples per ray, rays per step" in \
         record["reason"]
-    assert record["not_scaled"] == ["model.field.MLPField.backbone.layer_width: no ns-train argument sets it for "
-                                    "this base"]
+    assert "not_scaled" not in record  # every knob of the generated field has an ns-train argument
+
+
+def test_the_width_goes_last_and_the_learning_rates_follow_it():
+    from nerfify_ns.synthesis.schedule import scale_schedule
+
+    plan = _nerf_plan()
+    assert not any(k.kind == "width" for k in _fit(plan, 400).changed)  # samples and rays were enough
+    narrow = _fit(plan, 150)
+    kinds = [k.kind for k in narrow.changed]
+    assert "width" in kinds and {"samples", "rays"} <= set(kinds)
+    assert all(k.value == k.floor for k in narrow.knobs if k.kind in ("samples", "rays"))  # the others first
+    width = next(k for k in narrow.knobs if k.kind == "width")
+    assert width.value < 256 and ["--pipeline.model.mlp-layer-width", str(width.value)] == narrow.args()[-2:]
+    assert f"MLP width {width.value} instead of 256" in narrow.headline(4096)
+    assert narrow.width_ratio == width.value / 256
+    # the plan keeps the paper's width; the run's learning rates follow the proxy's (paper / proxy, the muP rule)
+    assert plan["model"]["field"]["MLPField"]["backbone"].get("layer_width", 256) == 256
+    fit = scale_schedule(plan, 300, rays=narrow.rays, width=narrow.width_ratio)
+    lr = fit.args[fit.args.index("--optimizers.fields.optimizer.lr") + 1]
+    assert float(lr) == pytest.approx(5e-4 * 256 / width.value) and fit.record()["width"]["ratio"] < 1
 
 
 def test_too_little_time_even_for_the_strongest_proxy_is_the_budgets_error():
@@ -100,8 +125,14 @@ def test_too_little_time_even_for_the_strongest_proxy_is_the_budgets_error():
 
 def test_the_smoke_rung_measures_at_the_floors():
     args, values = smoke_samples(_nerf_plan())
-    assert args == ["--pipeline.model.num-coarse-samples", "16", "--pipeline.model.num-importance-samples", "16"]
-    assert set(values.values()) == {16}
+    assert args[:6] == ["--pipeline.model.num-coarse-samples", "16", "--pipeline.model.num-importance-samples", "16",
+                        "--pipeline.model.mlp-layer-width", "64"]
+    # the learning rate follows the narrower MLP (schedule.yaml's width rule: 64 of 256 wide, 4x the paper's 5e-4)
+    lr = args[args.index("--optimizers.fields.optimizer.lr") + 1]
+    assert float(lr) == pytest.approx(5e-4 * 4)
+    assert values == {"model.sampler.hierarchical.num_coarse_samples": 16,
+                      "model.sampler.hierarchical.num_importance_samples": 16,
+                      "model.field.MLPField.backbone.layer_width": 64}
     nerfacto = load_reference_plan("nerfacto")
     args, values = smoke_samples(nerfacto)
     assert "--pipeline.model.num-proposal-samples-per-ray" in args and "--pipeline.model.num-nerf-samples-per-ray" \
