@@ -54,10 +54,25 @@ def test_a_plan_with_it_validates():
 
 
 def test_the_knowledge_base_finds_it_in_a_paper_and_its_source_paper():
-    assert [c.name for c in find_by_alias("Reconstruction (linear domain; RawNeRF-style loss) on raw images.")] \
+    assert [c.name for c in find_by_alias("Reconstruction (linear domain; RawNeRF-style) on raw images.")] \
         == ["relative_l2"]
     source = load_papers()["rawnerf"]
     assert source.arxiv == "2111.13679" and source.provides == ("relative_l2",)
+
+
+def test_seathru_nerfs_reconstruction_loss_is_found_with_its_quote():
+    """SeaThru-NeRF states its reconstruction loss as RawNeRF's: the derived plan takes the technique, quoting it."""
+    from pathlib import Path
+
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    paper = Path(__file__).resolve().parents[3] / "shared" / "papers" / "seathru_nerf" / "seathru_condensed.md"
+    if not paper.is_file():
+        pytest.skip(f"the SeaThru-NeRF paper is not at {paper} (../shared is absent)")
+    plan = plan_from_paper(ingest(paper)).plan
+    assert plan.get("model.losses.rgb") == {"relative_l2": {"eps": 0.001}}
+    assert "RawNeRF-style" in plan.evidence_for("model.losses.rgb")
 
 
 def test_its_hyperparameter_is_read_from_its_own_pattern():
