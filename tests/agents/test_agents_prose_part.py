@@ -85,7 +85,7 @@ def test_a_prose_only_part_is_written_repaired_from_the_diagnosis_and_installed(
     assert result["status"] == "accepted", result
     first, second = result["rounds"]
     assert first["status"] == "fail" and first["rungs"]["contract"] == "fail"
-    assert "rung contract" in first["diagnosis"] and "hidden" in first["diagnosis"]
+    assert "rung contract" in first["diagnosis"] and "68" in first["diagnosis"]  # the claimed width, 64 + 4
     assert first["diagnosis"].splitlines()[0] in provider.requests[1].messages[-1]["content"]  # repaired from it
     assert second["rungs"] == {"static": "pass", "contract": "pass", "stability": "pass", "smoke": "pass"}
     entry = impl.plan.get(f"{record.slot}.custom")
