@@ -116,6 +116,9 @@ def check_lowering(ir, bindings_spec: dict, sizes: dict | None = None, outputs: 
         for key, (attr, spec) in lowered.params.items():
             fan_in = spec.shape[-1] if spec.shape else 1
             arr = rng.normal(0.0, 0.5 / np.sqrt(max(fan_in, 1)), size=spec.shape)
+            if spec.clamp:  # values inside the paper's constraint (the module projects onto it when training)
+                low, high = (v if v is not None else d for v, d in zip(spec.clamp, (-1.0, 1.0), strict=True))
+                arr = rng.uniform(low + 0.1 * (high - low), high - 0.1 * (high - low), size=spec.shape)
             getattr(module, attr).copy_(torch.from_numpy(arr))
             values[key] = arr
             layout[key] = tuple(range(len(spec.shape)))

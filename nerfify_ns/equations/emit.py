@@ -89,6 +89,10 @@ def assemble(class_name: str, input_rows: list, output_rows: list, param_rows: d
     init_lines: list[str] = []
     for _key, (attr, spec) in param_rows.items():
         target = f"self.{attr}"
+        low, high = spec.clamp or (None, None)
+        if low is not None and high is not None and spec.init == "default":
+            init_lines.append(f"nn.init.uniform_({target}, {float(low)!r}, {float(high)!r})  # the paper's range")
+            continue
         if spec.init == "normal":
             init_lines.append(f"nn.init.normal_({target}, std={float(spec.std)!r})")
         elif spec.init == "ones":
@@ -97,15 +101,27 @@ def assemble(class_name: str, input_rows: list, output_rows: list, param_rows: d
             init_lines.append(f"nn.init.zeros_({target})")
         else:
             init_lines.append(f"nn.init.kaiming_uniform_({target}, a=math.sqrt(5))")
+    for _key, (attr, spec) in param_rows.items():
+        if spec.clamp and spec.clamp != (None, None):
+            init_lines.append(f"self.{attr}.clamp_({_bound(spec.clamp[0])}, {_bound(spec.clamp[1])})")
     if init_lines:
         lines += ["        with torch.no_grad():"] + [f"            {line}" for line in init_lines]
     else:
         lines.append("        return")
     args = ", ".join(["self"] + [ident for _, ident, _ in input_rows])
     lines += ["", f"    def forward({args}):"]
+    clamped = [(attr, spec.clamp) for attr, spec in param_rows.values() if spec.clamp and spec.clamp != (None, None)]
+    if clamped:  # the paper's constraint on learned values, applied at every training step (a projection)
+        lines += ["        if self.training:"]
+        lines += [f"            self.{attr}.data.clamp_({_bound(lo)}, {_bound(hi)})" for attr, (lo, hi) in clamped]
     lines += [f"        {line}" if line else "" for line in body]
     lines.append(f"        return {', '.join(returns)}" if returns else "        return None")
     source = "\n".join(lines) + "\n"
     if "math." not in source.split("def _exclusive_cumsum", 1)[1]:
         source = source.replace("import math\n\n", "", 1)  # no unused import
     return source
+
+
+def _bound(value) -> str:
+    """A clamp bound as code: a float literal, or None for an open side."""
+    return "None" if value is None else repr(float(value))

@@ -542,9 +542,11 @@ def lower_module(equations, inputs: dict, outputs: list[str], sizes: dict | None
     param_rows = {}
     for key, spec in params.items():
         if not math.isfinite(spec.std) or spec.init not in ("default", "normal", "zeros", "ones") or not all(
-                isinstance(n, int) and 0 < n <= 1 << 20 for n in spec.shape):
-            raise LoweringError(f"parameter '{safe_comment(key, 40)}': a shape of positive ints, a known init and "
-                                "a finite std")
+                isinstance(n, int) and 0 < n <= 1 << 20 for n in spec.shape) or (spec.clamp is not None and not (
+                len(spec.clamp) == 2 and all(v is None or (isinstance(v, int | float) and math.isfinite(v))
+                                             for v in spec.clamp))):
+            raise LoweringError(f"parameter '{safe_comment(key, 40)}': a shape of positive ints, a known init, "
+                                "a finite std and finite bounds")
         if key in env:
             raise LoweringError(f"'{safe_comment(key, 40)}' is both an input and a parameter")
         attr = names.get("p", key)

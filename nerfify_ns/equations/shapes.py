@@ -39,6 +39,9 @@ class ParamSpec:
     learned: bool = True
     init: str = "default"
     std: float = 1.0
+    clamp: tuple | None = None
+    """(low, high), either None: the paper's constraint on the learned values ("clamped to [0, 1]"), applied at
+    every training step (the values are projected before each forward pass) and by the initialiser."""
 
 
 def param_specs(sizes: dict) -> dict[str, ParamSpec]:

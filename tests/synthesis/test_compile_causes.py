@@ -132,6 +132,56 @@ def test_a_per_sample_output_is_composited_per_ray(tmp_path):
     torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
 
 
+SPECTRAFIELD = r"""# SpectraField: Colours from a Learned Dictionary
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, and mix colours from a
+dictionary.
+
+## 3 Method
+
+### 3.1 Dictionary colour head
+
+The colour of a sample mixes learned signatures by abundances:
+
+$$\mathbf{c} = \mathbf{S} \, \mathrm{softmax}(\mathbf{W} \mathbf{h} / \tau) \tag{1}$$
+
+where $\mathbf{h}$ are the geometry features, $\mathbf{W}$ is a weight matrix, $\tau = 0.5$ is a temperature, and the
+learned signatures $\mathbf{S} \in \mathbb{R}^{3 \times K}$ with $K = 4$ are clamped to [0, 1].
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+
+# ------------------------------------------------------------------------------------------ learned, constrained
+def test_a_learned_dictionary_clamped_as_the_paper_says_mixed_by_a_softmax_with_temperature(tmp_path):
+    result = _compile(tmp_path, SPECTRAFIELD)
+    (record,) = [r for r in result.records if r.production == "RGBHead"]
+    assert record.status == IMPLEMENTED, record.reason
+    s = record.bindings["S"]
+    assert s["as"] == "parameter" and s["clamp"] == [0.0, 1.0] and "clamped to [0, 1]" in s["clamp_evidence"]
+    assert record.sizes["S"]["shape"] == [3, 4] and record.bindings["tau"]["value"] == 0.5
+
+    torch.manual_seed(0)
+    head = _component(record)(in_dim=16 + 6, dir_dim=6).double()
+    eq = head.equations
+    assert float(eq.p_s.min()) >= 0.0 and float(eq.p_s.max()) <= 1.0  # initialised inside the paper's range
+    with torch.no_grad():
+        eq.p_s.copy_(torch.linspace(-0.5, 1.5, 12, dtype=torch.float64).reshape(3, 4))
+    features = torch.rand(5, 22, dtype=torch.float64)
+    head.train()
+    got = head(features)
+    assert float(eq.p_s.min()) == 0.0 and float(eq.p_s.max()) == 1.0  # projected at the training step
+    h = features[:, 6:]
+    want = torch.softmax(h @ eq.p_w.T / 0.5, dim=-1) @ eq.p_s.T  # the reference, written by hand
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    got.sum().backward()
+    assert eq.p_s.grad is not None and eq.p_w.grad is not None and torch.isfinite(eq.p_w.grad).all()
+
+
 # ------------------------------------------------------------------------------------------ the causes
 def test_each_reason_has_its_cause():
     cases = {

@@ -373,9 +373,18 @@ class _Hole:
             matrix = role == "weight_matrix" or (sym.name[:1].isupper() and sym.name.isalpha() and len(sym.name) == 1)
             # a lower-case Greek letter (beta, tau) is a scalar by convention; other letters are sized by the equations
             greek = len(sym.name) > 1 and sym.name.isalpha() and sym.name.islower() and not sym.subscripts
-            return {"as": "parameter", "role": "learned", "source": "paper",
-                    "evidence": f"{learned[1]}: \"{_short(learned[0])}\"", "matrix": matrix, "learned": True,
-                    **({"scalar": True} if greek and not matrix else {})}
+            out = {"as": "parameter", "role": "learned", "source": "paper",
+                   "evidence": f"{learned[1]}: \"{_short(learned[0])}\"", "matrix": matrix, "learned": True,
+                   **({"scalar": True} if greek and not matrix else {})}
+            constraint = self.words.constraint(sym)
+            if constraint is not None:  # the paper's range, applied to the learned values at every step
+                out["clamp"] = [constraint[0], constraint[1]]
+                out["clamp_evidence"] = f"{constraint[3]}: \"{_short(constraint[2], 400)}\""
+            shape = self.words.shape_of(sym) if matrix else None
+            if shape:
+                out["stated_shape"] = [int(v) for v, _, _ in shape]
+                out["shape_evidence"] = f"{shape[0][2]}: \"{_short(shape[0][1])}\""
+            return out
         # a concatenation partner the paper's "concatenated with the ..." sentence names
         if isinstance(eq.rhs, Concat) and any(isinstance(i, Symbol) and i.key == key for i in eq.rhs.items):
             for role2, quote, where2 in self.words.concat_roles:
@@ -518,6 +527,12 @@ class _Hole:
                     w.set(w.shapes[key][0], stated(width))
                     b["rows"], b["rows_evidence"] = rows, f"{rw}: \"{_short(rq)}\""
                     evidence[key] = {"source": "paper", "evidence": f"{ww}: \"{_short(wq)}\""}
+        w.run(att.equations)
+        for key, b in bindings.items():  # a learned matrix's stated shape fills what the equations leave open
+            if b["as"] == "parameter" and b.get("stated_shape") and len(b["stated_shape"]) == len(w.shapes[key]):
+                for i in w.open(key):
+                    w.set(w.shapes[key][i], stated(b["stated_shape"][i]))
+                evidence[key] = {"source": "paper", "evidence": b["shape_evidence"]}
         w.run(att.equations)
         if small:
             for key, value in corrected.items():

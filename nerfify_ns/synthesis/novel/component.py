@@ -51,7 +51,8 @@ def _sizes(work: _Hole, att: _Attempt, bindings: dict, runtime: int, small: bool
     for key, b in bindings.items():
         value = solver.value(key)
         if b["as"] == "parameter":
-            params[key] = ParamSpec(tuple(int(v) for v in value))
+            clamp = tuple(b["clamp"]) if b.get("clamp") else None
+            params[key] = ParamSpec(tuple(int(v) for v in value), clamp=clamp)
         else:
             widths[key] = value[0] if value else None
     for key in att.outputs:

@@ -157,6 +157,7 @@ _TEXT_SYMBOL = re.compile(
     rf"{{0,3}})(?![A-Za-z])")
 _WORDS = {"an", "as", "at", "be", "by", "do", "go", "if", "in", "is", "it", "me", "my", "no", "of", "on", "or", "so",
           "to", "up", "us", "we", "he", "am", "a", "e", "i", "s"}
+_NUMBER = r"[-+]?\d+(?:\.\d+)?"
 _INLINE_MATH = re.compile(r"\$([^$]{1,200})\$")
 _VERBS = r"(?:is|are|denotes?|represents?|stands? for|corresponds? to|refers? to|indicates?|is called|are called)"
 
@@ -177,6 +178,9 @@ def mentions(text: str) -> list[Mention]:
     for m in _INLINE_MATH.finditer(text):
         covered.append((m.start(), m.end()))
         expr = parse_expression(m.group(1))  # never raises: what it cannot read is a ParseFailure
+        if isinstance(expr, ParseFailure):  # "$S \in R^{3 x K}$", "$K = 4$": the symbol before the relation
+            head = re.split(r"\\in\b|∈|=|<|>|\\le\b|\\ge\b", m.group(1), maxsplit=1)[0]
+            expr = parse_expression(head) if head.strip() and head != m.group(1) else expr
         if isinstance(expr, ParseFailure):
             continue
         for node in walk(expr):
@@ -220,6 +224,7 @@ class PaperWords:
     activations: dict = field(default_factory=dict)   # loose key -> (function, quote, where): "c^med via sigmoid"
     constants: dict = field(default_factory=dict)     # loose key -> (value, quote, where): "$\lambda=0.1$"
     learned: dict = field(default_factory=dict)       # loose key -> (quote, where): "where $\beta$ is learned"
+    constraints: dict = field(default_factory=dict)   # loose key -> (low, high, quote, where): "clamped to [0, 1]"
     operators: list = field(default_factory=list)     # (operator, what the paper calls it, quote, where)
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
@@ -270,7 +275,7 @@ class PaperWords:
                     not re.search(r"\b(where|while)\b", text[max(0, group[0].start - 40):group[0].start].lower()):
                 continue
             # the phrase ends where the next clause starts ("... is learned and $l$ is the ...")
-            phrase = re.split(r"\s(?:while|whereas|which|that|where)\s|,?\s+and\s+(?=\$)", m.group(1))[0]
+            phrase = re.split(r"\s(?:while|whereas|which|that|where)\s|,?\s+and\s+(?=\$)|,\s*(?=\$)", m.group(1))[0]
             parts = [phrase]
             if "respective" in phrase and len(group) > 1:
                 split = [p.strip() for p in re.split(r",\s*(?:and\s+)?|\s+and\s+", phrase.replace("respectively", ""))
@@ -283,13 +288,25 @@ class PaperWords:
                 if role and x.loose not in self.definitions:
                     self.definitions[x.loose] = Definition(role, "paper", part.strip(), text, where)
         # "where $\beta$ is learned", "$W$ and $b$ are learnable", "a learned scalar $\beta$": learned parameters
-        for x in ms:
+        firsts = [x for k, x in enumerate(ms) if k == 0 or ms[k - 1].start != x.start]  # one per inline formula
+        for x in firsts:
             after, before = text[x.end:x.end + 60], text[max(0, x.start - 40):x.start]
             if re.match(rf"\$?\s*(?:,\s*\S{{1,30}}\s*)*(?:and\s+\$[^$]{{1,40}}\$\s*)?{_VERBS}\s+(?:a\s+|an\s+|also\s+)?"
                         r"(?:learn(?:ed|able|t)|trainable|optimi[sz]ed)\b", after, re.I) or \
-                    re.search(r"\b(?:learn(?:ed|able)|trainable)\s+(?:scalars?|parameters?|weights?|vectors?|matri(?:x|ces)|"
-                              r"coefficients?|factors?|offsets?|temperatures?)?\s*\$?\s*$", before, re.I):
+                    re.search(r"\b(?:learn(?:ed|able)|trainable)\s+(?:[a-z-]+\s+){0,2}\$?\s*$", before, re.I):
                 self.learned.setdefault(x.loose, (text, where))
+        # "$\mathbf{S}$ ... is clamped to [0, 1]", "kept non-negative": a constraint on the values of the symbols
+        # named before it in the clause
+        for m in re.finditer(r"\b(?:clamped|clipped|constrained|restricted|projected|kept|bounded)\s+"
+                             rf"(?:to|in|into|within|between)\s+\$?\s*\\?[\[(]\s*({_NUMBER})\s*,\s*({_NUMBER})\s*\\?[\])]|"
+                             r"\b(?:kept|constrained|clamped)\s+(non-?negative|positive)", text, re.I):
+            low, high = ((float(m.group(1)), float(m.group(2))) if m.group(1) else (0.0, None))
+            clause_start = max(text.rfind(";", 0, m.start()), text.rfind(".", 0, m.start()), 0)
+            # the subject: the first symbol of the last formula before the phrase that states no value (K = 4)
+            named = [x for x in firsts if clause_start <= x.start and x.end <= m.start() and
+                     (not x.exact or "=" not in text[x.start:x.end])]
+            if named and (high is None or low < high):
+                self.constraints.setdefault(named[-1].loose, (low, high, text, where))
         # "$c^{med}$ via sigmoid", "$a^{attn}$ and $a^{bs}$ via softplus": the output activation of a network
         for m in re.finditer(r"\bvia\s+(?:a\s+|an\s+)?(sigmoid|softplus|relu|tanh|exp)", text, re.I):
             clause_start = max(text.rfind(";", 0, m.start()), text.rfind(":", 0, m.start()), 0)
@@ -331,6 +348,10 @@ class PaperWords:
             self.widths.append((int(m.group(1)), text, where))
 
     # ------------------------------------------------------------------ look-ups
+    def constraint(self, sym: Symbol) -> tuple | None:
+        """(low, high, quote, where) of the sentence constraining ``sym``'s values, None when none does."""
+        return self.constraints.get(symbol_loose_key(sym))
+
     def is_learned(self, sym: Symbol) -> tuple | None:
         """(quote, where) of the sentence saying ``sym`` is learned, None when none does."""
         return self.learned.get(symbol_loose_key(sym))
