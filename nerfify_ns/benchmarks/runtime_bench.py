@@ -116,11 +116,17 @@ def step_variants(method: str, plugin: Path | None, repeats: int, threads: int,
     return json.loads(lines[-1])
 
 
-def steps(args: Args, peak_gflops: float, table: Table) -> dict:
+def _save(out: Path, results: dict) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "runtime.json").write_text(json.dumps(results, indent=2))
+
+
+def steps(args: Args, peak_gflops: float, table: Table, out: dict | None = None, save=None) -> dict:
     """In-process training steps under the :data:`STEP_VARIANTS`, interleaved, per method (see
     :func:`step_variants`), with each variant's fraction of the fp32 FLOP bound. A method with an occupancy
-    grid is rated with its grid updates amortised (one every 16 steps, as the trainer runs them)."""
-    out: dict = {}
+    grid is rated with its grid updates amortised (one every 16 steps, as the trainer runs them). Each method's
+    entry goes into ``out`` and ``save()`` is called after it."""
+    out = {} if out is None else out
     variants = tuple(args.step_variants)
     with tempfile.TemporaryDirectory() as tmp:
         plugin = args.plugin
@@ -150,6 +156,9 @@ def steps(args: Args, peak_gflops: float, table: Table) -> dict:
                           ", ".join(ratios) + (f", {100 * frac:.2f}% of fp32 peak" if frac else "")
                           + f" (load {load[0]:.1f}-{entry['load_after'][0]:.1f})")
             CONSOLE.print(f"{method}: {json.dumps({k: entry[k] for k in entry if 'rays_per_s' in k})}")
+            sys.stdout.flush()
+            if save is not None:
+                save()
     return out
 
 
@@ -319,7 +328,9 @@ def main(args: Args) -> dict:
         if args.threads != torch.get_num_threads():
             torch.set_num_threads(args.threads)
             peak["fp32_at_step_threads"] = gemm_gflops(torch.float32)
-        results["steps"] = steps(args, peak.get("fp32_at_step_threads", peak["fp32"]), table)
+        results["steps"] = {}
+        save = lambda: _save(args.out, results)  # noqa: E731 - after each method: a stopped run keeps what it measured
+        steps(args, peak.get("fp32_at_step_threads", peak["fp32"]), table, results["steps"], save)
     if args.mode in ("e2e", "both") and not args.skip_e2e:
         results["training"] = e2e(args, peak["fp32"], table)
     CONSOLE.print(table)
