@@ -35,11 +35,16 @@ Persistent state: a symbol that is both an input and defined (BioNeRF's memory
 ``\\Psi = \\tanh(W_\\Psi(\\mu + f_\\psi \\otimes \\Psi) + b_\\Psi)``) reads the given (previous) value on the right and
 is returned as the new value; without it as an input, "defined in terms of itself" is an error.
 
+Components: ``a_k`` inside a sum or product over the range of ``k`` is the k-th component of ``a``'s features
+(``\\sum_{k=1}^{K} a_k \\mathbf{m}_k`` with a learned K x 3 ``m`` is ``a @ m``); ``softmax`` is over the features
+(a temperature is the paper's division of its argument); a learned parameter may carry the paper's range
+(``ParamSpec.clamp``: initialised inside it, projected onto it at every training step).
+
 Not supported (each refused with its reason): packed samples (segment sums over ragged rays), shifted
 sample indices in evaluation (``t_{i+1}``: bind the quantity they define, e.g. ``delta``), reductions
-over sets other than samples/rays/integer ranges, max/min over an index, indexing by a range variable
-(``k_\\ell^m`` in a spherical-harmonics sum: read, but evaluation is refused), matrix literals, ellipses,
-factorials.
+over sets other than samples/rays/integer ranges, max/min over an index, a symbol indexed by two range
+variables (``k_\\ell^m`` in a spherical-harmonics sum: read, but evaluation is refused; the binder binds the
+basis), matrix literals, ellipses, factorials.
 
 Modules, in the order of the pipeline:
     normalize.py   noise of converted papers -> clean LaTeX pieces (columns kept)
