@@ -53,13 +53,13 @@ def test_enough_time_keeps_the_papers_settings():
 
 def test_samples_go_first_together_then_rays():
     plan = _nerf_plan()
-    roomy = _fit(plan, 2000)  # halving the samples is enough
+    roomy = _fit(plan, 4000)  # halving the samples is enough
     assert roomy.active and [k.kind for k in roomy.changed] == ["samples", "samples"]
     assert roomy.args() == ["--pipeline.model.num-coarse-samples", "32", "--pipeline.model.num-importance-samples",
                             "64"]  # halved together: the paper's 1:2 ratio kept
     assert roomy.headline(4096) == ("trained a CPU proxy: 96 instead of 192 samples per ray, 512 instead of 4096 "
                                     "rays per step")
-    tight = _fit(plan, 400)
+    tight = _fit(plan, 800)
     assert {k.kind for k in tight.changed} == {"samples", "rays"} and tight.rays < 512
     coarse, fine = (k for k in tight.knobs if k.kind == "samples")
     assert coarse.value == fine.value == 16  # both at their floors before any ray was taken away
@@ -68,11 +68,11 @@ def test_samples_go_first_together_then_rays():
 
 def test_a_proxy_that_reaches_the_target_is_the_mildest_that_does():
     plan = _nerf_plan()
-    fit = _fit(plan, 2000)
+    fit = _fit(plan, 4000)
     target = proxy_spec()["target"]
     assert fit.time.iterations >= target["iterations"]
     assert fit.time.iterations * fit.rays >= target["epochs"] * 24 * PIXELS
-    stronger = _fit(plan, 2000)
+    stronger = _fit(plan, 4000)
     assert stronger.args() == fit.args()  # deterministic
     # one step milder (the paper's samples) would not have reached it
     milder = Measured(0.6, 15.0, 128, smoke_samples(plan)[1])
@@ -80,7 +80,7 @@ def test_a_proxy_that_reaches_the_target_is_the_mildest_that_does():
 
     step = milder.seconds_per_iteration * (2 * 64 + 128) / (2 * 16 + 16) * 4
     try:
-        iterations = fit_iterations(2000, step, 15.0, 4 * PIXELS, 512, PAPER_BUDGET, most=30000).iterations
+        iterations = fit_iterations(4000, step, 15.0, 4 * PIXELS, 512, PAPER_BUDGET, most=30000).iterations
     except BudgetError:
         iterations = 0
     assert iterations < target["iterations"] or iterations * 512 < target["epochs"] * 24 * PIXELS
@@ -102,7 +102,7 @@ def test_the_width_goes_last_and_the_learning_rates_follow_it():
     from nerfify_ns.synthesis.schedule import scale_schedule
 
     plan = _nerf_plan()
-    assert not any(k.kind == "width" for k in _fit(plan, 400).changed)  # samples and rays were enough
+    assert not any(k.kind == "width" for k in _fit(plan, 800).changed)  # samples and rays were enough
     narrow = _fit(plan, 150)
     kinds = [k.kind for k in narrow.changed]
     assert "width" in kinds and {"samples", "rays"} <= set(kinds)
