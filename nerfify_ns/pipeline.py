@@ -549,9 +549,8 @@ def _proxy_budget(plan: dict, budget: Budget, data: Dataset | None) -> tuple[Bud
 
 def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
     """The evaluation summary with how its length was chosen (budget, schedule), written back."""
-    from nerfify_ns.evaluate.run_eval import write_json
-
     from nerfify_ns.budget import within_budget
+    from nerfify_ns.evaluate.run_eval import write_json
 
     summary = {**summary, "budget": run.budget, "schedule": run.schedule,
                "within_budget": within_budget(run.budget, summary)}
