@@ -468,15 +468,22 @@ class Survey:
     """Where survey.md and survey.json go."""
     verify: bool = False
     """Run each paper up to the verification ladder (minutes a paper) instead of the plan (seconds)."""
+    train: bool = False
+    """Run each paper through the whole pipeline with the default budget, one at a time (the budget and a margin a
+    paper; the run folders stay under OUT/runs): the table adds iterations trained, within budget, PSNR, colour ratio,
+    the CPU proxy and the found parts built and verified; papers the tool cannot build say why they did not train."""
 
     def main(self) -> None:
         from nerfify_ns.nerfifybench import survey as sv
 
         if not self.target.exists():
             raise UsageError(f"{self.target}: no such folder or suite; pass a folder of papers or a suite file")
-        rows = sv.survey(self.target, verify=self.verify)
+        rows = sv.survey(self.target, work=self.out / "runs" if self.train else None, verify=self.verify,
+                         train=self.train, on_row=lambda done: sv.write(done, self.out))
         sv.write(rows, self.out)
         CONSOLE.print(sv.table(rows), soft_wrap=True, highlight=False, markup=False)
+        if self.train:
+            CONSOLE.print(sv.train_table(rows), soft_wrap=True, highlight=False, markup=False)
         CONSOLE.print(f"outputs: {self.out} (survey.md, survey.json)", soft_wrap=True, highlight=False)
         if sv.totals(rows)["tracebacks"]:
             raise SystemExit(1)

@@ -5,6 +5,7 @@ novelty items, found / implemented / spurious.
 
     ns-nerfify survey ../shared/papers            # every .pdf/.md/.tex/.txt paper under the folder
     ns-nerfify survey examples/bench/dev.yaml     # the suite's papers, scored against its novelty items
+    ns-nerfify survey examples/bench/dev.yaml --train   # and each trained by the whole pipeline in its budget
 
 Scoring (deterministic, from the run's own plan.yaml):
 * an item of the paper's own (``NoveltyItem.novel``) is **found** when a hole (or a compiled ``custom`` part) lands
@@ -17,17 +18,29 @@ Scoring (deterministic, from the run's own plan.yaml):
 * the **family** is correct when the plan's family is the suite's.
 Each paper runs as ``ns-nerfify PAPER --until plan`` (``--verify``: ``--until verify``) in a subprocess with a time
 and memory limit; a paper that fails is a row with its one-line reason, never a traceback here.
+
+``--train``: each paper runs the whole pipeline, ``ns-nerfify PAPER`` with the default budget
+(``budget.DEFAULT_BUDGET_SECONDS``), one paper at a time, in a process group bounded by the budget plus
+:data:`TRAIN_MARGIN`; the row adds what its run folder states (:func:`read_training`): the exit code, the iterations
+trained of those planned, whether the run fitted its budget (the summary's ``within_budget``, with the run's wall time
+against the budget), PSNR, the colour ratio (``diagnostics.colour_spread_ratio``: the render's foreground colour
+spread over the ground truth's), the CPU proxy the plan's ``schedule.proxy`` records, and how many of the found parts
+were built and verified. A paper of a family the grammar cannot build (splatting, not a training method) stops after
+its plan: its row says why it was not trained.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import resource
+import signal
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +54,13 @@ PAPER_SUFFIXES = (".pdf", ".md", ".tex", ".txt")
 TIME_LIMIT = 300
 """Seconds one paper's run may take (the read and plan stages take seconds; the ladder, with --verify, minutes)."""
 MEMORY_LIMIT = 8 * 2**30
+TRAIN_MARGIN = 180
+"""Seconds a ``--train`` run may take past its budget before it is stopped (start-up of Python, torch and
+Nerfstudio in each process, and a loaded machine; ``within_budget`` judges the budget itself)."""
+TRAIN_MEMORY_LIMIT = 12 * 2**30
+"""Address space of a ``--train`` run (the pipeline and the training processes it starts inherit it)."""
+BUILT = ("implemented", "partly implemented")
+"""Statuses of a found part that was built (compiled from the paper's equations or sentences)."""
 _STOP = set("a an the of for and or to in on with by from as at is are we our its their this that each per".split())
 
 
@@ -60,6 +80,8 @@ class PaperRow:
     """Per novel item: {id, production, found, implemented, hole}."""
     spurious: list = field(default_factory=list)
     seconds: float = 0.0
+    train: dict = field(default_factory=dict)
+    """``--train`` only: what the run folder states (:func:`read_training`)."""
 
     @property
     def family_ok(self) -> bool | None:
@@ -116,39 +138,79 @@ def score_row(row: PaperRow, entry: PaperEntry) -> None:
         row.spurious.append(f"{h.get('production')}: {h.get('contribution') or h.get('section')}")
 
 
-def _limits() -> None:  # pragma: no cover - runs in the child
-    resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
+def _limits(memory: int = MEMORY_LIMIT):  # pragma: no cover - runs in the child
+    def apply() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (memory, memory))
+    return apply
 
 
-def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeout: int = TIME_LIMIT) -> PaperRow:
-    """One paper through ``ns-nerfify PAPER --until plan`` (or verify) in its own process; the row from its plan."""
+def _run_bounded(command: list[str], timeout: float, memory: int) -> tuple[int, str] | None:
+    """(exit code, output) of ``command`` in a process group of its own; None when it ran past ``timeout`` seconds
+    (the whole group is killed then: the pipeline's training processes with it)."""
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=_limits(memory), start_new_session=True)
+    try:
+        output, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.communicate()
+        return None
+    return proc.returncode, output
+
+
+def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeout: int = TIME_LIMIT,
+                  train: bool = False) -> PaperRow:
+    """One paper through ``ns-nerfify PAPER --until plan`` (or verify, or with ``train`` the whole pipeline with the
+    default budget) in its own process; the row from its plan (and run folder)."""
     row = PaperRow(pid, str(paper))
     cli = Path(sys.executable).with_name("ns-nerfify")
-    command = ([str(cli), str(paper), "--until", "verify", "--out", str(out), "--overwrite"] if verify else
-               [sys.executable, "-m", "nerfify_ns.nerfifybench.survey", str(paper), str(out)])
+    memory = MEMORY_LIMIT
+    if train:
+        from nerfify_ns.budget import DEFAULT_BUDGET_SECONDS
+
+        command = [str(cli), str(paper), "--out", str(out), "--overwrite"]
+        timeout, memory = int(DEFAULT_BUDGET_SECONDS + TRAIN_MARGIN), TRAIN_MEMORY_LIMIT
+    elif verify:
+        command = [str(cli), str(paper), "--until", "verify", "--out", str(out), "--overwrite"]
+    else:
+        command = [sys.executable, "-m", "nerfify_ns.nerfifybench.survey", str(paper), str(out)]
     start = time.perf_counter()
-    try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout, preexec_fn=_limits)
-    except subprocess.TimeoutExpired:
-        row.error, row.seconds = f"stopped after the {timeout} s limit of one paper", float(timeout)
-        return row
+    done = _run_bounded(command, timeout, memory)
     row.seconds = round(time.perf_counter() - start, 1)
-    row.exit_code = done.returncode
-    lines = [x for x in (done.stdout + done.stderr).splitlines() if x.strip()]
+    if done is None:
+        row.error = f"stopped after the {timeout} s limit of one paper"
+        if train:
+            row.train = {"trained": False, "why": f"stopped after {timeout} s (the budget and a {TRAIN_MARGIN} s "
+                                                  "margin)", "wall_seconds": row.seconds}
+        return row
+    row.exit_code, output = done
+    lines = [x for x in output.splitlines() if x.strip()]
     failed = next((x for x in lines if x.startswith(("failed ", "error:"))), "")
-    if "Traceback" in done.stdout + done.stderr:
+    if "Traceback" in output:
         row.error = "a traceback: " + (lines[-1] if lines else "")
     elif failed:
         row.error = failed
+    read_plan(row, out, lines)
+    if train:
+        read_training(row, out)
+    return row
+
+
+def read_plan(row: PaperRow, out: Path, lines: list[str] | None = None) -> None:
+    """The row's family, base, contributions and holes (a compiled ``custom`` part among them) from ``out``'s plan."""
+    lines = lines or []
     plan_file = out / runfolder.PLAN
     if not plan_file.is_file():
-        row.error = row.error or (lines[-1] if lines else f"exit {done.returncode}, no plan")
-        return row
+        row.error = row.error or (lines[-1] if lines else f"exit {row.exit_code}, no plan")
+        return
     try:
         plan = load_yaml(plan_file, what="the paper's plan") or {}
     except NerfifyError as exc:
         row.error = row.error or f"its plan could not be read: {exc}"
-        return row
+        return
     family = plan.get("family") or {}
     row.family = family.get("name", "")
     row.base = plan.get("base", "")
@@ -165,7 +227,55 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
                           "claim": custom.get("claim", ""), "text": custom.get("text", ""),
                           "equations": [{"number": n} for n in custom.get("implements", [])],
                           "status": custom.get("status", "implemented"), "slot": path})
-    return row
+
+
+def _load(path: Path, what: str) -> dict:
+    try:
+        data = load_json(path, what=what) if path.is_file() else {}
+    except NerfifyError:
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def read_training(row: PaperRow, out: Path) -> None:
+    """``row.train`` from the run folder ``out`` of ``ns-nerfify PAPER`` (``run.json``, ``eval/summary.json``,
+    ``plan.yaml``; ``read_plan`` has filled the holes): trained or why not, the iterations done of those planned,
+    ``within_budget`` with the run's wall time (``row.seconds``) and the budget, PSNR, the colour ratio, the CPU proxy
+    (``schedule.proxy``), and the found parts built and verified (built: compiled; verified: built, and the ladder's
+    rungs all passed, none "not verified: time")."""
+    stages = {s.get("name"): s for s in _load(out / runfolder.OUTCOME, "the run's outcome").get("stages", [])}
+    summary = _load(out / runfolder.EVAL_DIR / runfolder.SUMMARY, "the evaluation summary")
+    record = summary.get("budget") or {}
+    plan = {}
+    if (out / runfolder.PLAN).is_file():
+        try:
+            plan = load_yaml(out / runfolder.PLAN, what="the paper's plan") or {}
+        except NerfifyError:
+            plan = {}
+    schedule = summary.get("schedule") or plan.get("schedule") or {}
+    proxy = schedule.get("proxy") if isinstance(schedule, dict) else None
+    ladder = stages.get("verify") or {}
+    ladder_ok = ladder.get("status") == "ran" and "not verified" not in str(ladder.get("summary", ""))
+    built = [h for h in row.holes if h.get("status") in BUILT]
+    train = stages.get("train") or {}
+    trained = summary.get("status") == "ok"
+    why = ""
+    if not trained:
+        failed = next((s for s in stages.values() if s.get("status") == "failed"), None)
+        why = (f"{failed['name']} failed: {failed.get('reason', '')}" if failed else
+               summary.get("reason") or row.error or f"the train stage {train.get('status') or 'did not run'}")
+        if row.exit_code == 1 and row.error.startswith("failed plan") and not summary:
+            why = "not built: " + row.error[len("failed plan: "):]
+    diagnostics = summary.get("diagnostics") or {}
+    row.train = {
+        "trained": trained, "why": why[:300],
+        "iterations": summary.get("iterations_done"), "planned": record.get("iterations", summary.get("iterations")),
+        "within_budget": summary.get("within_budget"), "wall_seconds": row.seconds,
+        "budget_seconds": record.get("seconds"), "train_seconds": summary.get("seconds"),
+        "psnr": summary.get("psnr"), "colour_ratio": diagnostics.get("colour_spread_ratio"),
+        "proxy": (proxy.get("headline") if isinstance(proxy, dict) else None),
+        "found": len(row.holes), "built": len(built), "verified": len(built) if ladder_ok else 0,
+    }
 
 
 def _customs(plan: Any, prefix: str = "") -> list:
@@ -213,16 +323,21 @@ def papers_of(target: Path) -> list[tuple[str, Path, PaperEntry | None]]:
     return [(f.stem, f, None) for f in files]
 
 
-def survey(target: Path, work: Path | None = None, verify: bool = False) -> list[PaperRow]:
-    rows = []
+def survey(target: Path, work: Path | None = None, verify: bool = False, train: bool = False,
+           on_row: Callable[[list[PaperRow]], None] | None = None) -> list[PaperRow]:
+    """Every paper of ``target``, one at a time; ``on_row(rows so far)`` after each (a long survey's partial table).
+    ``work``: where the run folders stay (a temporary folder when None)."""
+    rows: list[PaperRow] = []
     with tempfile.TemporaryDirectory(prefix="nerfify-survey-") as tmp:
         base = Path(work or tmp)
         for pid, paper, entry in papers_of(target):
-            row = run_paper_row(pid, paper, base / pid, verify)
+            row = run_paper_row(pid, paper, base / pid, verify, train=train)
             if entry is not None:
                 row.family_expected = entry.family
                 score_row(row, entry)
             rows.append(row)
+            if on_row is not None:
+                on_row(rows)
     return rows
 
 
@@ -302,12 +417,49 @@ def table(rows: list[PaperRow]) -> str:
     return "\n".join(lines)
 
 
+def _num(value: Any, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+def train_table(rows: list[PaperRow]) -> str:
+    """``--train``: one line a paper: exit, iterations trained of those planned, within the budget (wall time against
+    the budget), PSNR, colour ratio, the CPU proxy, the found parts built and verified, and why it did not train."""
+    lines = ["| paper | exit | trained (iterations) | within budget (wall / budget) | PSNR (dB) | colour ratio "
+             "| CPU proxy | found parts built / verified | why not trained |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        t = r.train
+        if not t:
+            continue
+        trained = f"yes ({t.get('iterations')} of {t.get('planned')})" if t.get("trained") else "no"
+        fits = {True: "yes", False: "no", None: "-"}[t.get("within_budget")]
+        fits += f" ({_num(t.get('wall_seconds'), '.0f')} s / {_num(t.get('budget_seconds'), '.0f')} s)"
+        parts = f"{t.get('built', 0)} / {t.get('verified', 0)} of {t.get('found', 0)}" if "found" in t else "-"
+        lines.append(f"| {r.id} | {r.exit_code if r.exit_code is not None else '-'} | {trained} | {fits} | "
+                     f"{_num(t.get('psnr'), '.2f')} | {_num(t.get('colour_ratio'), '.2f')} | "
+                     f"{'yes: ' + t['proxy'] if t.get('proxy') else 'no'} | {parts} | {t.get('why') or ''} |")
+    return "\n".join(lines)
+
+
 def write(rows: list[PaperRow], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "survey.json").write_text(json.dumps({"rows": [r.to_dict() for r in rows], "totals": totals(rows)},
                                                 indent=2, default=str))
-    (out / "survey.md").write_text(table(rows) + "\n")
+    trained = train_table(rows) if any(r.train for r in rows) else ""
+    (out / "survey.md").write_text(table(rows) + "\n" + (f"\n{trained}\n" if trained else ""))
+
+
+USAGE = ("usage: python -m nerfify_ns.nerfifybench.survey PAPER OUT  (one survey row's child: the paper's plan into "
+         "OUT; run `ns-nerfify survey DIR|SUITE` for the survey)")
+
+
+def main(argv: list[str]) -> int:
+    """The child entry point: ``PAPER OUT``; anything else is the usage line, exit 2."""
+    if len(argv) != 2 or argv[0].startswith("-"):
+        print(USAGE, file=sys.stderr)
+        return 2
+    return _read_paper(Path(argv[0]), Path(argv[1]))
 
 
 if __name__ == "__main__":
-    sys.exit(_read_paper(Path(sys.argv[1]), Path(sys.argv[2])))
+    sys.exit(main(sys.argv[1:]))
