@@ -46,6 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from nerfify_ns import runfolder
+from nerfify_ns.budget import DEFAULT_BUDGET_SECONDS
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry, load_suite
 from nerfify_ns.safeio import load_json, load_yaml
@@ -169,8 +170,6 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
     cli = Path(sys.executable).with_name("ns-nerfify")
     memory = MEMORY_LIMIT
     if train:
-        from nerfify_ns.budget import DEFAULT_BUDGET_SECONDS
-
         command = [str(cli), str(paper), "--out", str(out), "--overwrite"]
         timeout, memory = int(DEFAULT_BUDGET_SECONDS + TRAIN_MARGIN), TRAIN_MEMORY_LIMIT
     elif verify:
@@ -183,8 +182,9 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
     if done is None:
         row.error = f"stopped after the {timeout} s limit of one paper"
         if train:
-            row.train = {"trained": False, "why": f"stopped after {timeout} s (the budget and a {TRAIN_MARGIN} s "
-                                                  "margin)", "wall_seconds": row.seconds}
+            row.train = {"trained": False, "within_budget": False, "wall_seconds": row.seconds,
+                         "budget_seconds": DEFAULT_BUDGET_SECONDS,
+                         "why": f"stopped after {timeout} s (the budget and a {TRAIN_MARGIN} s margin)"}
         return row
     row.exit_code, output = done
     lines = [x for x in output.splitlines() if x.strip()]
@@ -195,7 +195,7 @@ def run_paper_row(pid: str, paper: Path, out: Path, verify: bool = False, timeou
         row.error = failed
     read_plan(row, out, lines)
     if train:
-        read_training(row, out)
+        read_training(row, out, DEFAULT_BUDGET_SECONDS)
     return row
 
 
@@ -237,12 +237,14 @@ def _load(path: Path, what: str) -> dict:
     return data if isinstance(data, dict) else {}
 
 
-def read_training(row: PaperRow, out: Path) -> None:
+def read_training(row: PaperRow, out: Path, budget_seconds: float | None = None) -> None:
     """``row.train`` from the run folder ``out`` of ``ns-nerfify PAPER`` (``run.json``, ``eval/summary.json``,
     ``plan.yaml``; ``read_plan`` has filled the holes): trained or why not, the iterations done of those planned,
     ``within_budget`` with the run's wall time (``row.seconds``) and the budget, PSNR, the colour ratio, the CPU proxy
     (``schedule.proxy``), and the found parts built and verified (built: compiled; verified: built, and the ladder's
-    rungs all passed, none "not verified: time")."""
+    rungs all passed, none "not verified: time"). ``budget_seconds``: the budget the run was given, for a run that
+    stopped before its summary recorded one; a paper the tool can build that did not train did not fit it. A paper
+    of a family the grammar cannot build (the plan's ``family.buildable``) was not trained, and says why."""
     stages = {s.get("name"): s for s in _load(out / runfolder.OUTCOME, "the run's outcome").get("stages", [])}
     summary = _load(out / runfolder.EVAL_DIR / runfolder.SUMMARY, "the evaluation summary")
     record = summary.get("budget") or {}
@@ -259,19 +261,25 @@ def read_training(row: PaperRow, out: Path) -> None:
     built = [h for h in row.holes if h.get("status") in BUILT]
     train = stages.get("train") or {}
     trained = summary.get("status") == "ok"
+    family = plan.get("family") if isinstance(plan.get("family"), dict) else {}
+    buildable = family.get("buildable", True) is not False
     why = ""
     if not trained:
         failed = next((s for s in stages.values() if s.get("status") == "failed"), None)
         why = (f"{failed['name']} failed: {failed.get('reason', '')}" if failed else
                summary.get("reason") or row.error or f"the train stage {train.get('status') or 'did not run'}")
-        if row.exit_code == 1 and row.error.startswith("failed plan") and not summary:
-            why = "not built: " + row.error[len("failed plan: "):]
+        if not buildable:
+            why = f"not built: a {family.get('name', '?')} paper" + (f": {family['why']}" if family.get("why") else "")
+    within = summary.get("within_budget")
+    if within is None and not trained and buildable and (record.get("seconds") or budget_seconds) is not None:
+        within = False
     diagnostics = summary.get("diagnostics") or {}
     row.train = {
         "trained": trained, "why": why[:300],
         "iterations": summary.get("iterations_done"), "planned": record.get("iterations", summary.get("iterations")),
-        "within_budget": summary.get("within_budget"), "wall_seconds": row.seconds,
-        "budget_seconds": record.get("seconds"), "train_seconds": summary.get("seconds"),
+        "within_budget": within, "wall_seconds": row.seconds,
+        "budget_seconds": record.get("seconds", budget_seconds if buildable else None),
+        "train_seconds": summary.get("seconds"),
         "psnr": summary.get("psnr"), "colour_ratio": diagnostics.get("colour_spread_ratio"),
         "proxy": (proxy.get("headline") if isinstance(proxy, dict) else None),
         "found": len(row.holes), "built": len(built), "verified": len(built) if ladder_ok else 0,

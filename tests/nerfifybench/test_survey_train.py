@@ -70,15 +70,33 @@ def test_a_run_past_its_budget_and_a_ladder_out_of_time_say_so(tmp_path):
 def test_a_family_the_tool_cannot_build_is_not_trained_and_says_why(tmp_path):
     out = tmp_path / "run"
     out.mkdir()
-    (out / runfolder.PLAN).write_text(yaml.safe_dump({"base": "kplanes", "family": {"name": "splatting"},
-                                                      "holes": []}))
+    family = {"name": "splatting", "buildable": False, "why": "Gaussian splatting: the grammar builds fields"}
+    (out / runfolder.PLAN).write_text(yaml.safe_dump({"base": "kplanes", "family": family, "holes": []}))
     (out / runfolder.OUTCOME).write_text(json.dumps({"stages": [
-        {"name": "plan", "status": "failed", "reason": "a Gaussian-splatting paper: the grammar builds fields"},
+        {"name": "plan", "status": "failed", "reason": "a splatting paper"},
         {"name": "train", "status": "not run"}]}))
-    row = _row(out, seconds=20.0, exit_code=1)
+    row = sv.PaperRow("paper", "paper.md", exit_code=1, seconds=20.0)
+    sv.read_plan(row, out)
+    sv.read_training(row, out, budget_seconds=240.0)
     assert row.train["trained"] is False and row.train["iterations"] is None
-    assert "Gaussian-splatting" in row.train["why"]
+    assert row.train["why"] == "not built: a splatting paper: Gaussian splatting: the grammar builds fields"
     assert sv.train_table([row]).splitlines()[-1].startswith("| paper | 1 | no | - (20 s / - s) |")
+
+
+def test_a_buildable_paper_whose_train_stage_failed_did_not_fit_its_budget(tmp_path):
+    out = _run_folder(tmp_path, within=True)
+    (out / runfolder.EVAL_DIR / runfolder.SUMMARY).unlink()
+    reason = "the budget leaves 143 s for training and evaluation, and 10 iterations need about 171 s"
+    (out / runfolder.OUTCOME).write_text(json.dumps({"stages": [
+        {"name": "verify", "status": "ran", "summary": "static pass, contract pass, stability pass, smoke pass"},
+        {"name": "train", "status": "failed", "reason": reason}]}))
+    row = sv.PaperRow("paper", "paper.md", exit_code=1, seconds=111.0)
+    sv.read_plan(row, out)
+    sv.read_training(row, out, budget_seconds=240.0)
+    t = row.train
+    assert (t["trained"], t["within_budget"], t["budget_seconds"]) == (False, False, 240.0)
+    assert t["why"] == f"train failed: {reason}"
+    assert "| no | no (111 s / 240 s) |" in sv.train_table([row]).splitlines()[-1]
 
 
 def test_a_bounded_child_past_its_limit_is_stopped_with_its_process_group(tmp_path):
