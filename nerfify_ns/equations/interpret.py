@@ -269,11 +269,16 @@ class _Eval:
         return Val(np.broadcast_to(result, shape).copy(), axes)
 
     def reduce(self, r: Reduce) -> Val:
-        op = np.sum if r.kind == "sum" else np.prod
+        op = {"sum": np.sum, "prod": np.prod, "min": np.min, "max": np.max}[r.kind]
+        extreme = r.kind in ("min", "max")
+        if extreme and r.mode != "full":
+            raise CompileError(f"{self.where}: a running {r.kind} over earlier samples is not read")
         if r.axis == "range":
             return self._range(r)
         if r.axis == "rays":
             body = self.ev(r.body)
+            if RAY not in body.axes and extreme:
+                return body
             if RAY not in body.axes:
                 factor = self.n_rays
                 return Val(body.a * factor if r.kind == "sum" else body.a ** factor, body.axes)
@@ -313,7 +318,11 @@ class _Eval:
         if float(hi.a) - float(lo.a) + 1 > MAX_RANGE:
             raise CompileError(f"{self.where}: a range of more than {MAX_RANGE} terms")
         lo_i, hi_i = int(lo.a), int(hi.a)
-        acc = Val(np.asarray(0.0 if r.kind == "sum" else 1.0), ())
+        extreme = r.kind in ("min", "max")
+        if extreme and hi_i < lo_i:
+            raise CompileError(f"{self.where}: a {r.kind} over an empty range")
+        combine = {"sum": np.add, "prod": np.multiply, "min": np.minimum, "max": np.maximum}[r.kind]
+        acc = None if extreme else Val(np.asarray(0.0 if r.kind == "sum" else 1.0), ())
         for k in range(lo_i, hi_i + 1):
             self.iterations += 1
             if self.iterations > MAX_RANGE_ITERATIONS:
@@ -321,7 +330,7 @@ class _Eval:
             self.ranges[r.index] = float(k)
             self.range_lo[r.index] = lo_i
             term = self.ev(r.body)
-            acc = self.binary(np.add if r.kind == "sum" else np.multiply, acc, term)
+            acc = term if acc is None else self.binary(combine, acc, term)
         self.ranges.pop(r.index, None)
         return acc
 

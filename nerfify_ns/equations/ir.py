@@ -183,8 +183,9 @@ class Norm:
 
 @dataclass(frozen=True)
 class Equation:
-    """``lhs = rhs`` (relation '=', ':=' or '~=' for approx); ``also``: further right-hand sides of a chain
-    ``a = b = c``; ``number``: the paper's equation number; ``source``: the LaTeX as given."""
+    """``lhs = rhs`` (relation '=', ':=', '~=' for approx, or 'propto': lhs is rhs up to a constant factor);
+    ``also``: further right-hand sides of a chain ``a = b = c``; ``number``: the paper's equation number;
+    ``source``: the LaTeX as given."""
 
     lhs: Expr
     rhs: Expr

@@ -384,12 +384,17 @@ class _Lower:
         return result
 
     def reduce(self, r: Reduce) -> _C:
-        fn = "torch.sum" if r.kind == "sum" else "torch.prod"
+        fn = _REDUCE_FN[r.kind]
+        extreme = r.kind in ("min", "max")
+        if extreme and r.mode != "full":
+            raise LoweringError(f"{self.where}: a running {r.kind} over earlier samples is not read")
         if r.axis == "range":
             return self._range(r)
         if r.axis == "rays":
             c = self.lo(r.body)
             if RAY not in c.t.axes:
+                if extreme:
+                    return c  # the min (max) over the rays of what does not depend on the ray
                 if self.ray_ref is None:
                     raise LoweringError(f"{self.where}: a sum over rays without any per-ray input")
                 self.uses_n_rays = True
@@ -412,6 +417,8 @@ class _Lower:
             fr = len(body.t.feat)
             body = _C(f"{self.align(body, axes, fr, _MUL)} * {self.align(ones, axes, fr, _MUL + 1)}", _MUL,
                       _T(axes, body.t.feat))
+        if v not in body.t.axes and extreme:
+            return body  # the min (max) over the samples of what does not depend on the sample
         if v not in body.t.axes:
             n = self._n_samples()
             op = "*" if r.kind == "sum" else "**"
@@ -494,20 +501,30 @@ class _Lower:
         stop = str(hi_value + 1) if hi_value is not None else f"{hi} + 1"
         acc = self.names.fresh("acc", r.kind)
         loop = self.names.fresh("k", r.index)
-        self._emit(f"{acc} = {0.0 if r.kind == 'sum' else 1.0}")
+        extreme = r.kind in ("min", "max")
+        if extreme and lo_value is not None and hi_value is not None and hi_value < lo_value:
+            raise LoweringError(f"{self.where}: a {r.kind} over an empty range")
+        self._emit(f"{acc} = {'None' if extreme else (0.0 if r.kind == 'sum' else 1.0)}")
         self._emit(f"for {loop} in range({lo}, {stop}):")
         self.loop_vars[r.index] = loop
         self.loop_lo[r.index] = lo
         self.indent += 1
         try:
             body = self.lo(r.body)
-            op = "+" if r.kind == "sum" else "*"
-            self._emit(f"{acc} = {acc} {op} {_paren(body, _MUL + 1)}")
+            if extreme:  # the first term, then the elementwise min (max) of the terms so far
+                pick = ("torch.minimum" if r.kind == "min" else "torch.maximum") if body.tensor else r.kind
+                self._emit(f"{acc} = {body.code} if {acc} is None else {pick}({acc}, {body.code})")
+            else:
+                op = "+" if r.kind == "sum" else "*"
+                self._emit(f"{acc} = {acc} {op} {_paren(body, _MUL + 1)}")
         finally:
             self.indent -= 1
             self.loop_vars.pop(r.index, None)
             self.loop_lo.pop(r.index, None)
         return _C(acc, _ATOM, body.t, body.tensor)
+
+
+_REDUCE_FN = {"sum": "torch.sum", "prod": "torch.prod", "min": "torch.amin", "max": "torch.amax"}
 
 
 def _as_equations(ir) -> list[Equation]:

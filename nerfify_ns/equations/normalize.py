@@ -43,6 +43,7 @@ form works on the text as given rather than on ``normalize_latex``'s output):
     trailing . , ; and the comma before \\quad                      removed
     numbers (``read_numbers``): 1 0 ^ { - 2 }, 5 1 2, 0 . 0 0 1    10^{-2}, 512, 0.001
     (MinerU's spaced digits), 8\\,192, 1e-2, 10⁻³, 2¹⁹, 5·10⁻⁴       8192, 0.01, 10^{-3}, 2^{19}, 5\\cdot 10^{-4}
+    thousands: 1{,}000, 12{,}345{,}678 (not a decimal comma 0{,}5)    1000, 12345678
 
 ``normalize_numbers(text)`` is the same number reading on a plain string: ``normalize_latex`` and the
 hyperparameter reader (``paper/hyperparams.py``) call it, so a number is read one way wherever it appears.
@@ -132,6 +133,9 @@ _BLANK = r"(?:[ \t\n]|\\[,;:! ]|~|[\u00a0\u2006\u2009\u202f])"
 _THIN = r"[\u00a0\u2006\u2009\u202f]"
 _SPACED_DIGITS = re.compile(rf"(?<![A-Za-z0-9.\\])\d(?:{_BLANK}*\.{_BLANK}*\d|{_BLANK}+\d|\d)+")
 _THOUSANDS = re.compile(rf"(?<![\d.,]){_THIN}*\d{{1,3}}(?:{_THIN}\d{{3}})+(?![\d.,])")
+_BRACED_THOUSANDS = re.compile(r"(?<![\d.,])[1-9]\d{0,2}(?:\{\s*,\s*\}\d{3})+(?![\d.,]|\{\s*,)")
+"""``1{,}000``, ``10{,}000{,}000``: TeX's braced comma between groups of three digits (a thousands separator);
+``0{,}5`` or ``1{,}25`` (a decimal comma) is not matched and is left as it is."""
 _E_NOTATION = re.compile(r"(?<![A-Za-z0-9.\\_^])(\d+(?:\.\d+)?)(?:[eE]([-+]?)|\s*[eE]\s*([-+]))\s*(\d{1,4})"
                          r"(?![A-Za-z0-9.])")
 MAX_DECIMAL_EXPONENT = 30
@@ -191,13 +195,14 @@ def read_numbers(m: Mapped, *, math: bool = True) -> Mapped:
     """Numbers in every notation papers use, as plain LaTeX numbers (the module docstring's table). ``math``:
     the text is mathematics (a formula, ``$...$``), where any blank between digits is a converter's; in prose
     only thin spaces (and no-break spaces) between groups of three digits join them."""
-    m = _scripts(m)
+    m = _scripts(m).sub(_BRACED_THOUSANDS, lambda x: re.sub(r"\{\s*,\s*\}", "", x.group(0)))
     if not math:
         return m.sub(_THOUSANDS, lambda x: re.sub(_THIN, "", x.group(0)))
     return _e_notation(_spaced_digits(m))
 
 
-_PROSE_WORK = re.compile("[" + re.escape("".join(_SCRIPTS)) + "\u2212]|" + _THOUSANDS.pattern)
+_PROSE_WORK = re.compile("[" + re.escape("".join(_SCRIPTS)) + "\u2212]|" + _THOUSANDS.pattern + "|"
+                         + _BRACED_THOUSANDS.pattern)
 
 
 def normalize_numbers(text: str, *, math: bool = True) -> str:

@@ -28,9 +28,9 @@ from pathlib import Path
 from lark import Lark, Token
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken, VisitError
 
-from .ir import DEFAULT_CONVENTIONS, Conventions, Equation, Expr, ParseFailure, depth
+from .ir import DEFAULT_CONVENTIONS, Conventions, Equation, Expr, ParseFailure, Reduce, depth
 from .normalize import MAX_CHARS, Mapped, NormalizeError, normalize
-from .reader import APPROX_RELATIONS, DEFINE_RELATIONS, Reader, ReadError, Word
+from .reader import APPROX_RELATIONS, DEFINE_RELATIONS, OBJECTIVE, Reader, ReadError, Word
 
 MAX_IR_DEPTH = 120
 MAX_EQUATIONS = 64
@@ -94,15 +94,23 @@ def _equation(parts, piece: Mapped, latex: str, number: str | None, conventions:
         if isinstance(e, Word):
             return _failure("a word where an expression should be", piece, e.pos, e.text, latex, number)
     if not ops:
+        if isinstance(exprs[0], Reduce) and exprs[0].kind in ("min", "max"):  # \min_{\Theta} L: what training does
+            return _failure(f"{OBJECTIVE} ({exprs[0].kind} over {exprs[0].index}), not an equation", piece, None,
+                            "", latex, number)
         return _failure("no '=': an expression, not an equation", piece, None, "", latex, number)
     first = str(ops[0])
-    bad = [op for op in ops if op.type != "REL" or str(op) in (r"\propto", r"\to", r"\rightarrow", r"\mapsto",
+    bad = [op for op in ops if op.type != "REL" or str(op) in (r"\to", r"\rightarrow", r"\mapsto",
                                                                r"\leftarrow", r"\Rightarrow", r"\leftrightarrow")]
     if bad:
         op = bad[0]
         what = "an inequality or membership" if op.type in ("CMP", "IN") else "not an equality"
         return _failure(f"{what}, not an equation", piece, op.start_pos, str(op), latex, number)
-    relation = ":=" if first in DEFINE_RELATIONS else ("~=" if first in APPROX_RELATIONS else "=")
+    prop = next((op for op in ops if str(op) == r"\propto"), None)
+    if prop is not None and len(ops) > 1:
+        return _failure("a chain with a proportionality", piece, prop.start_pos, str(prop), latex, number)
+    # a \propto b: a definition up to a constant factor; the binder takes the factor as 1 and says so
+    relation = "propto" if first == r"\propto" else \
+        (":=" if first in DEFINE_RELATIONS else ("~=" if first in APPROX_RELATIONS else "="))
     for e in exprs:
         if depth(e) > MAX_IR_DEPTH:
             return _failure(f"nested more than {MAX_IR_DEPTH} levels deep", piece, None, "", latex, number)

@@ -632,11 +632,14 @@ class Reader(Transformer):
                 var = item.items[0] if isinstance(item, _Rel) and item.ops[0] in (r"\sim", r"\in") else item
                 index = self._index_name(var, sub.pos)
             return Expectation(index, body)
-        kind = "sum" if op == r"\sum" else "prod"
+        kind = {r"\sum": "sum", r"\prod": "prod", r"\min": "min", r"\max": "max"}[op]
         upper = self._sarg_expr(sup) if sup is not None else None
         if sub is None:
             return Reduce(kind, "", None, upper, None, body)
         specs = []
+        if kind in ("min", "max") and not all(isinstance(i, _Rel) or _is_index(i) for i in sub.items):
+            raise ReadError(f"{OBJECTIVE} ({kind} over the parameters {sub.raw[:30]}), not an equation",
+                            meta.start_pos, op + "_")
         for item in sub.items:
             if isinstance(item, _Rel):
                 if len(item.ops) != 1:
@@ -664,8 +667,7 @@ class Reader(Transformer):
         return result
 
     def _index_name(self, var, pos) -> str:
-        if (isinstance(var, Symbol) and not var.subscripts and not var.superscript and not var.args
-                and set(var.decorations) <= {"prime"}):
+        if _is_index(var):
             return var.name + "'" * len(var.decorations)  # k' is its own index
         raise ReadError("an index that is not a single variable", pos, "_")
 
@@ -695,6 +697,14 @@ class Reader(Transformer):
         upper = self._sarg_expr(sup) if sup is not None else None
         return Integral(var, lower, upper, integrand)
 
+
+def _is_index(var) -> bool:
+    return (isinstance(var, Symbol) and not var.subscripts and not var.superscript and not var.args
+            and set(var.decorations) <= {"prime"})
+
+
+OBJECTIVE = "a training objective"
+"""The reason for ``\\min_{\\Theta} L`` (what training minimises over the parameters): read as no definition."""
 
 _GREEK_NAMES = {
     "alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "iota", "kappa", "lambda", "mu", "nu",

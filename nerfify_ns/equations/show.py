@@ -56,7 +56,7 @@ def _num(n: Number) -> str:
 
 def show(e: Expr | Equation, prec: int = 0) -> str:
     if isinstance(e, Equation):
-        rel = {"=": "=", ":=": ":=", "~=": "~="}.get(e.relation, "=")
+        rel = {"=": "=", ":=": ":=", "~=": "~=", "propto": "propto"}.get(e.relation, "=")
         return f"{show(e.lhs)} {rel} {show(e.rhs)}"
     if isinstance(e, Symbol):
         return _sym(e)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from nerfify_ns.equations import Equation, compile_equations, parse_equation
+from nerfify_ns.equations import Equation, ParseFailure, compile_equations, parse_equation, parse_equations
 
 
 def _run(compiled, *args, params: dict | None = None):
@@ -118,3 +118,66 @@ def test_indexed_sums_and_products_over_components_and_levels():
 def test_a_component_past_the_features_is_refused():
     compiled = compile_equations([r"y = \sum_{k=1}^{K} a_k"], {"a": ("R", 3)}, ["y"], {"K": 5})
     assert not compiled.ok and ("past its 3 features" in compiled.reason or "out of range" in compiled.reason)
+
+
+def test_a_min_and_a_max_over_a_range_of_components_reduce_that_axis():
+    """``\\min_{k=1}^{K} a_k``: the elementwise min over the k-th components, like an indexed sum; gradients flow to
+    the component each min (max) picks."""
+    latex = [(r"m = \min_{k=1}^{K} a_k", "1"), (r"y = \max_{k=1}^{K} (a_k s_k) - m", "2")]
+    compiled = compile_equations(latex, {"a": ("R", 4), "s": ("R", 4)}, ["y"], {"K": 4})
+    assert compiled.ok, compiled.reason
+    a = torch.randn(6, 4, dtype=torch.float64, requires_grad=True)
+    s = torch.randn(6, 4, dtype=torch.float64, requires_grad=True)
+    _, got = _run(compiled, a, s)
+    want = (a * s).amax(dim=-1) - a.amin(dim=-1)
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (a, s))
+
+
+def test_a_max_over_the_samples_of_a_ray_is_a_reduction_over_the_sample_axis():
+    compiled = compile_equations([(r"D(\mathbf{r}) = \max_{i} \sigma_i t_i", "1")],
+                                 {"sigma": ("R", "S"), "t": ("R", "S")}, ["D"])
+    assert compiled.ok, compiled.reason
+    sigma = torch.rand(5, 7, dtype=torch.float64, requires_grad=True)
+    t = torch.rand(5, 7, dtype=torch.float64, requires_grad=True)
+    _, got = _run(compiled, sigma, t)
+    want = (sigma * t).amax(dim=1)
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (sigma, t))
+
+
+def test_a_min_over_the_parameters_is_a_training_objective_not_a_definition():
+    (failure,) = parse_equations(r"\min_{\Theta} \sum_{\mathbf{r}} \lVert C(\mathbf{r}) - C^*(\mathbf{r}) \rVert_2^2")
+    assert isinstance(failure, ParseFailure) and "a training objective" in failure.reason
+    (failure,) = parse_equations(r"\min_{\Theta^{c}, \Theta^{f}} \mathcal{L}")
+    assert isinstance(failure, ParseFailure) and "a training objective" in failure.reason
+
+
+def test_a_proportionality_defines_its_left_side_with_the_factor_one_and_says_so():
+    """``q(x) \\propto ...`` then ``-log q``: the definition up to a constant factor; the factor is taken as 1 (a
+    constant under the logarithm shifts the loss, not its gradient), and the binder's record says so."""
+    eqs = parse_equations(r"q(u) \propto e^{-u^2/0.5} + e^{-|2-u|/0.25}, \quad \mathcal{L}_q = -\log q(u)")
+    assert [type(e).__name__ for e in eqs] == ["Equation", "Equation"] and eqs[0].relation == "propto"
+    compiled = compile_equations(eqs, {"u": ("R",)}, ["cal L_q"])
+    assert compiled.ok, compiled.reason
+    u = torch.rand(8, dtype=torch.float64, requires_grad=True)
+    _, got = _run(compiled, u)
+    want = -torch.log(torch.exp(-u**2 / 0.5) + torch.exp(-(2 - u).abs() / 0.25))
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (u,))
+    assert not isinstance(parse_equations(r"a \propto b = c")[0], Equation)  # a chain: refused with its reason
+
+
+@pytest.mark.parametrize("text,value", [(r"1{,}000", 1000.0), (r"1\,000", 1000.0), (r"12{,}345{,}678", 12345678.0),
+                                        (r"2\,048", 2048.0), (r"\frac{1}{1{,}000}", 1e-3)])
+def test_numbers_with_a_thousands_separator(text, value):
+    compiled = compile_equations([rf"y = {text} x"], {"x": ("R",)}, ["y"])
+    assert compiled.ok, compiled.reason
+    x = torch.rand(3, dtype=torch.float64)
+    _, got = _run(compiled, x)
+    torch.testing.assert_close(got, value * x, rtol=1e-12, atol=0.0)
+
+
+def test_a_decimal_comma_is_not_read_as_a_thousands_separator():
+    compiled = compile_equations([r"y = 0{,}5 x"], {"x": ("R",)}, ["y"])
+    assert not compiled.ok

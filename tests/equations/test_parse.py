@@ -191,11 +191,12 @@ def test_equation_numbers_rows_and_where_clauses():
     (r"y = \nabla x", r"\nabla", "unknown operator"),
     (r"y = \operatorname{__import__('os').system}(x)", "__import__('os').system", "unreadable name"),
     (r"y = x_1 + \cdots + x_N", r"\cdots", "an ellipsis"),
-    (r"y = \max_{i} x_i", r"\max_", "over an index"),
+    (r"y = \max(a) + \max_{i} x_i", r"\max", "of one argument"),
     (r"y = (a, b)", "(", "a tuple"),
     (r"y = \hat{a+b}", r"\hat", "over an expression"),
     (r"y = x + ", "", "ends too early"),
-    (r"y = x \propto z", r"\propto", "not an equality"),
+    (r"y = x \propto z", r"\propto", "a chain with a proportionality"),
+    (r"y \to x", r"\to", "not an equality"),
     (r"y < x", "<", "an inequality"),
 ])
 def test_failures_name_the_reason_and_the_column_in_the_text_as_given(latex, fragment, reason):

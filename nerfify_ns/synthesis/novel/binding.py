@@ -36,6 +36,7 @@ from nerfify_ns.synthesis.novel.results import HoleResult
 from nerfify_ns.synthesis.novel.widths import Widths
 
 MAX_ROOTS = 8
+_DEFINING = ("=", ":=", "propto")  # relations that define their left side (propto: up to a constant factor)
 
 
 class _Unbound(CompileError):
@@ -109,7 +110,7 @@ class _Hole:
         out: dict[str, list] = {}
         for it in pool:
             for eq in it.equations():
-                if eq.defines and eq.relation in ("=", ":="):
+                if eq.defines and eq.relation in _DEFINING:
                     if eq.also:  # a chain a = b = c: its last form (a derivation's result) first
                         last = Equation(eq.lhs, eq.also[-1], eq.number, eq.relation, eq.source, (), eq.free_index)
                         out.setdefault(eq.defines, []).append((last, it))
@@ -121,7 +122,7 @@ class _Hole:
         a composite equation summing per-sample contributions or None)."""
         adapter = self.adapter
         if adapter.output_mode == "sinks":
-            eqs = [(eq, it) for it in own for eq in it.equations() if eq.defines and eq.relation in ("=", ":=")]
+            eqs = [(eq, it) for it in own for eq in it.equations() if eq.defines and eq.relation in _DEFINING]
             defined = {eq.defines for eq, _ in eqs}
             used = set()
             for eq, _ in eqs:
@@ -131,7 +132,7 @@ class _Hole:
         found = []
         for it in sorted(later + own, key=lambda x: -x.position):
             for eq in reversed(it.equations()):
-                if not eq.defines or eq.relation not in ("=", ":=") or not isinstance(eq.lhs, Symbol):
+                if not eq.defines or eq.relation not in _DEFINING or not isinstance(eq.lhs, Symbol):
                     continue
                 d = self.role_of(eq.lhs)
                 if d is None or d.role not in adapter.output_roles:
@@ -260,6 +261,11 @@ class _Hole:
             if len(kept) != len(rhs.items) and kept:
                 rhs = Concat(tuple(kept)) if len(kept) > 1 else kept[0]
         rhs = self._bind_bases(rhs, eq, notes)
+        if eq.relation == "propto":  # a definition up to a constant factor: the factor is 1, said in the record
+            notes.append(f"({eq.number or '?'}) {safe_comment(eq.defines or '?', 30)} is defined up to a constant "
+                         "factor (\\propto) the paper does not give: taken as 1 (under a logarithm, as in a "
+                         "negative log-likelihood, the factor only shifts the loss by a constant)")
+            return Equation(eq.lhs, rhs, eq.number, "=", eq.source, eq.also, eq.free_index)
         if rhs is eq.rhs:
             return eq
         return Equation(eq.lhs, rhs, eq.number, eq.relation, eq.source, eq.also, eq.free_index)

@@ -46,6 +46,7 @@ from nerfify_ns.equations import (
     Symbol,
     show,
 )
+from nerfify_ns.equations.reader import OBJECTIVE
 from nerfify_ns.equations.shapes import CompileError
 from nerfify_ns.equations.show import safe_comment
 from nerfify_ns.plan import Plan
@@ -361,7 +362,12 @@ def _implement_one(work: _Hole) -> HoleResult:
     roots = work.roots(own, later)
     if not roots:
         res.equations = [_record_equation(it, []) for it in own + later]
-        unread = [f"({it.number or '?'}) {f}" for it in own for f in it.failures()]
+        unread = [f"({it.number or '?'}) {f}" for it in own for f in it.failures() if OBJECTIVE not in f.reason]
+        objectives = [f"({it.number or '?'})" for it in own for f in it.failures() if OBJECTIVE in f.reason]
+        if objectives and not unread and not any(it.equations() for it in own + later):
+            res.reason = (f"no equation of the paper belongs to this part: its equations {', '.join(objectives)} "
+                          "are the training objective (what training minimises), not the part's definition")
+            return res
         res.reason = (f"no equation of the part defines what the {res.production} returns "
                       f"({', '.join(work.adapter.output_roles)})"
                       + (f"; equations not read: {'; '.join(unread)}" if unread else ""))
