@@ -38,12 +38,15 @@ is returned as the new value; without it as an input, "defined in terms of itsel
 Components: ``a_k`` inside a sum or product over the range of ``k`` is the k-th component of ``a``'s features
 (``\\sum_{k=1}^{K} a_k \\mathbf{m}_k`` with a learned K x 3 ``m`` is ``a @ m``); ``softmax`` is over the features
 (a temperature is the paper's division of its argument); a learned parameter may carry the paper's range
-(``ParamSpec.clamp``: initialised inside it, projected onto it at every training step).
+(``ParamSpec.clamp``: initialised inside it, projected onto it at every training step). ``\\min_{k=1}^{K} a_k`` and
+``\\max_i x_i`` reduce that axis like an indexed sum (components, samples, rays); ``\\min_{\\Theta} L`` (over the
+parameters) is the training objective, not a definition. ``q \\propto f`` defines ``q`` up to a constant factor
+(relation 'propto'): lowered with the factor 1, which the binder records for the part.
 
 Not supported (each refused with its reason): packed samples (segment sums over ragged rays), shifted
 sample indices in evaluation (``t_{i+1}``: bind the quantity they define, e.g. ``delta``), reductions
-over sets other than samples/rays/integer ranges, max/min over an index, a symbol indexed by two range
-variables (``k_\\ell^m`` in a spherical-harmonics sum: read, but evaluation is refused; the binder binds the
+over sets other than samples/rays/integer ranges, a running max/min (over earlier samples), a symbol indexed by
+two range variables (``k_\\ell^m`` in a spherical-harmonics sum: read, but evaluation is refused; the binder binds the
 basis), matrix literals, ellipses, factorials.
 
 Modules, in the order of the pipeline:
