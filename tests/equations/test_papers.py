@@ -131,7 +131,8 @@ def test_seathru_nerf_losses_as_the_paper_writes_them():
 
 def test_nerfplayer_rendering_and_losses_as_the_paper_writes_them():
     results = _equations(NERFPLAYER)
-    (render,) = _pick(results, "C(r) = int_{i_n}^{i_f} exp(-(int_{i_n}^{i} sigma_j(p_j) dj)) sigma_i(p_i) c_i(p_i, d) di")
+    (render,) = _pick(results,
+                      "C(r) = int_{i_n}^{i_f} exp(-(int_{i_n}^{i} sigma_j(p_j) dj)) sigma_i(p_i) c_i(p_i, d) di")
     assert "volume-rendering" in render.rhs.rule
     spec = {"sigma": ("R", "S"), "delta": ("R", "S"), "c": ("R", "S", 3)}
     v = _values(spec)

@@ -46,10 +46,12 @@ def fails(latex: str) -> ParseFailure:
     (r"\epsilon = 10^{-3}", "epsilon = 0.001"),
     (r"y = \sqrt{x} + \sqrt[3]{x}", "y = sqrt(x) + x^(1/3)"),
     # sub- and superscript labels
-    (r"y = \mathbf{W}_{1} x^{(k)} + W^f_\Delta + c^{\mathrm{med}} + h'_c + C^*", "y = W_1 x^{(k)} + W_{Delta}^f + c^{med} + h'_c + C^*"),
+    (r"y = \mathbf{W}_{1} x^{(k)} + W^f_\Delta + c^{\mathrm{med}} + h'_c + C^*",
+     "y = W_1 x^{(k)} + W_{Delta}^f + c^{med} + h'_c + C^*"),
     (r"y = \mathrm{MLP}_{\theta}", "y = MLP_{theta}"),
     # functions
-    (r"y = \exp(x) \log x + \ln(x) + \sin x \cos(x) + \tanh(x)", "y = exp(x) log(x) + log(x) + sin(x) cos(x) + tanh(x)"),
+    (r"y = \exp(x) \log x + \ln(x) + \sin x \cos(x) + \tanh(x)",
+     "y = exp(x) log(x) + log(x) + sin(x) cos(x) + tanh(x)"),
     (r"y = \mathrm{ReLU}(x) + \operatorname{softplus}(x) + \text{sigmoid}(x) + ReLU(x)",
      "y = relu(x) + softplus(x) + sigmoid(x) + relu(x)"),
     (r"y = \min(a, b) + \max(0, x) + \operatorname{clamp}(x, 0, 1) + \lceil x \rceil + \lfloor x \rfloor",
@@ -159,8 +161,10 @@ def test_matrix_vector_products_and_concatenations():
     (r"{\cal L}*{\mathrm{reg}}=\alpha ,\overline{P*{\mathrm{deform}}}+\overline{P_{\mathrm{new}}} ,",
      "cal L_{reg} = alpha bar P_{deform} + bar P_{new}"),
     (r"L _ { \mathrm { r e c } } = \sum _ { \pmb { r } \in \mathcal { R } } | \pmb { C } ( \pmb { r } ) - "
-     r"\pmb { C } _ { \mathrm { g t } } ( \pmb { r } ) | _ { 2 } ^ { 2 } ,", "L_{rec} = sum_{r in cal R} ||C(r) - C_{gt}(r)||^2"),
-    (r"T(s_i)=\exp!\Big(-\sum_{j=0}^{i-1}\sigma_j\delta_j\Big).", "T_i(s_i) = exp(-(sum_{j=0}^{i - 1} sigma_j delta_j))"),
+     r"\pmb { C } _ { \mathrm { g t } } ( \pmb { r } ) | _ { 2 } ^ { 2 } ,",
+     "L_{rec} = sum_{r in cal R} ||C(r) - C_{gt}(r)||^2"),
+    (r"T(s_i)=\exp!\Big(-\sum_{j=0}^{i-1}\sigma_j\delta_j\Big).",
+     "T_i(s_i) = exp(-(sum_{j=0}^{i - 1} sigma_j delta_j))"),
     (r"\begin{equation} y = x \label{eq:y} \end{equation}", "y = x"),
     (r"\begin{array}{rl} y &= \displaystyle\frac{a}{b} \end{array}", "y = a/b"),
     (r"y = a\,b\;c\!d\quad", "y = a b c d"),
