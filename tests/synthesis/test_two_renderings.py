@@ -31,7 +31,8 @@ def _doc() -> Document:
                  ("\\mathcal{L} = \\mathrm{MSE}(C, C^*)", "3", "The loss compares the rendered colour with the ground "
                   "truth: ⟨Eq. 3⟩ where MSE is the mean squared error.")]
     doc = Document(title="GateNeRF", source="test.pdf", kind="pdf")
-    doc.sections = [Section(title="Method", number="3", level=1, paragraphs=[Paragraph(p, section=sec) for p in paragraphs])]
+    doc.sections = [Section(title="Method", number="3", level=1,
+                            paragraphs=[Paragraph(p, section=sec) for p in paragraphs])]
     doc.equations = [Equation(latex=tex, number=n, section=sec, sentence=sentence) for tex, n, sentence in equations]
     return doc
 
