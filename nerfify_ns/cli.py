@@ -469,9 +469,7 @@ class Survey:
     verify: bool = False
     """Run each paper up to the verification ladder (minutes a paper) instead of the plan (seconds)."""
     train: bool = False
-    """Run each paper through the whole pipeline with the default budget, one at a time (the budget and a margin a
-    paper; the run folders stay under OUT/runs): the table adds iterations trained, within budget, PSNR, colour ratio,
-    the CPU proxy and the found parts built and verified; papers the tool cannot build say why they did not train."""
+    """Train each paper with the default budget, one at a time (run folders in OUT/runs); a table of its results."""
 
     def main(self) -> None:
         from nerfify_ns.nerfifybench import survey as sv
