@@ -31,8 +31,8 @@ CUSTOM_NAMES = {"module": f'"\\"components." {_IDENT} "\\""', "class": f'"\\"" {
 ROOT_HEAD = ("method", "description", "paper")
 ROOT_TAIL = ("evidence", "pruned", "holes", "notes")
 
-_PRELUDE = r'''string ::= "\"" ( [^"\\] | "\\" ( ["\\/bfnrt] | "u" [0-9a-fA-F] [0-9a-fA-F] [0-9a-fA-F] [0-9a-fA-F] ) )* "\""
-number ::= "-"? unumber
+_PRELUDE = (r'string ::= "\"" ( [^"\\] | "\\" ( ["\\/bfnrt] | "u" [0-9a-fA-F] [0-9a-fA-F] [0-9a-fA-F] [0-9a-fA-F] ) )* '
+            r'"\""' "\n" r'''number ::= "-"? unumber
 unumber ::= ( "0" | [1-9] [0-9]* ) ( "." [0-9]+ )? ( [eE] [-+]? [0-9]+ )?
 boolean ::= "true" | "false"
 value ::= object | array | string | number | boolean | "null"
@@ -40,7 +40,7 @@ object ::= "{" ( string ":" value ( "," string ":" value )* )? "}"
 array ::= "[" ( value ( "," value )* )? "]"
 identkey ::= "\"" [A-Za-z_] [A-Za-z0-9_]* "\""
 mapping ::= "{" ( identkey ":" value ( "," identkey ":" value )* )? "}"
-methodname ::= "\"" [a-z] [a-z0-9-]{RANGE} "\""'''
+methodname ::= "\"" [a-z] [a-z0-9-]{RANGE} "\""''')
 
 
 def _lit(text: str) -> str:
@@ -223,7 +223,8 @@ def _decision_paths(g: Grammar) -> list[str]:
         parts = path.split(".")
         for i in range(1, len(parts)):
             prefix = ".".join(parts[:i])
-            if prefix in slots and slots[prefix][0] in g.nonterminals and g.nonterminals[slots[prefix][0]].kind == "choice":
+            if (prefix in slots and slots[prefix][0] in g.nonterminals
+                    and g.nonterminals[slots[prefix][0]].kind == "choice"):
                 decisions.add(prefix)
     return sorted(decisions, key=lambda p: (p.count("."), p))
 
@@ -281,7 +282,8 @@ def _scene_splits(g: Grammar, slots: dict[str, tuple[str, bool]], decisions: lis
 
 def _dependent_items(g: Grammar, slots: dict[str, tuple[str, bool]], decisions: list[str]) -> list[tuple[str, str]]:
     """(path, terminal) of optional terminal slots and set members that are not decisions but have duties."""
-    items = [(p, s) for p, (s, opt) in slots.items() if opt and s in g.terminals and p not in decisions and g.terminals[s].duties]
+    items = [(p, s) for p, (s, opt) in slots.items()
+             if opt and s in g.terminals and p not in decisions and g.terminals[s].duties]
     for path, (symbol, _) in slots.items():
         if symbol in g.nonterminals and g.nonterminals[symbol].kind == "set":
             items += [(f"{path}.{m}", m) for m in g.nonterminals[symbol].members if g.terminals[m].duties]
@@ -380,7 +382,8 @@ class _Emitter:
                 members.append((pname, self.rule(f"custom-{pname}", CUSTOM_NAMES[pname]), True))
             elif pname in consts:
                 value = json.dumps(consts[pname])
-                members.append((pname, self.rule(f"{name}-{pname}-{value}", _lit(value)), consts[pname] != param.default))
+                rule = self.rule(f"{name}-{pname}-{value}", _lit(value))
+                members.append((pname, rule, consts[pname] != param.default))
             elif self.structure_only:
                 continue
             else:
@@ -465,7 +468,8 @@ def to_gbnf(grammar: Grammar | None = None, *, annotations: bool = True, max_str
         prelude = prelude.replace('[1-9] [0-9]*', '[1-9] [0-9]{0,11}').replace('"." [0-9]+', '"." [0-9]{1,12}')
         prelude = prelude.replace('[eE] [-+]? [0-9]+', '[eE] [-+]? [0-9]{1,3}')
     if not annotations:
-        prelude += (f'\nevidence-map ::= "{{" ( string ":" string ( "," string ":" string ){{0,{EVIDENCE_ITEMS - 1}}} )? '
+        prelude += ('\nevidence-map ::= "{" ( string ":" string '
+                    f'( "," string ":" string ){{0,{EVIDENCE_ITEMS - 1}}} )? '
                     '"}"')
     lines.append(prelude)
     return "\n".join(lines) + "\n"

@@ -49,8 +49,8 @@ _ARG = r"\{([^{}]{0,2000})\}"
 _OPT = r"\[[^\[\]]{0,2000}\]"
 _SPECIAL = re.compile(r"[\\~${}`'-]")
 _BLANKS = re.compile(r"[ \t]+")
-_CITE = re.compile(r"\\(?:cite|citep|citet|citealp|autocite|parencite|textcite|citeauthor)\*?\s*(?:" + _OPT + r"\s*){0,2}"
-                   + _ARG)
+_CITE = re.compile(r"\\(?:cite|citep|citet|citealp|autocite|parencite|textcite|citeauthor)\*?\s*"
+                   r"(?:" + _OPT + r"\s*){0,2}" + _ARG)
 _EQREF = re.compile(r"\\eqref\s*" + _ARG)
 _REF = re.compile(r"\\(?:ref|autoref|cref|Cref)\s*" + _ARG)
 _LABEL = re.compile(r"\\label\s*" + _ARG)
@@ -62,8 +62,8 @@ _ITEM = re.compile(r"\\item\s*(?:\[([^\[\]]{0,2000})\])?")
 _INLINE_MATH = re.compile(r"(\$[^$]+\$)")
 _STYLE = re.compile(r"\\(?:emph|textbf|textit|texttt|textsc|underline|text|mbox|textrm|textsf|noindent)\s*"
                     r"\{((?:[^{}]|\{[^{}]*\})*)\}")
-_SPACING = re.compile(r"\\(?:noindent|centering|vspace\*?\{[^{}]{0,2000}\}|hspace\*?\{[^{}]{0,2000}\}|medskip|smallskip|"
-                      r"bigskip|maketitle|newpage|clearpage|par)\b")
+_SPACING = re.compile(r"\\(?:noindent|centering|vspace\*?\{[^{}]{0,2000}\}|hspace\*?\{[^{}]{0,2000}\}|"
+                      r"medskip|smallskip|bigskip|maketitle|newpage|clearpage|par)\b")
 _BIB_CMD = re.compile(r"\\(?:bibliography|bibliographystyle|addbibresource)\s*\{[^{}]{0,2000}\}")
 _GRAPHICS = re.compile(r"\\(?:includegraphics|input)\s*(?:" + _OPT + r")?\{[^{}]{0,2000}\}")
 _COMMAND = re.compile(r"\\[A-Za-z]+\*?")
@@ -192,8 +192,8 @@ class _Parser:
         start = begin + len("\\begin{document}") if begin >= 0 else 0
         end = self.text.find("\\end{document}")
         end = end if end >= 0 else len(self.text)
-        self.bib_names = [n.strip() for m in re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^{}]{0,2000})\}", self.text)
-                          for n in m.group(1).split(",")]
+        bib_cmds = re.finditer(r"\\(?:bibliography|addbibresource)\s*\{([^{}]{0,2000})\}", self.text)
+        self.bib_names = [n.strip() for m in bib_cmds for n in m.group(1).split(",")]
         out: list[Block] = []
         pos = start
         while True:
@@ -291,7 +291,8 @@ class _Parser:
             return []
         end = body.find("\\end{tabular", m.end())
         content = body[m.end(): end if end >= 0 else len(body)]
-        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^{}]{0,2000}\}|cmidrule(?:\([^)]{0,2000}\))?\{[^{}]{0,2000}\})", "", content)
+        content = re.sub(r"\\(?:hline|toprule|midrule|bottomrule|cline\{[^{}]{0,2000}\}|"
+                         r"cmidrule(?:\([^)]{0,2000}\))?\{[^{}]{0,2000}\})", "", content)
         content = re.sub(r"\\multicolumn\{\d+\}\{[^{}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
         content = re.sub(r"\\multirow\{[^{}]{0,2000}\}\{[^{}]{0,2000}\}\{((?:[^{}]|\{[^{}]*\})*)\}", r"\1", content)
         rows = []
@@ -312,7 +313,8 @@ class _Parser:
         lines = []
         for raw in re.split(r"\n|\\\\|(?=\\(?:State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|"
                             r"Ensure|Return|Function|EndFunction|Procedure|EndProcedure|KwIn|KwOut)\b)", body):
-            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|\\(?:begin|end)\{algorithmic\}(\[[^\[\]]{0,2000}\])?", "", raw)
+            raw = re.sub(r"\\(?:caption|label)\s*\{(?:[^{}]|\{[^{}]*\})*\}|"
+                         r"\\(?:begin|end)\{algorithmic\}(\[[^\[\]]{0,2000}\])?", "", raw)
             kw = re.match(r"\s*\\(State|If|ElsIf|Else|EndIf|For|ForAll|EndFor|While|EndWhile|Require|Ensure|Return|"
                           r"Function|EndFunction|Procedure|EndProcedure)\b", raw)
             prefix = "" if not kw or kw.group(1) == "State" else kw.group(1).lower() + " "

@@ -31,7 +31,8 @@ def test_the_seed_replays_the_same_plans():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index", [0, pytest.param(1, marks=pytest.mark.bench), pytest.param(2, marks=pytest.mark.bench)])
+@pytest.mark.parametrize("index", [0, pytest.param(1, marks=pytest.mark.bench),
+                                   pytest.param(2, marks=pytest.mark.bench)])
 def test_sampled_plans_compose_and_pass_static_and_contract(index, tmp_path):
     sampler = PlanSampler(load_grammar(), seed=SEED)
     plans = [sampler.sample(method=f"fuzz-{SEED}-{i}") for i in range(index + 1)]

@@ -133,8 +133,8 @@ GERMAN = ("Wir stellen eine Methode vor, die neuronale Strahlungsfelder mit eine
 
 def german_markdown(path: Path) -> Path:
     """A German-language NeRF paper (Latin script, so only the word signal tells)."""
-    path.write_text(f"# FeldNeRF: Neuronale Strahlungsfelder (NeRF) für die Synthese neuer Ansichten\n\n## Zusammenfassung\n\n"
-                    f"{GERMAN * 3}\n\n## Methode\n\n{GERMAN * 6}\n", encoding="utf-8")
+    path.write_text("# FeldNeRF: Neuronale Strahlungsfelder (NeRF) für die Synthese neuer Ansichten\n\n"
+                    f"## Zusammenfassung\n\n{GERMAN * 3}\n\n## Methode\n\n{GERMAN * 6}\n", encoding="utf-8")
     return path
 
 

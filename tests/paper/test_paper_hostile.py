@@ -298,13 +298,15 @@ def test_text_beyond_the_limit_is_refused_without_reading_it_all(suffix, tmp_pat
 def test_a_pdf_with_more_text_than_the_limit_is_refused(tmp_path):
     from paper_pdfs import two_column_pdf
 
-    refused(two_column_pdf(tmp_path / "p.pdf"), PaperLimitError, "characters of text", limits=Limits(max_text_chars=500))
+    refused(two_column_pdf(tmp_path / "p.pdf"), PaperLimitError, "characters of text",
+            limits=Limits(max_text_chars=500))
 
 
 def test_a_latex_source_beyond_the_limit_is_refused(tmp_path):
     body = "The radiance field. " * 30_000
     paper = latex_folder(tmp_path / "paper", "\\input{a}\\input{b}", {"a.tex": body, "b.tex": body})
-    refused(paper, PaperLimitError, "b.tex", "longer than 1,000,000 characters", limits=Limits(max_latex_chars=1_000_000))
+    refused(paper, PaperLimitError, "b.tex", "longer than 1,000,000 characters",
+            limits=Limits(max_latex_chars=1_000_000))
     refused(paper, PaperLimitError, "a.tex", "more than 488 KB of LaTeX source", limits=Limits(max_latex_chars=500_000))
 
 

@@ -139,7 +139,8 @@ def _markup_paper(path: Path) -> Path:
     text = EXAMPLE.read_text(encoding="utf-8")
     title = "GridLite [/bold] \x1b[31mRED\x1b[0m <script>alert(1)</script>"
     text = text.replace("# GridLite:", f"# {title}:", 1)
-    text = text.replace("We adopt the multiresolution hash", "We adopt [/bold] \x1b]0;pwned\x07 the multiresolution hash")
+    text = text.replace("We adopt the multiresolution hash",
+                        "We adopt [/bold] \x1b]0;pwned\x07 the multiresolution hash")
     assert title in text and "[/bold] \x1b]0" in text
     path.write_text(text, encoding="utf-8")
     return path

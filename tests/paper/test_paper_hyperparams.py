@@ -83,5 +83,7 @@ def test_no_false_positive_in_plain_prose():
 
 
 def test_sentence_split_keeps_abbreviations():
-    parts = split_sentences("See Fig. 3 and Eq. 2 by Mildenhall et al. for details. We then train. A. B. Smith wrote it.")
-    assert parts == ["See Fig. 3 and Eq. 2 by Mildenhall et al. for details.", "We then train.", "A. B. Smith wrote it."]
+    parts = split_sentences("See Fig. 3 and Eq. 2 by Mildenhall et al. for details. "
+                            "We then train. A. B. Smith wrote it.")
+    assert parts == ["See Fig. 3 and Eq. 2 by Mildenhall et al. for details.", "We then train.",
+                     "A. B. Smith wrote it."]

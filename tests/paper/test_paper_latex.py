@@ -60,7 +60,7 @@ We use a learning rate of $5\times 10^{-4}$, a batch size of 4096 rays and Eq.~\
 \EndFor
 \end{algorithmic}
 \end{algorithm}
-"""
+"""  # noqa: E501
 BIB = r"""@inproceedings{mildenhall2020nerf,
   title={{NeRF}: Representing Scenes as Neural Radiance Fields for View Synthesis},
   author={Mildenhall, Ben and Srinivasan, Pratul P. and Tancik, Matthew},
@@ -70,7 +70,7 @@ BIB = r"""@inproceedings{mildenhall2020nerf,
   journal = {ACM TOG}, year = 2022, doi = {10.1145/3528223.3530127}}
 @misc{unused, title={Never Cited}, year={1999}}
 @article{barron2022mip, title={Mip-NeRF 360}, author={Barron, Jonathan T.}, journal={arXiv preprint arXiv:2111.12077}, year={2022}}
-"""
+"""  # noqa: E501
 
 
 def write_tree(root: Path, with_details: bool = True) -> Path:
@@ -169,7 +169,8 @@ def test_single_tex_file_and_missing_input(tmp_path):
 
 
 def test_macro_expansion_unit():
-    macros, rest = collect_macros(r"\newcommand{\pair}[2][a]{(#1,#2)}\renewcommand\R{\mathbb{R}}" "\n" r"x \pair{b} \pair[c]{d} \R^3 \Rx")
+    macros, rest = collect_macros(r"\newcommand{\pair}[2][a]{(#1,#2)}\renewcommand\R{\mathbb{R}}" "\n"
+                                  r"x \pair{b} \pair[c]{d} \R^3 \Rx")
     assert expand_macros(rest, macros).strip() == r"x (a,b) (c,d) \mathbb{R}^3 \Rx"
 
 

@@ -55,7 +55,7 @@ We thank the funding agency.
 [1] B. Mildenhall, P. P. Srinivasan, M. Tancik. NeRF: Representing scenes as neural radiance fields for view synthesis. In ECCV, 2020. arXiv:2003.08934.
 [2] T. Muller, A. Evans, C. Schied, A. Keller. Instant neural graphics primitives. ACM TOG, 2022.
 [3] J. T. Barron, B. Mildenhall. Mip-NeRF 360: Unbounded anti-aliased neural radiance fields. In CVPR, 2022.
-"""
+"""  # noqa: E501
 
 TXT = """TinyNeRF: Radiance Fields for Tests
 
@@ -95,10 +95,12 @@ def test_markdown_structure(md_doc):
 
 def test_markdown_math_captions_tables_algorithms(md_doc):
     assert [(e.number, e.latex) for e in md_doc.equations] == [
-        ("1", "C(\\mathbf{r}) = \\sum_i T_i \\alpha_i \\mathbf{c}_i"), ("2", "T_i = \\exp(-\\sum_{j<i} \\sigma_j \\delta_j)")]
+        ("1", "C(\\mathbf{r}) = \\sum_i T_i \\alpha_i \\mathbf{c}_i"),
+        ("2", "T_i = \\exp(-\\sum_{j<i} \\sigma_j \\delta_j)")]
     assert md_doc.equations[0].section == "3 Method"
     assert [(c.kind, c.number) for c in md_doc.captions] == [("figure", "1")]
-    assert md_doc.result_tables[0].rows == [["Method", "PSNR", "SSIM"], ["NeRF", "31.0", "0.95"], ["Ours", "32.1", "0.96"]]
+    assert md_doc.result_tables[0].rows == [["Method", "PSNR", "SSIM"], ["NeRF", "31.0", "0.95"],
+                                            ["Ours", "32.1", "0.96"]]
     assert md_doc.algorithms[0].number == "1" and md_doc.algorithms[0].lines[1] == "1: sample rays"
 
 
