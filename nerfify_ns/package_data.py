@@ -49,7 +49,7 @@ def project_path(name: str) -> Path:
 
 
 def templates_dir() -> Path:
-    """The Jinja2 templates of a plugin, plus ``snippets.yaml`` and ``bases.yaml``."""
+    """The Jinja2 templates of a plugin, plus ``snippets.yaml``."""
     return project_path("templates")
 
 
