@@ -14,7 +14,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from .check import CheckReport, check_lowering
-from .ir import Equation, ParseFailure
+from .ir import Equation, ParseFailure, inline_functions
 from .lower import Lowered, lower_module
 from .parser import parse_equations
 from .shapes import CompileError
@@ -42,6 +42,21 @@ def _describe(err: BaseException) -> str:
     return f"{type(err).__name__}: {message}" if message else type(err).__name__
 
 
+def _inline(equations: list[Equation]) -> list[Equation]:
+    """Each application of a function the equations define with a dummy argument (``q(u) = ...`` read as
+    ``q(v)``) replaced by its definition with the argument put in (``ir.inline_functions``)."""
+    definitions: dict[str, list[Equation]] = {}
+    for eq in equations:
+        if eq.defines:
+            definitions.setdefault(eq.defines, []).append(eq)
+    out = []
+    for eq in equations:
+        rhs, applied = inline_functions(eq.rhs, definitions)
+        out.append(Equation(eq.lhs, rhs, eq.number, eq.relation, eq.source, eq.also, eq.free_index) if applied
+                   else eq)
+    return out
+
+
 def compile_equations(latex: Iterable[str | tuple[str, str | None] | Equation], inputs: dict, outputs: list[str],
                       sizes: dict | None = None, class_name: str = "CompiledEquations", *, check: bool = True,
                       domains: dict | None = None) -> Compiled:
@@ -55,6 +70,7 @@ def compile_equations(latex: Iterable[str | tuple[str, str | None] | Equation], 
         text, number = (item, None) if isinstance(item, str) else item
         for result in parse_equations(text, number=number):
             (out.equations if isinstance(result, Equation) else out.failures).append(result)
+    out.equations = _inline(out.equations)
     try:
         out.lowered = lower_module(out.equations, inputs, outputs, sizes, class_name)
     except CompileError as err:

@@ -294,3 +294,82 @@ def depth(expr: Expr) -> int:
 def symbols(expr: Expr) -> list[Symbol]:
     return [n for n in walk(expr) if isinstance(n, Symbol)]
 
+
+
+
+def map_nodes(expr, fn):
+    """``expr`` rebuilt bottom-up with ``fn`` applied to every expression node (a node's fields that are nodes or
+    tuples of nodes are rebuilt first; an unchanged node is kept as it is)."""
+    import dataclasses
+
+    def go(node):
+        if isinstance(node, tuple):
+            new = tuple(go(n) for n in node)
+            return node if all(a is b for a, b in zip(new, node, strict=True)) else new
+        if not dataclasses.is_dataclass(node) or isinstance(node, type | Index):
+            return node
+        changes = {}
+        for f in dataclasses.fields(node):
+            value = getattr(node, f.name)
+            if isinstance(value, tuple) or dataclasses.is_dataclass(value):
+                new = go(value)
+                if new is not value:
+                    changes[f.name] = new
+        return fn(dataclasses.replace(node, **changes) if changes else node)
+
+    return go(expr)
+
+
+def substitute(expr: Expr, mapping: dict[str, Expr]) -> Expr:
+    """``expr`` with every plain occurrence of a key of ``mapping`` (no sample index, no arguments) replaced by its
+    expression: a function the paper defines with a dummy argument (``P(x) = ...``) applied to another (``P(T)``)."""
+    return map_nodes(expr, lambda n: mapping[n.key] if isinstance(n, Symbol) and n.index is None and not n.args
+                     and n.key in mapping else n)
+
+
+def function_definition(call: Symbol, options: list[Equation]) -> tuple[Equation, tuple[Symbol, ...]] | None:
+    """The definition ``f(x) = ...`` (or ``\\propto``) of a function applied as ``f(y)``: its left side takes plain
+    dummy arguments, as many as the call, each read on its right side, and the call puts other quantities in."""
+    for eq in options:
+        lhs = eq.lhs
+        if not isinstance(lhs, Symbol) or len(lhs.args) != len(call.args) or not lhs.args:
+            continue
+        params = lhs.args
+        if not all(isinstance(p, Symbol) and not (p.args or p.subscripts or p.superscript or p.index)
+                   for p in params):
+            continue
+        used = {n.key for n in walk(eq.rhs) if isinstance(n, Symbol)}
+        if not all(p.key in used for p in params):
+            continue
+        if all(isinstance(a, Symbol) and a.key == p.key and a.index is None
+               for a, p in zip(call.args, params, strict=True)):
+            continue  # applied at its own argument: the definition itself
+        return eq, params
+    return None
+
+
+MAX_INLINE_DEPTH = 4
+"""How deep functions defined by functions are put in (a definition that calls itself stops there)."""
+
+
+def inline_functions(expr: Expr, definitions: dict[str, list[Equation]]):
+    """``expr`` with each application ``f(y)`` of a function the equations define with a dummy argument
+    (``f(x) = ...``) replaced by that definition with ``y`` put in for ``x``; returns (expr, [(call, definition,
+    dummy arguments), ...])."""
+    applied: list = []
+
+    def visit(node):
+        if isinstance(node, Symbol) and node.args:
+            hit = function_definition(node, definitions.get(node.key) or [])
+            if hit is not None:
+                definition, params = hit
+                applied.append((node, definition, params))
+                return substitute(definition.rhs, {p.key: a for p, a in zip(params, node.args, strict=True)})
+        return node
+
+    for _ in range(MAX_INLINE_DEPTH):
+        before = len(applied)
+        expr = map_nodes(expr, visit)
+        if len(applied) == before:
+            break
+    return expr, applied

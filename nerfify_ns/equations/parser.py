@@ -25,7 +25,7 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-from lark import Lark, Token
+from lark import Lark, Token, Tree
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken, VisitError
 
 from .ir import DEFAULT_CONVENTIONS, Conventions, Equation, Expr, ParseFailure, Reduce, depth
@@ -70,6 +70,10 @@ def _read_piece(piece: Mapped, latex: str, number: str | None):
         return _failure("unexpected here", piece, tok.start_pos, str(tok)[:40], latex, number)
     except UnexpectedInput as err:  # pragma: no cover - other lark input errors
         return _failure("unreadable", piece, getattr(err, "pos_in_stream", None), "", latex, number)
+    objective = _objective(tree)
+    if objective is not None:  # \min_{\Theta} (...): what training minimises, whatever its body holds
+        return _failure(f"{OBJECTIVE} ({str(objective)[1:]} over the parameters), not an equation", piece,
+                        objective.start_pos, str(objective) + "_", latex, number)
     try:
         return Reader(piece.text).transform(tree)
     except VisitError as err:
@@ -83,6 +87,22 @@ def _read_piece(piece: Mapped, latex: str, number: str | None):
         return _failure(err.reason, piece, err.pos, err.fragment, latex, number)
     except RecursionError:
         return _failure("nested too deeply", piece, None, "", latex, number)
+
+
+def _objective(tree) -> Token | None:
+    """The ``\\min``/``\\max`` token of a block that is one min (max) over something and no relation: a training
+    objective (``\\min_{\\Theta} \\sum_r ...``), not a definition."""
+    if len(tree.children) != 1 or not isinstance(tree.children[0], Tree) or tree.children[0].data != "sum":
+        return None
+    terms = tree.children[0].children
+    if len(terms) != 1 or not isinstance(terms[0], Tree) or len(terms[0].children) != 1:
+        return None
+    big = terms[0].children[0]
+    if not isinstance(big, Tree) or big.data != "bigop" or not big.children:
+        return None
+    op = big.children[0]
+    has_sub = any(isinstance(c, Tree) and c.data == "sub" for c in big.children[1:-1])
+    return op if isinstance(op, Token) and str(op) in (r"\min", r"\max") and has_sub else None
 
 
 def _equation(parts, piece: Mapped, latex: str, number: str | None, conventions: Conventions):

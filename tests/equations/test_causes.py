@@ -147,6 +147,9 @@ def test_a_max_over_the_samples_of_a_ray_is_a_reduction_over_the_sample_axis():
 
 
 def test_a_min_over_the_parameters_is_a_training_objective_not_a_definition():
+    """``\\min_{\\Theta}`` over a body the reader would refuse (``;`` arguments, ``\\cup``): still the objective."""
+    (failure,) = parse_equations(r"\min_{\Theta} \sum_{r} \lVert C(r; \Theta, t^c \cup t^f) \rVert_2^2")
+    assert isinstance(failure, ParseFailure) and "a training objective" in failure.reason
     (failure,) = parse_equations(r"\min_{\Theta} \sum_{\mathbf{r}} \lVert C(\mathbf{r}) - C^*(\mathbf{r}) \rVert_2^2")
     assert isinstance(failure, ParseFailure) and "a training objective" in failure.reason
     (failure,) = parse_equations(r"\min_{\Theta^{c}, \Theta^{f}} \mathcal{L}")
@@ -166,6 +169,24 @@ def test_a_proportionality_defines_its_left_side_with_the_factor_one_and_says_so
     torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
     _grads_match(got, want, (u,))
     assert not isinstance(parse_equations(r"a \propto b = c")[0], Equation)  # a chain: refused with its reason
+
+
+def test_a_function_defined_with_a_dummy_argument_is_applied_to_the_quantity_the_paper_puts_in():
+    """``q(u) \\propto ...`` read at ``q(v_i)`` and ``q(w_i)``: the definition with each put in for ``u``
+    (per sample), never ``q`` evaluated at an input named ``u``."""
+    latex = [(r"q(u) \propto e^{-u^2/0.5} + e^{-|2-u|/0.25}, \quad \mathcal{L}_q = -\log q(v_i) + q(w_i)", "3")]
+    compiled = compile_equations(latex, {"v": ("R", "S"), "w": ("R", "S")}, ["cal L_q"])
+    assert compiled.ok, compiled.reason
+
+    def q(u):
+        return torch.exp(-u**2 / 0.5) + torch.exp(-(2 - u).abs() / 0.25)
+
+    v = torch.rand(4, 6, dtype=torch.float64, requires_grad=True)
+    w = torch.rand(4, 6, dtype=torch.float64, requires_grad=True)
+    _, got = _run(compiled, v, w)
+    want = -torch.log(q(v)) + q(w)
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (v, w))
 
 
 @pytest.mark.parametrize("text,value", [(r"1{,}000", 1000.0), (r"1\,000", 1000.0), (r"12{,}345{,}678", 12345678.0),

@@ -20,9 +20,9 @@ from nerfify_ns.equations import (
     Reduce,
     Symbol,
 )
-from nerfify_ns.equations.ir import walk
+from nerfify_ns.equations.ir import inline_functions, walk
 from nerfify_ns.equations.shapes import CompileError, is_bound_variable, uses
-from nerfify_ns.equations.show import safe_comment
+from nerfify_ns.equations.show import safe_comment, show
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.novel.adapters import (
     ADAPTERS,
@@ -166,6 +166,7 @@ class _Hole:
         binding; raises _Unbound naming what is missing."""
         self._basis, self._concat_used, self._provision_used = {}, set(), {}
         defs = self.definitions(pool)
+        self._defs = defs
         first = _first_seen(pool)
         chosen: dict[str, tuple[Equation, Item]] = {}
         rewritten: dict[str, Equation] = {}
@@ -261,6 +262,7 @@ class _Hole:
             if len(kept) != len(rhs.items) and kept:
                 rhs = Concat(tuple(kept)) if len(kept) > 1 else kept[0]
         rhs = self._bind_bases(rhs, eq, notes)
+        rhs = self._inline_functions(rhs, eq, notes)
         if eq.relation == "propto":  # a definition up to a constant factor: the factor is 1, said in the record
             notes.append(f"({eq.number or '?'}) {safe_comment(eq.defines or '?', 30)} is defined up to a constant "
                          "factor (\\propto) the paper does not give: taken as 1 (under a logarithm, as in a "
@@ -269,6 +271,22 @@ class _Hole:
         if rhs is eq.rhs:
             return eq
         return Equation(eq.lhs, rhs, eq.number, eq.relation, eq.source, eq.also, eq.free_index)
+
+    def _inline_functions(self, expr, eq, notes):
+        """A function the paper defines with a dummy argument (``P(x) \\propto e^{-|x|/0.1} + ...``) and applies to
+        a quantity (``-\\log P(T_i)``): its definition with the argument put in, said in the record."""
+        defs = {key: [d for d, _ in options] for key, options in (getattr(self, "_defs", None) or {}).items()}
+        out, applied = inline_functions(expr, defs)
+        for call, definition, params in applied:
+            notes.append(f"({eq.number or '?'}) {safe_comment(call.key, 30)}: the function the paper defines in "
+                         f"({definition.number or '?'}) with its argument "
+                         f"{', '.join(safe_comment(p.key, 20) for p in params)} replaced by "
+                         f"{', '.join(safe_comment(show(a), 30) for a in call.args)}")
+            if definition.relation == "propto":
+                notes.append(f"({definition.number or '?'}) {safe_comment(call.key, 30)} is defined up to a constant "
+                             "factor (\\propto) the paper does not give: taken as 1 (under a logarithm, as in a "
+                             "negative log-likelihood, the factor only shifts the loss by a constant)")
+        return out
 
     def _bind_bases(self, expr, eq, notes):
         """sum_l sum_m X_l^m Y_l^m(d), Y a standard basis -> one symbol the component computes with Nerfstudio's
