@@ -339,14 +339,21 @@ def function_definition(call: Symbol, options: list[Equation]) -> tuple[Equation
                    for p in params):
             continue
         used = {n.key for n in walk(eq.rhs) if isinstance(n, Symbol)}
-        if not all(p.key in used for p in params):
-            continue
+        if not all(p.key in used for p in params) or any(p.key in _ALONG_RAY for p in params):
+            continue  # a field of the position along the ray (T(t)): its quadrature is resolve's, not a function
+        if any(isinstance(a, Symbol) and a.key in _POINTS for a in call.args):
+            continue  # a field read at a point (c(x), T(s_i), C(r)): the point a field is evaluated at
         if all(isinstance(a, Symbol) and a.key == p.key and a.index is None
                for a, p in zip(call.args, params, strict=True)):
             continue  # applied at its own argument: the definition itself
         return eq, params
     return None
 
+
+_ALONG_RAY = DEFAULT_CONVENTIONS.ray_params + DEFAULT_CONVENTIONS.ray_indices
+_POINTS = _ALONG_RAY + ("x", "d", "p")
+"""Arguments that name where a field is evaluated (a position along the ray, a ray, a point, a direction), not a
+quantity a function is applied to."""
 
 MAX_INLINE_DEPTH = 4
 """How deep functions defined by functions are put in (a definition that calls itself stops there)."""
