@@ -83,7 +83,8 @@ def _huge(path: Path) -> Path:
 
 BAD = {
     "encrypted PDF": (_encrypted, "enc.pdf", "encrypted"),
-    "corrupt PDF": (lambda p: (p.write_bytes(b"%PDF-1.7\n" + b"\x00garbage" * 50), p)[1], "bad.pdf", "cannot open the PDF"),
+    "corrupt PDF": (lambda p: (p.write_bytes(b"%PDF-1.7\n" + b"\x00garbage" * 50), p)[1], "bad.pdf",
+                    "cannot open the PDF"),
     "scanned PDF": (_scanned, "scan.pdf", "scanned"),
     "empty PDF": (_blank, "blank.pdf", "no text"),
     "zero-byte file": (lambda p: (p.write_bytes(b""), p)[1], "zero.pdf", "empty"),

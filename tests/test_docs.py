@@ -116,7 +116,8 @@ def test_the_detectors_leave_data_alone(text):
 
 
 def test_python_prose_is_comments_and_docstrings_not_literals():
-    source = '"""Module (issue 3)."""\nX = "sk-canary-7f3a9c1e5b"  # issue 4\nY = 1\n"""Y\'s docstring at 1a2b3c4d."""\n'
+    source = ('"""Module (issue 3)."""\nX = "sk-canary-7f3a9c1e5b"  # issue 4\nY = 1\n'
+              '"""Y\'s docstring at 1a2b3c4d."""\n')
     prose = " ".join(text for _, text in python_prose(source))
     assert "issue 3" in prose and "issue 4" in prose and "1a2b3c4d" in prose
     assert "7f3a9c1e5b" not in prose
@@ -183,7 +184,8 @@ def test_the_link_checker_finds_dead_links(tmp_path):
     page = tmp_path / "README.md"
     page.write_text("[ok](docs/a.md) [ok](docs/a.md#the-sandbox-xypy) [web](https://example.org) `[no](code.md)`\n"
                     "[gone](docs/b.md) [bad anchor](docs/a.md#nope) [out](../shared/DESIGN.md)\n```\n[x](y.md)\n```\n")
-    assert [d.split(":")[0] for d in dead_links(page, tmp_path)] == ["docs/b.md", "docs/a.md#nope", "../shared/DESIGN.md"]
+    assert [d.split(":")[0] for d in dead_links(page, tmp_path)] == [
+        "docs/b.md", "docs/a.md#nope", "../shared/DESIGN.md"]
 
 
 @pytest.mark.parametrize("path", markdown_files(), ids=lambda p: str(p.relative_to(ROOT)))

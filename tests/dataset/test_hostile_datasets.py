@@ -295,7 +295,8 @@ def test_splits_views_and_layouts(sources, tmp_path):
 
 def test_control_characters_in_names_stay_on_one_line(sources, tmp_path):
     data = copy(sources, "nerfstudio", tmp_path)
-    edit_json(data / "transforms.json", lambda m: m["frames"][0].__setitem__("file_path", "images/evil\nname\x1b[31m.png"))
+    edit_json(data / "transforms.json",
+              lambda m: m["frames"][0].__setitem__("file_path", "images/evil\nname\x1b[31m.png"))
     message = refuses(data, r"evil\\nname\\x1b\[31m\.png")
     assert "\x1b" not in message
 

@@ -73,10 +73,11 @@ def _small_parts(run: Path) -> None:
          "terminals": ["hash"], "status": "used", "used": True, "confidence": 0.93,
          "evidence": [{"quote": f"we use a hash grid {HOSTILE}", "section": "3.1", "page": 4, "line": None,
                        "kind": "alias", "detail": "hash grid", "role": "method", "weight": 1.0, "usage": True}]}]))
-    (run / "citations.json").write_text(json.dumps({"graph": {"directed": True, "nodes": [{"id": "target"},
-                                        {"id": "instant-ngp"}], "links": [{"source": "target", "target": "instant-ngp",
-                                                                           "relation": "uses", "components": ["hash_grid"]}]},
-                                        "resolution": {"filled": ["PosEncoding"]}, "uses": []}))
+    (run / "citations.json").write_text(json.dumps({
+        "graph": {"directed": True, "nodes": [{"id": "target"}, {"id": "instant-ngp"}],
+                  "links": [{"source": "target", "target": "instant-ngp", "relation": "uses",
+                             "components": ["hash_grid"]}]},
+        "resolution": {"filled": ["PosEncoding"]}, "uses": []}))
     (run / "equations.yaml").write_text(yaml.safe_dump({
         "paper": "A Test Paper", "summary": "0 of 1 novel parts implemented from the paper's equations",
         "equations": {"numbered": 1, "read": 1, "displayed": 1}, "seconds": 0.1,

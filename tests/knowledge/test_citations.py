@@ -76,7 +76,7 @@ We use the proposal network of~\cite{barron2022mip}. Our encoding follows \citet
 \bibitem{muller2022} T. M\"uller et al. Instant neural graphics primitives with a multiresolution hash encoding. ACM TOG, 2022.
 \end{thebibliography}
 \end{document}
-""")
+""")  # noqa: E501
     uses = find_citation_uses(ingest(tex))
     assert [(u.relation, u.keys, u.papers, u.components) for u in uses][0] == (
         "adopts", ["barron2022mip"], ["mipnerf360"], ["proposal_networks"])
@@ -86,7 +86,8 @@ def test_reference_matching_by_arxiv_then_title():
     by_arxiv = Reference(key="4", raw="T. Müller et al. Some garbled title. ACM TOG 2022. arXiv:2201.05989v2",
                          title="Some garbled title")
     assert match_reference(by_arxiv).key == "instant-ngp"
-    by_title = Reference(key="2", title="Mip-nerf: A multiscale representation for anti-aliasing neural radiance fields")
+    by_title = Reference(key="2",
+                         title="Mip-nerf: A multiscale representation for anti-aliasing neural radiance fields")
     assert match_reference(by_title).key == "mipnerf"
     in_raw = Reference(key="9", raw="B. Mildenhall et al. NeRF: Representing scenes as neural radiance fields for "
                                     "view synthesis. In ECCV, 2020.", title="")

@@ -37,7 +37,8 @@ def mixed_paper(tmp_path):
         "3 Method": (
             "We encode positions with a positional encoding of $L=10$ frequencies and sample each ray with "
             "hierarchical volume sampling, drawing $N_c=64$ coarse and $N_f=128$ fine samples.\n\n"
-            "$$\n\\gamma(p) = (\\sin(2^{0}\\pi p), \\cos(2^{0}\\pi p), \\dots, \\sin(2^{L-1}\\pi p), \\cos(2^{L-1}\\pi p))\n\\tag{1}\n$$\n\n"
+            "$$\n\\gamma(p) = (\\sin(2^{0}\\pi p), \\cos(2^{0}\\pi p), \\dots, "
+            "\\sin(2^{L-1}\\pi p), \\cos(2^{L-1}\\pi p))\n\\tag{1}\n$$\n\n"
             "The loss is the mean squared error between rendered and true pixel colours."),
         "4 Experiments": (
             "We compare against Instant-NGP and its multiresolution hash encoding, which we outperform on every "
@@ -55,7 +56,8 @@ def test_method_uses_are_detected_with_located_evidence(mixed_paper):
     kinds = {e.kind for e in pe.uses}
     assert {"alias", "equation", "hyperparameter"} <= kinds  # alias, Eq. 1 fragment, L = 10
     assert all(e.role == "method" for e in pe.uses)
-    assert any(e.kind == "hyperparameter" and "num_coarse_samples" in e.detail for e in found["hierarchical_sampling"].uses)
+    assert any(e.kind == "hyperparameter" and "num_coarse_samples" in e.detail
+               for e in found["hierarchical_sampling"].uses)
     assert_quotes_found(mixed_paper, detections)
 
 

@@ -104,7 +104,7 @@ papers:
     reference: {method: depth-nerfacto, note: needs depth images the scene does not have}
     novelty:
       - {id: distortion, kind: loss, weight: 1.0, where: "Eq. 1", plan: model.losses.distortion, check: "checks.py:boom"}
-"""
+"""  # noqa: E501
 
 
 def test_every_kind_of_row_failure_and_the_rest_runs(tmp_path):

@@ -213,7 +213,8 @@ def test_phrases_are_copied_from_the_paper(paper):
     if not paper.input.is_file():
         pytest.skip(f"paper {paper.input} not present (the shared papers folder is outside the project)")
     text = _normal(_paper_text(paper.input))
-    assert all(len(_normal(p)) >= 4 for i in paper.novelty for p in i.phrases), "a phrase without words matches anything"
+    assert all(len(_normal(p)) >= 4 for i in paper.novelty for p in i.phrases), \
+        "a phrase without words matches anything"
     assert _normal("a phrase no paper of ours contains") not in text
     missing = [(i.id, p) for i in paper.novelty for p in i.phrases if _normal(p) not in text]
     assert not missing, missing

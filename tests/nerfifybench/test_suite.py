@@ -62,7 +62,8 @@ def test_a_good_suite_is_typed(tmp_path):
     ("checks.py:ok", "checks.py", "expected FILE.py:FUNCTION"),
     ("id: p1", "id: P 1", "papers[0].id: 'P 1' is not an id"),
     ("iterations: 4", "iterations: 0", "budget.iterations must be at least 1, got 0"),
-    ("budget: {iterations: 4, every: 2}", "budget: {iterations: 4, every: 2}\nseeds: []", "seeds: expected a non-empty"),
+    ("budget: {iterations: 4, every: 2}", "budget: {iterations: 4, every: 2}\nseeds: []",
+     "seeds: expected a non-empty"),
     ("papers:", "papers: 3\nx:", "unknown key 'x'"),
 ])
 def test_malformed_suites_are_one_line(tmp_path, old, new, message):

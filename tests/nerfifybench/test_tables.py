@@ -27,8 +27,8 @@ def test_tables_in_the_papers_layouts(tmp_path):
     tasks = [Task("p1", "default", c, 0) for c in ("reference", "full", "no-citations")] + \
             [Task("p2", "default", c, 0) for c in ("reference", "full", "no-citations")]
     results = [
-        {"status": "ok", "metrics": {"psnr": 20.0, "ssim": 0.6, "lpips": 0.3}, "curve": curve([5.0, 10.0], [15.0, 20.0]),
-         "executability": {"trains": True}, "reference": "nerfacto"},
+        {"status": "ok", "metrics": {"psnr": 20.0, "ssim": 0.6, "lpips": 0.3},
+         "curve": curve([5.0, 10.0], [15.0, 20.0]), "executability": {"trains": True}, "reference": "nerfacto"},
         generated(19.8, [4.0, 8.0], [16.0, 19.8], 0.75),
         generated(12.0, [4.0, 8.0], [10.0, 12.0], 0.25, trains=False),
         {"status": "failed", "reason": "reference kplanes: ns-train kplanes: exit code 2: invalid choice",
@@ -40,8 +40,8 @@ def test_tables_in_the_papers_layouts(tmp_path):
     ]
     for t, r in zip(tasks, results, strict=False):
         r["key"] = t.key
-    meta = {"suite": "s", "date": "2026-11-24", "executor": "local", "machine": "x86_64", "command": "ns-nerfify bench s",
-            "ablations": ["no-citations"],
+    meta = {"suite": "s", "date": "2026-11-24", "executor": "local", "machine": "x86_64",
+            "command": "ns-nerfify bench s", "ablations": ["no-citations"],
             "papers": {p: {"reported": {"psnr": 21.0}, "reference": "nerfacto" if p == "p1" else "kplanes",
                            "reference_note": "", "budget": {"iterations": 20}} for p in ("p1", "p2")}}
     payload = write_outputs(tmp_path, meta, results, tasks)

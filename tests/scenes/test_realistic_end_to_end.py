@@ -25,7 +25,8 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "gridlite_paper.md"
 CLI = Path(sys.executable).with_name("ns-nerfify")
 SMALL = dict(resolution=32, n_train=8, n_val=1, n_test=3, spp=4)
-KEPT = ("model.field.MLPField.spatial_distortion", "model.field.MLPField.appearance_embedding", "model.camera_optimizer")
+KEPT = ("model.field.MLPField.spatial_distortion", "model.field.MLPField.appearance_embedding",
+        "model.camera_optimizer")
 # case -> (scene, settings, export format, expected format, bounded, parts kept for the scene)
 CASES = {
     "nerfstudio": ("garden-360", dict(SMALL, poses="exact"), None, "nerfstudio", False, KEPT),

@@ -97,5 +97,6 @@ def test_a_huge_log_is_read_by_its_tail_only(tmp_path):
 def test_a_record_over_the_record_limit_is_skipped_not_the_file(tmp_path):
     """An image summary (or any record over the limit) is skipped unread; the scalars after it are still read."""
     big = record(b"\x00" * (ev.MAX_RECORD + 1))
-    (tmp_path / "events.out.tfevents.1.img").write_bytes(scalar(ev.LOSS_TAG, 1, 1.0) + big + scalar(ev.LOSS_TAG, 2, 0.5))
+    (tmp_path / "events.out.tfevents.1.img").write_bytes(
+        scalar(ev.LOSS_TAG, 1, 1.0) + big + scalar(ev.LOSS_TAG, 2, 0.5))
     assert ev.read_scalars(tmp_path) == {ev.LOSS_TAG: {1: 1.0, 2: 0.5}}

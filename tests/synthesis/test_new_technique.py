@@ -33,7 +33,8 @@ def test_the_technique_is_one_registry_entry_with_a_card():
 
 
 def test_the_paper_gets_random_fourier_features_with_evidence(derived):
-    assert derived.plan.get(SLOT) == {"fourier_features": {"num_frequencies": 128, "scale": 4.0, "include_input": False}}
+    assert derived.plan.get(SLOT) == {
+        "fourier_features": {"num_frequencies": 128, "scale": 4.0, "include_input": False}}
     assert "mapping size of m = 128" in derived.plan.evidence_for(f"{SLOT}.fourier_features.scale")
     evidence = derived.plan.evidence_for(SLOT)
     assert "random Fourier features" in evidence and "3.1" in evidence

@@ -157,7 +157,8 @@ def test_nerf_text_yields_a_vanilla_nerf_equivalent_plan(nerf):
     assert plan["model"]["losses"]["rgb"] == {"l2": {}}
     assert plan["datamanager"]["train_num_rays_per_batch"] == 4096
     opt = plan["optimizers"]["fields"]
-    assert opt["optimizer"]["adam"]["lr"] == pytest.approx(5e-4) and opt["optimizer"]["adam"]["eps"] == pytest.approx(1e-7)
+    assert opt["optimizer"]["adam"]["lr"] == pytest.approx(5e-4)
+    assert opt["optimizer"]["adam"]["eps"] == pytest.approx(1e-7)
     assert opt["scheduler"]["exponential_decay"]["lr_final"] == pytest.approx(5e-5)
     assert plan["trainer"]["max_num_iterations"] == 300000  # "100-300k iterations": the upper end, noted
     assert any("100" in n and "300000" in n for n in plan["notes"])

@@ -55,7 +55,8 @@ def test_unbounded_scene_keeps_contraction(tmp_path):
 def _dynamic_plan():
     plan = load_reference_plan("kplanes-static")
     plan["scene"]["timestamps"] = True
-    plan["model"]["field"]["MLPField"]["pos_encoding"] = {"kplanes_time": {"resolutions": [32, 64], "time_resolution": 8}}
+    plan["model"]["field"]["MLPField"]["pos_encoding"] = {
+        "kplanes_time": {"resolutions": [32, 64], "time_resolution": 8}}
     plan["model"]["regularizers"].update(time_smoothness={"weight": 0.001}, plane_l1={"weight": 0.0001})
     return validate(plan) and plan
 

@@ -22,7 +22,8 @@ def test_warm_ups_scale_with_the_run_and_decays_do_not():
     assert changes == {"optimizers.fields.scheduler.exponential_decay.warmup_steps": (512, 5)}
     assert fit.args == ["--optimizers.fields.scheduler.warmup-steps", "5"]
     record = fit.record()
-    assert record["paper_iterations"] == 30000 and record["run_iterations"] == 300 and record["ns_train_args"] == fit.args
+    assert record["paper_iterations"] == 30000 and record["run_iterations"] == 300
+    assert record["ns_train_args"] == fit.args
 
 
 def test_a_run_as_long_as_the_paper_changes_nothing():
