@@ -322,9 +322,10 @@ def test_the_hyperparameter_mapping_is_card_data(foo_paper, tmp_path):
 
 
 def _paper_hyperparameter_names() -> set:
-    from nerfify_ns.paper.hyperparams import PATTERNS_FILE
+    """The names the paper reader extracts: hyperparams.yaml's generic entries and the cards' own patterns."""
+    from nerfify_ns.paper.hyperparams import load_specs
 
-    return {entry["name"] for entry in yaml.safe_load(PATTERNS_FILE.read_text(encoding="utf-8"))}
+    return {name for name, *_ in load_specs()}
 
 
 def test_card_hyperparameters_read_paper_names_into_terminal_parameters():
