@@ -243,6 +243,13 @@ def mlp_field(ctx: Context) -> dict:
                              f"skip_connections={py(backbone_skips(backbone)) if backbone_skips(backbone) else None}",
                              *(f"{k}={backbone[k]}" for k in ("density_layers", "density_width", "color_layers",
                                                               "color_width")), 'implementation="tcnn"')
+    elif backbone.get("hidden_norm", "none") == "layer":
+        imports += _imports(ctx, {"imports": ["from .components.mlp_normed import NormedMLP"],
+                                  "component": "mlp_normed"})
+        backbone_ctor = call("NormedMLP", f"in_dim={backbone_in}", "num_layers=num_layers",
+                             "layer_width=layer_width", f"out_dim={out_dim}",
+                             f"skip_connections={py(backbone_skips(backbone)) if backbone_skips(backbone) else None}",
+                             f"out_activation={'None' if split else 'nn.ReLU()'}")
     else:
         backbone_ctor = None
 
@@ -289,6 +296,8 @@ def mlp_field(ctx: Context) -> dict:
     skips = list(backbone_skips(backbone)) if backbone else None
     architecture = (f"{backbone['num_layers']} x {backbone['layer_width']} MLP" if backbone
                     else f"{custom_bb['cls']} backbone")
+    if backbone.get("hidden_norm", "none") == "layer":
+        architecture += " with layer normalisation after each hidden layer"
     if branches:
         architecture += (f" with a {backbone['density_layers']} x {backbone['density_width']} density branch and a "
                          f"{backbone['color_layers']} x {backbone['color_width']} colour branch")

@@ -51,6 +51,9 @@ class Backbone:
     """Layers of the colour branch, whose output are the geometry features of the colour head (with branches)."""
     color_width: int = param(128, range=(8, 1024))
     """Units per layer of the colour branch (with branches)."""
+    hidden_norm: Literal["none", "layer"] = param("none")
+    """Normalisation after each hidden layer's linear map, before its activation: none, or layer (LayerNorm over
+    the units with a learned gain and bias, Ba et al. 2016, arXiv 1607.06450)."""
 
 
 @dataclass
@@ -109,6 +112,11 @@ def _build_backbone(p, env):
                            skip_connections=backbone_skips(p), density_layers=p["density_layers"],
                            density_width=p["density_width"], color_layers=p["color_layers"],
                            color_width=p["color_width"])
+    if p.get("hidden_norm", "none") == "layer":
+        from nerfify_ns.components.mlp_normed import NormedMLP
+
+        return NormedMLP(in_dim=int(env["in_dim"]), num_layers=p["num_layers"], layer_width=p["layer_width"],
+                         skip_connections=backbone_skips(p) or None)
     return MLP(in_dim=int(env["in_dim"]), num_layers=p["num_layers"], layer_width=p["layer_width"],
                skip_connections=backbone_skips(p) or None, activation=nn.ReLU(), implementation="torch")
 
@@ -167,6 +175,11 @@ BRANCHES_NEED_A_LINEAR_DENSITY_HEAD = Constraint(
     lambda p, plan: not p["branches"] or "density_linear" in (
         (((plan.get("model") or {}).get("field") or {}).get("MLPField") or {}).get("density_head") or {}))
 
+HIDDEN_NORM_WITHOUT_BRANCHES = Constraint(
+    "a normalisation after each hidden layer (hidden_norm) is built for the single backbone MLP: not with "
+    "separate density and colour branches",
+    lambda p, plan: p.get("hidden_norm", "none") == "none" or not p["branches"])
+
 FEATURES_IN = {"features": T("[N, in_dim]", grad=True, doc="encoded positions (a width the harness chooses)")}
 DENSITY_OUT = {"density": T("[N, 1]", range=(0.0, None), doc="sigma >= 0")}
 HIDDEN_IN = T("[N, in_dim]", grad=True, role="pre_density", doc="backbone output")
@@ -181,7 +194,7 @@ TERMINALS = [
                                                          "then the colour branch's)")}),
         harness=Harness(build=_build_backbone, call=_call("hidden"), cases=("values_1e8", "empty_batch", "half"),
                         small=SMALL),
-        constraints=(SKIPS_BEFORE_LAST_LAYER, BRANCHES_NEED_A_LINEAR_DENSITY_HEAD)),
+        constraints=(SKIPS_BEFORE_LAST_LAYER, BRANCHES_NEED_A_LINEAR_DENSITY_HEAD, HIDDEN_NORM_WITHOUT_BRANCHES)),
     TerminalDef(
         "density_linear", "DensityHead", DensityLinear,
         "A linear density head on the backbone features, then an activation (NeRF).",
