@@ -202,3 +202,48 @@ def test_numbers_with_a_thousands_separator(text, value):
 def test_a_decimal_comma_is_not_read_as_a_thousands_separator():
     compiled = compile_equations([r"y = 0{,}5 x"], {"x": ("R",)}, ["y"])
     assert not compiled.ok
+
+
+BIMODAL = r"""# BimodalNeRF: A Density Prior
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, and regularise the density.
+
+## 3 Method
+
+### 3.1 Bimodal density prior
+
+We add a regulariser that pushes each sample's density towards empty or solid space, with a prior that is a mixture
+of two Laplacians:
+
+$$Q(u) \propto e^{-|u|/0.5} + e^{-|1-u|/0.5}, \quad \mathcal{L}_{bi} = -\log Q(\sigma_i) \tag{2}$$
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+
+def test_the_binder_records_the_factor_of_a_proportionality_and_the_function_it_applies(tmp_path):
+    """A test paper's prior written with ``\\propto`` and applied to the density: the part is built, its record says
+    the factor is taken as 1 and why, and the regulariser is the mean of -log Q(sigma) written by hand."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "bimodal.md"
+    path.write_text(BIMODAL)
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "Regularizers"]
+    assert record.status == IMPLEMENTED, record.reason
+    assert any("taken as 1" in n and "propto" in n for n in record.notes), record.notes
+    assert any("argument u replaced by sigma" in n for n in record.notes), record.notes
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]().double()
+    sigma = torch.rand(4, 6, 1, dtype=torch.float64, requires_grad=True) * 2
+    got = module(sigma)
+    want = -torch.log(torch.exp(-sigma.abs() / 0.5) + torch.exp(-(1 - sigma).abs() / 0.5)).mean()
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (sigma,))
