@@ -14,8 +14,10 @@ Run: ``.venv/bin/python -m nerfify_ns.benchmarks.novelty_causes examples/bench/d
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from nerfify_ns.errors import NerfifyError
 from nerfify_ns.interrupts import run_interruptible
 from nerfify_ns.nerfifybench.survey import survey, totals, write
 from nerfify_ns.synthesis.novel.causes import cause_of, histogram
@@ -55,7 +57,11 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("survey-results"), help="where survey.json/.md are written")
     parser.add_argument("--verify", action="store_true", help="run the ladder too (minutes per paper)")
     args = parser.parse_args()
-    rows = survey(args.target, verify=args.verify)
+    try:
+        rows = survey(args.target, verify=args.verify)
+    except NerfifyError as e:  # a suite or folder we cannot read: one line, nothing written
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(2)
     write(rows, args.out)
     print(report(rows))
 
