@@ -257,8 +257,14 @@ def read_group(s: str, i: int) -> tuple[str | None, int]:
         j += 1
     if j >= len(s) or s[j] != "{":
         return None, i
+    close = _group_close(s, j + 1)
+    return (s[j + 1:close], close + 1) if close < len(s) else (None, i)
+
+
+def _group_close(s: str, k: int) -> int:
+    """The index of the ``}`` that closes the group ``s[k:]`` stands in (escaped braces skipped); ``len(s)`` when
+    the group never closes."""
     depth = 0
-    k = j
     while k < len(s):
         c = s[k]
         if c == "\\":
@@ -267,11 +273,11 @@ def read_group(s: str, i: int) -> tuple[str | None, int]:
         if c == "{":
             depth += 1
         elif c == "}":
-            depth -= 1
             if depth == 0:
-                return s[j + 1:k], k + 1
+                return k
+            depth -= 1
         k += 1
-    return None, i
+    return len(s)
 
 
 def _arg(s: str, i: int) -> tuple[str | None, int]:
@@ -328,19 +334,7 @@ def _font_declarations(s: str) -> str:
             s = s[:m.start()] + f"{cmd}{{{group}}}" + s[after:]
             continue
         # the declaration's scope ends at the close of the enclosing group (or the string's end)
-        depth, k = 0, m.end()
-        while k < len(s):
-            c = s[k]
-            if c == "\\":
-                k += 2
-                continue
-            if c == "{":
-                depth += 1
-            elif c == "}":
-                if depth == 0:
-                    break
-                depth -= 1
-            k += 1
+        k = _group_close(s, m.end())
         body = s[m.end():k].strip()
         s = s[:m.start()] + (f"{cmd}{{{body}}}" if body else "") + s[k:]
     return s
