@@ -41,8 +41,8 @@ def scripted(answers, cache=None, rounds=3):
 @pytest.mark.slow
 def test_coder_stops_within_its_rounds_with_the_diagnosis(tmp_path):
     """CI's case (cheap checks): a syntax error (the composer refuses it), then an import of a missing module (the
-    sandboxed static rung), with a bound of two rounds: each diagnosis goes back, then the loop stops, the compiler's result
-    stands and the record, the warning and agents.json carry the last diagnosis."""
+    sandboxed static rung), with a bound of two rounds: each diagnosis goes back, then the loop stops, the compiler's
+    result stands and the record, the warning and agents.json carry the last diagnosis."""
     from nerfify_ns.pipeline import PaperOptions, run_paper
 
     impl = run_paper(EXAMPLE, options=PaperOptions(dry_run=True)).implementation

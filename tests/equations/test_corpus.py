@@ -31,7 +31,8 @@ def _render_reference(v):
     tau = v["sigma"] * v["delta"]
     trans = np.exp(-_exclusive_cumsum(tau))
     weights = trans * (1.0 - np.exp(-tau))
-    return {"T": trans, "hat C": np.einsum("rs,rsk->rk", weights, v["c"]), "C": np.einsum("rs,rsk->rk", weights, v["c"])}
+    colour = np.einsum("rs,rsk->rk", weights, v["c"])
+    return {"T": trans, "hat C": colour, "C": colour}
 
 
 def _alpha_reference(v):
@@ -218,7 +219,8 @@ CORPUS = [
          {"h": ("R", 6), "d": ("R", 3)}, ["sigma", "c"],
          sizes={"W_sigma": (1, 6), "b_sigma": (1,), "W_c": (3, 9), "b_c": (3,)}, domains={"h": (-1, 1)},
          reference=_heads_reference),
-    Case("ray entropy regulariser", [r"\mathcal{L}_{ent} = \mathbb{E}_{\mathbf{r}}\left[-\sum_{i} w_i \log(w_i)\right]"],
+    Case("ray entropy regulariser",
+         [r"\mathcal{L}_{ent} = \mathbb{E}_{\mathbf{r}}\left[-\sum_{i} w_i \log(w_i)\right]"],
          {"w": ("R", "S")}, ["cal L_ent"], reference=_entropy_reference),
     Case("a finite sum over frequencies", [r"y = \sum_{k=0}^{L-1} \frac{\sin(2^{k}\pi x)}{2^{k}}"],
          {"x": ("R", 2)}, ["y"], sizes={"L": 4},

@@ -200,8 +200,8 @@ def test_importance_by_a_quantity_of_the_paper_is_an_approximation():
 
 def test_a_skip_at_a_stated_layer_counts_as_the_paper_does():
     plan = Plan.of(load_reference_plan("vanilla-nerf"))
-    result, plan = _build("Backbone", "model.field.MLPField.backbone",
-                          ["A skip connection concatenates the encoded input to the 6th layer's activation."], plan=plan)
+    sentence = "A skip connection concatenates the encoded input to the 6th layer's activation."
+    result, plan = _build("Backbone", "model.field.MLPField.backbone", [sentence], plan=plan)
     assert result.status == IMPLEMENTED
     assert plan.get("model.field.MLPField.backbone")["skip_connections"] == [5]
 
