@@ -123,6 +123,7 @@ def main(spec_path: str) -> int:
         _, value = _lookup(spec["plan"], spec["path"])
         target = Target(cls=cls, plan=spec["plan"], path=spec["path"], value=value, params=spec.get("params") or {},
                         record=spec.get("record"))
+        sys.path.insert(0, str(Path(spec["check"]).parent))  # a check file's neighbours (its shared references)
         check = getattr(_load(Path(spec["check"]), "nerfify_bench_check"), spec["function"])
     except Exception as exc:  # noqa: BLE001 - a component or check that cannot be loaded is a check error
         return finish("error", f"loading: {type(exc).__name__}: {exc}")

@@ -1,24 +1,14 @@
 """Checks of 4D Gaussian Splatting (Wu et al. 2024) items: reference functions written from the paper."""
 
+import _refs  # checks/_refs.py: the check's folder is on sys.path in the check process
 import torch
-
-
-def _refs():
-    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def structure_encoder(target):
     """Eq. 7: the spatial-temporal structure encoder: multi-resolution planes over (x, y), (x, z), (y, z), (x, t),
     (y, t), (z, t), each read by bilinear interpolation, the six features of a resolution multiplied (Hadamard)
     and the resolutions concatenated: six planes per resolution, combined by product."""
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     assert v.get("reduce") == "product", f"planes combined by {v.get('reduce')}, Eq. 7 by product"
     assert len(v["resolutions"]) >= 1 and v.get("time_resolution", 0) > 1, v
     from nerfify_ns.components.kplanes import MultiScaleKPlanes
@@ -48,4 +38,4 @@ def l1_loss(target):
 def tv_loss(target):
     """Eq. 9: the grid-based total variation loss on the planes."""
     assert float(target.value.get("weight", 0)) > 0, "the TV loss has no weight"
-    _refs().plane_tv()
+    _refs.plane_tv()

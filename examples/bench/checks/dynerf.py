@@ -1,23 +1,13 @@
 """Checks of DyNeRF (Li et al. 2022) items: reference functions written from the paper, run against the generated
 components (typed field wrappers, schedule hooks and pixel samplers of the plan, built from its sentences)."""
 
+import _refs  # checks/_refs.py: the check's folder is on sys.path in the check process
 import numpy as np
 import torch
 
 
-def _refs():
-    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _codes(target) -> dict:
-    params = (_refs().as_derived(target) or {}).get("frame_codes")
+    params = (_refs.as_derived(target) or {}).get("frame_codes")
     assert params, "no time-variant latent codes in the plan"
     return params
 
@@ -51,7 +41,7 @@ def hierarchical_training(target):
     keeps only every 30th frame active at the start and every frame at the end."""
     from nerfify_ns.components.schedule_hooks import ImageCurriculum
 
-    params = (_refs().as_derived(target) or {}).get("image_curriculum")
+    params = (_refs.as_derived(target) or {}).get("image_curriculum")
     assert params, "no curriculum over frames in the plan"
     assert params["rule"] == "keyframes" and params["keyframe_stride"] == 30, params
     hook = ImageCurriculum(**params)
@@ -84,12 +74,12 @@ def ray_importance_sampling(target):
 def loss(target):
     """Eq. 4: the squared error between rendered and observed colours (of the coarse and the fine rendering)."""
     assert target.path.endswith(".l2") or "l2" in (target.value or {}), f"colour loss {target.value}, not L2"
-    _refs().mse(torch.nn.MSELoss())
+    _refs.mse(torch.nn.MSELoss())
 
 
 def mlp(target):
     """Sec. 5 (implementation details): NeRF's MLP with 512 activations in its first 8 layers instead of 256."""
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     assert (v["num_layers"], v["layer_width"]) == (8, 512), \
         f"{v['num_layers']} layers of {v['layer_width']}, the paper's 8 of 512"
     assert np.isfinite(v["layer_width"])

@@ -1,5 +1,6 @@
 """Checks of GH-NeRF items: reference functions written from the paper's equations."""
 
+import _refs  # checks/_refs.py: the check's folder is on sys.path in the check process
 import torch
 
 
@@ -18,17 +19,6 @@ def sh_colour_head(target):
     torch.testing.assert_close(head(torch.cat([y, geometry], -1)), want, rtol=1e-10, atol=1e-12)
 
 
-def _refs():
-    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def integrated_positional_encoding(target):
     """Eqs. 8-9 (mip-NeRF's integrated positional encoding): for a Gaussian (mu, Sigma), gamma = [sin(2^l mu)
     exp(-2^(2l-1) diag Sigma), cos(2^l mu) exp(-2^(2l-1) diag Sigma)], l = 0 .. L-1: the encoding the plan builds
@@ -36,7 +26,7 @@ def integrated_positional_encoding(target):
     import numpy as np
     from nerfstudio.field_components.encodings import NeRFEncoding
 
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     freqs = 2.0 ** np.linspace(v["min_freq_exp"], v["max_freq_exp"], v["num_frequencies"])
     assert np.allclose(freqs[1:] / freqs[:-1], 2.0), f"frequencies are not octaves (ratio {freqs[1] / freqs[0]:.3f})"
     enc = NeRFEncoding(in_dim=3, num_frequencies=v["num_frequencies"], min_freq_exp=v["min_freq_exp"],
@@ -54,4 +44,4 @@ def integrated_positional_encoding(target):
 def coarse_to_fine(target):
     """Eq. 10: the fine samples drawn from the coarse weights' piecewise-constant PDF by inverse transform
     sampling (the plan's hierarchical sampler)."""
-    _refs().inverse_transform_sampling(int(target.value["num_importance_samples"]))
+    _refs.inverse_transform_sampling(int(target.value["num_importance_samples"]))

@@ -2,6 +2,7 @@
 ``ns-nerfify bench`` (in the sandbox) on what the pipeline generated. Each takes a
 ``nerfify_ns.nerfifybench.checkrun.Target`` and raises AssertionError when the generated part disagrees."""
 
+import _refs  # checks/_refs.py: the check's folder is on sys.path in the check process
 import numpy as np
 import torch
 
@@ -49,22 +50,12 @@ def volume_rendering(target):
     np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
 
 
-def _refs():
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def hierarchical_sampling(target):
     """Sec. 5.2, Eq. 5: N_c = 64 coarse samples, N_f = 128 fine ones drawn by inverse transform sampling from the
     piecewise-constant PDF of the normalised coarse weights w_i / sum_j w_j."""
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     assert (v["num_coarse_samples"], v["num_importance_samples"]) == (64, 128), f"N_c, N_f = {v}, the paper's 64, 128"
-    _refs().inverse_transform_sampling(v["num_importance_samples"])
+    _refs.inverse_transform_sampling(v["num_importance_samples"])
 
 
 def mlp(target):
@@ -73,7 +64,7 @@ def mlp(target):
     MLP) has the fifth layer reading 256 + the input's width."""
     from nerfstudio.field_components.mlp import MLP
 
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     assert (v["num_layers"], v["layer_width"], list(v["skip_connections"])) == (8, 256, [4]), v
     net = MLP(in_dim=63, num_layers=v["num_layers"], layer_width=v["layer_width"],
               skip_connections=tuple(v["skip_connections"]), out_activation=torch.nn.ReLU())
@@ -86,7 +77,7 @@ def photometric_loss(target):
     """Eq. 6: the squared error between rendered and true pixel colours (of the coarse and the fine rendering):
     the plan's l2 colour loss (Nerfstudio's MSELoss) is its mean over rays and channels."""
     assert "l2" in (target.value or {}) or target.path.endswith(".l2"), f"colour loss {target.value}, not L2"
-    _refs().mse(torch.nn.MSELoss())
+    _refs.mse(torch.nn.MSELoss())
 
 
 def schedule(target):
@@ -94,7 +85,7 @@ def schedule(target):
     optimisation: Nerfstudio's exponential decay with the plan's numbers reaches the final rate at the last step."""
     from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
 
-    v = _refs().as_derived(target)
+    v = _refs.as_derived(target)
     lr = target.plan["optimizers"]["fields"]["optimizer"]["adam"]["lr"]
     assert np.isclose(lr, 5e-4) and np.isclose(v["lr_final"], 5e-5), \
         f"lr {lr} -> {v['lr_final']}, the paper's 5e-4 -> 5e-5"
@@ -109,5 +100,5 @@ def schedule(target):
 
 def batch(target):
     """Sec. 5.3: a batch size of 4096 rays."""
-    rays = _refs().as_derived(target)
+    rays = _refs.as_derived(target)
     assert rays == 4096, f"{rays} rays per batch, the paper's 4096"

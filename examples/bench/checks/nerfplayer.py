@@ -1,18 +1,8 @@
 """Checks of NeRFPlayer (Song et al. 2023) items: reference functions written from the paper, run against the
 generated component (a typed field wrapper of the plan, built from the paper's sentences)."""
 
+import _refs  # checks/_refs.py: the check's folder is on sys.path in the check process
 import torch
-
-
-def _refs():
-    """The shared reference functions (checks/_refs.py; check files are loaded by path)."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location("nerfify_bench_refs", Path(__file__).with_name("_refs.py"))
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def decomposition(target):
@@ -21,7 +11,7 @@ def decomposition(target):
     (a softmax), and the sample's density and colour are the probability-weighted sums of the three fields'."""
     from nerfify_ns.components.field_wrappers import FieldBlend
 
-    params = (_refs().as_derived(target) or {}).get("field_blend")
+    params = (_refs.as_derived(target) or {}).get("field_blend")
     assert params, "no blend of fields in the plan"
     assert params["num_fields"] == 3, f"{params['num_fields']} fields, the paper's static, deforming and new"
     assert params["mode"] == "mixer", \
@@ -46,7 +36,7 @@ def deformation_field(target):
     samples by a learned offset that depends on t and keeps the time."""
     from nerfify_ns.components.field_wrappers import DeformationNetwork
 
-    params = (_refs().as_derived(target) or {}).get("deformation")
+    params = (_refs.as_derived(target) or {}).get("deformation")
     assert params, "no deformation into a canonical space in the plan"
     net = DeformationNetwork(**params).double()
     torch.nn.init.normal_(net.network[-1].weight, std=0.1)  # trained weights: the offset is no longer zero
