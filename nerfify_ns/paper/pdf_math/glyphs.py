@@ -38,8 +38,22 @@ _SYMBOL_GREEK = dict(zip("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ",
                           "\\Psi", "Z"], strict=False))
 
 
+class Box:
+    """The centre of a box that has ``x0, y0, x1, y1`` in page coordinates (a glyph, a laid-out node)."""
+
+    __slots__ = ()
+
+    @property
+    def xc(self) -> float:
+        return (self.x0 + self.x1) / 2
+
+    @property
+    def yc(self) -> float:
+        return (self.y0 + self.y1) / 2
+
+
 @dataclass(eq=False, slots=True)
-class Glyph:
+class Glyph(Box):
     """One glyph of the text layer, as a LaTeX token with its geometry."""
 
     c: str
@@ -58,14 +72,6 @@ class Glyph:
     mapped: bool = True
     math: bool = False
     extra: dict = field(default_factory=dict)
-
-    @property
-    def xc(self) -> float:
-        return (self.x0 + self.x1) / 2
-
-    @property
-    def yc(self) -> float:
-        return (self.y0 + self.y1) / 2
 
 
 def _classify_tex(tex: str) -> str:

@@ -14,11 +14,11 @@ from nerfify_ns.equations.mathsym import FUNCTIONS, LATEX_FUNCTIONS, NAMED_OPERA
 from nerfify_ns.equations.normalize import normalize_latex
 
 from .actualtext import glyph_skeleton, latex_skeleton, similarity
-from .glyphs import Glyph
+from .glyphs import Box, Glyph
 
 
 @dataclass(eq=False)
-class Node:
+class Node(Box):
     """A laid-out element: a glyph or a composite (fraction, radical, operator with limits, fence, word)."""
 
     kind: str
@@ -31,14 +31,6 @@ class Node:
     tex: str = ""
     glyph: Glyph | None = None
     parts: dict = field(default_factory=dict)
-
-    @property
-    def xc(self) -> float:
-        return (self.x0 + self.x1) / 2
-
-    @property
-    def yc(self) -> float:
-        return (self.y0 + self.y1) / 2
 
     @property
     def composite(self) -> bool:
