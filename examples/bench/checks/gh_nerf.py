@@ -45,3 +45,29 @@ def coarse_to_fine(target):
     """Eq. 10: the fine samples drawn from the coarse weights' piecewise-constant PDF by inverse transform
     sampling (the plan's hierarchical sampler)."""
     _refs.inverse_transform_sampling(int(target.value["num_importance_samples"]))
+
+
+def layer_norm(target):
+    """Sec. 3.1 ("we use Layer Normalization after each fully-connected layer"): the backbone the plan builds
+    normalises every hidden layer, and its network is Linear -> LayerNorm -> ReLU per layer (the last one without
+    its ReLU, as Nerfstudio's MLP) (Ba et al. 2016:
+    each sample's units to zero mean and unit variance, then a learned gain and bias), checked against that chain
+    written here."""
+    from nerfify_ns.components.mlp_normed import NormedMLP
+
+    value = target.value or {}
+    params = value.get("mlp", value) if isinstance(value, dict) else {}
+    assert params.get("hidden_norm") == "layer", f"the backbone's hidden_norm is {params.get('hidden_norm')!r}"
+    torch.manual_seed(0)
+    net = NormedMLP(in_dim=5, num_layers=3, layer_width=8).double()
+    x = torch.randn(6, 5, dtype=torch.float64)
+    linears = [m for m in net.modules() if isinstance(m, torch.nn.Linear)]
+    norms = [m for m in net.modules() if isinstance(m, torch.nn.LayerNorm)]
+    assert len(linears) == len(norms) == 3, (len(linears), len(norms))
+    h = x
+    for i, (linear, norm) in enumerate(zip(linears, norms, strict=True)):
+        z = linear(h)
+        z = (z - z.mean(-1, keepdim=True)) / torch.sqrt(z.var(-1, unbiased=False, keepdim=True) + norm.eps)
+        h = z * norm.weight + norm.bias
+        h = torch.relu(h) if i < len(linears) - 1 else h  # Nerfstudio's MLP: no activation after its last layer
+    torch.testing.assert_close(net(x), h, rtol=1e-10, atol=1e-12)
