@@ -9,6 +9,14 @@ c = (i, j); each plane P_c is a learned [1, C, n_j, n_i] feature grid read with 
     f(q)   = prod_{c in C} f(q)_c                  (Eq. 2, Hadamard product; ``reduce="sum"`` sums)
     f(q)   = concat_{s in scales} f_s(q)           (Eq. 3, multi-scale features concatenated)
 
+``reduce="paired"`` (space-time only) is HexPlane's combination (Cao and Johnson, "HexPlane: A Fast
+Representation for Dynamic Scenes", CVPR 2023, arXiv 2301.09632, Eqs. 5-6): the six planes form three
+pairs, each a spatial plane and the space-time plane over the two other axes (XY/ZT, XZ/YT, YZ/XT); the
+two planes of a pair are multiplied elementwise, the three products concatenated and multiplied by a
+learned basis V^{RF} (R = 3C rows, F = C columns) so that a scale still yields C features:
+
+    f_s(q) = [P_XY(x,y) * P_ZT(z,t); P_XZ(x,z) * P_YT(y,t); P_YZ(y,z) * P_XT(x,t)] V^{RF}   (HexPlane Eq. 6)
+
 Spatial planes are initialised uniformly in [0.1, 0.5] and planes that involve time to 1, so a
 dynamic model starts static (K-Planes Sec. 3.2). Time has one resolution for every scale (the paper
 is multi-scale in space only).
@@ -51,7 +59,9 @@ class MultiScaleKPlanes(nn.Module):
     Args:
         resolutions: spatial resolution of each scale (K-Planes: 64, 128, 256, 512).
         num_components: features per plane, C (K-Planes: 32).
-        reduce: ``"product"`` (Hadamard product, Eq. 2) or ``"sum"`` over the planes of one scale.
+        reduce: ``"product"`` (Hadamard product, Eq. 2) or ``"sum"`` over the planes of one scale;
+            ``"paired"`` (space-time only): HexPlane's paired products concatenated and multiplied by a learned
+            basis V^{RF} [3C, C] (HexPlane Eq. 6).
         time_resolution: resolution of the time axis; ``None`` for a static (3D) model.
         init_a, init_b: uniform initialisation range of the spatial planes (K-Planes: 0.1, 0.5).
 
@@ -67,7 +77,7 @@ class MultiScaleKPlanes(nn.Module):
         self,
         resolutions: Sequence[int] = (64, 128, 256, 512),
         num_components: int = 32,
-        reduce: Literal["product", "sum"] = "product",
+        reduce: Literal["product", "sum", "paired"] = "product",
         time_resolution: int | None = None,
         init_a: float = 0.1,
         init_b: float = 0.5,
@@ -78,8 +88,10 @@ class MultiScaleKPlanes(nn.Module):
             raise ValueError(f"resolutions must be a non-empty list of integers >= 2, got {resolutions}")
         if num_components < 1:
             raise ValueError(f"num_components must be >= 1, got {num_components}")
-        if reduce not in ("product", "sum"):
-            raise ValueError(f"reduce must be 'product' or 'sum', got {reduce!r}")
+        if reduce not in ("product", "sum", "paired"):
+            raise ValueError(f"reduce must be 'product', 'sum' or 'paired', got {reduce!r}")
+        if reduce == "paired" and time_resolution is None:
+            raise ValueError("reduce='paired' (HexPlane's plane pairs) needs space-time planes: set time_resolution")
         if time_resolution is not None and int(time_resolution) < 2:
             raise ValueError(f"time_resolution must be >= 2, got {time_resolution}")
         self.resolutions = resolutions
@@ -101,6 +113,20 @@ class MultiScaleKPlanes(nn.Module):
                     nn.init.uniform_(plane, a=init_a, b=init_b)
                 planes.append(plane)
             self.grids.append(planes)
+        self.pairs: list[tuple[int, int]] = []
+        """Plane indices (spatial, space-time) of HexPlane's pairs, each over complementary axes (``paired``)."""
+        self.basis = nn.ParameterList()
+        """Per scale, HexPlane's V^{RF} [3C, C] (``paired`` only)."""
+        if reduce == "paired":
+            for p, pair in enumerate(self.plane_pairs):
+                if TIME_AXIS not in pair:
+                    rest = tuple(a for a in range(self.in_dim) if a not in pair)
+                    self.pairs.append((p, self.plane_pairs.index(rest)))
+            width = len(self.pairs) * self.num_components
+            for _ in resolutions:
+                basis = nn.Parameter(torch.empty(width, self.num_components))
+                nn.init.normal_(basis, std=width ** -0.5)
+                self.basis.append(basis)
 
     # ------------------------------------------------------------------ plane access (regularisers)
     def get_out_dim(self) -> int:
@@ -144,7 +170,12 @@ class MultiScaleKPlanes(nn.Module):
         batch_shape = coords.shape[:-1]
         flat = coords.reshape(-1, self.in_dim)
         scales = []
-        for planes in self.grids:
+        for s, planes in enumerate(self.grids):
+            if self.reduce == "paired":
+                products = [sample_plane(planes[a], flat[:, list(self.plane_pairs[a])])
+                            * sample_plane(planes[b], flat[:, list(self.plane_pairs[b])]) for a, b in self.pairs]
+                scales.append(torch.cat(products, dim=-1) @ self.basis[s])
+                continue
             feature: Tensor | None = None
             for pair, plane in zip(self.plane_pairs, planes, strict=False):
                 value = sample_plane(plane, flat[:, list(pair)])

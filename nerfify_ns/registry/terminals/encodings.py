@@ -70,6 +70,10 @@ class KPlanes:
 
 @dataclass
 class KPlanesTime(KPlanes):
+    reduce: Literal["product", "sum", "paired"] = param("product")
+    """How the planes of one scale combine: Hadamard product (K-Planes Eq. 2), sum, or HexPlane's pairs of a spatial
+    and the complementary space-time plane multiplied, concatenated and projected by a learned basis (HexPlane
+    Eq. 6)."""
     time_resolution: int = param(25, range=(2, 1024))
     """Resolution of the time axis of the space-time planes."""
 

@@ -7,7 +7,7 @@ Eq. 10), "the inputs are fed to every layer", "separate branches for density and
 importance" (DyNeRF's ray importance sampling), "we first train on keyframes" (DyNeRF's hierarchical training),
 "the window is annealed over N iterations" (Nerfies Eq. 9). The equation compiler has nothing to bind them to; the
 grammar has typed terminals for them (``docs/productions.md``). For a hole at FieldWrapper, PixelSampler,
-ScheduleHook or Backbone that the compiler left not implemented:
+ScheduleHook, Backbone or PosEncoding that the compiler left not implemented:
 
 1. **Statements.** The hole's sentences (its text, its claim and the sentences of its sections) are searched for
    the statement patterns of each part of ``prose.yaml`` whose production is the hole's; a statement preceded by a
@@ -19,7 +19,7 @@ ScheduleHook or Backbone that the compiler left not implemented:
    (``choices``), else the terminal's default, **asked**: listed under ``asked`` in ``equations.yaml`` with its
    unit, never guessed silently. Every stated value keeps the sentence it comes from.
 3. **Placement.** The terminal joins the hole's set (FieldWrapper, ScheduleHook), is the hole's choice
-   (PixelSampler), or sets the typed options of the terminal at the slot (the backbone); the plan is checked after
+   (PixelSampler), or sets the typed options of the terminal at the slot (the backbone, the space-time planes); the plan is checked after
    each part, and a part the grammar refuses there (a time wrapper on a plan without timestamps, a hook whose
    target the plan lacks) is taken out again, its reason the rule it broke.
 
@@ -42,7 +42,7 @@ from nerfify_ns import runfolder
 from nerfify_ns.synthesis.novel.implement import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, HoleResult
 
 SPEC_FILE = Path(__file__).with_name("prose.yaml")
-PRODUCTIONS = ("FieldWrapper", "PixelSampler", "ScheduleHook", "Backbone")
+PRODUCTIONS = ("FieldWrapper", "PixelSampler", "ScheduleHook", "Backbone", "PosEncoding")
 GROUP_GAP = 15
 """Noun mentions closer than this (characters) are one phrase ("deformation field", "time embedding MLP")."""
 MAX_SENTENCE = 2000
@@ -542,6 +542,12 @@ def _terminal_at(plan: Any, slot: str) -> str | None:
         return None
 
 
+def _options_path(plan: Any, slot: str, terminal: str) -> str:
+    """Where the options of ``terminal`` at ``slot`` are: the slot itself for a production of one terminal (the
+    backbone's MLP), ``slot.terminal`` for a slot that chooses among terminals (an encoding)."""
+    return slot if _terminal_at(plan, slot) is not None else f"{slot}.{terminal}"
+
+
 def _violations(plan: Any) -> list:
     from nerfify_ns.grammar import check
 
@@ -562,14 +568,15 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
         plan.set(slot, {part.terminal: params})
         written.append((slot, before))
     else:  # options of the terminal at the slot
-        node = plan.get(slot)
-        used = _terminal_at(plan, slot)
-        if not isinstance(node, dict) or used != part.terminal:
+        path = _options_path(plan, slot, part.terminal)
+        node = plan.get(path)
+        if not isinstance(node, dict) or _terminal_at(plan, path) != part.terminal:
+            used = _terminal_at(plan, slot) or next(iter(node), None) if isinstance(node, dict) else None
             raise ValueError(f"the plan's {slot} is {used or 'absent'}, not the {part.terminal} terminal whose "
                              "typed options state this")
         before = copy.deepcopy(node)
         node.update(params)
-        written.append((slot, before))
+        written.append((path, before))
     parent = slot.rsplit(".", 1)[0]
     for also in part.also:
         path = f"{parent}.{also['slot']}"
@@ -639,7 +646,7 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
     built, refused, approximate = [], [], []
     for part, found in stated + elsewhere:
         optional = (part, found) in elsewhere
-        base = plan.get(slot) if part.place == "options" else None
+        base = plan.get(_options_path(plan, slot, part.terminal)) if part.place == "options" else None
         reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}), base)
         choices = reader.run()
         st = found[0]
