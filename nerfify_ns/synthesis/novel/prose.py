@@ -20,8 +20,8 @@ ScheduleHook, Backbone or PosEncoding that the compiler left not implemented:
    unit, never guessed silently. Every stated value keeps the sentence it comes from.
 3. **Placement.** The terminal joins the hole's set (FieldWrapper, ScheduleHook), is the hole's choice
    (PixelSampler), or sets the typed options of the terminal at the slot (the backbone, the space-time planes);
-   the plan is checked after each part, and a part the grammar refuses there (a time wrapper on a plan without timestamps, a hook whose
-   target the plan lacks) is taken out again, its reason the rule it broke.
+   the plan is checked after each part, and a part the grammar refuses there (a time wrapper on a plan without
+   timestamps, a hook whose target the plan lacks) is taken out again, its reason the rule it broke.
 
 The record (``source: prose``) quotes the statement and each stated parameter's sentence. Nothing here knows a
 paper: the patterns are data, the terminals the registry's.
