@@ -232,7 +232,8 @@ class FieldBlend(nn.Module):
 class BlendedField(Field):
     """Several Nerfstudio fields queried at the same samples and blended by :class:`FieldBlend`; a Nerfstudio
     field itself, so a base model installs it as its own field (its ``density_fn`` serves occupancy grids and
-    proposal samplers). Keeps ``last_density`` (the blended density) for density regularisers."""
+    proposal samplers). Keeps ``last_density`` (the blended density) and ``last_deltas`` (the samples' steps) for
+    density regularisers."""
 
     def __init__(self, fields: Sequence[nn.Module], blend: FieldBlend) -> None:
         super().__init__()
@@ -241,6 +242,7 @@ class BlendedField(Field):
         self.fields = nn.ModuleList(fields)
         self.blend = blend
         self.last_density: Tensor | None = None
+        self.last_deltas: Tensor | None = None
 
     SHARED = ("position_encoding", "spatial_distortion", "direction_encoding")
     """The parts of its first field a blend answers for (the plan's regularisers of the field, plane TV and time
@@ -269,7 +271,7 @@ class BlendedField(Field):
         outputs = [f(ray_samples) for f in self.fields]
         density, rgb = self._blend(ray_samples, [o[FieldHeadNames.DENSITY] for o in outputs],
                                    [o[FieldHeadNames.RGB] for o in outputs])
-        self.last_density = density
+        self.last_density, self.last_deltas = density, ray_samples.deltas
         return {FieldHeadNames.DENSITY: density, FieldHeadNames.RGB: rgb}
 
     def get_density(self, ray_samples: RaySamples) -> tuple[Tensor, None]:

@@ -529,7 +529,8 @@ def model_context(ctx: Context) -> dict:
             imports.append(component["import"])
             modules.append({"attr": name, "ctor": call(component["cls"], component["kwargs"])})
             regularizers.append({"name": name, "weight": component["weight"],
-                                 "expr": f"self.{name}(densities={base['field_attr']}.last_density)"})
+                                 "expr": f"self.{name}(densities={base['field_attr']}.last_density, "
+                                         f"deltas={base['field_attr']}.last_deltas)"})
             ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[CUSTOM].doc)
             continue
         code = snippet(name)

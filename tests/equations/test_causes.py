@@ -247,3 +247,53 @@ def test_the_binder_records_the_factor_of_a_proportionality_and_the_function_it_
     want = -torch.log(torch.exp(-sigma.abs() / 0.5) + torch.exp(-(1 - sigma).abs() / 0.5)).mean()
     torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
     _grads_match(got, want, (sigma,))
+
+
+OPAQUE = r"""# OpaqueNeRF: A Transmittance Prior
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, and add a prior that makes
+surfaces opaque.
+
+## 3 Method
+
+### 3.1 Opacity prior
+
+We add a regulariser that pushes the visibility of each sample towards empty or solid space, where $\delta_i$ is
+the distance between adjacent samples:
+
+$$\mathcal{L}_{op} = \big(o_i (1 - o_i)\big)^{2}, \quad o_i = 1 - \exp(-\sigma_i \delta_i) \tag{3}$$
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+
+def test_a_regulariser_reads_the_steps_between_samples(tmp_path):
+    """A test paper's prior on each sample's opacity, whose equation reads the steps between samples (delta): the
+    Regularizers interface gives them, the part is built, and it is the hand-written prior, gradients included;
+    without the steps it says so instead of guessing."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "opaque.md"
+    path.write_text(OPAQUE)
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "Regularizers"]
+    assert record.status == IMPLEMENTED, record.reason
+    assert record.bindings["delta"]["role"] == "step"
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]().double()
+    sigma = (torch.rand(4, 6, 1, dtype=torch.float64) * 2).requires_grad_()
+    delta = torch.rand(4, 6, 1, dtype=torch.float64) * 0.2 + 0.01
+    got = module(sigma, delta)
+    o = 1 - torch.exp(-sigma * delta)
+    want = ((o * (1 - o)) ** 2).mean()
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (sigma,))
+    with pytest.raises(ValueError, match="steps between samples"):
+        module(sigma)

@@ -387,19 +387,27 @@ class RegularizerAdapter(Adapter):
 
     def provisions(self, context: dict) -> dict:
         return {"density": Provision("density", True, None, "densities[..., 0]",
-                                     "the field's density at every sample (its last evaluation)")}
+                                     "the field's density at every sample (its last evaluation)"),
+                "step": Provision("step", True, None, "deltas[..., 0]",
+                                  "the step between the field's samples (its last evaluation)")}
 
     def source(self, w: Wiring, context: dict) -> str:
         init = ["super().__init__()", f"self.equations = {w.eq_cls}({w.equations_args})"]
         fwd = ["densities = densities.reshape(densities.shape[0], -1, 1) if densities.dim() != 3 else densities"]
+        if any("deltas" in str(f.code) for f in w.feeds):
+            fwd += ["if deltas is None:",
+                    "    raise ValueError('this regulariser reads the steps between samples: deltas is None')",
+                    "deltas = deltas.reshape(densities.shape)"]
         fwd += self.lines_feeds(w, "densities") + self.lines_call(w)
         (key, ident, width), = w.outputs
         fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"]
         lines = [f"class {w.cls}(nn.Module):",
-                 '    """Regulariser compiled from the paper\'s equations: forward(densities [R, S, 1]) -> scalar."""',
+                 '    """Regulariser compiled from the paper\'s equations: forward(densities [R, S, 1], deltas '
+                 '[R, S, 1]) -> scalar."""',
                  "", "    def __init__(self) -> None:"]
         lines += _indent(init, 2)
-        lines += ["", "    def forward(self, densities: torch.Tensor) -> torch.Tensor:"]
+        lines += ["", "    def forward(self, densities: torch.Tensor, deltas: Optional[torch.Tensor] = None) -> "
+                  "torch.Tensor:"]
         lines += _indent(fwd, 2)
         return "\n".join(lines) + "\n"
 
