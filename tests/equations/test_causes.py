@@ -265,6 +265,12 @@ the distance between adjacent samples:
 
 $$\mathcal{L}_{op} = \big(o_i (1 - o_i)\big)^{2}, \quad o_i = 1 - \exp(-\sigma_i \delta_i) \tag{3}$$
 
+### 3.2 Training objective
+
+We train with the sum of the photometric loss and the prior, where $\beta = 0.05$:
+
+$$\mathcal{L} = \mathcal{L}_{rgb} + \beta \mathcal{L}_{op} \tag{4}$$
+
 ## 4 Experiments
 
 We train for 200k iterations with a learning rate of 5e-4.
@@ -274,7 +280,7 @@ We train for 200k iterations with a learning rate of 5e-4.
 def test_a_regulariser_reads_the_steps_between_samples(tmp_path):
     """A test paper's prior on each sample's opacity, whose equation reads the steps between samples (delta): the
     Regularizers interface gives them, the part is built, and it is the hand-written prior, gradients included;
-    without the steps it says so instead of guessing."""
+    without the steps it says so instead of guessing. Its weight is its coefficient in the paper's objective."""
     from nerfify_ns.paper import ingest
     from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
     from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
@@ -285,6 +291,8 @@ def test_a_regulariser_reads_the_steps_between_samples(tmp_path):
     (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "Regularizers"]
     assert record.status == IMPLEMENTED, record.reason
     assert record.bindings["delta"]["role"] == "step"
+    assert record.component["weight"] == 0.05  # its coefficient in the objective, Eq. 4, set in a sentence
+    assert any(n.startswith("weight 0.05: cal L_op's coefficient beta") for n in record.notes), record.notes
     namespace = {"__name__": "compiled_for_test"}
     exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
     module = namespace[record.component["class"]]().double()
@@ -297,3 +305,25 @@ def test_a_regulariser_reads_the_steps_between_samples(tmp_path):
     _grads_match(got, want, (sigma,))
     with pytest.raises(ValueError, match="steps between samples"):
         module(sigma)
+
+
+@pytest.mark.parametrize("latex, words, want", [
+    (r"\mathcal{L} = \mathcal{L}_{c} + 0.01 \mathcal{L}_{s}", {}, 0.01),
+    (r"\mathcal{L} = \mathcal{L}_{c} + \mathcal{L}_{s} \lambda, \quad \lambda = 2", {}, 2.0),
+    (r"\mathcal{L} = \mathcal{L}_{c} + \mathcal{L}_{s}", {}, 1.0),
+    (r"\mathcal{L} = \mathcal{L}_{c} + \gamma \mathcal{L}_{s}", {}, None),
+])
+def test_a_loss_terms_weight_is_its_coefficient_in_the_objective(latex, words, want):
+    """The coefficient of a part's output in a sum another equation defines: a number, a symbol the block sets,
+    an unweighted term (1), or a symbol the paper gives no value (None: said, the weight stays 1)."""
+    from types import SimpleNamespace
+
+    from nerfify_ns.synthesis.novel.items import Item, _parse
+    from nerfify_ns.synthesis.novel.objective import objective_weight
+
+    item = Item(number="5", latex=latex, section="3", order=0, where="Sec. 3", in_hole=False)
+    _parse(item)
+    got = objective_weight(["cal L_s"], [item], SimpleNamespace(constants=words))
+    assert got is not None and got.value == want, got
+    assert "cal L_s" in got.note
+    assert objective_weight(["cal L_x"], [item], SimpleNamespace(constants=words)) is None

@@ -32,6 +32,7 @@ from nerfify_ns.synthesis.novel.adapters import (
 )
 from nerfify_ns.synthesis.novel.items import Item, _norm, describe
 from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords
+from nerfify_ns.synthesis.novel.objective import sums_over
 from nerfify_ns.synthesis.novel.results import HoleResult
 from nerfify_ns.synthesis.novel.widths import Widths
 
@@ -138,6 +139,8 @@ class _Hole:
                 if d is None or d.role not in adapter.output_roles:
                     continue
                 found.append((eq, it))
+        defined = {eq.defines for eq, _ in found}
+        found = [(eq, it) for eq, it in found if not sums_over(eq, defined)]  # an objective adding up parts
         candidates = []
         seen = set()
         for eq, it in found:

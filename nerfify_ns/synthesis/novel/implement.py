@@ -87,6 +87,7 @@ from nerfify_ns.synthesis.novel.items import (  # noqa: F401 - re-exported
     equation_counts,
 )
 from nerfify_ns.synthesis.novel.notation import Notation, PaperWords
+from nerfify_ns.synthesis.novel.objective import objective_weight
 from nerfify_ns.synthesis.novel.results import (  # noqa: F401
     IMPLEMENTED,
     NOT_IMPLEMENTED,
@@ -194,7 +195,7 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
             module = result.component["module"]
             sources[module] = result.source
             entry = {k: result.component[k] for k in ("module", "class", "params", "implements", "source",
-                                                      "evidence")}
+                                                      "evidence", "weight") if k in result.component}
             result.replaced = copy.deepcopy(plan.get(result.slot))
             _place(plan, result.slot, entry, result.production, hid)
             taken_slots.add(slot)
@@ -475,6 +476,12 @@ def _implement_one(work: _Hole) -> HoleResult:
                          f"({', '.join(safe_comment(e.defines, 30) for e in att.roots)}), as NeRF's "
                          "C(r) = sum_i C_i(r)")
     res.notes += wiring.notes + _operator_discrepancies(work, att, full)
+    if res.production == "Regularizers":  # the term's weight in the paper's training objective
+        weighted = objective_weight(list(att.outputs), work.items, work.words)
+        if weighted is not None:
+            if weighted.value is not None:
+                res.component["weight"] = weighted.value
+            res.notes.append(weighted.note)
     res.notes += [f"'{safe_comment(k, 30)}' is per ray where the interface gives it per sample: the "
                   f"{safe_comment(str(b.get('role')), 30)} composited with the renderer's volume-rendering weights "
                   "(sum_i w_i x_i), as the production's contract is per ray" for k, b in bindings.items()

@@ -1,0 +1,93 @@
+"""The weight of a loss term in the paper's training objective.
+
+A paper defines a regulariser (``\\mathcal L_{acc} = -\\log P(T_i)``) in one place and weights it in another, the
+line that adds up the training objective (``\\mathcal L = \\mathcal L_{recon} + \\lambda \\mathcal L_{acc},\\ \\lambda
+= 10^{-4}``; SeaThru-NeRF's Losses, NeRF-W Eq. 13, Mip-NeRF 360 Eq. 16). The term's coefficient there is the weight
+the plugin adds the compiled part to the loss with: a number written in the sum, or a symbol the same block, another
+displayed equation or a sentence of the paper sets to a number. The record quotes where it comes from; a
+coefficient the paper does not give is left at 1 and said.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from nerfify_ns.equations import Equation
+from nerfify_ns.equations.ir import BinOp, Number, Symbol
+from nerfify_ns.synthesis.novel.notation import symbol_loose_key
+
+
+@dataclass
+class ObjectiveWeight:
+    """A loss term's coefficient in the paper's objective: its value (None when the paper gives no number for a
+    coefficient it writes) and the record's sentence."""
+
+    value: float | None
+    note: str
+
+
+def terms(expr: Any) -> list[Any]:
+    """The summands of ``expr`` (a '+' chain flattened; a difference's right side is not a term of the sum)."""
+    if isinstance(expr, BinOp) and expr.op == "+":
+        return terms(expr.left) + terms(expr.right)
+    return [expr]
+
+
+def coefficient(term: Any, output: str) -> Any | None:
+    """The coefficient of ``output`` in ``term``: 1.0 for the bare symbol, the other factor of a product with it
+    (a number or a symbol), None when the term is not ``output`` weighted."""
+    if isinstance(term, Symbol) and term.key == output:
+        return 1.0
+    if isinstance(term, BinOp) and term.op == "*":
+        for mine, other in ((term.right, term.left), (term.left, term.right)):
+            if isinstance(mine, Symbol) and mine.key == output and isinstance(other, Number | Symbol):
+                return other
+    return None
+
+
+def sums_over(eq: Equation, keys: set[str]) -> bool:
+    """Whether ``eq`` adds up weighted terms of which one is another of ``keys`` (an objective over that part,
+    not a form of it)."""
+    summands = terms(eq.rhs)
+    return len(summands) >= 2 and any(coefficient(t, k) is not None for t in summands for k in keys - {eq.defines})
+
+
+def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWeight | None:
+    """The coefficient of the part's output (one of ``outputs``) in a sum of two or more terms that another
+    equation of the paper defines (its objective), resolved to a number; None when no such sum names it."""
+    numbers: dict[str, tuple[float, str]] = {}
+    for it in items:
+        for e in it.equations():
+            if isinstance(e, Equation) and e.defines and isinstance(e.rhs, Number):
+                numbers.setdefault(e.defines, (float(e.rhs.value), it.where))
+    for it in items:
+        for e in it.equations():
+            if not isinstance(e, Equation) or e.defines in outputs:
+                continue
+            summands = terms(e.rhs)
+            if len(summands) < 2:
+                continue
+            for output in outputs:
+                coef = next((c for c in (coefficient(t, output) for t in summands) if c is not None), None)
+                if coef is None:
+                    continue
+                objective = f"the objective {e.defines or ''} = ... at {it.where or 'its equation'}"
+                if isinstance(coef, float):
+                    return ObjectiveWeight(coef, f"weight {coef:g}: {output}'s coefficient in {objective}")
+                if isinstance(coef, Number):
+                    value = float(coef.value)
+                    return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient in {objective}")
+                if coef.key in numbers:
+                    value, where = numbers[coef.key]
+                    return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient {coef.key} in {objective}"
+                                                  f", {coef.key} = {value:g} at {where}")
+                stated = words.constants.get(symbol_loose_key(coef)) if words is not None else None
+                if stated is not None:
+                    value, _quote, where = stated
+                    return ObjectiveWeight(float(value), f"weight {float(value):g}: {output}'s coefficient {coef.key} "
+                                                         f"in {objective}, {coef.key} = {float(value):g} at {where}")
+                return ObjectiveWeight(None, f"{output}'s coefficient {coef.key} in {objective} has no value in the "
+                                             "paper: the weight stays 1 (set it in the plan's weight)")
+    return None
+
