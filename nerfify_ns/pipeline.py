@@ -621,7 +621,9 @@ def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int]
 
 def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = None) -> None:
     """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR (and the
-    CPU proxy the run trained, when it did)."""
+    CPU proxy the run trained, when it did); a run whose renders are grey says so first."""
+    from nerfify_ns.evaluate.report import grey_ratio
+
     if summary.get("status") != "ok":
         stage.fail(summary.get("reason") or "training failed")
         return
@@ -630,7 +632,10 @@ def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = Non
     colour = (f", foreground colour spread {diagnostics['colour_spread']:.3f} (ground truth "
               f"{diagnostics['colour_spread_gt']:.3f})" if diagnostics.get("colour_spread") is not None
               and diagnostics.get("colour_spread_gt") is not None else "")
-    stage.summary = (f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
+    grey = grey_ratio(diagnostics)
+    stage.summary = ((f"renders grey (foreground colour spread {grey:.2f}x the ground truth's); "
+                      if grey is not None else "")
+                     + f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
                      f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
                      f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}"
                      + (f"; {run.proxy['headline']}" if run is not None and run.proxy else ""))

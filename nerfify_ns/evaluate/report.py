@@ -671,6 +671,13 @@ GREY_RENDER_RATIO = 0.5
 renders: 0.00-0.09x; the main job's renders 0.7-0.8x): the headline says so, in amber."""
 
 
+def grey_ratio(diagnostics: Any) -> float | None:
+    """The foreground colour spread against the ground truth's when it is under :data:`GREY_RENDER_RATIO` (the
+    renders are grey), else None."""
+    ratio = diagnostics.get("colour_spread_ratio") if isinstance(diagnostics, dict) else None
+    return float(ratio) if isinstance(ratio, int | float) and ratio < GREY_RENDER_RATIO else None
+
+
 def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     """The run's outcome from ``run.json`` (written by the pipeline): the stages that ran, the one that failed
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
@@ -683,9 +690,8 @@ def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
                   (f"Novel parts: {novel['summary']}. " if novel.get("summary") else ""))
     partial = bool(counts) and counts.get("built", 0) < counts.get("found", 0)
     summary, _ = _read_json(run_dir / runfolder.EVAL_DIR / runfolder.SUMMARY)
-    diagnostics = summary.get("diagnostics") if isinstance(summary, dict) else None
-    ratio = diagnostics.get("colour_spread_ratio") if isinstance(diagnostics, dict) else None
-    if isinstance(ratio, int | float) and ratio < GREY_RENDER_RATIO:  # trained, but nothing a person recognises
+    ratio = grey_ratio(summary.get("diagnostics") if isinstance(summary, dict) else None)
+    if ratio is not None:  # trained, but nothing a person recognises
         novel_line = f"Renders grey: foreground colour spread {ratio:.2f}x the ground truth's. " + novel_line
         partial = True
     if isinstance(outcome, dict) and isinstance(outcome.get("stages"), list):

@@ -23,3 +23,20 @@ def test_grey_renders_make_the_headline_partial_and_say_so(tmp_path):
 def test_coloured_renders_leave_the_headline_as_it_was(tmp_path):
     outcome = _run(tmp_path, 0.79)
     assert not outcome["partial"] and outcome["headline"] == "ran read, train"
+
+
+def test_the_console_line_of_the_train_stage_says_grey_first():
+    """The train stage's summary (the console's line) opens with the same verdict as the report's headline."""
+    from types import SimpleNamespace
+
+    from nerfify_ns.pipeline import _judge_evaluation
+
+    def line(ratio):
+        stage = SimpleNamespace(summary="", fail=None)
+        summary = {"status": "ok", "iterations_done": 20, "seconds": 12.0, "psnr": 10.2, "ssim": 0.5, "lpips": None,
+                   "diagnostics": {"colour_spread_ratio": ratio, "colour_spread": 0.02, "colour_spread_gt": 0.12}}
+        _judge_evaluation(summary, stage)
+        return stage.summary
+
+    assert line(0.17).startswith("renders grey (foreground colour spread 0.17x the ground truth's); 20 iterations")
+    assert line(0.79).startswith("20 iterations in 12.0 s")
