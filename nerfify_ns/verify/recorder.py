@@ -16,8 +16,12 @@ import sys
 RGB_KEYS = ("rgb", "rgb_fine")
 """Where a model's training outputs hold its rendered colour, in order of preference."""
 
+PROBE_STEPS = 4
+"""The first training batches kept (as drawn, before the model sees them) and rendered again after training: the
+smoke rung's paired comparison, the same rays before and after (:func:`render_probe`)."""
 
-def install(pipe) -> None:
+
+def install(pipe) -> dict:
     """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed
     absolute output of every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value
     per call since the previous step: a part whose NaN the model masks is still seen)."""
@@ -42,10 +46,15 @@ def install(pipe) -> None:
             def next_train(step_, _inner=inner):
                 out = _inner(step_)
                 last["batch"] = out
+                probe = last.setdefault("probe", [])
+                if len(probe) < PROBE_STEPS and isinstance(out, tuple) and len(out) == 2:
+                    bundle, batch = out  # a copy: the model may change the bundle in place (collider, camera)
+                    probe.append((int(step_), bundle._apply_fn_to_fields(lambda t: t.detach().clone()), batch))
                 return out
 
             dm.next_train = next_train
             last["wrapped"] = dm
+        last["pipeline"] = self
         outputs, losses, metrics = original(self, step)
         arrays = {}
         batch = last.get("batch")
@@ -62,17 +71,50 @@ def install(pipe) -> None:
         return outputs, losses, metrics
 
     VanillaPipeline.get_train_loss_dict = get_train_loss_dict
+    return last
+
+
+def render_probe(pipe, last: dict) -> None:
+    """After training: the first :data:`PROBE_STEPS` batches rendered again by the trained model (train mode, no
+    gradient), sent as one ``probe`` record with the steps they were drawn at; the checker compares them with the
+    colours the same rays had when they were trained on."""
+    import torch
+
+    pipeline, probe = last.get("pipeline"), last.get("probe") or []
+    model = getattr(pipeline, "model", None)
+    if model is None or not probe:
+        return
+    cap = pipe.cap
+    rgbs, images = [], []
+    model.train(True)
+    with torch.no_grad():
+        for _, bundle, batch in probe:
+            outputs = model(bundle)  # Model.forward: the collider, then get_outputs
+            rgb = next((outputs[k] for k in RGB_KEYS if isinstance(outputs, dict) and k in outputs), None)
+            if not cap.is_tensor(rgb) or not isinstance(batch, dict) or not cap.is_tensor(batch.get("image")):
+                return
+            rgbs.append(cap.array(rgb)[0])
+            images.append(cap.array(batch["image"])[0])
+    import numpy as np
+
+    pipe.send({"kind": "probe", "rung": "smoke", "steps": [s for s, _, _ in probe]},
+              {"rgb": np.concatenate(rgbs), "image": np.concatenate(images)})
 
 
 def main() -> None:
     from nerfify_ns.verify.checker import RecordPipe
 
     pipe = RecordPipe(int(sys.argv[1]))  # bound before any plugin code runs
-    install(pipe)
+    last = install(pipe)
     sys.argv = ["ns-train", *sys.argv[2:]]
     from nerfstudio.scripts.train import entrypoint
 
     entrypoint()
+    try:
+        render_probe(pipe, last)
+    except Exception as exc:  # noqa: BLE001 - no probe: the checker judges the steps alone (and says so)
+        print(f"nerfify recorder: the probe was not rendered after training: {type(exc).__name__}: {exc}",
+              file=sys.stderr)
 
 
 if __name__ == "__main__":

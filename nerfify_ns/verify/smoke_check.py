@@ -6,8 +6,11 @@ plugin code; nothing in it is executed).
 * every step's rendered colours are finite, and so is every call's output of each part of the model that is not
   torch's or Nerfstudio's (a part that turns non-finite from its N-th call is caught for N up to the calls of the
   run: at least one per iteration, so any N <= iterations, even where the model masks the value);
-* the photometric error recomputed here (mean squared error on the batch's opaque pixels) falls: the last
-  quarter's mean below :data:`LEARNING_RATIO` of the first quarter's;
+* the photometric error recomputed here (mean squared error on the opaque pixels) falls below
+  :data:`LEARNING_RATIO` of where it started. Judged on the same rays when the run sent them (a ``probe`` record:
+  the first training batches rendered again by the trained model, compared with the colours they had when they
+  were trained on; their ground truth must be the steps' own), else the last quarter's steps against the first
+  quarter's (different rays each step: a noisier verdict);
 * the steps reached, counted from the records;
 * every floating tensor of the checkpoint (model and optimiser state) is finite.
 """
@@ -53,12 +56,47 @@ def step_errors(records: Sequence[tuple[dict, dict[str, np.ndarray]]]) -> tuple[
                             "values not finite")
             errors[step] = float("nan")
             continue
-        target = image[:, :3].astype(np.float64)
-        mask = image[:, 3] > 0.99 if image.shape[-1] == 4 else np.ones(len(image), bool)
-        if mask.sum() == 0:
-            continue
-        errors[step] = float(((rgb.astype(np.float64) - target) ** 2)[mask].mean())
+        error, opaque = _opaque_error(rgb, image)
+        if opaque:
+            errors[step] = error
     return errors, problems
+
+
+def _opaque_error(rgb: np.ndarray, image: np.ndarray) -> tuple[float, int]:
+    """(mean squared error over the opaque pixels, their count) of rendered colours against RGB(A) ground truth."""
+    target = image[:, :3].astype(np.float64)
+    mask = image[:, 3] > 0.99 if image.shape[-1] == 4 else np.ones(len(image), bool)
+    if not mask.any():
+        return float("nan"), 0
+    return float(((rgb.astype(np.float64) - target) ** 2)[mask].mean()), int(mask.sum())
+
+
+def probe_errors(records) -> tuple[tuple[float, float, int] | None, list[str]]:
+    """((error when trained on, error after training, opaque pixels) of the probe's rays, problems) from the run's
+    ``probe`` record and the step records of the steps it names; (None, []) when the run sent no probe."""
+    probes = [(h, a) for h, a in records if h.get("kind") == "probe"]
+    if not probes:
+        return None, []
+    if len(probes) > 1:
+        return None, ["the probe was recorded more than once (something besides the recorder wrote to the pipe)"]
+    header, arrays = probes[0]
+    steps = header.get("steps")
+    by_step = {h.get("step"): a for h, a in records if h.get("kind") == "step"}
+    if not isinstance(steps, list) or not steps or any(s not in by_step for s in steps):
+        return None, [f"the probe names steps {steps!r} the run did not record"]
+    before_rgb = [by_step[s].get("rgb") for s in steps]
+    before_image = [by_step[s].get("image") for s in steps]
+    rgb, image = arrays.get("rgb"), arrays.get("image")
+    if any(x is None for x in (*before_rgb, *before_image, rgb, image)):
+        return None, ["the probe or its steps hold no rendered colours or ground truth"]
+    before_image = np.concatenate(before_image)
+    if image.shape != before_image.shape or not np.array_equal(image, before_image) or rgb.shape[0] != len(image):
+        return None, ["the probe's ground truth is not its steps' (the same rays must be rendered again)"]
+    if not np.isfinite(rgb).all():
+        return None, ["the probe's rendered colours are not finite after training"]
+    before, n = _opaque_error(np.concatenate(before_rgb), before_image)
+    after, _ = _opaque_error(rgb, image)
+    return ((before, after, n) if n else None), []
 
 
 def _numpy_globals() -> list:
@@ -124,10 +162,21 @@ def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[t
     if reached < iterations and not failures:
         failures.append(("iterations", f"the trainer's records reach {reached} of {iterations} iterations"))
     finite = [errors[s] for s in sorted(errors) if np.isfinite(errors[s])]
-    if not failures and len(finite) >= 4:
+    paired, probe_problems = probe_errors(records)
+    failures += [("forged-record", p) for p in probe_problems[:1]]
+    if not failures and paired is not None:
+        before, after, opaque = paired
+        details.update({"photometric_first_recomputed": before, "photometric_last_recomputed": after,
+                        "judged_on": f"the same {opaque} opaque pixels before and after training"})
+        if not after < LEARNING_RATIO * before:
+            failures.append(("no-learning", "the photometric error recomputed from the rendered colours does not "
+                             f"decrease: {before:.4g} on the first steps' rays when trained on, {after:.4g} on the "
+                             f"same rays after training (needs < {LEARNING_RATIO} x)"))
+    elif not failures and len(finite) >= 4:
         q = max(len(finite) // 4, 1)
         first, last = float(np.mean(finite[:q])), float(np.mean(finite[-q:]))
-        details.update({"photometric_first_recomputed": first, "photometric_last_recomputed": last})
+        details.update({"photometric_first_recomputed": first, "photometric_last_recomputed": last,
+                        "judged_on": "the first quarter's steps against the last quarter's"})
         if not last < LEARNING_RATIO * first:
             failures.append(("no-learning", "the photometric error recomputed from the rendered colours does not "
                              f"decrease: first quarter {first:.4g}, last quarter {last:.4g} "

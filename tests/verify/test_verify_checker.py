@@ -156,3 +156,40 @@ def test_the_sandbox_does_not_say_it_is_one(tmp_path):
     assert seen["user"] != "nobody" and seen["own_pids"] is True
     assert seen["uid"] == 65534  # what stays detectable (docs/sandbox.md)
     assert own_pid_namespace() is False
+
+
+def _smoke_records(steps: int, improve: float, seed: int = 0):
+    """A smoke run's step records (different rays each step, a slowly falling error) and its probe: the first 4
+    batches rendered again, their error ``improve`` times what it was when trained on."""
+    rng = np.random.default_rng(seed)
+    records, batches = [], []
+    for step in range(steps):
+        image = np.c_[rng.random((32, 3)), (rng.random(32) > 0.5)].astype(np.float32)
+        rgb = np.clip(image[:, :3] + rng.normal(0, 0.3 * (1 - 0.005 * step), (32, 3)), 0, 1).astype(np.float32)
+        records.append(({"kind": "step", "step": step}, {"rgb": rgb, "image": image}))
+        batches.append((rgb, image))
+    first = batches[:4]
+    image = np.concatenate([i for _, i in first])
+    rgb = np.concatenate([i[:, :3] + (r - i[:, :3]) * np.sqrt(improve) for r, i in first]).astype(np.float32)
+    return records, ({"kind": "probe", "steps": [0, 1, 2, 3]}, {"rgb": rgb, "image": image})
+
+
+def test_the_smoke_verdict_compares_the_same_rays_before_and_after():
+    """A run that sent its probe is judged on the same rays (paired); one that lowered their error by half passes
+    even where the per-step quarters, drawn on different rays, barely move; one that did not fails; a probe whose
+    ground truth is not its steps' is a forged record; without a probe the quarters decide, as before."""
+    records, probe = _smoke_records(20, improve=0.5)
+    _, failures, details = judge_training([*records, probe], Path("/nonexistent"), 20)
+    assert not [f for f in failures if f[0] != "checkpoint"], failures
+    assert details["judged_on"].startswith("the same ") and details["photometric_last_recomputed"] < \
+        0.9 * details["photometric_first_recomputed"]
+    records, probe = _smoke_records(20, improve=1.0)
+    _, failures, _ = judge_training([*records, probe], Path("/nonexistent"), 20)
+    assert failures[0][0] == "no-learning" and "does not decrease" in failures[0][1] and "same rays" in failures[0][1]
+    header, arrays = probe
+    forged = (header, {"rgb": arrays["rgb"], "image": np.roll(arrays["image"], 1, axis=0)})
+    _, failures, _ = judge_training([*records, forged], Path("/nonexistent"), 20)
+    assert failures[0] == ("forged-record", "the probe's ground truth is not its steps' (the same rays must be "
+                                            "rendered again)")
+    _, _, details = judge_training(records, Path("/nonexistent"), 20)
+    assert details["judged_on"] == "the first quarter's steps against the last quarter's"
