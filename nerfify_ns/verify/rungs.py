@@ -65,7 +65,7 @@ def _exit_text(result: SandboxResult) -> str:
 
 def run_probe(
     info: PluginInfo | None, rungs: Sequence[str], workdir: Path, *, timeout: float, suite: str = "plan",
-    limits: Limits | None = None,
+    limits: Limits | None = None, env: dict[str, str] | None = None,
 ) -> dict[str, RungResult]:
     """Probe ``rungs`` in one sandboxed process and judge what it sends with the checker
     (:mod:`nerfify_ns.verify.checker`, here, in our process); a rung it never finished is failed (timeout or
@@ -88,6 +88,7 @@ def run_probe(
             readonly=[info.root] if info else [],
             limits=limits,
             pass_fds=(reader.write_fd,) if reader else (),
+            env=env,
         )
     finally:
         data = reader.finish() if reader else b""
