@@ -11,10 +11,10 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from prose_holes import assert_option_stated, build_hole
 
 from nerfify_ns.plan import Plan
-from nerfify_ns.synthesis.novel import IMPLEMENTED, prose
-from nerfify_ns.synthesis.novel.implement import HoleResult
+from nerfify_ns.synthesis.novel import IMPLEMENTED
 from nerfify_ns.synthesis.resources import load_reference_plan
 
 SLOT = "model.field.MLPField.backbone"
@@ -42,11 +42,7 @@ _BUILD = textwrap.dedent('''
 
 
 def _build(text: list[str], plan: Plan):
-    hole = {"production": "Backbone", "slot": SLOT, "section": "3 Method", "text": " ".join(text), "claim": "",
-            "where": "Sec. 3"}
-    compiled = HoleResult(id="backbone", slot=SLOT, production="Backbone", section="3 Method",
-                          reason="no equation")
-    return prose.build(hole, [(s, "Sec. 3", "3 Method") for s in text], plan, None, compiled)
+    return build_hole("Backbone", SLOT, text, plan)
 
 
 @pytest.mark.parametrize("sentence", [
@@ -58,13 +54,7 @@ def test_a_sentence_stating_a_norm_after_each_layer_builds_hidden_norm(sentence)
     plan = Plan.of(load_reference_plan("vanilla-nerf"))
     before = dict(plan.get(SLOT))
     result = _build(["The backbone maps the encoded positions to features.", sentence], plan)
-    backbone = plan.get(SLOT)
-    assert backbone["hidden_norm"] == "layer"
-    assert {k: v for k, v in backbone.items() if k != "hidden_norm"} == before  # nothing else changed
-    assert result.status == IMPLEMENTED
-    part = next(p for p in result.parts if p["part"] == "hidden_layer_norm")
-    assert part["terminal"] == "mlp" and part["statement"]["quote"] == sentence
-    assert part["parameters"]["hidden_norm"]["value"] == "layer"
+    assert_option_stated(result, plan.get(SLOT), before, "hidden_layer_norm", "mlp", "hidden_norm", "layer", sentence)
 
 
 @pytest.mark.parametrize("sentence", [

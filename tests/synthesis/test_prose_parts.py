@@ -14,13 +14,14 @@ from pathlib import Path
 
 import pytest
 import yaml
+from prose_holes import build_hole
 from test_field_wrappers import _ladder, _train, dynamic_scene, nerfacto_plan, plugin_on_path, small  # noqa: F401
 
 from nerfify_ns.grammar import validate
 from nerfify_ns.paper import ingest
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, implement_holes, prose
-from nerfify_ns.synthesis.novel.implement import HoleResult, revert
+from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.records import read_corrections, to_yaml
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
 from nerfify_ns.synthesis.resources import load_reference_plan
@@ -145,13 +146,8 @@ def _dynamic_plan() -> Plan:
 
 
 def _build(production, slot, sentences, plan=None, corr=None):
-    hole = {"production": production, "slot": slot, "section": "3 Method", "text": " ".join(sentences),
-            "claim": "", "where": "Sec. 3"}
     plan = plan if plan is not None else _dynamic_plan()
-    compiled = HoleResult(id="part", slot=slot, production=production, section="3 Method",
-                          reason="the compiler has no adapter")
-    result = prose.build(hole, [(s, "Sec. 3", "3 Method") for s in sentences], plan, corr, compiled)
-    return result, plan
+    return build_hole(production, slot, sentences, plan, corr), plan
 
 
 def test_a_negated_statement_builds_nothing():

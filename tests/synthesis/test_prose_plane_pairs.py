@@ -10,12 +10,12 @@ from pathlib import Path
 
 import pytest
 import torch
+from prose_holes import assert_option_stated, build_hole
 
 from nerfify_ns.components.kplanes import MultiScaleKPlanes
 from nerfify_ns.plan import Plan
 from nerfify_ns.registry import default_registry
-from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, prose
-from nerfify_ns.synthesis.novel.implement import HoleResult
+from nerfify_ns.synthesis.novel import NOT_IMPLEMENTED
 from nerfify_ns.synthesis.resources import load_reference_plan
 from nerfify_ns.verify.components import run_terminal
 
@@ -38,11 +38,7 @@ def _check_module():
 
 
 def _build(text: list[str], plan: Plan):
-    hole = {"production": "PosEncoding", "slot": SLOT, "section": "3 Method", "text": " ".join(text), "claim": "",
-            "where": "Sec. 3"}
-    compiled = HoleResult(id="pos_encoding", slot=SLOT, production="PosEncoding", section="3 Method",
-                          reason="no adapter")
-    return prose.build(hole, [(s, "Sec. 3", "3 Method") for s in text], plan, None, compiled)
+    return build_hole("PosEncoding", SLOT, text, plan)
 
 
 @pytest.mark.parametrize("sentence", [
@@ -54,13 +50,8 @@ def test_a_sentence_stating_paired_planes_builds_the_option(sentence):
     plan = Plan.of(load_reference_plan("kplanes-time"))
     before = dict(plan.get(f"{SLOT}.kplanes_time"))
     result = _build(["Features of a point in space and time are read from learned planes.", sentence], plan)
-    node = plan.get(f"{SLOT}.kplanes_time")
-    assert node["reduce"] == "paired"
-    assert {k: v for k, v in node.items() if k != "reduce"} == {k: v for k, v in before.items() if k != "reduce"}
-    assert result.status == IMPLEMENTED
-    part = next(p for p in result.parts if p["part"] == "plane_pairs")
-    assert part["terminal"] == "kplanes_time" and part["statement"]["quote"] == sentence
-    assert part["parameters"]["reduce"]["value"] == "paired"
+    assert_option_stated(result, plan.get(f"{SLOT}.kplanes_time"), before, "plane_pairs", "kplanes_time", "reduce",
+                         "paired", sentence)
 
 
 @pytest.mark.parametrize("sentence", [
