@@ -26,6 +26,7 @@ Every run writes its output folder atomically.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import tempfile
 import time
@@ -431,9 +432,18 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     smoke = next((r for r in ladder.rungs if r.name == "smoke" and (r.status == "pass" or _timed_out(r))), None)
     if smoke is None or not smoke.details.get("seconds_per_iteration"):
         return {}
-    return {"seconds_per_iteration": smoke.details["seconds_per_iteration"],
+    # a rung run beside the checks had fewer threads than training will have: its steps scale with the threads
+    threads, training = smoke.details.get("threads"), _training_threads()
+    scale = threads / training if isinstance(threads, int) and 0 < threads < training else 1.0
+    return {"seconds_per_iteration": smoke.details["seconds_per_iteration"] * scale,
             "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS),
             "samples": dict(samples or {})}
+
+
+def _training_threads() -> int:
+    """The threads a training process of ours gets: ``OMP_NUM_THREADS`` when set, else every core we may use."""
+    given = os.environ.get("OMP_NUM_THREADS", "")
+    return int(given) if given.isdigit() and int(given) > 0 else len(os.sched_getaffinity(0))
 
 
 def _timed_out(rung) -> bool:

@@ -162,6 +162,7 @@ def smoke_rung(
     cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
                         method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
     env = {**(env or {}), ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
+    r.details["threads"] = int(env["OMP_NUM_THREADS"]) if str(env.get("OMP_NUM_THREADS", "")).isdigit() else None
     reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
     try:
         result = run_sandboxed(recorded(cmd, reader.write_fd), workdir, timeout=timeout, log_name=layout.log_name,
