@@ -164,7 +164,7 @@ def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[t
     finite = [errors[s] for s in sorted(errors) if np.isfinite(errors[s])]
     paired, probe_problems = probe_errors(records)
     failures += [("forged-record", p) for p in probe_problems[:1]]
-    if not failures and paired is not None:
+    if not failures and paired is not None and len(finite) >= 4:  # learning needs steps to be judged at all
         before, after, opaque = paired
         details.update({"photometric_first_recomputed": before, "photometric_last_recomputed": after,
                         "judged_on": f"the same {opaque} opaque pixels before and after training"})
