@@ -26,7 +26,6 @@ Every run writes its output folder atomically.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import tempfile
 import time
@@ -427,23 +426,18 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     """What the ladder's smoke rung measured of the plugin's speed (``verify.smoke.step_timing``), with its ray
     batch and the sample counts it trained with (``samples``, by plan path; none: the plan's); empty when the rung
     did not run or measured nothing. A rung stopped by its time limit measured its first steps."""
+    from nerfify_ns.verify.ladder import process_threads
     from nerfify_ns.verify.smoke_rung import SMOKE_ARGS
 
     smoke = next((r for r in ladder.rungs if r.name == "smoke" and (r.status == "pass" or _timed_out(r))), None)
     if smoke is None or not smoke.details.get("seconds_per_iteration"):
         return {}
     # a rung run beside the checks had fewer threads than training will have: its steps scale with the threads
-    threads, training = smoke.details.get("threads"), _training_threads()
+    threads, training = smoke.details.get("threads"), process_threads()
     scale = threads / training if isinstance(threads, int) and 0 < threads < training else 1.0
     return {"seconds_per_iteration": smoke.details["seconds_per_iteration"] * scale,
             "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS),
             "samples": dict(samples or {})}
-
-
-def _training_threads() -> int:
-    """The threads a training process of ours gets: ``OMP_NUM_THREADS`` when set, else every core we may use."""
-    given = os.environ.get("OMP_NUM_THREADS", "")
-    return int(given) if given.isdigit() and int(given) > 0 else len(os.sched_getaffinity(0))
 
 
 def _timed_out(rung) -> bool:

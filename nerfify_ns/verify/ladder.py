@@ -126,14 +126,18 @@ def _round(plugin_dir: Path, work: Path, st: _Settings) -> list[RungResult]:
     return results
 
 
+def process_threads() -> int:
+    """The threads a torch process of ours gets: ``OMP_NUM_THREADS`` when set, else every core we may use."""
+    given = os.environ.get("OMP_NUM_THREADS", "")
+    return int(given) if given.isdigit() and int(given) > 0 else len(os.sched_getaffinity(0))
+
+
 def shared_cores() -> dict[str, str]:
     """Thread counts for two processes that run at once (the checks and the smoke rung): half the cores each, so
     that their thread pools do not oversubscribe the machine (on two cores, two processes of two threads made the
     smoke rung's steps up to 30 times slower, 1.28 s against 0.04 s, measured; :mod:`torch`'s pools spin while they
-    wait)."""
-    n = max(1, len(os.sched_getaffinity(0)) // 2)
-    given = os.environ.get("OMP_NUM_THREADS", "")
-    n = str(min(n, int(given)) if given.isdigit() and int(given) > 0 else n)  # a smaller count of the user's stays
+    wait); a smaller ``OMP_NUM_THREADS`` of the user's stays."""
+    n = str(max(1, min(len(os.sched_getaffinity(0)) // 2, process_threads())))
     return {"OMP_NUM_THREADS": n, "MKL_NUM_THREADS": n}
 
 

@@ -78,6 +78,7 @@ def render_probe(pipe, last: dict) -> None:
     """After training: the first :data:`PROBE_STEPS` batches rendered again by the trained model (train mode, no
     gradient), sent as one ``probe`` record with the steps they were drawn at; the checker compares them with the
     colours the same rays had when they were trained on."""
+    import numpy as np
     import torch
 
     pipeline, probe = last.get("pipeline"), last.get("probe") or []
@@ -95,8 +96,6 @@ def render_probe(pipe, last: dict) -> None:
                 return
             rgbs.append(cap.array(rgb)[0])
             images.append(cap.array(batch["image"])[0])
-    import numpy as np
-
     pipe.send({"kind": "probe", "rung": "smoke", "steps": [s for s, _, _ in probe]},
               {"rgb": np.concatenate(rgbs), "image": np.concatenate(images)})
 

@@ -59,35 +59,29 @@ def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWe
     numbers: dict[str, tuple[float, str]] = {}
     for it in items:
         for e in it.equations():
-            if isinstance(e, Equation) and e.defines and isinstance(e.rhs, Number):
+            if e.defines and isinstance(e.rhs, Number):
                 numbers.setdefault(e.defines, (float(e.rhs.value), it.where))
     for it in items:
         for e in it.equations():
-            if not isinstance(e, Equation) or e.defines in outputs:
-                continue
             summands = terms(e.rhs)
-            if len(summands) < 2:
+            if e.defines in outputs or len(summands) < 2:
                 continue
             for output in outputs:
                 coef = next((c for c in (coefficient(t, output) for t in summands) if c is not None), None)
                 if coef is None:
                     continue
                 objective = f"the objective {e.defines or ''} = ... at {it.where or 'its equation'}"
-                if isinstance(coef, float):
-                    return ObjectiveWeight(coef, f"weight {coef:g}: {output}'s coefficient in {objective}")
-                if isinstance(coef, Number):
-                    value = float(coef.value)
+                if not isinstance(coef, Symbol):  # written in the sum (1 for a bare term)
+                    value = float(coef.value if isinstance(coef, Number) else coef)
                     return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient in {objective}")
-                if coef.key in numbers:
-                    value, where = numbers[coef.key]
-                    return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient {coef.key} in {objective}"
-                                                  f", {coef.key} = {value:g} at {where}")
-                stated = words.constants.get(symbol_loose_key(coef)) if words is not None else None
-                if stated is not None:
-                    value, _quote, where = stated
-                    return ObjectiveWeight(float(value), f"weight {float(value):g}: {output}'s coefficient {coef.key} "
-                                                         f"in {objective}, {coef.key} = {float(value):g} at {where}")
-                return ObjectiveWeight(None, f"{output}'s coefficient {coef.key} in {objective} has no value in the "
-                                             "paper: the weight stays 1 (set it in the plan's weight)")
+                stated = numbers.get(coef.key)
+                if stated is None and words is not None and symbol_loose_key(coef) in words.constants:
+                    value, _quote, where = words.constants[symbol_loose_key(coef)]
+                    stated = (float(value), where)
+                if stated is None:
+                    return ObjectiveWeight(None, f"{output}'s coefficient {coef.key} in {objective} has no value in "
+                                                 "the paper: the weight stays 1 (set it in the plan's weight)")
+                value, where = stated
+                return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient {coef.key} in {objective}, "
+                                              f"{coef.key} = {value:g} at {where}")
     return None
-

@@ -571,7 +571,8 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
         path = _options_path(plan, slot, part.terminal)
         node = plan.get(path)
         if not isinstance(node, dict) or _terminal_at(plan, path) != part.terminal:
-            used = _terminal_at(plan, slot) or next(iter(node), None) if isinstance(node, dict) else None
+            chosen = plan.get(slot)
+            used = _terminal_at(plan, slot) or (next(iter(chosen), None) if isinstance(chosen, dict) else None)
             raise ValueError(f"the plan's {slot} is {used or 'absent'}, not the {part.terminal} terminal whose "
                              "typed options state this")
         before = copy.deepcopy(node)
