@@ -204,6 +204,20 @@ class TimeFit:
                 f"Nerfstudio process, about {self.render_seconds:.0f} s to render the checkpoints)")
 
 
+def scaled_step(seconds: float, rays_from: int, rays_to: int, *, ray_share: float | None, exponent: float,
+                per_ray: float = 1.0) -> float:
+    """A training step's seconds at ``rays_to`` rays from one measured at ``rays_from``. With ``ray_share`` (the part
+    of the measured step that its rays cost: the smoke rung's ray-cost timing) that part scales with the rays and by
+    ``per_ray`` (e.g. the samples per ray against those measured), the rest of the step (the optimiser, regularisers
+    over whole grids) stays; without it the whole step scales as ``(rays_to / rays_from) ** exponent * per_ray``
+    (the base's measured exponent)."""
+    ratio = rays_to / max(rays_from, 1)
+    if ray_share is None:
+        return seconds * ratio ** exponent * per_ray
+    share = min(max(ray_share, 0.0), 1.0)
+    return seconds * ((1.0 - share) + share * ratio * per_ray)
+
+
 def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_seconds: float,
                    rays_per_checkpoint: int, rays_per_iteration: int, budget: Budget,
                    most: int | None = None, render_cost: float = RENDER_COST) -> TimeFit:

@@ -435,9 +435,13 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     # a rung run beside the checks had fewer threads than training will have: its steps scale with the threads
     threads, training = smoke.details.get("threads"), process_threads()
     scale = threads / training if isinstance(threads, int) and 0 < threads < training else 1.0
+    rays, cost = _rays(SMOKE_ARGS), smoke.details.get("ray_cost") or {}
+    # the part of a step its rays cost: the recorder's timing at two batches, against the step it ran beside
+    share = (min(1.0, cost["seconds_per_ray"] * rays / smoke.details["seconds_per_iteration"])
+             if cost.get("seconds_per_ray") is not None else None)
     return {"seconds_per_iteration": smoke.details["seconds_per_iteration"] * scale,
-            "startup_seconds": smoke.details["startup_seconds"], "rays": _rays(SMOKE_ARGS),
-            "samples": dict(samples or {})}
+            "startup_seconds": smoke.details["startup_seconds"], "rays": rays,
+            "samples": dict(samples or {}), "ray_share": share}
 
 
 def _timed_out(rung) -> bool:
@@ -484,7 +488,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     recorded as the plan's ``schedule`` (plan.yaml rewritten). Raises ``BudgetError`` when the budget leaves too
     little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
     :data:`UNMEASURED_ITERATIONS`."""
-    from nerfify_ns.budget import RENDER_COST, fit_iterations, training_limit
+    from nerfify_ns.budget import RENDER_COST, fit_iterations, scaled_step, training_limit
     from nerfify_ns.runtime.presets import render_cost, step_time_exponent
     from nerfify_ns.synthesis.proxy import Measured, fit_proxy
     from nerfify_ns.synthesis.schedule import scale_schedule
@@ -510,7 +514,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
         exponent = step_time_exponent(plan["base"])
         if budget.proxy:
             measured = Measured(timing["seconds_per_iteration"], timing["startup_seconds"], timing["rays"],
-                                timing.get("samples") or {})
+                                timing.get("samples") or {}, timing.get("ray_share"))
             fitted_proxy = fit_proxy(plan, measured, seconds_left=left, rays=rays, exponent=exponent,
                                      rays_per_checkpoint=rendered, train_pixels=h * w * len(data.train_frames),
                                      budget=budget, most=most, scene=proxy_scene,
@@ -520,7 +524,8 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
                 proxy, args, rays = fitted_proxy.record(paper_rays), fitted_proxy.args(), fitted_proxy.rays
                 width = fitted_proxy.width_ratio
         else:
-            step = timing["seconds_per_iteration"] * (rays / timing["rays"]) ** exponent
+            step = scaled_step(timing["seconds_per_iteration"], timing["rays"], rays,
+                               ray_share=timing.get("ray_share"), exponent=exponent)
             fit = fit_iterations(left, step, timing["startup_seconds"], rendered, rays, budget, most=most,
                                  render_cost=render_cost(plan["base"], RENDER_COST))
         iterations, every = fit.iterations, fit.every

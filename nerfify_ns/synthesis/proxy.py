@@ -24,7 +24,7 @@ from typing import Any
 
 import yaml
 
-from nerfify_ns.budget import RENDER_COST, Budget, BudgetError, TimeFit, fit_iterations
+from nerfify_ns.budget import RENDER_COST, Budget, BudgetError, TimeFit, fit_iterations, scaled_step
 from nerfify_ns.grammar import derive, load_grammar
 from nerfify_ns.plan import Plan
 
@@ -136,6 +136,8 @@ class Measured:
     rays: int
     samples: dict[str, Any] = field(default_factory=dict)
     """The sample counts and MLP widths it trained with, by plan path (missing: the plan's)."""
+    ray_share: float | None = None
+    """The part of that step its rays cost (the rung's ray-cost timing; None: not timed, the base's exponent)."""
 
 
 @dataclass
@@ -214,9 +216,9 @@ class ProxyFit:
 def _predict(measured: Measured, settings: list[Knob], exponent: float, base_cost: float, base_width: float
              ) -> tuple[float, int]:
     rays = next((int(k.current) for k in settings if k.kind == "rays"), measured.rays)
-    step = (measured.seconds_per_iteration * (sample_cost(settings) / base_cost)
-            * (rays / measured.rays) ** exponent * (width_cost(settings) / base_width))
-    return step, rays
+    step = scaled_step(measured.seconds_per_iteration, measured.rays, rays, ray_share=measured.ray_share,
+                       exponent=exponent, per_ray=sample_cost(settings) / base_cost)
+    return step * (width_cost(settings) / base_width), rays
 
 
 def _fits(left: float, step: float, measured: Measured, rays_per_checkpoint: int, rays: int, budget: Budget,
@@ -232,9 +234,11 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
               rays_per_checkpoint: int, train_pixels: int, budget: Budget, most: int | None = None,
               scene: dict | None = None, render_cost: float = RENDER_COST) -> ProxyFit:
     """The mildest proxy of ``plan`` that reaches ``proxy.yaml``'s target in ``seconds_left`` (the paper's settings
-    when they do), else the strongest; ``rays``: the run's batch before scaling; ``exponent``: the base's step-time
-    exponent in the batch. Raises :class:`BudgetError` (from :func:`fit_iterations`) when not even the strongest
-    proxy fits :data:`nerfify_ns.budget.MIN_ITERATIONS`."""
+    when they do), else the one that comes closest: a knob is halved only while that brings the run nearer the
+    target (a step whose time is mostly the model's parameters, not its rays, gains few iterations from fewer rays
+    and loses passes over the pixels); ``rays``: the run's batch before scaling; ``exponent``: the base's step-time
+    exponent in the batch (used when the rung did not time the rays' share). Raises :class:`BudgetError` (from
+    :func:`fit_iterations`) when not even the strongest proxy fits :data:`nerfify_ns.budget.MIN_ITERATIONS`."""
     settings = knobs(plan, rays)
     target = proxy_spec()["target"]
     base_cost = sample_cost(settings, measured.samples)
@@ -248,10 +252,17 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
         return fit is not None and (fit.iterations >= (most or math.inf) or (
             fit.iterations >= target["iterations"] and fit.iterations * r >= target["epochs"] * train_pixels))
 
+    def progress(fit: TimeFit | None, r: int) -> float:
+        """How near the target a fit comes (1: reached; -1: nothing fits)."""
+        if fit is None:
+            return -1.0
+        return min(fit.iterations / target["iterations"], fit.iterations * r / (target["epochs"] * train_pixels))
+
     fit, step, r = attempt()
     for kind in proxy_spec()["order"]:  # one kind at a time, its knobs halved together (their ratio kept)
         group = [k for k in settings if k.kind == kind and k.flag is not None]
         while not enough(fit, r):
+            before = [(knob, knob.value) for knob in group]
             moved = False
             for knob in group:
                 smaller = knob.halved()
@@ -259,7 +270,12 @@ def fit_proxy(plan: dict, measured: Measured, *, seconds_left: float, rays: int,
                     knob.value, moved = smaller, True
             if not moved:
                 break
-            fit, step, r = attempt()
+            trial = attempt()
+            if trial[0] is not None and progress(trial[0], trial[2]) <= progress(fit, r):  # no nearer: it stays
+                for knob, value in before:
+                    knob.value = value
+                break
+            fit, step, r = trial
         if enough(fit, r):
             break
     if fit is None:  # not even the strongest proxy: the budget's own error, with what it would need

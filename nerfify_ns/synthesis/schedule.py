@@ -147,7 +147,10 @@ def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int | None, fi
     rule = step_parameters()["batch"]
     factor = 1.0
     if rays and 0 < paper_rays and rays < paper_rays:
-        own = (rule.get("bases") or {}).get(plan.get("base")) or {}  # a base measured to need its own rule
+        # a part, else a base, measured to need its own rule
+        parts = rule.get("parts") or {}
+        own = (next((parts[t] for t in used.values() if t in parts), None)
+               or (rule.get("bases") or {}).get(plan.get("base")) or {})
         factor = (rays / paper_rays) ** own.get("exponent", rule["exponent"])
         fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6),
                      "rule": own.get("rule", rule["rule"])}

@@ -20,6 +20,10 @@ PROBE_STEPS = 4
 """The first training batches kept (as drawn, before the model sees them) and rendered again after training: the
 smoke rung's paired comparison, the same rays before and after (:func:`render_probe`)."""
 
+COST_RAYS = (1, 4)
+"""The ray batches :func:`time_ray_cost` times a training step's forward, losses and backward at, as multiples of the
+first probe batch: what a step's time owes to its rays (and what to the model's parameters) is their difference."""
+
 
 def install(pipe) -> dict:
     """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed
@@ -100,6 +104,43 @@ def render_probe(pipe, last: dict) -> None:
               {"rgb": np.concatenate(rgbs), "image": np.concatenate(images)})
 
 
+def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
+    """After training: a training step's forward, losses and backward (no optimiser step) timed at the first probe
+    batch and at :data:`COST_RAYS` times its rays (the batch repeated: the same work per ray), the faster of
+    ``repeats`` each, sent as one ``timing`` record. A budgeted run predicts a step at another batch from it: the
+    difference is what the rays cost, the rest of a step (the optimiser, regularisers over whole grids) does not
+    change with the batch. Gradients are left as they were found."""
+    import time
+
+    import torch
+
+    pipeline, probe = last.get("pipeline"), last.get("probe") or []
+    model = getattr(pipeline, "model", None)
+    if model is None or not probe:
+        return
+    _, bundle, batch = probe[0]
+    rays = len(bundle)
+    saved = {n: p.grad for n, p in model.named_parameters()}
+    seconds = []
+    model.train(True)
+    for factor in COST_RAYS:
+        index = torch.arange(rays * factor) % rays
+        many = bundle[index]
+        targets = {k: v[index] if torch.is_tensor(v) and v.shape[:1] == (rays,) else v for k, v in batch.items()}
+        best = float("inf")
+        for _ in range(repeats):
+            model.zero_grad(set_to_none=True)
+            start = time.perf_counter()
+            outputs = model(many._apply_fn_to_fields(lambda t: t.clone()))
+            losses = model.get_loss_dict(outputs, targets, model.get_metrics_dict(outputs, targets))
+            sum(v for v in losses.values() if torch.is_tensor(v)).backward()
+            best = min(best, time.perf_counter() - start)
+        seconds.append(best)
+    for n, p in model.named_parameters():
+        p.grad = saved.get(n)
+    pipe.send({"kind": "timing", "rung": "smoke", "rays": [rays * f for f in COST_RAYS], "seconds": seconds}, {})
+
+
 def main() -> None:
     from nerfify_ns.verify.checker import RecordPipe
 
@@ -113,6 +154,11 @@ def main() -> None:
         render_probe(pipe, last)
     except Exception as exc:  # noqa: BLE001 - no probe: the checker judges the steps alone (and says so)
         print(f"nerfify recorder: the probe was not rendered after training: {type(exc).__name__}: {exc}",
+              file=sys.stderr)
+    try:
+        time_ray_cost(pipe, last)
+    except Exception as exc:  # noqa: BLE001 - no timing: a budgeted run scales the step by the base's exponent
+        print(f"nerfify recorder: the ray cost was not timed after training: {type(exc).__name__}: {exc}",
               file=sys.stderr)
 
 

@@ -152,13 +152,30 @@ def checkpoint_problems(run_dir: Path) -> tuple[int | None, list[str]]:
     return step if isinstance(step, int) else None, problems
 
 
+def ray_cost(records) -> dict | None:
+    """The recorder's ``timing`` record (a step's forward, losses and backward at two ray batches) as
+    ``{"rays": [r1, r2], "seconds": [t1, t2], "seconds_per_ray": (t2 - t1) / (r2 - r1)}``; None when the run sent
+    none, or one that is not two increasing batches with finite, positive times. Not a verdict: a budgeted run's
+    prediction of a step at another batch (``nerfify_ns.budget.scaled_step``)."""
+    found = [h for h, _ in records if h.get("kind") == "timing"]
+    if len(found) != 1:
+        return None
+    rays, seconds = found[0].get("rays"), found[0].get("seconds")
+    if not (isinstance(rays, list) and isinstance(seconds, list) and len(rays) == len(seconds) == 2
+            and all(isinstance(r, int) and r > 0 for r in rays) and rays[1] > rays[0]
+            and all(isinstance(t, int | float) and np.isfinite(t) and t > 0 for t in seconds)):
+        return None
+    per_ray = max(0.0, (seconds[1] - seconds[0]) / (rays[1] - rays[0]))
+    return {"rays": rays, "seconds": [float(t) for t in seconds], "seconds_per_ray": per_ray}
+
+
 def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[tuple[str, str]], dict]:
     """(checks, [(rule, message)], details) of a smoke run from its records and its checkpoint."""
     errors, problems = step_errors(records)
     failures: list[tuple[str, str]] = [("non-finite-output" if "not finite" in p else "forged-record", p)
                                        for p in problems[:3]]
     reached = max(errors) + 1 if errors else 0
-    details = {"recorded_steps": len(errors), "iterations_recorded": reached}
+    details = {"recorded_steps": len(errors), "iterations_recorded": reached, "ray_cost": ray_cost(records)}
     if reached < iterations and not failures:
         failures.append(("iterations", f"the trainer's records reach {reached} of {iterations} iterations"))
     finite = [errors[s] for s in sorted(errors) if np.isfinite(errors[s])]

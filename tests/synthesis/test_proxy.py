@@ -168,3 +168,33 @@ def test_the_headline_counts_from_the_papers_values_where_the_scene_pruned_them(
     assert fit.headline(4096).startswith("trained a CPU proxy: 32 instead of 192 samples per ray")
     coarse = next(s for s in fit.record(4096)["settings"] if s["path"].endswith("num_coarse_samples"))
     assert (coarse["paper"], coarse["plan"], coarse["proxy"]) == (64, 48, 16)
+
+
+def test_a_step_scales_with_the_part_its_rays_cost():
+    from nerfify_ns.budget import scaled_step
+
+    # no ray share measured: the base's exponent scales the whole step
+    assert scaled_step(0.4, 128, 512, ray_share=None, exponent=0.5) == pytest.approx(0.8)
+    # a step that is one quarter rays: 4x the rays adds three quarters of that quarter's cost three times over
+    assert scaled_step(0.4, 128, 512, ray_share=0.25, exponent=0.5) == pytest.approx(0.4 * (0.75 + 0.25 * 4))
+    # the samples per ray scale only the rays' part; a share outside [0, 1] (timing noise) is clamped
+    assert scaled_step(0.4, 128, 128, ray_share=0.5, exponent=1.0, per_ray=0.5) == pytest.approx(0.3)
+    assert scaled_step(0.4, 128, 64, ray_share=1.7, exponent=1.0) == pytest.approx(0.2)
+
+
+def test_fewer_rays_are_not_taken_when_the_step_is_mostly_the_models_parameters():
+    """A plan whose step is dominated by work over its whole grids (a total-variation prior over planes, the
+    optimiser over millions of parameters) gains few iterations from fewer rays and loses passes over the pixels:
+    the proxy keeps the rays where halving them brings the run no nearer its target."""
+    plan = _nerf_plan()
+    rays_bound = Measured(0.6 / WIDE, 15.0, 128, smoke_samples(plan)[1], ray_share=1.0)
+    grid_bound = Measured(0.6 / WIDE, 15.0, 128, smoke_samples(plan)[1], ray_share=0.05)
+    common = dict(seconds_left=800, rays=512, exponent=1.0, rays_per_checkpoint=4 * PIXELS,
+                  train_pixels=24 * PIXELS, budget=PAPER_BUDGET, most=30000)
+    bound = fit_proxy(plan, rays_bound, **common)
+    assert bound.rays < 512  # as before: the rays are the step's cost
+    kept = fit_proxy(plan, grid_bound, **common)
+    assert kept.rays == 512 and "rays" not in {k.kind for k in kept.changed}
+    # keeping them is what brings the run nearest the target: more passes over the pixels than the halved batch
+    halved = kept.time.iterations * 512
+    assert halved > bound.time.iterations * bound.rays

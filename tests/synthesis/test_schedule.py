@@ -79,3 +79,18 @@ def test_the_paper_s_batch_or_a_larger_one_keeps_the_learning_rates():
     for run in (rays, 2 * rays):
         fit = scale_schedule(plan, 30000, rays=run)
         assert fit.batch is None and not fit.scaled and fit.args == []
+
+
+def test_a_part_measured_to_need_its_own_batch_rule_goes_before_its_base():
+    """Space-time planes on a nerfacto base take the square-root rule (their part's, measured), not the base's
+    linear one; the same base without the part keeps the linear rule."""
+    plan = Plan.of(load_reference_plan("kplanes-time")).copy()
+    assert plan["base"] == "nerfacto"
+    paper_rays = plan["datamanager"]["train_num_rays_per_batch"]
+    fit = scale_schedule(plan, int(plan["trainer"]["max_num_iterations"]), rays=paper_rays // 16)
+    assert fit.batch["factor"] == pytest.approx(0.25) and fit.batch["rule"].startswith("square root")
+    lr = plan["optimizers"]["fields"]["optimizer"]["adam"]["lr"]
+    flag = fit.args.index("--optimizers.fields.optimizer.lr")
+    assert float(fit.args[flag + 1]) == pytest.approx(lr / 4)
+    assert scale_schedule(_plan(), 30000, rays=_plan()["datamanager"]["train_num_rays_per_batch"] // 16
+                          ).batch["rule"] == "linear"

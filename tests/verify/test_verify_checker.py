@@ -193,3 +193,22 @@ def test_the_smoke_verdict_compares_the_same_rays_before_and_after():
                                             "rendered again)")
     _, _, details = judge_training(records, Path("/nonexistent"), 20)
     assert details["judged_on"] == "the first quarter's steps against the last quarter's"
+
+
+def test_the_ray_cost_timing_is_read_only_when_it_is_well_formed():
+    """The recorder's timing of a step at two ray batches gives the seconds a ray costs (a budget input, not a
+    verdict); a missing, repeated or malformed record gives none, and a faster larger batch (noise) costs 0."""
+    from nerfify_ns.verify.smoke_check import ray_cost
+
+    records, _ = _smoke_records(8, improve=0.5)
+    timing = ({"kind": "timing", "rung": "smoke", "rays": [128, 512], "seconds": [0.2, 0.5]}, {})
+    cost = ray_cost([*records, timing])
+    assert cost["seconds_per_ray"] == pytest.approx(0.3 / 384) and cost["rays"] == [128, 512]
+    assert judge_training([*records, timing], Path("/nonexistent"), 8)[2]["ray_cost"] == cost
+    assert ray_cost(records) is None and ray_cost([*records, timing, timing]) is None
+    for bad in ({"rays": [512, 128], "seconds": [0.2, 0.5]}, {"rays": [128, 512], "seconds": [0.2, float("nan")]},
+                {"rays": [128, 512], "seconds": [0.2, -1]}, {"rays": "128", "seconds": [0.2, 0.5]},
+                {"rays": [128, 512, 1024], "seconds": [0.2, 0.5, 0.9]}):
+        assert ray_cost([*records, ({"kind": "timing", **bad}, {})]) is None, bad
+    noisy = ({"kind": "timing", "rays": [128, 512], "seconds": [0.5, 0.4]}, {})
+    assert ray_cost([noisy])["seconds_per_ray"] == 0.0

@@ -32,6 +32,10 @@ def test_full_ladder_kplanes_static(reference_plugins, tiny_scene, tmp_path):
     assert smoke.status == "pass" and smoke.details["iterations"] == 20
     assert smoke.details["photometric_last"] < smoke.details["photometric_first"]
     assert "no-network" in smoke.details["isolation"] and "read-only-fs" in smoke.details["isolation"]
+    # after training the recorder timed a step at the rung's batch and at 4x it: what the rays cost of a step
+    cost = smoke.details["ray_cost"]
+    assert cost["rays"][1] == 4 * cost["rays"][0] and all(t > 0 for t in cost["seconds"])
+    assert cost["seconds_per_ray"] >= 0
     data = json.loads((tmp_path / "out" / "verify.json").read_text())
     cases = [c for r in data["rungs"] if r["name"] == "stability" for c in r["details"]["cases"]]
     assert {c["case"] for c in cases if c["component"] == "<model>"} >= {
