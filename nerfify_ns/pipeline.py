@@ -432,14 +432,17 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     smoke = next((r for r in ladder.rungs if r.name == "smoke" and (r.status == "pass" or _timed_out(r))), None)
     if smoke is None or not smoke.details.get("seconds_per_iteration"):
         return {}
-    # a rung run beside the checks had fewer threads than training will have: its steps scale with the threads
+    # a rung run beside the checks had fewer threads than training will have: its steps are faster with training's
+    # threads by the speedup the recorder measured (else by the ratio of threads, an upper bound)
     threads, training = smoke.details.get("threads"), process_threads()
-    scale = threads / training if isinstance(threads, int) and 0 < threads < training else 1.0
-    rays, cost = _rays(SMOKE_ARGS), smoke.details.get("ray_cost") or {}
-    # the part of a step its rays cost: the recorder's timing at two batches, against the step it ran beside
-    share = (min(1.0, cost["seconds_per_ray"] * rays / smoke.details["seconds_per_iteration"])
-             if cost.get("seconds_per_ray") is not None else None)
-    return {"seconds_per_iteration": smoke.details["seconds_per_iteration"] * scale,
+    cost = smoke.details.get("ray_cost") or {}
+    scale = (1.0 / cost["speedup"] if cost.get("speedup") and cost.get("threads") == training
+             else threads / training if isinstance(threads, int) and 0 < threads < training else 1.0)
+    step, rays = smoke.details["seconds_per_iteration"] * scale, _rays(SMOKE_ARGS)
+    # the part of a step its rays cost: the recorder's timing at two batches, against the step at those threads
+    share = (min(1.0, cost["seconds_per_ray"] * rays / step)
+             if cost.get("seconds_per_ray") is not None and cost.get("threads") in (None, training) else None)
+    return {"seconds_per_iteration": step,
             "startup_seconds": smoke.details["startup_seconds"], "rays": rays,
             "samples": dict(samples or {}), "ray_share": share}
 

@@ -209,6 +209,9 @@ class FieldBlend(nn.Module):
         if mode not in ("density", "mixer"):
             raise ValueError(f"mode must be 'density' or 'mixer', got {mode!r}")
         self.num_fields, self.mode = num_fields, mode
+        self.last_shares: Tensor | None = None
+        """Each field's share of every sample of the last call [N, K] (they sum to 1): the mixer's weights, or each
+        density over their sum."""
         if mode == "mixer":
             self.encoding = Sinusoids(3, mixer_frequencies)
             self.mixer = mlp(self.encoding.get_out_dim() + 1, mixer_width, mixer_layers, num_fields)
@@ -221,10 +224,12 @@ class FieldBlend(nn.Module):
     def forward(self, densities: Tensor, rgbs: Tensor, positions: Tensor, times: Tensor) -> tuple[Tensor, Tensor]:
         if self.mode == "mixer":
             w = self.weights(positions, times).unsqueeze(-1).to(densities)  # [N, K, 1]
+            self.last_shares = w[..., 0]
             return (w * densities).sum(dim=-2), (w * rgbs).sum(dim=-2).clamp(0.0, 1.0)
         sigma = _float(densities)
         total = sigma.sum(dim=-2)
         eps = 1e-6
+        self.last_shares = ((sigma + eps / sigma.shape[-2]) / (total.unsqueeze(-2) + eps))[..., 0].to(densities.dtype)
         rgb = ((sigma * _float(rgbs)).sum(dim=-2) + eps * _float(rgbs).mean(dim=-2)) / (total + eps)
         return total.to(densities.dtype), rgb.clamp(0.0, 1.0).to(rgbs.dtype)
 
@@ -232,8 +237,9 @@ class FieldBlend(nn.Module):
 class BlendedField(Field):
     """Several Nerfstudio fields queried at the same samples and blended by :class:`FieldBlend`; a Nerfstudio
     field itself, so a base model installs it as its own field (its ``density_fn`` serves occupancy grids and
-    proposal samplers). Keeps ``last_density`` (the blended density) and ``last_deltas`` (the samples' steps) for
-    density regularisers."""
+    proposal samplers). Keeps ``last_density`` (the blended density), ``last_deltas`` (the samples' steps) and
+    ``last_weights`` (each field's share of every sample [.., S, K], in the order of its fields) of its last
+    evaluation for regularisers."""
 
     def __init__(self, fields: Sequence[nn.Module], blend: FieldBlend) -> None:
         super().__init__()
@@ -243,6 +249,7 @@ class BlendedField(Field):
         self.blend = blend
         self.last_density: Tensor | None = None
         self.last_deltas: Tensor | None = None
+        self.last_weights: Tensor | None = None
 
     SHARED = ("position_encoding", "spatial_distortion", "direction_encoding")
     """The parts of its first field a blend answers for (the plan's regularisers of the field, plane TV and time
@@ -272,6 +279,8 @@ class BlendedField(Field):
         density, rgb = self._blend(ray_samples, [o[FieldHeadNames.DENSITY] for o in outputs],
                                    [o[FieldHeadNames.RGB] for o in outputs])
         self.last_density, self.last_deltas = density, ray_samples.deltas
+        shares = getattr(self.blend, "last_shares", None)  # a blend of the paper's own may keep none
+        self.last_weights = None if shares is None else shares.reshape(*density.shape[:-1], shares.shape[-1])
         return {FieldHeadNames.DENSITY: density, FieldHeadNames.RGB: rgb}
 
     def get_density(self, ray_samples: RaySamples) -> tuple[Tensor, None]:

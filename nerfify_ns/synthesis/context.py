@@ -530,7 +530,8 @@ def model_context(ctx: Context) -> dict:
             modules.append({"attr": name, "ctor": call(component["cls"], component["kwargs"])})
             regularizers.append({"name": name, "weight": component["weight"],
                                  "expr": f"self.{name}(densities={base['field_attr']}.last_density, "
-                                         f"deltas={base['field_attr']}.last_deltas)"})
+                                         f"deltas={base['field_attr']}.last_deltas, "
+                                         f"weights=getattr({base['field_attr']}, 'last_weights', None))"})
             ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[CUSTOM].doc)
             continue
         code = snippet(name)

@@ -138,7 +138,8 @@ def shared_cores() -> dict[str, str]:
     smoke rung's steps up to 30 times slower, 1.28 s against 0.04 s, measured; :mod:`torch`'s pools spin while they
     wait); a smaller ``OMP_NUM_THREADS`` of the user's stays."""
     n = str(max(1, min(len(os.sched_getaffinity(0)) // 2, process_threads())))
-    return {"OMP_NUM_THREADS": n, "MKL_NUM_THREADS": n}
+    # the smoke rung's recorder times a step with the threads training will have (verify/recorder.py)
+    return {"OMP_NUM_THREADS": n, "MKL_NUM_THREADS": n, "NERFIFY_TIMING_THREADS": str(process_threads())}
 
 
 def _smoke(info, work: Path, st: _Settings, cancel=None, env: dict[str, str] | None = None) -> RungResult:

@@ -107,9 +107,12 @@ def render_probe(pipe, last: dict) -> None:
 def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
     """After training: a training step's forward, losses and backward (no optimiser step) timed at the first probe
     batch and at :data:`COST_RAYS` times its rays (the batch repeated: the same work per ray), the faster of
-    ``repeats`` each, sent as one ``timing`` record. A budgeted run predicts a step at another batch from it: the
-    difference is what the rays cost, the rest of a step (the optimiser, regularisers over whole grids) does not
-    change with the batch. Gradients are left as they were found."""
+    ``repeats`` each, with the threads training will have (``NERFIFY_TIMING_THREADS``; the rung itself may run with
+    fewer, beside the checks), and the first batch again with the rung's own threads; sent as one ``timing``
+    record. A budgeted run predicts a step at another batch from it: the difference is what the rays cost, the rest
+    of a step (the optimiser, regularisers over whole grids) does not change with the batch, and the two thread
+    counts say how much faster training's threads make a step. Gradients are left as they were found."""
+    import os
     import time
 
     import torch
@@ -121,9 +124,12 @@ def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
     _, bundle, batch = probe[0]
     rays = len(bundle)
     saved = {n: p.grad for n, p in model.named_parameters()}
-    seconds = []
+    own = torch.get_num_threads()
+    wanted = os.environ.get("NERFIFY_TIMING_THREADS", "")
+    threads = int(wanted) if wanted.isdigit() and int(wanted) > 0 else own
     model.train(True)
-    for factor in COST_RAYS:
+
+    def timed(factor: int) -> float:
         index = torch.arange(rays * factor) % rays
         many = bundle[index]
         targets = {k: v[index] if torch.is_tensor(v) and v.shape[:1] == (rays,) else v for k, v in batch.items()}
@@ -135,10 +141,18 @@ def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
             losses = model.get_loss_dict(outputs, targets, model.get_metrics_dict(outputs, targets))
             sum(v for v in losses.values() if torch.is_tensor(v)).backward()
             best = min(best, time.perf_counter() - start)
-        seconds.append(best)
-    for n, p in model.named_parameters():
-        p.grad = saved.get(n)
-    pipe.send({"kind": "timing", "rung": "smoke", "rays": [rays * f for f in COST_RAYS], "seconds": seconds}, {})
+        return best
+
+    try:
+        rung_seconds = timed(1)
+        torch.set_num_threads(threads)
+        seconds = [timed(f) for f in COST_RAYS]
+    finally:
+        torch.set_num_threads(own)
+        for n, p in model.named_parameters():
+            p.grad = saved.get(n)
+    pipe.send({"kind": "timing", "rung": "smoke", "rays": [rays * f for f in COST_RAYS], "seconds": seconds,
+               "threads": threads, "rung_threads": own, "rung_seconds": rung_seconds}, {})
 
 
 def main() -> None:

@@ -153,20 +153,31 @@ def checkpoint_problems(run_dir: Path) -> tuple[int | None, list[str]]:
 
 
 def ray_cost(records) -> dict | None:
-    """The recorder's ``timing`` record (a step's forward, losses and backward at two ray batches) as
-    ``{"rays": [r1, r2], "seconds": [t1, t2], "seconds_per_ray": (t2 - t1) / (r2 - r1)}``; None when the run sent
-    none, or one that is not two increasing batches with finite, positive times. Not a verdict: a budgeted run's
-    prediction of a step at another batch (``nerfify_ns.budget.scaled_step``)."""
+    """The recorder's ``timing`` record (a step's forward, losses and backward at two ray batches with training's
+    threads, and at the first with the rung's own) as ``{"rays": [r1, r2], "seconds": [t1, t2], "seconds_per_ray":
+    (t2 - t1) / (r2 - r1), "speedup": rung's t1 / training's t1}`` (the speedup within [1, the ratio of threads];
+    absent when the record has no second thread count); None when the run sent none, or one that is not two
+    increasing batches with finite, positive times. Not a verdict: a budgeted run's prediction of a step at another
+    batch and thread count (``nerfify_ns.budget.scaled_step``, ``pipeline._smoke_timing``)."""
+    def seconds_ok(t) -> bool:
+        return isinstance(t, int | float) and not isinstance(t, bool) and bool(np.isfinite(t)) and t > 0
+
     found = [h for h, _ in records if h.get("kind") == "timing"]
     if len(found) != 1:
         return None
-    rays, seconds = found[0].get("rays"), found[0].get("seconds")
+    head = found[0]
+    rays, seconds = head.get("rays"), head.get("seconds")
     if not (isinstance(rays, list) and isinstance(seconds, list) and len(rays) == len(seconds) == 2
             and all(isinstance(r, int) and r > 0 for r in rays) and rays[1] > rays[0]
-            and all(isinstance(t, int | float) and np.isfinite(t) and t > 0 for t in seconds)):
+            and all(seconds_ok(t) for t in seconds)):
         return None
     per_ray = max(0.0, (seconds[1] - seconds[0]) / (rays[1] - rays[0]))
-    return {"rays": rays, "seconds": [float(t) for t in seconds], "seconds_per_ray": per_ray}
+    out = {"rays": rays, "seconds": [float(t) for t in seconds], "seconds_per_ray": per_ray}
+    threads, own, rung = head.get("threads"), head.get("rung_threads"), head.get("rung_seconds")
+    if isinstance(threads, int) and isinstance(own, int) and 0 < own <= threads and seconds_ok(rung):
+        out.update(threads=threads, rung_threads=own,
+                   speedup=min(max(float(rung) / seconds[0], 1.0), threads / own))
+    return out
 
 
 def judge_training(records, run_dir: Path, iterations: int) -> tuple[int, list[tuple[str, str]], dict]:

@@ -327,3 +327,66 @@ def test_a_loss_terms_weight_is_its_coefficient_in_the_objective(latex, words, w
     assert got is not None and got.value == want, got
     assert "cal L_s" in got.note
     assert objective_weight(["cal L_x"], [item], SimpleNamespace(constants=words)) is None
+
+
+SHARED = r"""# ShareNeRF: Two Fields and a Prior on How They Share Space
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does. A second field models what
+moves; a small network blends the two fields per sample, and a prior keeps the moving field's share small.
+
+## 3 Method
+
+### 3.1 Two fields
+
+A **sharing field** $m:(\mathbf{x},t)\mapsto(P_{\text{still}},P_{\text{moving}})$ gives, for every sample, the
+probability that each field explains it; the colour and density are the two fields' outputs weighted by them.
+
+### 3.2 Sharing prior
+
+We add a regulariser that penalises samples the moving field explains, where $\gamma = 0.5$:
+
+$$\mathcal{L}_{sh} = \gamma \, P_{\text{moving}} \left(2 - P_{\text{moving}}\right) \tag{3}$$
+
+### 3.3 Training objective
+
+$$\mathcal{L} = \mathcal{L}_{rgb} + 0.01 \, \mathcal{L}_{sh} \tag{4}$$
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+
+def test_a_regulariser_reads_a_blended_fields_share_by_its_place_in_the_decomposition(tmp_path):
+    """A test paper's prior on the share of its second field: the symbol is the second output of the tuple the
+    paper writes its decomposition as, so it reads the second column of the blended fields' shares (the Regularizers
+    interface's weights); the part is the hand-written prior, gradients included, and it refuses a blend of another
+    number of fields or none instead of reading the wrong column."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "shared.md"
+    path.write_text(SHARED)
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "Regularizers"]
+    assert record.status == IMPLEMENTED, record.reason
+    (binding,) = [b for b in record.bindings.values() if b.get("role") == "probability"]
+    assert "mapsto" in binding["evidence"] and binding["note"].startswith("output 2 of the 2")
+    assert record.bindings["gamma"]["value"] == 0.5 and record.component["weight"] == 0.01
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]().double()
+    sigma = torch.rand(4, 6, 1, dtype=torch.float64)
+    shares = torch.softmax(torch.randn(4, 6, 2, dtype=torch.float64), dim=-1).requires_grad_()
+    got = module(sigma, None, shares)
+    p = shares[..., 1]
+    want = (0.5 * p * (2 - p)).mean()
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (shares,))
+    with pytest.raises(ValueError, match="blends none"):
+        module(sigma, None, None)
+    with pytest.raises(ValueError, match="shares of 2 blended fields; the field blends 3"):
+        module(sigma, None, torch.softmax(torch.randn(4, 6, 3, dtype=torch.float64), dim=-1))

@@ -439,3 +439,40 @@ def test_a_broken_wrapper_fails_the_contract_rung(tmp_path):
     assert report.rung("static").status == "pass" and not report.ok
     messages = [d.message for d in report.rung("contract").failures if d.rule == "component-contract"]
     assert any("TinyDeformation" in m and "positions: shape (64, 4)" in m for m in messages), messages
+
+
+def test_a_blend_keeps_each_fields_share_of_every_sample():
+    """The blended field keeps each field's share of its last evaluation's samples [R, S, K] (what a regulariser
+    over a decomposition reads): the mixer's softmax weights, or each density over their sum; they sum to 1."""
+    import torch
+    from nerfstudio.cameras.rays import Frustums, RaySamples
+    from nerfstudio.field_components.field_heads import FieldHeadNames
+    from torch import nn
+
+    from nerfify_ns.components.field_wrappers import BlendedField, FieldBlend
+
+    class Constant(nn.Module):
+        def __init__(self, value: float) -> None:
+            super().__init__()
+            self.value = value
+
+        def forward(self, samples):
+            shape = samples.frustums.starts.shape[:-1]
+            return {FieldHeadNames.DENSITY: torch.full((*shape, 1), self.value),
+                    FieldHeadNames.RGB: torch.full((*shape, 3), 0.5)}
+
+    r, s = 4, 5
+    frustums = Frustums(origins=torch.rand(r, s, 3), directions=torch.rand(r, s, 3), starts=torch.rand(r, s, 1),
+                        ends=torch.rand(r, s, 1) + 1, pixel_area=torch.ones(r, s, 1))
+    samples = RaySamples(frustums=frustums, deltas=torch.full((r, s, 1), 0.1), times=torch.rand(r, s, 1))
+    by_density = BlendedField([Constant(1.0), Constant(3.0)], FieldBlend(2, "density"))
+    by_density(samples)
+    torch.testing.assert_close(by_density.last_weights, torch.tensor([0.25, 0.75]).expand(r, s, 2),
+                               rtol=1e-5, atol=1e-5)
+    mixer = FieldBlend(3, "mixer")
+    by_mixer = BlendedField([Constant(1.0), Constant(2.0), Constant(3.0)], mixer)
+    by_mixer(samples)
+    assert by_mixer.last_weights.shape == (r, s, 3)
+    torch.testing.assert_close(by_mixer.last_weights.reshape(-1, 3),
+                               mixer.weights(frustums.get_positions().reshape(-1, 3), samples.times.reshape(-1, 1)))
+    torch.testing.assert_close(by_mixer.last_weights.sum(-1), torch.ones(r, s))

@@ -14,3 +14,28 @@ def test_two_processes_at_once_get_half_the_cores_each(monkeypatch):
     assert shared_cores()["OMP_NUM_THREADS"] == "1"
     monkeypatch.setenv("OMP_NUM_THREADS", "not a number")
     assert shared_cores()["OMP_NUM_THREADS"] == str(max(1, cores // 2))
+    # the smoke rung's recorder times a step with the threads training will have
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    assert shared_cores()["NERFIFY_TIMING_THREADS"] == str(cores)
+
+
+def test_the_budget_reads_the_step_at_trainings_threads_from_the_rungs_timing(monkeypatch):
+    """A rung run beside the checks (1 thread) timed a step with training's 2 threads: its steps are scaled by the
+    speedup it measured, not by the ratio of threads, and the rays' share of a step comes from the same timing;
+    without a timing the ratio of threads stands (an upper bound on the speedup)."""
+    import pytest
+
+    from nerfify_ns.pipeline import _smoke_timing
+    from nerfify_ns.verify.verdicts import LadderReport, RungResult
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    cost = {"rays": [128, 512], "seconds": [0.3, 0.6], "seconds_per_ray": 0.3 / 384, "threads": 2,
+            "rung_threads": 1, "speedup": 1.25}
+    smoke = RungResult("smoke", details={"seconds_per_iteration": 0.5, "startup_seconds": 15.0, "threads": 1,
+                                         "ray_cost": cost})
+    timing = _smoke_timing(LadderReport(plugin="p", rungs=[smoke]))
+    assert timing["seconds_per_iteration"] == pytest.approx(0.4)
+    assert timing["ray_share"] == pytest.approx(0.3 / 384 * timing["rays"] / 0.4)
+    smoke.details.pop("ray_cost")
+    timing = _smoke_timing(LadderReport(plugin="p", rungs=[smoke]))
+    assert timing["seconds_per_iteration"] == pytest.approx(0.25) and timing["ray_share"] is None

@@ -211,4 +211,12 @@ def test_the_ray_cost_timing_is_read_only_when_it_is_well_formed():
                 {"rays": [128, 512, 1024], "seconds": [0.2, 0.5, 0.9]}):
         assert ray_cost([*records, ({"kind": "timing", **bad}, {})]) is None, bad
     noisy = ({"kind": "timing", "rays": [128, 512], "seconds": [0.5, 0.4]}, {})
-    assert ray_cost([noisy])["seconds_per_ray"] == 0.0
+    assert ray_cost([noisy])["seconds_per_ray"] == 0.0 and "speedup" not in ray_cost([noisy])
+    # the rung's own threads against training's: the speedup, within [1, the ratio of threads]
+    for rung, want in ((0.3, 1.5), (0.1, 1.0), (0.9, 2.0)):
+        timed = ({"kind": "timing", "rays": [128, 512], "seconds": [0.2, 0.5], "threads": 2, "rung_threads": 1,
+                  "rung_seconds": rung}, {})
+        assert ray_cost([timed])["speedup"] == pytest.approx(want)
+    odd = ({"kind": "timing", "rays": [128, 512], "seconds": [0.2, 0.5], "threads": 1, "rung_threads": 2,
+            "rung_seconds": 0.3}, {})
+    assert "speedup" not in ray_cost([odd])

@@ -36,6 +36,8 @@ def test_full_ladder_kplanes_static(reference_plugins, tiny_scene, tmp_path):
     cost = smoke.details["ray_cost"]
     assert cost["rays"][1] == 4 * cost["rays"][0] and all(t > 0 for t in cost["seconds"])
     assert cost["seconds_per_ray"] >= 0
+    # with the threads training will have, and the rung's own: how much faster training's threads make a step
+    assert 1.0 <= cost["speedup"] <= cost["threads"] / cost["rung_threads"]
     data = json.loads((tmp_path / "out" / "verify.json").read_text())
     cases = [c for r in data["rungs"] if r["name"] == "stability" for c in r["details"]["cases"]]
     assert {c["case"] for c in cases if c["component"] == "<model>"} >= {

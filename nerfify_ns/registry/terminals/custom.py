@@ -111,7 +111,7 @@ def _loss(module, inputs, env):
 
 
 def _regularizer(module, inputs, env):
-    return {"loss": module(densities=inputs["densities"], deltas=inputs["deltas"])}
+    return {"loss": module(densities=inputs["densities"], deltas=inputs["deltas"], weights=inputs["weights"])}
 
 
 def _sampler(module, inputs, env):
@@ -209,10 +209,13 @@ INTERFACES: dict[str, Interface] = {i.production: i for i in [
               Contract({"pred": T("[R, 3]", range=(0.0, 1.0), grad=True), "target": T("[R, 3]", range=(0.0, 1.0))},
                        LOSS), _loss, VALUE_CASES),
     Interface("Regularizers", "forward(densities=[R, S, 1], sigma at the field's samples, deltas=[R, S, 1], the "
-              "steps between them) -> scalar >= 0, added to the loss times `weight`", (),
+              "steps between them, weights=[R, S, K] or None, each field's share of every sample where the field "
+              "blends K fields (None otherwise)) -> scalar >= 0, added to the loss times `weight`", (),
               Contract({"densities": T("[R, S, 1]", range=(0.0, 5.0), grad=True, role="densities"),
-                        "deltas": T("[R, S, 1]", range=(0.01, 0.2), role="steps", doc="step between samples")},
-                       LOSS),
+                        "deltas": T("[R, S, 1]", range=(0.01, 0.2), role="steps", doc="step between samples"),
+                        "weights": T("[R, S, num_fields]", range=(0.0, 1.0),
+                                     doc="each blended field's share of a sample")},
+                       LOSS, sizes={"num_fields": 3}),
               _regularizer, VALUE_CASES),
     Interface("Field", "a nerfstudio Field: __init__(aabb, num_images, ...); forward(ray_samples [R, S]) -> "
               "{DENSITY: [R, S, 1] >= 0, RGB: [R, S, 3] in [0, 1]}", ("aabb", "num_images"),

@@ -31,6 +31,10 @@ class Provision:
     width: object
     code: str
     doc: str
+    columns: bool = False
+    """One column per output of a decomposition the paper writes as a tuple (``f: x -> (P_a, P_b, P_c)``): ``code``
+    reads the column ``{column}``, a symbol bound to it by its place in the tuple; the component's ``num_fields``
+    is the tuple's length."""
 
 
 @dataclass
@@ -196,6 +200,17 @@ def _write_state(state, value):
 def _along_samples(value, n_samples):
     """A per-ray value, the same at every sample of its ray: [R, ...] -> [R, S, ...]."""
     return value[:, None].expand(value.shape[0], n_samples, *value.shape[1:])
+
+
+def _field_share(weights, column, count):
+    """Field ``column``'s share of every sample [R, S]: the blended fields' weights [R, S, K] in the order of the
+    paper's decomposition (its ``count`` outputs, one per field)."""
+    if weights is None:
+        raise ValueError("this regulariser reads the blended fields' shares of each sample: the field blends none")
+    if weights.shape[-1] != count:
+        raise ValueError(f"this regulariser reads the shares of {count} blended fields; the field blends "
+                         f"{weights.shape[-1]}")
+    return weights[..., column]
 
 
 def _basis_sum(coefficients, basis, channels):
@@ -389,25 +404,33 @@ class RegularizerAdapter(Adapter):
         return {"density": Provision("density", True, None, "densities[..., 0]",
                                      "the field's density at every sample (its last evaluation)"),
                 "step": Provision("step", True, None, "deltas[..., 0]",
-                                  "the step between the field's samples (its last evaluation)")}
+                                  "the step between the field's samples (its last evaluation)"),
+                "probability": Provision("probability", True, None, "_field_share(weights, {column}, self.num_fields)",
+                                         "a blended field's share of every sample (its last evaluation)",
+                                         columns=True)}
 
     def source(self, w: Wiring, context: dict) -> str:
         init = ["super().__init__()", f"self.equations = {w.eq_cls}({w.equations_args})"]
+        fields = w.params.get("num_fields")
+        if fields:
+            init.insert(1, "self.num_fields = num_fields")
         fwd = ["densities = densities.reshape(densities.shape[0], -1, 1) if densities.dim() != 3 else densities"]
         if any("deltas" in str(f.code) for f in w.feeds):
             fwd += ["if deltas is None:",
                     "    raise ValueError('this regulariser reads the steps between samples: deltas is None')",
                     "deltas = deltas.reshape(densities.shape)"]
+        if any("weights" in str(f.code) for f in w.feeds):
+            fwd += ["weights = None if weights is None else weights.reshape(*densities.shape[:2], -1)"]
         fwd += self.lines_feeds(w, "densities") + self.lines_call(w)
         (key, ident, width), = w.outputs
         fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"]
         lines = [f"class {w.cls}(nn.Module):",
                  '    """Regulariser compiled from the paper\'s equations: forward(densities [R, S, 1], deltas '
-                 '[R, S, 1]) -> scalar."""',
-                 "", "    def __init__(self) -> None:"]
+                 '[R, S, 1], weights [R, S, K] or None) -> scalar."""',
+                 "", f"    def __init__(self{f', num_fields: int = {int(fields)}' if fields else ''}) -> None:"]
         lines += _indent(init, 2)
-        lines += ["", "    def forward(self, densities: torch.Tensor, deltas: Optional[torch.Tensor] = None) -> "
-                  "torch.Tensor:"]
+        lines += ["", "    def forward(self, densities: torch.Tensor, deltas: Optional[torch.Tensor] = None, "
+                  "weights: Optional[torch.Tensor] = None) -> torch.Tensor:"]
         lines += _indent(fwd, 2)
         return "\n".join(lines) + "\n"
 

@@ -389,6 +389,8 @@ class _Hole:
             value, quote, where2 = stated
             return {"as": "constant", "role": role if kind == "constant" else "constant", "source": "paper",
                     "evidence": f"{where2}: \"{_short(quote)}\"", "value": value}
+        if role in self.provisions and self.provisions[role].columns:
+            return self._column(key, sym, role, where)
         if role in self.provisions and role not in self._provision_used and not self._read_per_ray(sym, role):
             self._provision_used[role] = key
             return self._input(role, d.source, d.evidence())
@@ -439,6 +441,21 @@ class _Hole:
         said = self.words.first_sentence(sym)
         paper = f"; the paper: \"{_short(said[0], 140)}\" ({said[1]})" if said else ""
         raise _Unbound(f"'{name}' ({where}): {what}{paper}")
+
+    def _column(self, key: str, sym: Symbol, role: str, where: str) -> dict:
+        """A quantity the interface gives one column per output of a decomposition (the blended fields' shares of a
+        sample): the column is the symbol's place in the tuple the paper writes the decomposition's outputs as."""
+        prov = self.provisions[role]
+        place = self.words.outputs.get(_loose(sym))
+        if place is None:
+            raise _Unbound(f"'{safe_comment(key, 40)}' ({where}): a {role} the {self.adapter.production} interface "
+                           "gives one per blended field, but the paper writes no tuple of outputs (f: x -> (P_1, ..., "
+                           "P_K)) that places it among them")
+        column, count, quote, where2 = place
+        return {**self._input(role, "paper", f"{where2}: \"{_short(quote)}\""),
+                "code": prov.code.format(column=column), "count": count,
+                "note": f"output {column + 1} of the {count} the paper's decomposition gives: the share of the "
+                        f"blend's field {column + 1} (the fields in the decomposition's order)"}
 
     def _read_per_ray(self, sym: Symbol, role: str | None) -> bool:
         """A per-sample quantity read at a ray (``l(r)``, no sample index) in a production that renders rays."""

@@ -266,6 +266,11 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
                            "background term (its own terms explain the whole ray)")
     if production == "RGBHead":
         w.params = {"dir_dim": int(work.context.get("dir_dim") or 0)}
+    counts = {int(b["count"]) for b in bindings.values() if b.get("count")}
+    if production == "Regularizers" and counts:
+        if len(counts) > 1:
+            raise CompileError(f"the part reads the shares of blends of {sorted(counts)} fields (one blend per field)")
+        w.params = {"num_fields": counts.pop()}
     if production == "RGBLoss":
         (key,) = att.outputs
         w.loss_mean = True

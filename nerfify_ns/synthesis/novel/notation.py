@@ -203,6 +203,32 @@ def mentions(text: str) -> list[Mention]:
     return found
 
 
+_MAPS_TO = re.compile(r"(?:\\mapsto|\\longmapsto|\\rightarrow|\\to|↦|→)\s*(?:\\left)?\(\s*(.+?)\s*(?:\\right)?\)\s*$")
+
+
+def _tuple_outputs(formula: str) -> list[str]:
+    """The loose keys of a function's outputs written as a tuple of symbols after its arrow
+    (``f:(x,t)\\mapsto(P_{static},P_{new})``), in order; [] for anything else (one output, an expression)."""
+    m = _MAPS_TO.search(formula)
+    if not m:
+        return []
+    items, depth, start, inner = [], 0, 0, m.group(1)
+    for i, ch in enumerate(inner):
+        depth += ch in "({[" 
+        depth -= ch in ")}]"
+        if ch == "," and depth == 0:
+            items.append(inner[start:i])
+            start = i + 1
+    items.append(inner[start:])
+    keys = []
+    for item in items:
+        expr = parse_expression(item.strip())
+        if not isinstance(expr, Symbol):
+            return []
+        keys.append(symbol_loose_key(expr))
+    return keys if len(keys) >= 2 and len(set(keys)) == len(keys) else []
+
+
 @dataclass
 class StatedShape:
     """``Psi in R^{z x h}`` with the sizes the paper gives its letters (``z = 8,192``, ``h = 256``)."""
@@ -225,6 +251,7 @@ class PaperWords:
     constants: dict = field(default_factory=dict)     # loose key -> (value, quote, where): "$\lambda=0.1$"
     learned: dict = field(default_factory=dict)       # loose key -> (quote, where): "where $\beta$ is learned"
     constraints: dict = field(default_factory=dict)   # loose key -> (low, high, quote, where): "clamped to [0, 1]"
+    outputs: dict = field(default_factory=dict)       # loose key -> (place, count, quote, where): "f: x -> (P_a, P_b)"
     operators: list = field(default_factory=list)     # (operator, what the paper calls it, quote, where)
     widths: list = field(default_factory=list)        # (value, quote, where): "256 units"
     layers: list = field(default_factory=list)        # (value, quote, where): "3 layers"
@@ -313,6 +340,11 @@ class PaperWords:
             for x in ms:
                 if clause_start <= x.start and x.end <= m.start():
                     self.activations.setdefault(x.loose, (m.group(1).lower(), text, where))
+        # "$f:(p,t)\mapsto(P_{a},P_{b},P_{c})$": a function's outputs, each symbol at its place in the tuple
+        for m in _INLINE_MATH.finditer(text):
+            places = _tuple_outputs(m.group(1))
+            for place, key in enumerate(places):
+                self.outputs.setdefault(key, (place, len(places), text, where))
         # "$\lambda=0.1$, $\alpha=0.01$": a symbol's value stated in the text
         for m in _INLINE_MATH.finditer(text):
             for part in re.split(r",\s*(?=\\?[A-Za-z])", m.group(1)):
