@@ -386,6 +386,7 @@ def test_a_regulariser_reads_a_blended_fields_share_by_its_place_in_the_decompos
     want = (0.5 * p * (2 - p)).mean()
     torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
     _grads_match(got, want, (shares,))
+    assert float(module(sigma[:0], None, shares[:0])) == 0.0  # an empty batch
     with pytest.raises(ValueError, match="blends none"):
         module(sigma, None, None)
     with pytest.raises(ValueError, match="shares of 2 blended fields; the field blends 3"):

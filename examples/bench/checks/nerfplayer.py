@@ -48,3 +48,21 @@ def deformation_field(target):
     assert moved_a.shape == x.shape and torch.equal(t_a, torch.full((5, 1), 0.3, dtype=torch.float64))
     assert not torch.allclose(moved_a, moved_b), "the offset does not depend on the time"
     assert not torch.allclose(moved_a, x), "the samples are not moved"
+
+
+def parsimony_loss(target):
+    """Sec. 3.4: L_reg = alpha * mean(P_deform) + mean(P_new), alpha = 0.01, weighted lambda = 0.1 in
+    L = L_rec + lambda L_reg: the decomposition field's probabilities of the deforming and the new area (its second
+    and third outputs), averaged over the samples. The compiled regulariser against it in float64, on a blend's
+    shares of each sample (a softmax over the three fields), and its weight in the objective."""
+    assert target.cls is not None, "no compiled regulariser implements the parsimony loss"
+    loss = target.cls().double()
+    g = torch.Generator().manual_seed(0)
+    sigma = torch.rand(4, 12, 1, generator=g, dtype=torch.float64)
+    delta = torch.rand(4, 12, 1, generator=g, dtype=torch.float64) * 0.2 + 0.01
+    p = torch.softmax(torch.randn(4, 12, 3, generator=g, dtype=torch.float64), dim=-1)
+    got = float(loss(densities=sigma, deltas=delta, weights=p))
+    want = float(0.01 * p[..., 1].mean() + p[..., 2].mean())
+    assert abs(got - want) < 1e-9 * max(1.0, abs(want)), f"the regulariser gives {got}, the parsimony loss {want}"
+    entry = target.value if isinstance(target.value, dict) else {}
+    assert entry.get("weight") == 0.1, f"weighted {entry.get('weight')} in the objective, the paper's lambda 0.1"

@@ -420,7 +420,7 @@ class RegularizerAdapter(Adapter):
                     "    raise ValueError('this regulariser reads the steps between samples: deltas is None')",
                     "deltas = deltas.reshape(densities.shape)"]
         if any("weights" in str(f.code) for f in w.feeds):
-            fwd += ["weights = None if weights is None else weights.reshape(*densities.shape[:2], -1)"]
+            fwd += ["weights = None if weights is None else weights.reshape(*densities.shape[:2], weights.shape[-1])"]
         fwd += self.lines_feeds(w, "densities") + self.lines_call(w)
         (key, ident, width), = w.outputs
         fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"]
