@@ -198,6 +198,23 @@ def test_time_wrappers_need_timestamps_and_a_neural_field():
     assert "requires_terminal" in {v.rule for v in check(tensorial)}
 
 
+def test_a_time_offset_needs_a_part_that_reads_the_times():
+    """A per-camera time offset only shifts the samples' times: on a field that reads none (static planes, no time
+    wrapper) its offsets would get no gradient (the grammar fuzzer's plan); with space-time planes or a
+    deformation that reads them it is valid."""
+    plan = small(Plan.of(load_reference_plan("vanilla-nerf")), "offset-unread")
+    plan.set("scene.timestamps", True)
+    plan.set("model.field_wrappers", {"camera_time_offset": {}})
+    violations = check(plan)
+    assert [v.rule for v in violations] == ["param_constraint"]
+    assert "needs a part that reads them" in violations[0].message
+    plan.set("model.field_wrappers", {"deformation": {}, "camera_time_offset": {}})
+    assert check(plan) == []
+    timed = Plan.of(load_reference_plan("kplanes-time"))
+    timed.set("model.field_wrappers", {"camera_time_offset": {}})
+    assert check(timed) == []
+
+
 def test_a_hook_must_write_a_part_the_plan_has():
     plan = small(Plan.of(load_reference_plan("vanilla-nerf")), "hook-target")
     plan.set("model.schedule_hooks", {"anneal": {"target": "deformation.window"}})

@@ -29,6 +29,36 @@ TIMES_NEED_PADDED_SAMPLES = Constraint(
     "a wrapper that reads times reads each sample's ray time; instant-ngp's packed samples carry none",
     lambda p, plan: plan.get("base") != "instant-ngp")
 
+def _reads_times(plan) -> bool:
+    """Another part of the plan reads the samples' times: a terminal whose contract takes them and writes more than
+    a time (an encoding over space-time, a deformation, a time embedding), or a component of the paper's own at the
+    field (its reads are not declared)."""
+    from nerfify_ns.registry.core import default_registry
+
+    registry = default_registry()
+
+    def walk(node) -> bool:
+        if not isinstance(node, dict):
+            return False
+        for key, value in node.items():
+            if key == "custom" or str(key).startswith("custom_"):
+                return True
+            term = registry.terminals.get(str(key))
+            if term is not None and "times" in term.contract.inputs and set(term.contract.outputs) != {"times"}:
+                return True
+            if walk(value):
+                return True
+        return False
+
+    model = plan.get("model") or {}
+    return walk({"field": model.get("field"), "field_wrappers": model.get("field_wrappers")})
+
+
+TIMES_ARE_READ = Constraint(
+    "a wrapper that only shifts the samples' times needs a part that reads them (space-time planes, a deformation, "
+    "a time embedding or frame codes); otherwise its values receive no gradient",
+    lambda p, plan: _reads_times(plan))
+
 ONE_BLEND = Constraint(
     "one blend per field: no custom field wrapper with `wrapper: blend` beside field_blend",
     lambda p, plan: not any(isinstance(v, dict) and v.get("wrapper") == "blend" for k, v in (
@@ -212,7 +242,7 @@ TERMINALS = [
                   component=COMPONENT, traits={"stage": "condition", "schedulable": ["camera_time_offset"]}),
         harness=Harness(build=_conditioner_build("CameraTimeOffset", "init"), call=_conditioner_call("times"),
                         cases=("empty_batch", "half")),
-        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
+        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES, TIMES_ARE_READ)),
     TerminalDef(
         "field_blend", "FieldWrapper", FieldBlend,
         "Several copies of the field blended per sample: by density (NeRF-W Eq. 10) or by a learned mixer's "
