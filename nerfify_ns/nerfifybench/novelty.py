@@ -51,14 +51,16 @@ class ItemScore:
 
 
 def find_customs(plan: Any, prefix: str = "") -> list[tuple[str, dict]]:
-    """Every ``custom`` entry of the plan, with its path."""
+    """Every ``custom`` entry of the plan, with its path (also ``custom_<name>`` where a slot holds several parts, as
+    the regularisers do)."""
     found: list[tuple[str, dict]] = []
     if isinstance(plan, dict):
-        if isinstance(plan.get("custom"), dict):
-            found.append((f"{prefix}.custom" if prefix else "custom", plan["custom"]))
         for key, value in plan.items():
-            if key not in ("custom", "evidence", "holes", "notes", "pruned"):
-                found += find_customs(value, f"{prefix}.{key}" if prefix else str(key))
+            path = f"{prefix}.{key}" if prefix else str(key)
+            if (key == "custom" or str(key).startswith("custom_")) and isinstance(value, dict) and "class" in value:
+                found.append((path, value))
+            elif key not in ("custom", "evidence", "holes", "notes", "pruned"):
+                found += find_customs(value, path)
     elif isinstance(plan, list):
         for k, value in enumerate(plan):
             found += find_customs(value, f"{prefix}[{k}]")
@@ -140,6 +142,10 @@ def locate(item: NoveltyItem, plan: dict) -> tuple[str, dict | None]:
                 else None
     hole = built_hole(item, plan)
     if hole is not None:
+        for path, custom in find_customs(plan):  # the component compiled for the hole, where its slot holds several
+            if hole.get("compiled") and custom.get("module") == hole["compiled"] and \
+                    path.startswith(f"{hole['slot']}."):
+                return path, custom
         value = lookup(plan, hole["slot"])[1]
         return hole["slot"], value.get("custom") if isinstance(value, dict) and isinstance(value.get("custom"),
                                                                                            dict) else None

@@ -73,3 +73,19 @@ def test_every_item_the_pipeline_finds_in_the_dev_suite_has_a_check():
         plan = dict(run_paper(entry.input, options=PaperOptions(dry_run=True)).implementation.plan)
         unchecked += [f"{entry.id}:{i.id}" for i in entry.novelty if locate(i, plan)[0] and i.check is None]
     assert not unchecked, unchecked
+
+
+def test_a_part_compiled_into_a_slot_of_several_is_found_at_its_own_entry():
+    """A regulariser compiled from unnumbered equations sits beside the base's regularisers
+    (``model.regularizers.custom_regularizers``): the item is found at that entry, with its component, through the
+    hole built for it; a hole reverted by the ladder is not found."""
+    item = NoveltyItem(id="parsimony", kind="loss", weight=0.5, where="Sec. 4", production="Regularizers",
+                       phrases=("penalising the moving field's share",))
+    entry = {"module": "components.regularizers_equations", "class": "RegularizersFromEquations", "weight": 0.1}
+    plan = {"model": {"regularizers": {"plane_tv": {"weight": 2e-4}, "custom_regularizers": entry}},
+            "holes": [{"production": "Regularizers", "slot": "model.regularizers", "status": "implemented",
+                       "compiled": "components.regularizers_equations",
+                       "text": "A prior penalising the moving field's share of every sample."}]}
+    assert locate(item, plan) == ("model.regularizers.custom_regularizers", entry)
+    plan["holes"][0]["status"] = "not implemented"
+    assert locate(item, plan) == ("", None)
