@@ -391,3 +391,50 @@ def test_a_regulariser_reads_a_blended_fields_share_by_its_place_in_the_decompos
         module(sigma, None, None)
     with pytest.raises(ValueError, match="shares of 2 blended fields; the field blends 3"):
         module(sigma, None, torch.softmax(torch.randn(4, 6, 3, dtype=torch.float64), dim=-1))
+
+
+RELATIVE = r"""# RelNeRF: A Relative Photometric Loss
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, and replace the photometric
+loss with a relative one that weighs dark pixels as much as bright ones.
+
+## 3 Method
+
+### 3.1 Relative loss
+
+We train with the squared error relative to the rendered colour, where $\mathrm{sg}$ stops the gradient:
+
+$$\mathcal{L}_{rel}(\hat{C}, C^*) = \left(\frac{\hat{C} - C^*}{\mathrm{sg}(\hat{C}) + \epsilon}\right)^2, \quad \epsilon = 10^{-3} \tag{3}$$
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+
+def test_a_compiled_loss_is_computed_in_float32_whatever_its_inputs_precision(tmp_path):
+    """A test paper's relative loss divides by the rendered colour plus 1e-3: on float16 inputs (the stability
+    rung's ``half`` case) the squared ratio overflows float16 where a rendered colour is near 0, so the compiled
+    loss computes in float32 (as autocast computes losses) and stays finite; on float32 inputs it is the paper's."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "relative.md"
+    path.write_text(RELATIVE)
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "RGBLoss"]
+    assert record.status == IMPLEMENTED, record.reason
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]()
+    pred = torch.tensor([[0.0005, 0.5, 0.9], [0.2, 0.0001, 0.7]])
+    target = torch.tensor([[1.0, 0.4, 0.1], [0.3, 0.9, 0.7]])
+    want = (((pred - target) / (pred + 1e-3)) ** 2).mean()
+    torch.testing.assert_close(module(pred, target), want)
+    assert not torch.isfinite((((pred.half() - target.half()) / (pred.half() + 1e-3)) ** 2).mean())  # float16 overflows
+    got = module.half()(pred.half(), target.half())
+    assert torch.isfinite(got) and got.dtype == torch.float32
+    torch.testing.assert_close(got, want, rtol=2e-3, atol=0)

@@ -380,7 +380,10 @@ class RGBLossAdapter(Adapter):
 
     def source(self, w: Wiring, context: dict) -> str:
         init = ["super().__init__()", f"self.equations = {w.eq_cls}()"]
-        fwd = self.lines_feeds(w, "pred") + self.lines_call(w)
+        # a loss is computed in float32 whatever its inputs' precision, as autocast computes losses (a paper's
+        # division by a small epsilon overflows float16)
+        fwd = ["pred, target = pred.float(), target.float()"]
+        fwd += self.lines_feeds(w, "pred") + self.lines_call(w)
         (key, ident, width), = w.outputs
         fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"
                 if w.loss_mean else f"return {ident}"]
