@@ -406,7 +406,8 @@ loss with a relative one that weighs dark pixels as much as bright ones.
 
 We train with the squared error relative to the rendered colour, where $\mathrm{sg}$ stops the gradient:
 
-$$\mathcal{L}_{rel}(\hat{C}, C^*) = \left(\frac{\hat{C} - C^*}{\mathrm{sg}(\hat{C}) + \epsilon}\right)^2, \quad \epsilon = 10^{-3} \tag{3}$$
+$$\mathcal{L}_{rel}(\hat{C}, C^*) = \left(\frac{\hat{C} - C^*}{\mathrm{sg}(\hat{C}) + \epsilon}\right)^2,
+\quad \epsilon = 10^{-3} \tag{3}$$
 
 ## 4 Experiments
 
