@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 import yaml
 
 from nerfify_ns.paper import ingest
@@ -231,12 +232,21 @@ def test_seathru_appendix_pdf_medium_rendering():
 
 
 # ------------------------------------------------------------------------------------------ NeRFPlayer
-def test_nerfplayer_decomposition_is_reported_with_exact_reasons():
+def test_nerfplayer_parsimony_loss_reads_the_decompositions_probabilities():
+    """L_reg = alpha mean(P_deform) + mean(P_new): each probability is the blended fields' share at its place in the
+    decomposition field's outputs (P_static, P_deform, P_new), alpha from a sentence, lambda from the objective."""
     doc, derived, result = compiled(NERFPLAYER)
     record = next(r for r in result.records if r.production == "Regularizers")  # the parsimony loss, Eq. L_reg
-    assert record.status == NOT_IMPLEMENTED
-    assert "'bar P_deform'" in record.reason and "Decomposition field" in record.reason
-    assert "the Regularizers interface does not give" in record.reason
+    assert record.status == IMPLEMENTED, record.reason
+    deform, new = record.bindings["bar P_deform"], record.bindings["bar P_new"]
+    assert deform["role"] == new["role"] == "probability" and "Decomposition field" in deform["evidence"]
+    assert deform["note"].startswith("output 2 of the 3") and new["note"].startswith("output 3 of the 3")
+    assert record.bindings["alpha"]["value"] == 0.01 and record.component["weight"] == 0.1
+    assert record.component["params"] == {"num_fields": 3}
+    _, module = component(result, "regularizers")
+    p = torch.softmax(torch.randn(2, 5, 3, dtype=torch.float64), dim=-1)
+    got = module.double()(torch.rand(2, 5, 1, dtype=torch.float64), None, p)
+    torch.testing.assert_close(got, 0.01 * p[..., 1].mean() + p[..., 2].mean())
     assert result.plan.get("model.losses.rgb") == derived.plan.get("model.losses.rgb")
 
 

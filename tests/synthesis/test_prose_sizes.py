@@ -113,7 +113,7 @@ def test_a_member_stated_elsewhere_by_citing_sentence_is_not_built():
     from nerfify_ns.synthesis.novel.implement import HoleResult
     from nerfify_ns.synthesis.resources import load_reference_plan
 
-    plan = small(Plan.of(load_reference_plan("vanilla-nerf")), "prose-cite")
+    plan = small(Plan.of(load_reference_plan("kplanes-time")), "prose-cite")  # space-time planes read the times
     own = "We learn one time offset per camera, initialised to 0."
     other = "D-NeRF [7] uses a deformation network that maps each sample into a canonical space."
     hole = {"production": "FieldWrapper", "slot": "model.field_wrappers", "section": "3.2 Clocks", "text": own,

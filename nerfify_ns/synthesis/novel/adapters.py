@@ -213,6 +213,11 @@ def _field_share(weights, column, count):
     return weights[..., column]
 
 
+def _at_least_float32(x):
+    """A half-precision tensor in float32, any other as it is (a loss is computed in at least float32)."""
+    return x.float() if x.dtype in (torch.float16, torch.bfloat16) else x
+
+
 def _basis_sum(coefficients, basis, channels):
     """sum over the basis functions of coefficient times basis value, per channel:
     [N, channels * B], [N, B] -> [N, channels]."""
@@ -382,7 +387,7 @@ class RGBLossAdapter(Adapter):
         init = ["super().__init__()", f"self.equations = {w.eq_cls}()"]
         # a loss is computed in float32 whatever its inputs' precision, as autocast computes losses (a paper's
         # division by a small epsilon overflows float16)
-        fwd = ["pred, target = pred.float(), target.float()"]
+        fwd = ["pred, target = _at_least_float32(pred), _at_least_float32(target)"]
         fwd += self.lines_feeds(w, "pred") + self.lines_call(w)
         (key, ident, width), = w.outputs
         fwd += [f"return {ident}.sum() / max({ident}.numel(), 1)  # the mean (0 for an empty batch)"
