@@ -27,6 +27,7 @@ from typing import Any
 import yaml
 
 from nerfify_ns import runfolder
+from nerfify_ns.grammar.spec import CUSTOM_MEMBER
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry
 
 SCORE = {"C": 1.0, "I": 0.5, "M": 0.0}
@@ -57,7 +58,7 @@ def find_customs(plan: Any, prefix: str = "") -> list[tuple[str, dict]]:
     if isinstance(plan, dict):
         for key, value in plan.items():
             path = f"{prefix}.{key}" if prefix else str(key)
-            if (key == "custom" or str(key).startswith("custom_")) and isinstance(value, dict) and "class" in value:
+            if CUSTOM_MEMBER.match(str(key)) and isinstance(value, dict) and "class" in value:
                 found.append((path, value))
             elif key not in ("custom", "evidence", "holes", "notes", "pruned"):
                 found += find_customs(value, path)

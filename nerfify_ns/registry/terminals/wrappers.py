@@ -34,24 +34,17 @@ def _reads_times(plan) -> bool:
     a time (an encoding over space-time, a deformation, a time embedding), or a component of the paper's own at the
     field (its reads are not declared)."""
     from nerfify_ns.registry.core import default_registry
+    from nerfify_ns.registry.terminals.training import _terminals_in
 
-    registry = default_registry()
-
-    def walk(node) -> bool:
-        if not isinstance(node, dict):
-            return False
-        for key, value in node.items():
-            if key == "custom" or str(key).startswith("custom_"):
-                return True
-            term = registry.terminals.get(str(key))
-            if term is not None and "times" in term.contract.inputs and set(term.contract.outputs) != {"times"}:
-                return True
-            if walk(value):
-                return True
-        return False
-
+    terminals = default_registry().terminals
     model = plan.get("model") or {}
-    return walk({"field": model.get("field"), "field_wrappers": model.get("field_wrappers")})
+    for key in _terminals_in({"field": model.get("field"), "field_wrappers": model.get("field_wrappers")}):
+        if key == "custom" or key.startswith("custom_"):
+            return True
+        term = terminals.get(key)
+        if term is not None and "times" in term.contract.inputs and set(term.contract.outputs) != {"times"}:
+            return True
+    return False
 
 
 TIMES_ARE_READ = Constraint(

@@ -214,7 +214,7 @@ def _tuple_outputs(formula: str) -> list[str]:
         return []
     items, depth, start, inner = [], 0, 0, m.group(1)
     for i, ch in enumerate(inner):
-        depth += ch in "({[" 
+        depth += ch in "({["
         depth -= ch in ")}]"
         if ch == "," and depth == 0:
             items.append(inner[start:i])
