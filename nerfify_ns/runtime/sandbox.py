@@ -14,7 +14,8 @@ result (``mode`` and the ``isolation`` tags, which the ladder writes into ``veri
     kernel cache, what the interpreter's site-packages reach (editable installs, linked packages) and
     ``readonly``; ``workdir`` is the one writable bind (owned by the sandbox's user while it runs). ``/proc`` is the
     sandbox's own (its PID namespace), ``/dev`` a minimal one (null, zero, random, tty...) that cannot be written,
-    ``/tmp`` and ``/dev/shm`` private size-limited tmpfs, ``HOME`` a folder inside ``workdir``. Nothing of
+    with the GPU's device nodes bound in where there is one (:func:`gpu_devices`), ``/tmp`` and ``/dev/shm``
+    private size-limited tmpfs, ``HOME`` a folder inside ``workdir``. Nothing of
     ``/root``, ``/home``, ``/run``, ``/var`` or ``/sys`` (but ``/sys/devices/system/cpu``) is there. bwrap
     keeps only CAP_SETUID, CAP_SETGID and CAP_SETPCAP for ``setpriv``, which then becomes uid/gid 65534
     (``nobody``: an unprivileged user on the host, not only inside a user namespace), clears supplementary
@@ -35,10 +36,12 @@ Limits on the whole tree: a cgroup of its own per run (cgroup v2 where the memor
 are available there, else the v1 ``memory`` and ``pids`` hierarchies) with a memory limit (swap included)
 and a task limit; the command's first process joins it before it executes (``preexec``), so every
 descendant is in it. After the run every task still in the cgroup is killed and the cgroup removed. Where
-no cgroup can be written: ``RLIMIT_AS`` per process and ``RLIMIT_NPROC`` (binding only a non-root user,
-which in ``bwrap`` mode the command is). Always: ``RLIMIT_NOFILE``, ``RLIMIT_FSIZE``, no core dumps, stdin
-from ``/dev/null``, and the wall-time limit of :func:`nerfify_ns.runtime.process.run_process` (the whole
-process group killed); in ``bwrap`` mode the PID namespace makes every descendant die with the run.
+no cgroup can be written: ``RLIMIT_AS`` per process (not with a GPU bound in: CUDA reserves address space
+far beyond what it uses, so the run then has no memory limit, recorded as ``no-memory-limit``) and
+``RLIMIT_NPROC`` (binding only a non-root user, which in ``bwrap`` mode the command is). Always:
+``RLIMIT_NOFILE``, ``RLIMIT_FSIZE``, no core dumps, stdin from ``/dev/null``, and the wall-time limit of
+:func:`nerfify_ns.runtime.process.run_process` (the whole process group killed); in ``bwrap`` mode the PID
+namespace makes every descendant die with the run.
 
 What the command prints goes to a log file; :meth:`SandboxResult.tail` reads a bounded end of it with
 control characters escaped (:mod:`nerfify_ns.safetext`).
@@ -458,8 +461,21 @@ def code_paths() -> tuple[Path, ...]:
     import nerfify_ns
 
     paths = [Path(sys.prefix), Path(sys.base_prefix), Path(os.path.realpath(sys.executable)).parent.parent,
-             Path(nerfify_ns.__file__).resolve().parent.parent, *_site_paths()]
+             Path(nerfify_ns.__file__).resolve().parent.parent, *_site_paths(), *_python_path()]
     return _existing(paths)
+
+
+def _python_path() -> list[Path]:
+    """The absolute folders of ``PYTHONPATH`` (which the sandbox passes on): packages installed there with
+    ``pip install --target`` must be readable inside too."""
+    return [Path(p) for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p.startswith("/")]
+
+
+def gpu_devices() -> tuple[Path, ...]:
+    """The GPU's device nodes (NVIDIA's ``/dev/nvidia*``: the cards, ``nvidiactl``, ``nvidia-uvm``, and the
+    ``nvidia-caps`` folder), bound into the sandbox's otherwise minimal ``/dev`` so that a training run there
+    reaches the GPU the way it would outside. None on a machine without one."""
+    return tuple(sorted(Path("/dev").glob("nvidia*")))
 
 
 def cache_paths() -> tuple[Path, ...]:
@@ -503,6 +519,9 @@ def _bwrap_args(workdir: Path, readonly: Sequence[Path], extra_code: Sequence[Pa
     args += ["--proc", "/proc", "--dev", "/dev",
              "--perms", "1777", "--size", str(limits.tmp), "--tmpfs", "/dev/shm",
              "--perms", "1777", "--size", str(limits.tmp), "--tmpfs", "/tmp"]
+    if not probe:
+        for node in gpu_devices():
+            args += ["--dev-bind-try", str(node), str(node)]
     binds = [(Path("/etc") / name, "--ro-bind") for name in ETC_FILES if (Path("/etc") / name).exists()]
     if Path("/sys/devices/system/cpu").is_dir():
         binds.append((Path("/sys/devices/system/cpu"), "--ro-bind"))
@@ -786,7 +805,10 @@ def run_sandboxed(
     pids_cgroup = group is not None and "pids" in group.dirs
     rlimits = [(resource.RLIMIT_NOFILE, limits.files), (resource.RLIMIT_CORE, 0),
                (resource.RLIMIT_FSIZE, limits.file_size)]
-    if not memory_cgroup:
+    gpus = gpu_devices() if mode != "none" else ()
+    # CUDA reserves address space far beyond the memory it uses: an address-space limit stops it starting
+    address_limit = not memory_cgroup and not gpus
+    if address_limit:
         rlimits.append((resource.RLIMIT_AS, limits.memory))
     if not pids_cgroup and mode == "bwrap":
         rlimits.append((resource.RLIMIT_NPROC, limits.pids))
@@ -798,7 +820,8 @@ def run_sandboxed(
         isolation += [f"uid-{SANDBOX_UID}", "no-capabilities", "no-new-privs", "no-network", "read-only-fs",
                       "pid-namespace", "ipc-namespace", "private-tmp"]
         if supervise:
-            supervisor = Supervisor(str(workdir), installer=Installer(notify_filter()))
+            supervisor = Supervisor(str(workdir), installer=Installer(notify_filter()),
+                                    devices=[str(node) for node in gpus])
             isolation += ["seccomp-no-userns", "seccomp-supervised"]
         elif _seccomp_file() is not None:
             isolation += ["seccomp-no-userns", "seccomp-kill"]
@@ -807,10 +830,13 @@ def run_sandboxed(
         isolation += ["root-with-capabilities", "no-network", "read-only-fs"]
     else:
         prefix = []
-    isolation += ["cgroup-memory" if memory_cgroup else "rlimit-as"]
+    isolation += ["cgroup-memory" if memory_cgroup else "rlimit-as" if address_limit else "no-memory-limit"]
+    if gpus:
+        isolation += ["gpu-devices"]
     isolation += ["cgroup-pids" if pids_cgroup else "rlimit-nproc" if mode == "bwrap" else "no-pids-limit"]
     isolation += ["rlimit-nofile", "timeout"]
-    applied = {"memory": limits.memory, "memory_scope": "tree" if memory_cgroup else "process",
+    applied = {"memory": limits.memory if memory_cgroup or address_limit else None,
+               "memory_scope": "tree" if memory_cgroup else "process" if address_limit else None,
                "pids": limits.pids if (pids_cgroup or mode == "bwrap") else None,
                "pids_scope": "tree" if pids_cgroup else "user" if mode == "bwrap" else None,
                "files": limits.files, "timeout_s": timeout,

@@ -253,10 +253,11 @@ class Supervisor:
     MAX_ATTEMPTS = 200
 
     def __init__(self, workdir: str, listener: int | None = None,
-                 installer: Installer | None = None) -> None:
+                 installer: Installer | None = None, devices: Sequence[str] = ()) -> None:
         self.fd = listener
         self.installer = installer
         self.workdir = os.path.normpath(workdir)
+        self.devices = tuple(os.path.normpath(d) for d in devices)  # device nodes bound in to be used (a GPU)
         self.attempts: list[Attempt] = []
         self.dropped = 0
         self._stop = threading.Event()
@@ -406,4 +407,4 @@ class Supervisor:
         return os.path.lexists(f"/proc/{pid}/root{os.path.dirname(path)}")
 
     def _writable(self, path: str) -> bool:
-        return any(path == p or path.startswith(p + "/") for p in (self.workdir, *WRITABLE))
+        return any(path == p or path.startswith(p + "/") for p in (self.workdir, *WRITABLE, *self.devices))

@@ -10,7 +10,6 @@ from __future__ import annotations
 import ast
 import json
 import subprocess
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
@@ -98,7 +97,13 @@ def _component_source(module: str) -> str:
 
 
 def _ruff(args: list[str], code: str, path: str) -> str:
-    ruff = Path(sys.executable).with_name("ruff")
+    try:  # ruff's own lookup: the environment's scripts, the user's, or beside a ``pip install --target``
+        from ruff.__main__ import find_ruff_bin
+
+        ruff = find_ruff_bin()
+    except (ImportError, FileNotFoundError):
+        raise CompositionError("ruff (a dependency of nerfify-ns, which formats generated code) is not installed "
+                               "where this Python finds it") from None
     result = subprocess.run([str(ruff), *args, "--stdin-filename", path, "-"],
                             input=code, capture_output=True, text=True, timeout=60)
     if result.returncode != 0:

@@ -433,3 +433,44 @@ def test_sandbox_dies_with_us_even_when_we_are_killed(tmp_path):
         for controller in ("memory", "pids"):
             folder = Path(f"/sys/fs/cgroup/{controller}") / own.get(controller, "/").lstrip("/")
             assert not list(folder.glob(f"nerfify-{parent.pid}-*"))
+
+
+@needs_bwrap
+def test_packages_on_pythonpath_are_importable_inside(tmp_path, monkeypatch):
+    """A package installed with ``pip install --target DIR`` and reached through ``PYTHONPATH`` (which the
+    sandbox passes on) is readable inside too, even under ``/tmp``, which is the sandbox's own."""
+    target = Path(f"/tmp/nerfify-target-{uuid.uuid4().hex[:8]}")
+    (target / "targetpkg").mkdir(parents=True)
+    try:
+        (target / "targetpkg" / "__init__.py").write_text("VALUE = 41 + 1\n")
+        os.chmod(target, 0o755)
+        monkeypatch.setenv("PYTHONPATH", str(target))
+        out, r = run_py("import json, targetpkg; print(json.dumps(targetpkg.VALUE))", tmp_path / "w")
+        assert out == 42, r.tail()
+    finally:
+        import shutil
+
+        shutil.rmtree(target)
+
+
+@needs_bwrap
+def test_gpu_device_nodes_are_bound_in_and_opening_them_is_no_attempt(tmp_path, monkeypatch):
+    """With a GPU, its device nodes are in the sandbox's /dev and opening them read-write (as CUDA does) is
+    neither refused nor recorded; no address-space limit is set (CUDA reserves far more than it uses). A node
+    bwrap's minimal /dev lacks stands in for the GPU's; without one it is not there."""
+    import nerfify_ns.runtime.sandbox as sb
+
+    node = Path("/dev/fuse")
+    if not node.exists():
+        pytest.skip("needs /dev/fuse, a character device outside bwrap's minimal /dev, to stand in for a GPU's")
+    code = ("import json, os\ntry:\n    fd = os.open('/dev/fuse', os.O_RDWR); os.close(fd); r = 'opened'\n"
+            "except OSError as e:\n    r = e.strerror\nprint(json.dumps(r))")
+    limits = Limits(cgroups=False)
+    out, r = run_py(code, tmp_path / "without", limits=limits)
+    assert out == "No such file or directory" and "gpu-devices" not in r.isolation and "rlimit-as" in r.isolation
+    monkeypatch.setattr(sb, "gpu_devices", lambda: (node,))
+    out, r = run_py(code, tmp_path / "with", limits=limits)
+    assert out == "opened", r.tail()
+    assert "gpu-devices" in r.isolation and "no-memory-limit" in r.isolation and "rlimit-as" not in r.isolation
+    assert r.limits["memory"] is None
+    assert not [a for a in r.attempts if "/dev/fuse" in str(a)], r.attempts

@@ -296,3 +296,56 @@ def test_a_loss_on_densities_becomes_a_regulariser_with_the_papers_constants(tmp
     sigma = torch.rand(4, 6, 1, dtype=torch.float64)
     want = (0.01 * (torch.sqrt(1 + sigma[..., 0] ** 2 / 0.5) - 1).sum(1)).mean()  # Eq. 3, per ray, as a mean
     torch.testing.assert_close(module().double()(sigma), want)
+
+
+def _built_within_records():
+    from nerfify_ns.synthesis.novel.results import HoleResult
+
+    sentence = "Fog branch: an MLP with 3 linear layers (64 units) maps the direction to $b^{fog}$ and $a^{fog}$."
+    network = {"layers": 3, "width": 64, "sentences": [sentence]}
+    host = HoleResult("renderer", "model.renderer", "Renderer", "3.1", status=IMPLEMENTED, source="# compiled",
+                      component={"module": "components.renderer_equations", "class": "RendererFromEquations"},
+                      bindings={"a^fog": {"as": "network", "network": network},
+                                "b^fog": {"as": "network", "network": network},
+                                "sigma_i^sc": {"as": "input", "role": "density"}, "delta": {"as": "input"}})
+    paragraph = HoleResult("field_wrappers", "model.field_wrappers", "FieldWrapper", "3.2",
+                           reason="the compiler has no adapter for the FieldWrapper production yet")
+    text = ("**Scene branch:** $\\sigma^{sc}(\\mathbf x)$ depends on the position, as in NeRF.\n**" + sentence)
+    return host, paragraph, text
+
+
+def test_a_paragraph_whose_networks_another_part_built_from_its_sentence_is_built_within_that_part():
+    """An architecture paragraph found at a production with no adapter, describing the networks a compiled
+    renderer uses (sized from this paragraph's own sentence, every labelled quantity it names bound there), is
+    implemented within the renderer and says so; a ladder revert of the renderer takes it back."""
+    from nerfify_ns.plan import Plan
+    from nerfify_ns.synthesis.novel.implement import _built_within, revert
+    from nerfify_ns.synthesis.novel.results import Implementation
+
+    host, paragraph, text = _built_within_records()
+    plan = Plan.of({"holes": [{"slot": "model.field_wrappers", "status": NOT_IMPLEMENTED, "cause": "x"}]})
+    _built_within([host, paragraph], {"model.field_wrappers": text}, plan)
+    assert paragraph.status == IMPLEMENTED and paragraph.component["within"] == "model.renderer"
+    assert "a^fog, b^fog" in paragraph.reason and "3 linear layers" in paragraph.reason
+    assert plan["holes"][0]["compiled"] == "components.renderer_equations" and "cause" not in plan["holes"][0]
+    revert(Implementation(plan, {}, [host, paragraph]), ["renderer"], "the smoke rung failed")
+    assert host.status == paragraph.status == NOT_IMPLEMENTED
+    assert "smoke rung failed" in paragraph.reason and plan["holes"][0]["compiled"] == ""
+
+
+@pytest.mark.parametrize("change", ["other sentence", "unbound quantity", "host not built"])
+def test_a_paragraph_is_not_built_within_a_part_that_does_not_cover_it(change):
+    from nerfify_ns.plan import Plan
+    from nerfify_ns.synthesis.novel.implement import _built_within
+
+    host, paragraph, text = _built_within_records()
+    if change == "other sentence":  # the host's networks were sized from another paragraph
+        for b in host.bindings.values():
+            if "network" in b:
+                b["network"] = {**b["network"], "sentences": ["The MLP has 8 layers of 256 units."]}
+    elif change == "unbound quantity":  # the paragraph names a quantity the host does not have
+        text += " A third output $\\mathbf q^{\\mathrm{emit}}$ is the fog's emission."
+    else:
+        host.status = NOT_IMPLEMENTED
+    _built_within([host, paragraph], {"model.field_wrappers": text}, Plan.of({"holes": []}))
+    assert paragraph.status == NOT_IMPLEMENTED

@@ -183,6 +183,10 @@ def test_seathru_condensed_medium_rendering_is_its_final_model():
     assert b["c^med"]["activation"] == "sigmoid" and b["a^bs"]["activation"] == "softplus"  # "via sigmoid/softplus"
     assert b["c^med"]["network"]["layers"] == 6 and b["c^med"]["network"]["width"] == 256  # "6 linear layers (256"
     assert any("sum over the samples" in n for n in renderer_record.notes)
+    # the Architecture paragraph's medium (found at FieldWrapper) is the renderer's networks, sized from its sentence
+    medium = next(r for r in result.records if r.production == "FieldWrapper")
+    assert medium.status == IMPLEMENTED and medium.component["within"] == "model.renderer", medium.reason
+    assert "MLP with 6 linear layers" in medium.reason
     _, renderer = component(result, "renderer")
     renderer = renderer.double()
     samples, density, rgb = _samples(4, 16, 0)

@@ -145,15 +145,18 @@ class _Hole:
         seen = set()
         for eq, it in found:
             contribution = adapter.production == "Renderer" and eq.free_index is not None
-            if contribution:  # per-sample contributions of one block: their sum over the samples is the output
-                group = [(e, it) for e in it.equations() if e.free_index is not None and e.defines
+            if contribution:  # per-sample contributions of one block or section: their sum over the samples
+                group = [(e, other) for other in sorted(later + own, key=lambda x: x.position)
+                         if other is it or (other.section and other.section == it.section)
+                         for e in other.equations() if e.free_index is not None and e.defines
+                         and isinstance(e.lhs, Symbol)
                          and (self.role_of(e.lhs) or Definition("", "")).role in adapter.output_roles]
                 key = tuple(e.defines for e, _ in group)
                 if key in seen:
                     continue
                 seen.add(key)
                 weighted = not any(self._weighs(e) for e, _ in group)
-                candidates.append(([e for e, _ in group], [it for _ in group],
+                candidates.append(([e for e, _ in group], [other for _, other in group],
                                    _composite([e for e, _ in group], weighted)))
             else:
                 if eq.defines in seen:

@@ -199,7 +199,8 @@ def _wiring(work: _Hole, att: _Attempt, bindings: dict, lowered, sized: _Sized, 
             w.networks.append(net)
             b["network"] = {"reads": work.adapter.network_input, "layers": net.layers, "width": net.width,
                             "out": net.out_width or 1, "activation": net.activation or "none",
-                            "evidence": net.evidence}
+                            "evidence": net.evidence,
+                            "sentences": list(dict.fromkeys(s[1] for s in (layers, width) if s))}
             w.feeds.append(Feed(key, local, ""))
         elif b["as"] == "state":
             st = StateSpec(key, names.get("state", key), int(b.get("rows", 1)), int(sized.widths.get(key) or 1))

@@ -151,8 +151,10 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
     for h in holes:
         groups.setdefault(h["slot"], []).append(h)
     new_holes = []
+    texts: dict[str, str] = {}
     for slot, group in groups.items():
         merged = _merge(group)
+        texts[slot] = str(merged.get("text") or "")
         hid = hole_id(merged)
         corr = by_id.get(hid) or {}
         for it in items:
@@ -213,6 +215,7 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
                     f"{', '.join(result.component['implements'])}")
             new_holes.append(h)
     plan["holes"] = new_holes
+    _built_within(records, texts, plan)
     if words.unread:
         where, reason, _ = words.unread[0]
         plan.setdefault("notes", []).append(
@@ -319,16 +322,72 @@ def _place(plan: Plan, slot: str, entry: dict, production: str = "", hid: str = 
         plan.set(slot, {"custom": entry})
 
 
+def _words(text: str) -> str:
+    return " ".join(re.findall(r"[a-z0-9]+", text.lower()))
+
+
+def _key_loose(key: str) -> str:
+    """The loose key (``notation.loose_key``) of a binding's key (``Symbol.key``: 'hat C^obj', "h'_c")."""
+    from nerfify_ns.synthesis.novel.notation import INDEX_LETTERS, loose_key
+
+    m = re.fullmatch(r"([^_^']+)('*)(?:_([^^]+))?(?:\^(.+))?", key.rsplit(" ", 1)[-1])
+    if not m:
+        return key
+    name, primes, sub, sup = m.groups()
+    scripts = [x for x in (sub.split(",") if sub else []) if x not in INDEX_LETTERS] + ([sup] if sup else [])
+    return loose_key(name, scripts, len(primes))
+
+
+def _built_within(records: list[HoleResult], texts: dict[str, str], plan: Plan) -> None:
+    """A part found at one production and built inside another part: a paragraph that describes networks (the
+    architecture section: "MLP with 6 layers (256 units), branching to c^med ... a^bs") which another part's
+    equations use, and which that part built from this very paragraph's sentence. The paragraph's part is
+    implemented there when (1) the other part's networks took their depth or width from a sentence of this
+    paragraph and (2) every labelled quantity the paragraph names (a symbol with a sub- or superscript: the
+    paper's own quantities, not the coordinates x, d it evaluates them at) is bound in the other part. Its
+    record says where; a revert of the other part takes it back too (``revert``)."""
+    from nerfify_ns.synthesis.novel.notation import mentions
+
+    hosts = [r for r in records if r.status == IMPLEMENTED and r.source]
+    for r in records:
+        if r.status != NOT_IMPLEMENTED or not texts.get(r.slot):
+            continue
+        text = texts[r.slot]
+        named = {m.loose for m in mentions(text) if not m.loose.endswith("|")}
+        for host in hosts:
+            nets = {k: b["network"] for k, b in host.bindings.items() if isinstance(b.get("network"), dict)}
+            quoted = [s for n in nets.values() for s in n.get("sentences") or [] if _words(s) in _words(text)]
+            bound = {_key_loose(k) for k in host.bindings}
+            if not named or not quoted or not named <= bound:
+                continue
+            r.status, r.cause = IMPLEMENTED, ""
+            r.component = {"within": host.slot, "module": host.component.get("module", ""),
+                           "class": host.component.get("class", "")}
+            r.reason = (f"built within {host.slot} ({host.component.get('module', '')}): its networks "
+                        f"{', '.join(sorted(nets))} take their size from this part's sentence "
+                        f"\"{_short(quoted[0], 120)}\", and every quantity this part names "
+                        f"({', '.join(sorted(named))}) is bound there")
+            for h in plan.get("holes") or []:
+                if h.get("slot") == r.slot:
+                    h.pop("cause", None)
+                    h.update(status=IMPLEMENTED, reason=r.reason, compiled=r.component["module"],
+                             stands_in=f"the part at {host.slot}")
+            break
+
+
 def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> Plan:
     """The plan with the compiled components of ``hole_ids`` taken out again (the base's parts stand in), their
     records and holes saying why (a ladder rung failed on them)."""
     from nerfify_ns.synthesis.novel import prose
 
     plan = implementation.plan
+    hosts = {r.slot for r in implementation.records if r.id in hole_ids and r.status != NOT_IMPLEMENTED}
     for r in implementation.records:
-        if r.id not in hole_ids or r.status == NOT_IMPLEMENTED:
+        if r.status == NOT_IMPLEMENTED or (r.id not in hole_ids and r.component.get("within") not in hosts):
             continue
-        if prose.revert(plan, r):  # typed terminals built from the paper's sentences
+        if r.component.get("within"):  # built inside a part the ladder took out: nothing of its own to take
+            pass
+        elif prose.revert(plan, r):  # typed terminals built from the paper's sentences
             pass
         elif r.production in SET_PRODUCTIONS:
             plan.delete(_member(r.slot, r.production, r.id))
