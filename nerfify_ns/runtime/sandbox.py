@@ -479,10 +479,20 @@ def gpu_devices() -> tuple[Path, ...]:
 
 
 def cache_paths() -> tuple[Path, ...]:
-    """The built kernel and the LPIPS weights in our cache (read-only in the sandbox; ``$NERFIFY_CACHE`` may
-    change between runs, so not cached)."""
+    """The built kernel and the LPIPS weights in our cache, and the weights torch's hub keeps (read-only in the
+    sandbox; ``$NERFIFY_CACHE`` may change between runs, so not cached)."""
     cache = nerfify_cache_dir()
-    return _existing([cache / "ext", cache / "lpips"])
+    return _existing([cache / "ext", cache / "lpips", torch_home() / "hub" / "checkpoints"])
+
+
+def torch_home() -> Path:
+    """Torch's own folder for downloaded weights (``torch.hub``'s rule: ``$TORCH_HOME``, else
+    ``$XDG_CACHE_HOME/torch``, else ``~/.cache/torch``). The sandbox names it explicitly (its ``HOME`` and
+    ``XDG_CACHE_HOME`` are its own): with CUDA our runtime leaves Nerfstudio's stock LPIPS in place, which loads
+    torchvision's AlexNet from there and, offline, cannot fetch it."""
+    if os.environ.get("TORCH_HOME"):
+        return Path(os.environ["TORCH_HOME"]).expanduser()
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache").expanduser() / "torch"
 
 
 def _existing(paths: Iterable[Path]) -> tuple[Path, ...]:
@@ -695,6 +705,7 @@ def sandbox_env(workdir: Path, extra: Mapping[str, str] | None = None, mode: str
         "PYTHONDONTWRITEBYTECODE": "1",
         "PYTHONWARNINGS": "ignore",
         ENV_CACHE: str(nerfify_cache_dir()),
+        "TORCH_HOME": str(torch_home()),
     })
     for key in ("USER", "LOGNAME"):  # what getpass.getuser() reads first: our name, not the sandbox's user
         env[key] = os.environ.get(key) or _user_name()

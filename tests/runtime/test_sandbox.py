@@ -474,3 +474,27 @@ def test_gpu_device_nodes_are_bound_in_and_opening_them_is_no_attempt(tmp_path, 
     assert "gpu-devices" in r.isolation and "no-memory-limit" in r.isolation and "rlimit-as" not in r.isolation
     assert r.limits["memory"] is None
     assert not [a for a in r.attempts if "/dev/fuse" in str(a)], r.attempts
+
+
+@needs_bwrap
+def test_torchs_downloaded_weights_are_readable_inside(tmp_path, monkeypatch):
+    """Weights torch's hub keeps (torchvision's AlexNet, which Nerfstudio's stock LPIPS loads where our runtime
+    leaves it in place, with CUDA) are found inside through the same TORCH_HOME, read-only: offline, the sandboxed
+    run could not fetch them."""
+    cache = Path(f"/tmp/nerfify-cache-home-{uuid.uuid4().hex[:8]}")
+    home = cache / "torch"  # torch's default under our XDG_CACHE_HOME, which the sandbox replaces with its own
+    (home / "hub" / "checkpoints").mkdir(parents=True)
+    try:
+        os.chmod(cache, 0o755)
+        (home / "hub" / "checkpoints" / "weights.pth").write_text("stand-in")
+        monkeypatch.delenv("TORCH_HOME", raising=False)
+        monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+        code = ("import json, os, torch\nd = torch.hub.get_dir()\nf = os.path.join(d, 'checkpoints', 'weights.pth')\n"
+                "try:\n    open(f, 'a').close(); w = 'writable'\nexcept OSError:\n    w = 'read-only'\n"
+                "print(json.dumps([d, open(f).read(), w]))")
+        out, r = run_py(code, tmp_path / "w")
+        assert out == [str(home / "hub"), "stand-in", "read-only"], r.tail()
+    finally:
+        import shutil
+
+        shutil.rmtree(cache)
