@@ -633,7 +633,8 @@ def _step_progress(stage: Stage, during: str, after: str) -> Callable[[int, int]
 
 def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = None) -> None:
     """The evaluation's verdict on the stage: its reason when training or evaluation failed, else PSNR (and the
-    CPU proxy the run trained, when it did); a run whose renders are grey says so first."""
+    CPU proxy the run trained, when it did); a run its limit stopped (evaluated at its last checkpoint) or whose
+    renders are grey says so first."""
     from nerfify_ns.evaluate.report import grey_ratio
 
     if summary.get("status") != "ok":
@@ -645,8 +646,9 @@ def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = Non
               f"{diagnostics['colour_spread_gt']:.3f})" if diagnostics.get("colour_spread") is not None
               and diagnostics.get("colour_spread_gt") is not None else "")
     grey = grey_ratio(diagnostics)
-    stage.summary = ((f"renders grey (foreground colour spread {grey:.2f}x the ground truth's); "
-                      if grey is not None else "")
+    stage.summary = ((f"{summary['stopped']}; " if summary.get("stopped") else "")
+                     + (f"renders grey (foreground colour spread {grey:.2f}x the ground truth's); "
+                        if grey is not None else "")
                      + f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
                      f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
                      f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}"

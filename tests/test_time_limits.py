@@ -129,3 +129,46 @@ def test_a_real_failure_still_fails_and_a_timeout_beside_it_does_not_excuse_it()
     stage = Stage()
     _judge_ladder(_ladder(crashed), stage)
     assert stage.failed and "exit-code" in stage.failed
+
+
+@pytest.mark.slow
+def test_a_training_its_limit_stops_after_a_checkpoint_is_evaluated_there_and_says_so(tiny_scene, tmp_path,
+                                                                                      monkeypatch):
+    """A real 10-iteration run of a composed nerfacto plan (checkpoints at 5 and 10), reported as if its limit had
+    stopped it after them (the run's own record: timed out, killed): its checkpoints are rendered and evaluated, the
+    summary is ok with where it stopped, and the report's headline says it first, in the partial colour. Without a
+    checkpoint the same stop is a failure (test above)."""
+    import json
+
+    import yaml
+
+    from nerfify_ns import runfolder
+    from nerfify_ns.evaluate import run_eval
+    from nerfify_ns.evaluate.report import read_outcome
+    from nerfify_ns.synthesis.compose import compose
+    from nerfify_ns.synthesis.prune import prune_plan
+    from nerfify_ns.synthesis.resources import load_reference_plan
+    from nerfify_ns.synthesis.scene_probe import probe_scene
+
+    plan = prune_plan(load_reference_plan("nerfacto"), probe_scene(tiny_scene))
+    plan["trainer"]["mixed_precision"] = False
+    (tmp_path / "plan.yaml").write_text(yaml.safe_dump(plan, sort_keys=False))
+    plugin = compose(plan, tmp_path / "plugin", record=False)
+    real = run_eval.train_for_curve
+
+    def stopped_by_its_limit(*args, **kwargs):
+        run = real(*args, **kwargs)
+        assert run.ok, run.log_tail(15)
+        run.timed_out, run.returncode = True, -9  # as the process runner records a run its limit killed
+        return run
+
+    monkeypatch.setattr(run_eval, "train_for_curve", stopped_by_its_limit)
+    limit = Limit(600.0, "the 10-minute budget (the time it had left when training started)")
+    summary = run_eval.evaluate_run(plugin.out, tiny_scene, tmp_path / "eval", iterations=10, every=5, seed=0,
+                                    limit=limit, env={"NERFIFY_LPIPS_WEIGHTS": "none"})
+    assert summary["status"] == "ok" and summary["psnr"] is not None, summary
+    assert summary["stopped"] == ("stopped at 10 of 10 iterations: the 600 s limit of the 10-minute budget (the time "
+                                  "it had left when training started); evaluated at its last checkpoint, iteration 10")
+    (tmp_path / runfolder.OUTCOME).write_text(json.dumps({"ok": True, "headline": "ran train", "stages": []}))
+    outcome = read_outcome(tmp_path, {})
+    assert outcome["partial"] and outcome["headline"].startswith("Training stopped at 10 of 10 iterations")

@@ -694,6 +694,9 @@ def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     if ratio is not None:  # trained, but nothing a person recognises
         novel_line = f"Renders grey: foreground colour spread {ratio:.2f}x the ground truth's. " + novel_line
         partial = True
+    if isinstance(summary, dict) and summary.get("stopped"):  # its limit stopped training: evaluated where it was
+        novel_line = f"Training {summary['stopped']}. " + novel_line
+        partial = True
     if isinstance(outcome, dict) and isinstance(outcome.get("stages"), list):
         stages = [s for s in outcome["stages"] if isinstance(s, dict)]
         return {"known": True, "ok": bool(outcome.get("ok")), "partial": partial,

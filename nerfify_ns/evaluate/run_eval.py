@@ -146,6 +146,17 @@ def _final_ssim(out_dir: Path) -> float | None:
     return _finite(max(results, key=lambda r: r["step"]).get("ssim")) if results else None
 
 
+def _evaluable_after_limit(run) -> bool:
+    """A training its time limit stopped that had saved a checkpoint and logged only finite losses: its
+    checkpoints are evaluated (the limit is the budget's, not a fault of the method), and the summary says where it
+    stopped."""
+    from nerfify_ns.evaluate.curve import checkpoints
+
+    return (run.timed_out and run.run_dir is not None and run.config_path is not None
+            and bool(checkpoints(run.run_dir)) and bool(run.losses)
+            and all(math.isfinite(v) for v in run.losses.values()))
+
+
 def evaluate_run(
     plugin_dir: Path,
     scene: DataLike,
@@ -206,6 +217,7 @@ def evaluate_run(
         "iterations_done": run.last_step + 1,
         "losses": loss_stats(run.losses),
     }
+    stopped = ""
     if not run.ok:
         reason = (
             f"stopped at {run.last_step + 1} of {iterations} iterations: {limit.describe()}" if run.timed_out
@@ -213,10 +225,12 @@ def evaluate_run(
             else "non-finite training loss" if run.losses
             else "no training loss logged"
         )
-        summary.update(status="failed", reason=reason, psnr=None, ssim=None, lpips=None, seconds=None,
-                       log_tail=run.log_tail(15))
-        write_json(out_dir / runfolder.SUMMARY, summary)
-        return summary
+        if not _evaluable_after_limit(run):
+            summary.update(status="failed", reason=reason, psnr=None, ssim=None, lpips=None, seconds=None,
+                           log_tail=run.log_tail(15))
+            write_json(out_dir / runfolder.SUMMARY, summary)
+            return summary
+        stopped = reason  # its limit reached after a checkpoint: what it learnt until then is evaluated
     renders = out_dir / "renders"
     started = time.perf_counter()
     try:
@@ -256,9 +270,12 @@ def evaluate_run(
         diagnostics["colour_spread_ratio"] = diagnostics["colour_spread"] / diagnostics["colour_spread_gt"]
     lpips_values = [lpips(p, as_rgb(g)) for p, g in zip(preds, gts, strict=False)]
     last = curve.points[-1]
+    if stopped:
+        stopped += f"; evaluated at its last checkpoint, iteration {last.step}"
     summary.update(
         status="ok",
         reason="",
+        stopped=stopped,
         psnr=_finite(last.psnr),
         ssim=_final_ssim(out_dir) or _mean([ssim(as_rgb(p), as_rgb(g)) for p, g in zip(preds, gts, strict=False)]),
         lpips=_mean(lpips_values) if all(v is not None for v in lpips_values) else None,
