@@ -649,7 +649,8 @@ def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = Non
     stage.summary = ((f"{summary['stopped']}; " if summary.get("stopped") else "")
                      + (f"renders grey (foreground colour spread {grey:.2f}x the ground truth's); "
                         if grey is not None else "")
-                     + f"{summary['iterations_done']} iterations in {summary['seconds']:.1f} s; held-out PSNR "
+                     + f"{summary.get('evaluated_iterations') or summary['iterations_done']} iterations in "
+                     f"{summary['seconds']:.1f} s; held-out PSNR "
                      f"{summary['psnr']:.2f} dB, SSIM {summary['ssim']:.3f}, LPIPS "
                      f"{'unavailable' if lpips is None else f'{lpips:.3f}'}{colour}"
                      + (f"; {run.proxy['headline']}" if run is not None and run.proxy else ""))

@@ -276,6 +276,7 @@ def evaluate_run(
         status="ok",
         reason="",
         stopped=stopped,
+        evaluated_iterations=last.step,
         psnr=_finite(last.psnr),
         ssim=_final_ssim(out_dir) or _mean([ssim(as_rgb(p), as_rgb(g)) for p, g in zip(preds, gts, strict=False)]),
         lpips=_mean(lpips_values) if all(v is not None for v in lpips_values) else None,
