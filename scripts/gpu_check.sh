@@ -32,8 +32,9 @@ MODE=${1:-run}
 
 # Nerfstudio 1.1.5 and what a training run imports from its requirements that the CUDA image does not hold
 # (found by tracing the modules an ns-train and the tests below import), then what the main job adds (the
-# equation parser, plan schemas, LPIPS, ruff for generated code; pymupdf is not needed for a markdown paper). Pure Python except msgspec, websockets,
-# rawpy and fpsample (0.3.3: the newest with a cp312 wheel; Nerfstudio only imports it, for splatfacto).
+# equation parser, plan schemas, LPIPS, ruff for generated code; pymupdf is not needed for a markdown paper). Pure
+# Python except msgspec, websockets, rawpy, rpds-py, ruff and fpsample (0.3.3: the newest with a cp312 wheel;
+# Nerfstudio only imports it, for splatfacto).
 WHEELS="nerfstudio==1.1.5 appdirs==1.4.4 defusedxml==0.7.1 dill==0.4.1 docstring-parser==0.18.0 fpsample==0.3.3
 gsplat==1.4.0 msgspec==0.22.0 multiprocess==0.70.19 nerfacc==0.5.2 pathos==0.3.5 pox==0.3.7 ppft==1.7.8
 pyquaternion==0.9.9 pysocks==1.7.1 pytorch-msssim==1.0.0 rawpy==0.28.0 splines==0.3.0 tensorly==0.10.0

@@ -11,7 +11,6 @@ renders and the ladder's harness.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -23,11 +22,9 @@ import yaml
 from nerfify_ns.registry import Registry, RegistryError, TerminalDef, default_registry
 from nerfify_ns.registry.core import check_references
 from nerfify_ns.registry.params import ParamSpec, ParamTypeError
+from nerfify_ns.registry.terminals.custom import CUSTOM, CUSTOM_MEMBER  # noqa: F401 - the grammar's names for them
 
 KINDS = ("sequence", "choice", "enum", "set", "map", "open")
-CUSTOM = "custom"
-CUSTOM_MEMBER = re.compile(r"^custom(_[a-z0-9_]+)?$")
-"""Keys of a set that hold custom components (``custom``, ``custom_memory``, ...)."""
 
 Param = ParamSpec
 """A typed terminal parameter (the registry's ParamSpec)."""

@@ -8,6 +8,7 @@ production's contract (``INTERFACES``), like any terminal.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -22,6 +23,10 @@ from nerfify_ns.registry.examples import (
 )
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Call, TerminalDef
+
+CUSTOM = "custom"
+CUSTOM_MEMBER = re.compile(r"^custom(_[a-z0-9_]+)?$")
+"""Keys that hold custom components: a production's ``custom`` alternative, a set's ``custom_memory``, ..."""
 
 
 @dataclass

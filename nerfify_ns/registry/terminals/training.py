@@ -17,6 +17,7 @@ from typing import Any, Literal
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
+from nerfify_ns.registry.terminals.custom import CUSTOM_MEMBER
 
 MAP_SIZES = {"H": 6, "W": 5}
 """Example image size (rows, columns) for the pixel maps' contract (N images)."""
@@ -111,7 +112,7 @@ def _writes_a_part_of_the_plan(key: str, attribute: bool) -> Constraint:
         name = str(p.get(key, ""))
         if not _PART.match(name) or (attribute and "." not in name):
             return False
-        if any(k == "custom" or k.startswith("custom_") for k in _terminals_in(plan.get("model"))):
+        if any(CUSTOM_MEMBER.match(k) for k in _terminals_in(plan.get("model"))):
             return True  # a component of the plugin may expose any part: checked when the model is built
         return name in schedulable_parts(plan)
 

@@ -15,6 +15,7 @@ from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import POINT_CASES
 from nerfify_ns.registry.params import param
 from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
+from nerfify_ns.registry.terminals.custom import CUSTOM_MEMBER
 
 COMPONENT = "field_wrappers"
 IMPORT = "from .components.field_wrappers import {}"
@@ -39,7 +40,7 @@ def _reads_times(plan) -> bool:
     terminals = default_registry().terminals
     model = plan.get("model") or {}
     for key in _terminals_in({"field": model.get("field"), "field_wrappers": model.get("field_wrappers")}):
-        if key == "custom" or key.startswith("custom_"):
+        if CUSTOM_MEMBER.match(key):
             return True
         term = terminals.get(key)
         if term is not None and "times" in term.contract.inputs and set(term.contract.outputs) != {"times"}:

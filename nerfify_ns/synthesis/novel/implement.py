@@ -348,16 +348,18 @@ def _built_within(records: list[HoleResult], texts: dict[str, str], plan: Plan) 
     record says where; a revert of the other part takes it back too (``revert``)."""
     from nerfify_ns.synthesis.novel.notation import mentions
 
-    hosts = [r for r in records if r.status == IMPLEMENTED and r.source]
+    hosts = []  # (record, its networks, the loose keys it binds), each built part's once
+    for host in records:
+        if host.status == IMPLEMENTED and host.source:
+            nets = {k: b["network"] for k, b in host.bindings.items() if isinstance(b.get("network"), dict)}
+            hosts.append((host, nets, {_key_loose(k) for k in host.bindings}))
     for r in records:
         if r.status != NOT_IMPLEMENTED or not texts.get(r.slot):
             continue
-        text = texts[r.slot]
-        named = {m.loose for m in mentions(text) if not m.loose.endswith("|")}
-        for host in hosts:
-            nets = {k: b["network"] for k, b in host.bindings.items() if isinstance(b.get("network"), dict)}
-            quoted = [s for n in nets.values() for s in n.get("sentences") or [] if _words(s) in _words(text)]
-            bound = {_key_loose(k) for k in host.bindings}
+        words = _words(texts[r.slot])
+        named = {m.loose for m in mentions(texts[r.slot]) if not m.loose.endswith("|")}
+        for host, nets, bound in hosts:
+            quoted = [s for n in nets.values() for s in n.get("sentences") or [] if _words(s) in words]
             if not named or not quoted or not named <= bound:
                 continue
             r.status, r.cause = IMPLEMENTED, ""
