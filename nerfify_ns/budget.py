@@ -197,6 +197,8 @@ class TimeFit:
     startup_seconds: float
     render_seconds: float
     """Estimated rendering of every checkpoint (startup excluded)."""
+    render_one_seconds: float = 0.0
+    """Estimated rendering of one checkpoint's test views."""
 
     def describe(self) -> str:
         return (f"{self.iterations} iterations fit the {self.seconds_left:.0f} s left (measured "
@@ -246,18 +248,29 @@ def fit_iterations(seconds_left: float, seconds_per_iteration: float, startup_se
                           f"{seconds_per_iteration:.2f} s per iteration and {startup_seconds:.0f} s to start each "
                           f"of the two Nerfstudio processes); give a longer --budget")
     return TimeFit(iterations, budget.cadence(iterations), seconds_left, seconds_per_iteration, startup_seconds,
-                   render)
+                   render, render_one)
+
+
+PACE_CEILING = 2.0
+"""A budgeted training's ``ns-train`` iterations: this many times the estimate that fits (at most the plan's own
+and the budget's): the training keeps the budget's deadline itself (:mod:`nerfify_ns.runtime.pace`), so a
+pessimistic estimate leaves no time unused and an optimistic one stops with a checkpoint."""
+PACE_MARGIN = 0.04
+"""The share of the time left when training starts that a paced training keeps in hand (at least
+:data:`PACE_MARGIN_SECONDS`)."""
+PACE_MARGIN_SECONDS = 3.0
 
 
 def within_budget(record: dict | None, summary: dict) -> bool | None:
     """Whether a budgeted run's training and evaluation fit its wall-clock budget (``within_budget`` of the run's
-    ``eval/summary.json``): every iteration it planned trained and its checkpoints evaluated without reaching the
-    limit, which is the time the budget had left when training started. ``record``: the run's budget record (the
-    summary's ``budget``); None without a wall-clock budget (``--iterations`` alone). A budget that left too little
-    to train at all ends the train stage with the budget's own error before any summary is written."""
+    ``eval/summary.json``): it trained and its checkpoints were evaluated without reaching the limit, which is the
+    time the budget had left when training started (a training that kept the budget's deadline itself fits it,
+    however many iterations that was). ``record``: the run's budget record (the summary's ``budget``); None without
+    a wall-clock budget (``--iterations`` alone). A budget that left too little to train at all ends the train stage
+    with the budget's own error before any summary is written."""
     if not record or record.get("seconds") is None:
         return None
-    return summary.get("status") == "ok" and int(summary.get("iterations_done") or 0) >= int(record["iterations"])
+    return summary.get("status") == "ok" and not summary.get("stopped")
 
 
 DEFAULT_BUDGET_SECONDS = 240.0

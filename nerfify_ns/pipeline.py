@@ -26,6 +26,7 @@ Every run writes its output folder atomically.
 from __future__ import annotations
 
 import json
+import math
 import shutil
 import tempfile
 import time
@@ -330,9 +331,12 @@ def _train(plan: dict, folder: Path, data: Dataset, budget: Budget, outcome: Out
         stage.advance(0, run.iterations)
         if run.proxy:
             stage.note(run.proxy["headline"])
-        stage.note(f"training {plan['method']} for {run.iterations} iterations")
-        summary = evaluate_run(folder, data, folder / runfolder.EVAL_DIR, iterations=run.iterations, every=run.every,
-                               label=plan["method"], method_args=[*_train_args(plan, budget), *run.args],
+        stage.note(f"training {plan['method']} for {run.iterations} iterations" if run.ceiling is None else
+                   f"training {plan['method']} until the budget's deadline (about {run.iterations} iterations, "
+                   f"at most {run.ceiling})")
+        summary = evaluate_run(folder, data, folder / runfolder.EVAL_DIR, iterations=run.ceiling or run.iterations,
+                               every=run.every, label=plan["method"],
+                               method_args=[*_train_args(plan, budget), *run.args], env=run.env,
                                timeout=run.limit.timeout, limit=run.limit,
                                on_progress=_step_progress(stage, f"training {plan['method']}",
                                                           "rendering and scoring the checkpoints"))
@@ -416,6 +420,11 @@ class TrainingRun:
     """The plan's ``schedule`` record when the schedule was scaled."""
     proxy: dict | None = None
     """The CPU proxy the run trains (``schedule.proxy``), or None: the paper's settings."""
+    ceiling: int | None = None
+    """``ns-train``'s iterations when the training keeps the budget's deadline itself (``env``), None: exactly
+    ``iterations``."""
+    env: dict = field(default_factory=dict)
+    """The training process's environment: its deadline (:data:`nerfify_ns.runtime.pace.ENV_PACE`)."""
 
 
 UNMEASURED_ITERATIONS = 200
@@ -491,12 +500,23 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     recorded as the plan's ``schedule`` (plan.yaml rewritten). Raises ``BudgetError`` when the budget leaves too
     little. Without the smoke rung's measurement (ladder switched off) a budgeted run trains
     :data:`UNMEASURED_ITERATIONS`."""
-    from nerfify_ns.budget import RENDER_COST, fit_iterations, scaled_step, training_limit
+    from nerfify_ns.budget import (
+        PACE_CEILING,
+        PACE_MARGIN,
+        PACE_MARGIN_SECONDS,
+        POST_SECONDS,
+        RENDER_COST,
+        fit_iterations,
+        scaled_step,
+        training_limit,
+    )
+    from nerfify_ns.runtime.pace import ENV_PACE, Pace
     from nerfify_ns.runtime.presets import render_cost, step_time_exponent
     from nerfify_ns.synthesis.proxy import Measured, fit_proxy
     from nerfify_ns.synthesis.schedule import scale_schedule
 
     iterations, every, record, proxy = budget.iterations, budget.cadence(budget.iterations), None, None
+    ceiling, env = None, {}
     width = 1.0  # the proxy's MLP width over the paper's (the learning rates follow it)
     limit = training_limit(budget, None)
     rays = _rays(_train_args(plan, budget))
@@ -533,12 +553,18 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
                                  render_cost=render_cost(plan["base"], RENDER_COST))
         iterations, every = fit.iterations, fit.every
         limit = training_limit(budget, left)
+        ceiling = max(iterations, min(most, math.ceil(iterations * PACE_CEILING)))
+        pace = Pace(end=time.time() + left - POST_SECONDS, step_seconds=step, render_seconds=fit.render_one_seconds,
+                    startup_seconds=timing["startup_seconds"], margin_seconds=max(PACE_MARGIN * left,
+                                                                                 PACE_MARGIN_SECONDS))
+        env = {ENV_PACE: pace.to_env()}
         record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
-                  "every": every, "seconds_per_iteration": round(step, 4),
+                  "ceiling": ceiling, "every": every, "seconds_per_iteration": round(step, 4),
                   "smoke_seconds_per_iteration": round(timing["seconds_per_iteration"], 4),
                   "startup_seconds": round(timing["startup_seconds"], 1),
                   "render_seconds": round(fit.render_seconds, 1), "limit_seconds": round(limit.seconds or 0, 1),
-                  "reason": fit.describe()}
+                  "reason": f"{fit.describe()}; the training keeps the budget's deadline itself, up to "
+                            f"{ceiling} iterations"}
     schedule = None
     if budget.scale_schedule or proxy:
         fitted = scale_schedule(plan, iterations, rays=rays, width=width) if budget.scale_schedule else None
@@ -547,7 +573,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
             args = [*args, *(fitted.args if fitted is not None else [])]
             plan["schedule"] = schedule
             (folder / runfolder.PLAN).write_text(Plan.of(plan).dump())
-    return TrainingRun(iterations, every, args, limit, record, schedule, proxy)
+    return TrainingRun(iterations, every, args, limit, record, schedule, proxy, ceiling, env)
 
 
 def _proxy_budget(plan: dict, budget: Budget, data: Dataset | None) -> tuple[Budget, dict | None]:
@@ -559,13 +585,29 @@ def _proxy_budget(plan: dict, budget: Budget, data: Dataset | None) -> tuple[Bud
     return with_scene(budget, scene), scene
 
 
+def _paced(summary: dict, run: TrainingRun) -> dict | None:
+    """How a training that kept the budget's deadline itself went against its estimate: iterations and seconds per
+    step, both measured outside it (its events, the curve's clock), and a line saying so when it trained fewer than
+    estimated (None: not paced, or not evaluated)."""
+    if run.ceiling is None or not run.budget or summary.get("status") != "ok":
+        return None
+    done, estimated = int(summary.get("iterations_done") or 0), int(run.budget["iterations"])
+    step = float(summary.get("seconds") or 0.0) / max(int(summary.get("evaluated_iterations") or done), 1)
+    planned = float(run.budget["seconds_per_iteration"])
+    line = (f"trained {done} of the {estimated} iterations estimated to fit: a step took {step:.2f} s where "
+            f"{planned:.2f} s was estimated, and the training stopped itself at the budget's deadline"
+            if done < estimated else "")
+    return {"iterations": done, "estimated": estimated, "seconds_per_iteration": round(step, 4),
+            "estimated_seconds_per_iteration": planned, "short": line}
+
+
 def _record_run(folder: Path, summary: dict, run: TrainingRun) -> dict:
     """The evaluation summary with how its length was chosen (budget, schedule), written back."""
     from nerfify_ns.budget import within_budget
     from nerfify_ns.evaluate.run_eval import write_json
 
     summary = {**summary, "budget": run.budget, "schedule": run.schedule,
-               "within_budget": within_budget(run.budget, summary)}
+               "within_budget": within_budget(run.budget, summary), "paced": _paced(summary, run)}
     write_json(folder / "eval" / runfolder.SUMMARY, summary)
     return summary
 
@@ -646,7 +688,9 @@ def _judge_evaluation(summary: dict, stage: Stage, run: TrainingRun | None = Non
               f"{diagnostics['colour_spread_gt']:.3f})" if diagnostics.get("colour_spread") is not None
               and diagnostics.get("colour_spread_gt") is not None else "")
     grey = grey_ratio(diagnostics)
+    short = (summary.get("paced") or {}).get("short")
     stage.summary = ((f"{summary['stopped']}; " if summary.get("stopped") else "")
+                     + (f"{short}; " if short else "")
                      + (f"renders grey (foreground colour spread {grey:.2f}x the ground truth's); "
                         if grey is not None else "")
                      + f"{summary.get('evaluated_iterations') or summary['iterations_done']} iterations in "

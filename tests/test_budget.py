@@ -84,5 +84,10 @@ def test_within_budget_says_whether_training_fit_the_wall_clock_budget():
     # stopped by the limit (the time the budget had left): trained fewer than planned, or failed
     assert within_budget(record, {"status": "failed", "iterations_done": 241}) is False
     assert within_budget(record, {"status": "failed", "iterations_done": 300}) is False  # rendering cut off
+    # its limit stopped it after a checkpoint, which was evaluated: the budget did not hold
+    assert within_budget(record, {"status": "ok", "iterations_done": 241,
+                                  "stopped": "stopped at 241 of 600 iterations: the 215 s limit"}) is False
+    # it kept the budget's deadline itself, on a machine slower than the estimate: fewer iterations, in time
+    assert within_budget(record, {"status": "ok", "iterations_done": 180, "stopped": ""}) is True
     assert within_budget(None, {"status": "ok", "iterations_done": 300}) is None  # --iterations alone: no budget
     assert within_budget({"seconds": None, "iterations": 300}, {"status": "ok", "iterations_done": 300}) is None

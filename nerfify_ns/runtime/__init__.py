@@ -25,7 +25,8 @@ nothing when CUDA is available, unless forced. Each patch is small and named:
 One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
 device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
 refuses, so ``ns-eval`` and ``--load-dir`` fail; :func:`allow_numpy_scalars_in_checkpoints`
-admits exactly those numpy types (no arbitrary code) to the safe loader.
+admits exactly those numpy types (no arbitrary code) to the safe loader. A budgeted training keeps its deadline
+whatever the device (:mod:`nerfify_ns.runtime.pace`, when the pipeline sets ``NERFIFY_TRAIN_PACE``).
 
 ``NERFIFY_RUNTIME=off`` disables it; ``NERFIFY_RUNTIME=force`` applies it even with CUDA;
 ``NERFIFY_RUNTIME_SKIP=hashgrid,...`` leaves the named patches out (baselines, debugging).
@@ -207,6 +208,10 @@ def activate(force: bool = False) -> list[str]:
     Without ``force`` nothing is changed when CUDA is available or ``NERFIFY_RUNTIME=off``.
     """
     allow_numpy_scalars_in_checkpoints()
+    from nerfify_ns.runtime.pace import ENV_PACE, install
+
+    if os.environ.get(ENV_PACE):
+        install()
     switch = os.environ.get(ENV_SWITCH, "auto").lower()
     if switch == "off":
         return list(_applied)

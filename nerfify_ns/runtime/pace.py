@@ -1,0 +1,146 @@
+"""A budgeted training that keeps its deadline: it stops itself, with a checkpoint, when one more step would leave
+too little time to render its checkpoints, and trains on while time is left.
+
+A wall-clock budget becomes a number of iterations from the ladder's smoke rung, which measured a few steps minutes
+earlier; a machine's pace changes (another process, a slower phase of the method), so that number is an estimate.
+The pipeline gives the training process its deadline (:data:`ENV_PACE`, a :class:`Pace`), and ``ns-train`` a
+ceiling above the estimate; :func:`install` (applied by the runtime whenever the variable is set, GPU or not)
+measures each step's wall time in the trainer and, after each iteration, stops the run when the time left would no
+longer cover another step, starting the rendering process and rendering every checkpoint saved (at the pace
+measured, against the one planned) with a margin. Nerfstudio's own loop then saves the last checkpoint at the step
+reached, so a stop always leaves something to evaluate. The process's hard limit stays behind it.
+
+What the training process says about itself is not a verdict: the iterations done are read from its events and its
+time is measured outside, as for every run.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+ENV_PACE = "NERFIFY_TRAIN_PACE"
+"""The training's :class:`Pace` as JSON (set by the pipeline for a budgeted run)."""
+MEASURED_STEPS = 3
+"""Steps timed before the pace decides anything (the first ones pay one-off costs)."""
+WINDOW = 16
+"""The pace is the median of the last this many steps' wall times."""
+STOP_LINE = "nerfify: stopped by the budget's deadline"
+"""How the training's log says that it stopped itself."""
+
+
+@dataclass(frozen=True)
+class Pace:
+    """When a budgeted training must be done, and what follows it."""
+
+    end: float
+    """Wall-clock time (``time.time()``) by which the training and the rendering of its checkpoints are done."""
+    step_seconds: float
+    """A training step's seconds the budget planned with."""
+    render_seconds: float
+    """Rendering one checkpoint's test views at that planned pace."""
+    startup_seconds: float
+    """Starting the rendering process (a Nerfstudio process)."""
+    margin_seconds: float
+    """Time kept in hand for what no estimate covers."""
+
+    def to_env(self) -> str:
+        return json.dumps(asdict(self))
+
+    @classmethod
+    def from_env(cls, text: str | None) -> Pace | None:
+        """The pace in ``text`` (:data:`ENV_PACE`'s value); None when unset or not a pace (the hard limit then
+        stands alone)."""
+        if not text:
+            return None
+        try:
+            fields = json.loads(text)
+            pace = cls(**{k: float(fields[k]) for k in cls.__dataclass_fields__})
+        except (ValueError, TypeError, KeyError):
+            return None
+        return pace if pace.step_seconds > 0 else None
+
+
+class PaceKeeper:
+    """Decides after each training step whether the run stops there (:meth:`after_step`)."""
+
+    def __init__(self, pace: Pace, clock: Callable[[], float] = time.time) -> None:
+        self.pace = pace
+        self.clock = clock
+        self.durations: deque[float] = deque(maxlen=WINDOW)
+        self.last: float | None = None
+
+    def step_seconds(self) -> float | None:
+        """The measured pace (median of the recent steps), None before :data:`MEASURED_STEPS` were timed."""
+        return statistics.median(self.durations) if len(self.durations) >= MEASURED_STEPS else None
+
+    def finish(self, checkpoints_after: int) -> float | None:
+        """When the evaluation would be done if the run trained one more step and then stopped with
+        ``checkpoints_after`` checkpoints to render; None while the pace is unmeasured."""
+        step = self.step_seconds()
+        if step is None:
+            return None
+        slower = step / self.pace.step_seconds  # rendering is a forward pass of the same model on the same machine
+        return (self.clock() + step + self.pace.startup_seconds
+                + checkpoints_after * self.pace.render_seconds * slower + self.pace.margin_seconds)
+
+    def after_step(self, checkpoints_after: int) -> bool:
+        """Record a step that just ended; True when the run should stop now (``checkpoints_after``: the checkpoints
+        there will be to render when it stops here, its final one included)."""
+        now = self.clock()
+        if self.last is not None:
+            self.durations.append(now - self.last)
+        self.last = now
+        finish = self.finish(checkpoints_after)
+        return finish is not None and finish > self.pace.end
+
+
+def _checkpoints_before(folder: Path, step: int) -> int:
+    """Checkpoints saved in ``folder`` at steps before ``step``."""
+    count = 0
+    for path in Path(folder).glob("step-*.ckpt"):
+        try:
+            count += int(path.stem.split("-", 1)[1]) < step
+        except ValueError:
+            continue
+    return count
+
+
+def install(text: str | None = None) -> bool:
+    """Keep the deadline of :data:`ENV_PACE` (or ``text``) in Nerfstudio's trainer; False when there is none."""
+    pace = Pace.from_env(text if text is not None else os.environ.get(ENV_PACE))
+    if pace is None:
+        return False
+    from nerfstudio.engine.trainer import Trainer
+
+    if getattr(Trainer.train_iteration, "_nerfify_pace", False):
+        return True
+    keeper = PaceKeeper(pace)
+    train_iteration, after_train = Trainer.train_iteration, Trainer._after_train
+
+    def paced_train_iteration(self, step: int):
+        result = train_iteration(self, step)
+        if not self.stop_training and keeper.after_step(_checkpoints_before(self.checkpoint_dir, step) + 1):
+            self.stop_training = True  # Nerfstudio's loop ends before the next step and saves this one
+            self._nerfify_stopped_at = step
+            print(f"{STOP_LINE}: after step {step}, a step taking {keeper.step_seconds():.3f} s "
+                  f"(planned {pace.step_seconds:.3f} s)", file=sys.stderr, flush=True)
+        return result
+
+    def paced_after_train(self):
+        stopped = getattr(self, "_nerfify_stopped_at", None)
+        if stopped is not None:
+            self.step = stopped  # the loop moved on to a step it did not train; its checkpoint is the last trained
+        return after_train(self)
+
+    paced_train_iteration._nerfify_pace = True  # type: ignore[attr-defined]
+    Trainer.train_iteration = paced_train_iteration
+    Trainer._after_train = paced_after_train
+    return True
