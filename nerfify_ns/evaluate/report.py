@@ -678,6 +678,15 @@ def grey_ratio(diagnostics: Any) -> float | None:
     return float(ratio) if isinstance(ratio, int | float) and ratio < GREY_RENDER_RATIO else None
 
 
+def _smoke_unverified(run_dir: Path) -> bool:
+    """Whether the ladder's smoke rung ran out of time (``verify.json``: its verdict "not verified: time"): what was
+    built passed the checks before it, not the training."""
+    ladder, _ = _read_json(run_dir / runfolder.VERIFY)
+    rungs = ladder.get("rungs") if isinstance(ladder, dict) else None
+    return any(isinstance(r, dict) and r.get("name") == "smoke" and isinstance(r.get("details"), dict)
+               and r["details"].get("verdict") == "not verified: time" for r in rungs or [])
+
+
 def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     """The run's outcome from ``run.json`` (written by the pipeline): the stages that ran, the one that failed
     and why, those not run and why. A folder without it gets the parts it holds, stated as such."""
@@ -685,10 +694,14 @@ def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     novel = sections.get("equations") or {}
     counts = ({"found": novel["holes"], "built": novel.get("implemented") or 0}
               if isinstance(novel.get("holes"), int) else None)
-    novel_line = (f"Novel parts: {counts['built']} of {counts['found']} found built and verified. "
+    unverified = _smoke_unverified(run_dir)
+    verified = ("built; the smoke rung not verified: time (static, contract and stability passed)" if unverified
+                else "built and verified")
+    novel_line = (f"Novel parts: {counts['built']} of {counts['found']} found {verified}. "
                   if counts and counts.get("found") else
                   (f"Novel parts: {novel['summary']}. " if novel.get("summary") else ""))
-    partial = bool(counts) and counts.get("built", 0) < counts.get("found", 0)
+    partial = bool(counts) and (counts.get("built", 0) < counts.get("found", 0)
+                                or (unverified and counts.get("built", 0) > 0))
     summary, _ = _read_json(run_dir / runfolder.EVAL_DIR / runfolder.SUMMARY)
     ratio = grey_ratio(summary.get("diagnostics") if isinstance(summary, dict) else None)
     if ratio is not None:  # trained, but nothing a person recognises

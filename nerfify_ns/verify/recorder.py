@@ -106,8 +106,8 @@ def render_probe(pipe, last: dict) -> None:
 
 def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
     """After training: a training step's forward, losses and backward (no optimiser step) timed at the first probe
-    batch and at :data:`COST_RAYS` times its rays (the batch repeated: the same work per ray), the faster of
-    ``repeats`` each, with the threads training will have (``NERFIFY_TIMING_THREADS``; the rung itself may run with
+    batch and at :data:`COST_RAYS` times its rays (the batch repeated: the same work per ray), each after an
+    untimed pass, the faster of ``repeats`` each, with the threads training will have (``NERFIFY_TIMING_THREADS``; the rung itself may run with
     fewer, beside the checks), and the first batch again with the rung's own threads; sent as one ``timing``
     record. A budgeted run predicts a step at another batch from it: the difference is what the rays cost, the rest
     of a step (the optimiser, regularisers over whole grids) does not change with the batch, and the two thread
@@ -129,12 +129,12 @@ def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
     threads = int(wanted) if wanted.isdigit() and int(wanted) > 0 else own
     model.train(True)
 
-    def timed(factor: int) -> float:
+    def timed(factor: int, once: bool = False) -> float:
         index = torch.arange(rays * factor) % rays
         many = bundle[index]
         targets = {k: v[index] if torch.is_tensor(v) and v.shape[:1] == (rays,) else v for k, v in batch.items()}
         best = float("inf")
-        for _ in range(repeats):
+        for _ in range(1 if once else repeats):
             model.zero_grad(set_to_none=True)
             start = time.perf_counter()
             outputs = model(many._apply_fn_to_fields(lambda t: t.clone()))
@@ -144,8 +144,10 @@ def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
         return best
 
     try:
+        timed(1, once=True)  # warm-up: the first pass after training pays one-off allocations
         rung_seconds = timed(1)
         torch.set_num_threads(threads)
+        timed(COST_RAYS[-1], once=True)  # and again with training's threads (a new thread pool, larger buffers)
         seconds = [timed(f) for f in COST_RAYS]
     finally:
         torch.set_num_threads(own)

@@ -157,7 +157,9 @@ def ray_cost(records) -> dict | None:
     threads, and at the first with the rung's own) as ``{"rays": [r1, r2], "seconds": [t1, t2], "seconds_per_ray":
     (t2 - t1) / (r2 - r1), "speedup": rung's t1 / training's t1}`` (the speedup within [1, the ratio of threads];
     absent when the record has no second thread count); None when the run sent none, or one that is not two
-    increasing batches with finite, positive times. Not a verdict: a budgeted run's prediction of a step at another
+    increasing batches with finite, positive, increasing times (a larger batch measured no slower than a smaller
+    one is noise, not a cost: the budget then scales the step by the base's exponent, which errs on the long side,
+    where a training that keeps its deadline trains on). Not a verdict: a budgeted run's prediction of a step at another
     batch and thread count (``nerfify_ns.budget.scaled_step``, ``pipeline._smoke_timing``)."""
     def seconds_ok(t) -> bool:
         return isinstance(t, int | float) and not isinstance(t, bool) and bool(np.isfinite(t)) and t > 0
@@ -169,7 +171,7 @@ def ray_cost(records) -> dict | None:
     rays, seconds = head.get("rays"), head.get("seconds")
     if not (isinstance(rays, list) and isinstance(seconds, list) and len(rays) == len(seconds) == 2
             and all(isinstance(r, int) and r > 0 for r in rays) and rays[1] > rays[0]
-            and all(seconds_ok(t) for t in seconds)):
+            and all(seconds_ok(t) for t in seconds) and seconds[1] > seconds[0]):
         return None
     per_ray = max(0.0, (seconds[1] - seconds[0]) / (rays[1] - rays[0]))
     out = {"rays": rays, "seconds": [float(t) for t in seconds], "seconds_per_ray": per_ray}

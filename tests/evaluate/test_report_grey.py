@@ -40,3 +40,24 @@ def test_the_console_line_of_the_train_stage_says_grey_first():
 
     assert line(0.17).startswith("renders grey (foreground colour spread 0.17x the ground truth's); 20 iterations")
     assert line(0.79).startswith("20 iterations in 12.0 s")
+
+
+def test_parts_whose_smoke_rung_ran_out_of_time_are_built_not_verified(tmp_path):
+    """The ladder's smoke rung stopped by its time limit ("not verified: time"): the headline says the parts were
+    built and passed the rungs before it, not that they were verified, in the partial colour."""
+    (tmp_path / runfolder.OUTCOME).write_text(json.dumps({"ok": True, "headline": "ran read, train", "stages": []}))
+    sections = {"equations": {"holes": 2, "implemented": 2}}
+
+    def ladder(verdict):
+        rungs = [{"name": "static", "status": "pass", "details": {}},
+                 {"name": "smoke", "status": "fail", "details": {"verdict": verdict} if verdict else {}}]
+        (tmp_path / runfolder.VERIFY).write_text(json.dumps({"ok": verdict is None, "rungs": rungs}))
+        return read_outcome(tmp_path, sections)
+
+    unverified = ladder("not verified: time")
+    assert unverified["partial"]
+    assert unverified["headline"].startswith("Novel parts: 2 of 2 found built; the smoke rung not verified: time")
+    verified = ladder(None)
+    assert not verified["partial"] and verified["headline"].startswith("Novel parts: 2 of 2 found built and verified")
+    (tmp_path / runfolder.VERIFY).write_text('{"rungs": "not a list"}')  # damaged: no traceback, no claim of time
+    assert read_outcome(tmp_path, sections)["headline"].startswith("Novel parts: 2 of 2 found built and verified")
