@@ -9,7 +9,7 @@ import statistics
 import time
 from pathlib import Path
 
-from nerfify_ns.budget import Limit
+from nerfify_ns.budget import PACE_MARGIN, PACE_MARGIN_SECONDS, Limit
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (
@@ -20,6 +20,7 @@ from nerfify_ns.runtime.launch import (
     progress_poll,
     train_command,
 )
+from nerfify_ns.runtime.pace import ENV_PACE, WINDOW, Pace
 from nerfify_ns.runtime.sandbox import Limits, python_cmd, run_sandboxed
 from nerfify_ns.verify.checker import PipeReader, decode
 from nerfify_ns.verify.plugin import PluginInfo
@@ -49,6 +50,45 @@ SMOKE_ARGS = [
     "--logging.max-buffer-size",
     "1",
 ]
+SMOKE_TAIL_STEPS = 16.0
+"""What the recorder does after training (render the probe, time a step at two ray batches), in training steps: a
+smoke rung with a time limit keeps that in hand when it stops itself (:func:`smoke_pace`)."""
+SMOKE_FEWEST = 0.25
+"""A smoke rung its time limit cut shorter than this share of its iterations is not judged on them: "not verified:
+time"."""
+PACE_SLACK_SECONDS = 5.0
+"""The process's exit and the sandbox's teardown, beyond the pace's own figures, when the rung checks from outside
+that a short run stopped itself at its deadline."""
+
+
+def smoke_pace(limit: Limit) -> Pace | None:
+    """The smoke rung's deadline (None without a time limit): the training stops itself when one more step, the
+    recorder's tail (:data:`SMOKE_TAIL_STEPS` steps at the pace measured) and the margin would pass the limit, so a
+    slow method's rung trains as many of its iterations as its share of the budget allows, then renders its probe
+    and times its rays, instead of being killed with nothing judged."""
+    if limit.seconds is None:
+        return None
+    return Pace(end=time.time() + limit.seconds, step_seconds=1.0, render_seconds=SMOKE_TAIL_STEPS,
+                startup_seconds=0.0, margin_seconds=max(PACE_MARGIN * limit.seconds, PACE_MARGIN_SECONDS))
+
+
+def recent_step(scalars: Scalars) -> float | None:
+    """The median of the last steps' seconds (the pace a run's deadline was judged at: :data:`WINDOW` steps)."""
+    times = scalars.get(ITER_TIME_TAG, {})
+    steps = [times[s] for s in sorted(times)][2:][-WINDOW:]
+    return statistics.median(steps) if steps else None
+
+
+def stopped_at_deadline(result, limit: Limit, pace: Pace | None, step: float | None) -> bool:
+    """Whether a run that trained fewer iterations than asked stopped itself at its deadline, judged from outside:
+    it exited cleanly, within its tail, margin and a slack of its limit (measured by our clock) at the pace its
+    events show. A run that stops early of its own accord is not excused by it."""
+    if pace is None or limit.seconds is None or result.timed_out or result.returncode != 0 or not step:
+        return False
+    return result.seconds >= (limit.seconds - pace.margin_seconds - (SMOKE_TAIL_STEPS + 2) * step
+                              - PACE_SLACK_SECONDS)
+
+
 class SmokeCancelled(Exception):
     """The smoke rung was called off while it ran (the ladder's checks running beside it failed)."""
 
@@ -161,7 +201,9 @@ def smoke_rung(
     layout = RunLayout(workdir, GENERATED_METHOD, log_name="train.log")
     cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
                         method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
-    env = {**(env or {}), ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none"}
+    pace = smoke_pace(limit)
+    env = {**(env or {}), ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none",
+           **({ENV_PACE: pace.to_env()} if pace is not None else {})}
     r.details["threads"] = int(env["OMP_NUM_THREADS"]) if str(env.get("OMP_NUM_THREADS", "")).isdigit() else None
     reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
     try:
@@ -191,13 +233,34 @@ def smoke_rung(
                       **step_timing(scalars, result.seconds)})
     if limit.seconds is None:
         r.details["sandbox"]["limits"] = {**r.details["sandbox"]["limits"], "timeout_s": None}  # none, not inf
-    checked_verdict(r, records, layout.run_dir, iterations, result)
+    short = 0 < reached < iterations and stopped_at_deadline(result, limit, pace, recent_step(scalars))
+    if short:
+        r.details["paced"] = (f"trained {reached} of {iterations} iterations: {limit.describe()} left no time for "
+                              f"more at {r.details['seconds_per_iteration']:.2f} s a step")
+    judged = reached if short else iterations
+    checked_verdict(r, records, layout.run_dir, judged, result)
+    _check_steps(r, result, limit, reached, iterations, total, rgb, info, layout, judged)
+    if short and (reached < SMOKE_FEWEST * iterations
+                  or (r.failures and all(d.rule == "no-learning" for d in r.failures))):
+        # too few steps to show learning: not judged, for want of time (the same verdict as a run its limit killed)
+        r.failures, r.status = [], "fail"
+        r.fail(Diagnosis("smoke", "timeout", f"stopped itself at {reached} of {iterations} iterations after "
+                                             f"{result.seconds:.0f} s, too few to judge: {limit.describe()}",
+                         traceback=result.tail(15)))
+    return r
+
+
+def _check_steps(r: RungResult, result, limit: Limit, reached: int, iterations: int, total: dict, rgb: dict,
+                 info: PluginInfo, layout: RunLayout, judged: int) -> None:
+    """The run's process and events judged (after the checker's part): limits, timeout, finite losses, the exit
+    code, the method trained, the steps reached (``judged`` of them needed), and learning where the checker had no
+    probe."""
     hits = limit_diagnoses("smoke", result, left_running=False)  # ns-train's data workers may still be exiting
     if hits:
         for d in hits:
             d.traceback = result.tail(15)
             r.fail(d)
-        return r
+        return
     if result.timed_out:
         r.fail(
             Diagnosis(
@@ -208,7 +271,7 @@ def smoke_rung(
                 traceback=result.tail(15),
             )
         )
-        return r
+        return
     bad = sorted(s for s, v in total.items() if not math.isfinite(v))
     if bad:
         r.fail(
@@ -220,14 +283,14 @@ def smoke_rung(
                 traceback=result.tail(15),
             )
         )
-        return r
+        return
     if result.returncode != 0:
         r.fail(
             Diagnosis(
                 "smoke", "exit-code", f"ns-train exited with {result.returncode}", traceback=result.tail(20)
             )
         )
-        return r
+        return
     config = layout.config
     if config.is_file() and info.package not in _head(config):
         r.fail(
@@ -239,12 +302,12 @@ def smoke_rung(
                 traceback=result.tail(15),
             )
         )
-        return r
+        return
     step = r.details.get("checkpoint_step")  # the trainer's last step, read from its checkpoint by the checker
-    if reached < iterations and not (isinstance(step, int) and step + 1 >= iterations):
+    if reached < judged and not (isinstance(step, int) and step + 1 >= judged):
         # tensorboard's writer may drop the last step's scalars at exit; the checkpoint of that step is the evidence
-        r.fail(Diagnosis("smoke", "iterations", f"reached {reached} of {iterations} iterations"))
-        return r
+        r.fail(Diagnosis("smoke", "iterations", f"reached {reached} of {judged} iterations"))
+        return
     values = [rgb[s] for s in sorted(rgb)]
     q = max(len(values) // 4, 1)
     first, last = statistics.mean(values[:q]), statistics.mean(values[-q:])
@@ -261,4 +324,3 @@ def smoke_rung(
                 f"{first:.4g}, last quarter {last:.4g} (needs < {LEARNING_RATIO} x)",
             )
         )
-    return r
