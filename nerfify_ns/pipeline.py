@@ -650,6 +650,8 @@ def _judge_ladder(ladder, stage: Stage) -> None:
         smoke = ladder.rung("smoke")
         if smoke is not None and _timed_out(smoke):
             stage.summary += f" ({smoke.notes[-1] if smoke.notes else smoke.failures[0].message})"
+        elif smoke is not None and smoke.details.get("paced"):  # judged on the steps its time allowed
+            stage.summary += f" (smoke {smoke.details['paced']})"
         return
     first = ladder.failures[0] if ladder.failures else None
     where = f" ({first.where()})" if first and first.where() != "-" else ""

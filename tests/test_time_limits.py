@@ -204,3 +204,23 @@ def test_a_training_that_kept_its_deadline_with_fewer_iterations_than_estimated_
     assert not read_outcome(tmp_path, {})["partial"]
     summary.write_text(json.dumps({"status": "ok", "paced": "not a record"}))  # a damaged summary: no traceback
     assert not read_outcome(tmp_path, {})["partial"]
+
+
+def test_a_smoke_rung_judged_on_the_steps_its_time_allowed_says_how_many():
+    from nerfify_ns.pipeline import _judge_ladder
+
+    smoke = RungResult("smoke", details={"iterations": 44, "iterations_wanted": 80,
+                                         "paced": "trained 44 of 80 iterations: the 60 s limit of the smoke rung's "
+                                                  "share left no time for more at 0.90 s a step"})
+
+    class Stage:
+        summary, failed = "", None
+
+        def fail(self, why):
+            self.failed = why
+
+    stage = Stage()
+    _judge_ladder(_ladder(smoke), stage)
+    assert stage.failed is None
+    assert stage.summary.endswith("smoke pass (smoke trained 44 of 80 iterations: the 60 s limit of the smoke rung's "
+                                  "share left no time for more at 0.90 s a step)")
