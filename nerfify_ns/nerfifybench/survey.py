@@ -430,16 +430,17 @@ def _num(value: Any, fmt: str) -> str:
 
 
 def train_table(rows: list[PaperRow]) -> str:
-    """``--train``: one line a paper: exit, iterations trained of those planned, within the budget (wall time against
+    """``--train``: one line a paper: exit, iterations trained and the budget's estimate (a training keeps the
+    budget's deadline, so it may train more or fewer), within the budget (wall time against
     the budget), PSNR, colour ratio, the CPU proxy, the found parts built and verified, and why it did not train."""
-    lines = ["| paper | exit | trained (iterations) | within budget (wall / budget) | PSNR (dB) | colour ratio "
+    lines = ["| paper | exit | trained (iterations; the budget's estimate) | within budget (wall / budget) | PSNR (dB) | colour ratio "
              "| CPU proxy | found parts built / verified | why not trained |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = r.train
         if not t:
             continue
-        trained = f"yes ({t.get('iterations')} of {t.get('planned')})" if t.get("trained") else "no"
+        trained = f"yes ({t.get('iterations')}; {t.get('planned')} estimated)" if t.get("trained") else "no"
         fits = {True: "yes", False: "no", None: "-"}[t.get("within_budget")]
         fits += f" ({_num(t.get('wall_seconds'), '.0f')} s / {_num(t.get('budget_seconds'), '.0f')} s)"
         parts = f"{t.get('built', 0)} / {t.get('verified', 0)} of {t.get('found', 0)}" if "found" in t else "-"
