@@ -65,6 +65,15 @@ def test_the_evaluation_names_the_limit_and_the_iterations_done(tmp_path, monkey
     assert seen["timeout"] == math.inf and "no time limit" in unlimited["reason"]
 
 
+class _Stage:
+    """What the pipeline's verdict functions write to: the stage's line, or why it failed."""
+
+    summary, failed = "", None
+
+    def fail(self, why):
+        self.failed = why
+
+
 def _ladder(smoke: RungResult) -> LadderReport:
     rungs = [RungResult("static"), RungResult("contract"), RungResult("stability"), smoke]
     return LadderReport(plugin="/x", rungs=rungs, rounds=[rungs])
@@ -98,13 +107,7 @@ def test_a_smoke_rung_out_of_time_is_not_verified_and_nothing_is_reverted(tmp_pa
     assert "--budget" in plan.notes[-1] and "--smoke-iterations 41" in plan.notes[-1]
     assert "not verified: time" in Path(tmp_path / "plan.yaml").read_text()
 
-    class Stage:
-        summary, failed = "", None
-
-        def fail(self, why):
-            self.failed = why
-
-    stage = Stage()
+    stage = _Stage()
     _judge_ladder(ladder, stage)
     assert stage.failed is None and "smoke not verified: time" in stage.summary
 
@@ -120,13 +123,7 @@ def test_a_real_failure_still_fails_and_a_timeout_beside_it_does_not_excuse_it()
     crashed.fail(Diagnosis("smoke", "exit-code", "ns-train exited with 1"))
     assert not _smoke_timed_out(_ladder(crashed))
 
-    class Stage:
-        summary, failed = "", None
-
-        def fail(self, why):
-            self.failed = why
-
-    stage = Stage()
+    stage = _Stage()
     _judge_ladder(_ladder(crashed), stage)
     assert stage.failed and "exit-code" in stage.failed
 
@@ -213,13 +210,7 @@ def test_a_smoke_rung_judged_on_the_steps_its_time_allowed_says_how_many():
                                          "paced": "trained 44 of 80 iterations: the 60 s limit of the smoke rung's "
                                                   "share left no time for more at 0.90 s a step"})
 
-    class Stage:
-        summary, failed = "", None
-
-        def fail(self, why):
-            self.failed = why
-
-    stage = Stage()
+    stage = _Stage()
     _judge_ladder(_ladder(smoke), stage)
     assert stage.failed is None
     assert stage.summary.endswith("smoke pass (smoke trained 44 of 80 iterations: the 60 s limit of the smoke rung's "
