@@ -433,8 +433,8 @@ def train_table(rows: list[PaperRow]) -> str:
     """``--train``: one line a paper: exit, iterations trained and the budget's estimate (a training keeps the
     budget's deadline, so it may train more or fewer), within the budget (wall time against
     the budget), PSNR, colour ratio, the CPU proxy, the found parts built and verified, and why it did not train."""
-    lines = ["| paper | exit | trained (iterations; the budget's estimate) | within budget (wall / budget) | PSNR (dB) | colour ratio "
-             "| CPU proxy | found parts built / verified | why not trained |",
+    lines = ["| paper | exit | trained (iterations; the budget's estimate) | within budget (wall / budget) | PSNR (dB) "
+             "| colour ratio | CPU proxy | found parts built / verified | why not trained |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t = r.train

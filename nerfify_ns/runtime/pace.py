@@ -6,9 +6,10 @@ earlier; a machine's pace changes (another process, a slower phase of the method
 The pipeline gives the training process its deadline (:data:`ENV_PACE`, a :class:`Pace`), and ``ns-train`` a
 ceiling above the estimate; :func:`install` (applied by the runtime whenever the variable is set, GPU or not)
 measures each step's wall time in the trainer and, after each iteration, stops the run when the time left would no
-longer cover another step, starting the rendering process and rendering every checkpoint saved (at the pace
-measured, against the one planned) with a margin. Nerfstudio's own loop then saves the last checkpoint at the step
-reached, so a stop always leaves something to evaluate. The process's hard limit stays behind it.
+longer cover another step (at the pace of the last steps), starting the rendering process and rendering every
+checkpoint saved (at the whole run's pace against the one planned) with a margin. Nerfstudio's own loop then saves
+the last checkpoint at the step reached, so a stop always leaves something to evaluate. The process's hard limit
+stays behind it.
 
 What the training process says about itself is not a verdict: the iterations done are read from its events and its
 time is measured outside, as for every run.
@@ -28,10 +29,11 @@ from pathlib import Path
 
 ENV_PACE = "NERFIFY_TRAIN_PACE"
 """The training's :class:`Pace` as JSON (set by the pipeline for a budgeted run)."""
-MEASURED_STEPS = 3
-"""Steps timed before the pace decides anything (the first ones pay one-off costs)."""
+MEASURED_STEPS = 10
+"""Steps timed before the pace decides anything (the first ones pay one-off costs; a burst of load over three steps
+once stopped a run at its fourth)."""
 WINDOW = 16
-"""The pace is the median of the last this many steps' wall times."""
+"""The next step's cost is the median of the last this many steps' wall times."""
 STOP_LINE = "nerfify: stopped by the budget's deadline"
 """How the training's log says that it stopped itself."""
 
@@ -75,19 +77,23 @@ class PaceKeeper:
         self.pace = pace
         self.clock = clock
         self.durations: deque[float] = deque(maxlen=WINDOW)
+        self.every: list[float] = []
         self.last: float | None = None
 
     def step_seconds(self) -> float | None:
-        """The measured pace (median of the recent steps), None before :data:`MEASURED_STEPS` were timed."""
-        return statistics.median(self.durations) if len(self.durations) >= MEASURED_STEPS else None
+        """The next step's expected seconds (median of the recent steps), None before :data:`MEASURED_STEPS` were
+        timed."""
+        return statistics.median(self.durations) if len(self.every) >= MEASURED_STEPS else None
 
     def finish(self, checkpoints_after: int) -> float | None:
         """When the evaluation would be done if the run trained one more step and then stopped with
-        ``checkpoints_after`` checkpoints to render; None while the pace is unmeasured."""
+        ``checkpoints_after`` checkpoints to render; None while the pace is unmeasured. The rendering is charged
+        at the whole run's pace against the planned one (a forward pass of the same model on the same machine;
+        not the last steps', whose bursts a rendering minutes later need not share)."""
         step = self.step_seconds()
         if step is None:
             return None
-        slower = step / self.pace.step_seconds  # rendering is a forward pass of the same model on the same machine
+        slower = statistics.median(self.every) / self.pace.step_seconds
         return (self.clock() + step + self.pace.startup_seconds
                 + checkpoints_after * self.pace.render_seconds * slower + self.pace.margin_seconds)
 
@@ -97,6 +103,7 @@ class PaceKeeper:
         now = self.clock()
         if self.last is not None:
             self.durations.append(now - self.last)
+            self.every.append(now - self.last)
         self.last = now
         finish = self.finish(checkpoints_after)
         return finish is not None and finish > self.pace.end

@@ -107,11 +107,12 @@ def render_probe(pipe, last: dict) -> None:
 def time_ray_cost(pipe, last: dict, repeats: int = 2) -> None:
     """After training: a training step's forward, losses and backward (no optimiser step) timed at the first probe
     batch and at :data:`COST_RAYS` times its rays (the batch repeated: the same work per ray), each after an
-    untimed pass, the faster of ``repeats`` each, with the threads training will have (``NERFIFY_TIMING_THREADS``; the rung itself may run with
-    fewer, beside the checks), and the first batch again with the rung's own threads; sent as one ``timing``
-    record. A budgeted run predicts a step at another batch from it: the difference is what the rays cost, the rest
-    of a step (the optimiser, regularisers over whole grids) does not change with the batch, and the two thread
-    counts say how much faster training's threads make a step. Gradients are left as they were found."""
+    untimed pass, the faster of ``repeats`` each, with the threads training will have
+    (``NERFIFY_TIMING_THREADS``; the rung itself may run with fewer, beside the checks), and the first batch again
+    with the rung's own threads; sent as one ``timing`` record. A budgeted run predicts a step at another batch
+    from it: the difference is what the rays cost, the rest of a step (the optimiser, regularisers over whole
+    grids) does not change with the batch, and the two thread counts say how much faster training's threads make a
+    step. Gradients are left as they were found."""
     import os
     import time
 

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from nerfify_ns.runtime.pace import STOP_LINE, Pace, PaceKeeper, _checkpoints_before
+from nerfify_ns.runtime.pace import MEASURED_STEPS, STOP_LINE, Pace, PaceKeeper, _checkpoints_before
 
 
 class Clock:
@@ -60,12 +60,26 @@ def test_nothing_is_decided_before_the_pace_is_measured():
     keeper, clock = _keeper(end=1.0)  # already too late: still, the first steps are not judged on no pace
     clock.now += 5.0
     assert keeper.after_step(1) is False  # first step: no duration yet
-    for _ in range(2):
+    for _ in range(MEASURED_STEPS - 1):
         clock.now += 5.0
         assert keeper.after_step(1) is False
     clock.now += 5.0
     assert keeper.after_step(1) is True
     assert keeper.step_seconds() == 5.0
+
+
+def test_a_burst_of_slow_steps_costs_the_next_step_not_the_renders():
+    """The last steps' pace prices one more step; the checkpoints' rendering, minutes later, is priced at the whole
+    run's pace (a burst of load during training need not last into the rendering)."""
+    keeper, clock = _keeper(end=10_000.0, step=1.0, render=50.0)
+    for _ in range(101):
+        clock.now += 1.0
+        keeper.after_step(2)
+    for _ in range(16):
+        clock.now += 4.0
+        keeper.after_step(2)
+    assert keeper.step_seconds() == 4.0
+    assert keeper.finish(2) == pytest.approx(clock.now + 4.0 + 10.0 + 2 * 50.0 * 1.0 + 2.0)
 
 
 def test_the_pace_is_the_median_of_recent_steps_so_one_slow_step_does_not_stop_a_run():
