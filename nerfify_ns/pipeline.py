@@ -596,7 +596,7 @@ def _paced(summary: dict, run: TrainingRun) -> dict | None:
     planned = float(run.budget["seconds_per_iteration"])
     line = (f"trained {done} of the {estimated} iterations estimated to fit: a step took {step:.2f} s where "
             f"{planned:.2f} s was estimated, and the training stopped itself at the budget's deadline"
-            if done < estimated else "")
+            if done < estimated and not summary.get("stopped") else "")  # a limit's stop says so itself
     return {"iterations": done, "estimated": estimated, "seconds_per_iteration": round(step, 4),
             "estimated_seconds_per_iteration": planned, "short": line}
 

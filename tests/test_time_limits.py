@@ -189,6 +189,9 @@ def test_a_training_that_kept_its_deadline_with_fewer_iterations_than_estimated_
     longer = _paced({"status": "ok", "iterations_done": 700, "evaluated_iterations": 700, "seconds": 140.0}, run)
     assert longer["short"] == "" and longer["iterations"] == 700 and longer["estimated"] == 487
     assert _paced({"status": "failed"}, run) is None
+    killed = _paced({"status": "ok", "iterations_done": 180, "evaluated_iterations": 120, "seconds": 90.0,
+                     "stopped": "stopped at 180 of 974 iterations: the 215 s limit"}, run)
+    assert killed["short"] == "" and killed["iterations"] == 180  # the limit's own line says where it stopped
     assert _paced({"status": "ok", "iterations_done": 10}, TrainingRun(10, 5, [], Limit(None, "none"))) is None
 
     (tmp_path / runfolder.OUTCOME).write_text(json.dumps({"ok": True, "headline": "ran train", "stages": []}))
