@@ -157,10 +157,11 @@ def ray_cost(records) -> dict | None:
     threads, and at the first with the rung's own) as ``{"rays": [r1, r2], "seconds": [t1, t2], "seconds_per_ray":
     (t2 - t1) / (r2 - r1), "speedup": rung's t1 / training's t1}`` (the speedup within [1, the ratio of threads];
     absent when the record has no second thread count); None when the run sent none, or one that is not two
-    increasing batches with finite, positive, increasing times (a larger batch measured no slower than a smaller
-    one is noise, not a cost: the budget then scales the step by the base's exponent, which errs on the long side,
-    where a training that keeps its deadline trains on). Not a verdict: a budgeted run's prediction of a step at another
-    batch and thread count (``nerfify_ns.budget.scaled_step``, ``pipeline._smoke_timing``)."""
+    increasing batches with finite, positive times. A larger batch measured no slower than a smaller one is noise,
+    not a cost: ``seconds_per_ray`` is then None (the budget scales the step by the base's exponent, which errs on
+    the long side, where a training that keeps its deadline trains on), and the thread speedup is kept. Not a
+    verdict: a budgeted run's prediction of a step at another batch and thread count
+    (``nerfify_ns.budget.scaled_step``, ``pipeline._smoke_timing``)."""
     def seconds_ok(t) -> bool:
         return isinstance(t, int | float) and not isinstance(t, bool) and bool(np.isfinite(t)) and t > 0
 
@@ -171,9 +172,9 @@ def ray_cost(records) -> dict | None:
     rays, seconds = head.get("rays"), head.get("seconds")
     if not (isinstance(rays, list) and isinstance(seconds, list) and len(rays) == len(seconds) == 2
             and all(isinstance(r, int) and r > 0 for r in rays) and rays[1] > rays[0]
-            and all(seconds_ok(t) for t in seconds) and seconds[1] > seconds[0]):
+            and all(seconds_ok(t) for t in seconds)):
         return None
-    per_ray = max(0.0, (seconds[1] - seconds[0]) / (rays[1] - rays[0]))
+    per_ray = (seconds[1] - seconds[0]) / (rays[1] - rays[0]) if seconds[1] > seconds[0] else None
     out = {"rays": rays, "seconds": [float(t) for t in seconds], "seconds_per_ray": per_ray}
     threads, own, rung = head.get("threads"), head.get("rung_threads"), head.get("rung_seconds")
     if isinstance(threads, int) and isinstance(own, int) and 0 < own <= threads and seconds_ok(rung):
