@@ -134,17 +134,37 @@ def photometric(scalars: Scalars) -> dict[int, float]:
     return {s: sum(scalars[t][s] for t in tags) for s in sorted(steps)}
 
 
-def step_timing(scalars: Scalars, wall_seconds: float) -> dict[str, float | None]:
+class LastStepClock:
+    """An ``on_progress`` hook that also notes, on our clock, when the run's events last showed a new step: what
+    the process did after it (the recorder's probe and ray timing) is no start-up a later process pays."""
+
+    def __init__(self, then: ProgressHook | None = None) -> None:
+        self.then, self.step, self.at = then, -1, None
+
+    def __call__(self, step: int, total: int) -> None:
+        if step > self.step:
+            self.step, self.at = step, time.perf_counter()
+        if self.then is not None:
+            self.then(step, total)
+
+    def tail(self, launched: float, wall_seconds: float) -> float:
+        """Seconds the process ran after its last step was seen (0 when none was)."""
+        return 0.0 if self.at is None else max(0.0, launched + wall_seconds - self.at)
+
+
+def step_timing(scalars: Scalars, wall_seconds: float, tail_seconds: float = 0.0) -> dict[str, float | None]:
     """What the run measured of its own speed: the median seconds of a training iteration after the first two
-    (the first compiles and warms caches), and the seconds the process spent on anything else (sandbox and
-    Nerfstudio start-up, loading the data, the first iteration). A budgeted run plans its training from these
+    (the first compiles and warms caches), and the seconds the process spent on anything else before its last
+    step (sandbox and Nerfstudio start-up, loading the data, the first iteration); ``tail_seconds``: what it ran
+    after its last step (:class:`LastStepClock`), kept apart. A budgeted run plans its training from these
     (``nerfify_ns.budget.fit_iterations``). Raw per-step times: the rung logs with a buffer of one step."""
     times = scalars.get(ITER_TIME_TAG, {})
     steps = [times[s] for s in sorted(times)]
     if len(steps) < 3:
-        return {"seconds_per_iteration": None, "startup_seconds": None}
+        return {"seconds_per_iteration": None, "startup_seconds": None, "tail_seconds": round(tail_seconds, 1)}
     return {"seconds_per_iteration": statistics.median(steps[2:]),
-            "startup_seconds": max(0.0, wall_seconds - sum(steps[1:]))}
+            "startup_seconds": max(0.0, wall_seconds - tail_seconds - sum(steps[1:])),
+            "tail_seconds": round(tail_seconds, 1)}
 
 
 def _head(path: Path, limit: int = 4 << 20) -> str:
@@ -206,9 +226,11 @@ def smoke_rung(
            **({ENV_PACE: pace.to_env()} if pace is not None else {})}
     r.details["threads"] = int(env["OMP_NUM_THREADS"]) if str(env.get("OMP_NUM_THREADS", "")).isdigit() else None
     reader = PipeReader()  # the trainer's steps, recorded for the checker (nerfify_ns.verify.recorder)
+    last_step = LastStepClock(on_progress)
+    launched = time.perf_counter()
     try:
         result = run_sandboxed(recorded(cmd, reader.write_fd), workdir, timeout=timeout, log_name=layout.log_name,
-                               env=env, poll=cancellable(progress_poll(layout.run_dir, iterations, on_progress),
+                               env=env, poll=cancellable(progress_poll(layout.run_dir, iterations, last_step),
                                                          cancel),
                                readonly=[info.root, scene.root], limits=limits, pass_fds=(reader.write_fd,))
     finally:
@@ -230,7 +252,7 @@ def smoke_rung(
     reached = max(total) + 1 if total else 0
     r.details.update({"iterations": reached, "iterations_wanted": iterations, "final_loss": total.get(reached - 1),
                       "limit_seconds": limit.seconds, "limit_source": limit.source,
-                      **step_timing(scalars, result.seconds)})
+                      **step_timing(scalars, result.seconds, last_step.tail(launched, result.seconds))})
     if limit.seconds is None:
         r.details["sandbox"]["limits"] = {**r.details["sandbox"]["limits"], "timeout_s": None}  # none, not inf
     short = 0 < reached < iterations and stopped_at_deadline(result, limit, pace, recent_step(scalars))

@@ -66,3 +66,23 @@ def test_a_smoke_rung_with_less_time_than_its_iterations_trains_what_fits_and_is
     else:  # a very loaded machine: too few steps to judge, for want of time (never a failure of the plugin)
         assert [d.rule for d in smoke.failures] == ["timeout"]
         assert "stopped itself" in smoke.failures[0].message
+
+
+def test_what_the_process_did_after_its_last_step_is_kept_apart_from_its_start(monkeypatch):
+    """The smoke rung's start-up (what a later Nerfstudio process pays again) is the wall time before its last
+    step less the steps; the recorder's probe and ray timing after it are its tail, seen on our clock."""
+    from nerfify_ns.verify import smoke_rung
+
+    now = [100.0]
+    monkeypatch.setattr(smoke_rung.time, "perf_counter", lambda: now[0])
+    seen = []
+    clock = smoke_rung.LastStepClock(lambda step, total: seen.append(step))
+    assert clock.tail(90.0, 30.0) == 0.0  # no step seen: no tail
+    for at, step in ((105.0, 1), (108.0, 5), (111.0, 5), (112.0, 20)):
+        now[0] = at
+        clock(step, 20)
+    assert seen == [1, 5, 5, 20] and clock.at == 112.0
+    assert clock.tail(90.0, 30.0) == 8.0  # launched at 90, ended at 120, last step seen at 112
+    scalars = {smoke_rung.ITER_TIME_TAG: {0: 3.0, 1: 1.0, 2: 1.0, 3: 1.0}}
+    timing = smoke_rung.step_timing(scalars, 30.0, 8.0)
+    assert timing == {"seconds_per_iteration": 1.0, "startup_seconds": 19.0, "tail_seconds": 8.0}
