@@ -710,11 +710,6 @@ def read_outcome(run_dir: Path, sections: dict[str, dict]) -> dict:
     if isinstance(summary, dict) and summary.get("stopped"):  # its limit stopped training: evaluated where it was
         novel_line = f"Training {summary['stopped']}. " + novel_line
         partial = True
-    paced = summary.get("paced") if isinstance(summary, dict) else None
-    short = paced.get("short") if isinstance(paced, dict) else None
-    if short and isinstance(short, str):  # the machine ran slower than estimated: fewer iterations than estimated
-        novel_line = f"{short[:1].upper()}{short[1:]}. " + novel_line
-        partial = True
     if isinstance(outcome, dict) and isinstance(outcome.get("stages"), list):
         stages = [s for s in outcome["stages"] if isinstance(s, dict)]
         return {"known": True, "ok": bool(outcome.get("ok")), "partial": partial,
