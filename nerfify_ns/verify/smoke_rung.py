@@ -53,6 +53,9 @@ SMOKE_ARGS = [
 SMOKE_TAIL_STEPS = 16.0
 """What the recorder does after training (render the probe, time a step at two ray batches), in training steps: a
 smoke rung with a time limit keeps that in hand when it stops itself (:func:`smoke_pace`)."""
+SMOKE_TAIL_SECONDS = 5.0
+"""And what of that tail does not scale with a step (loading the probe's rays, the timing's warm-up passes): fixed
+seconds kept in hand besides :data:`SMOKE_TAIL_STEPS`."""
 SMOKE_FEWEST = 0.25
 """A smoke rung its time limit cut shorter than this share of its iterations is not judged on them: "not verified:
 time"."""
@@ -63,13 +66,15 @@ that a short run stopped itself at its deadline."""
 
 def smoke_pace(limit: Limit) -> Pace | None:
     """The smoke rung's deadline (None without a time limit): the training stops itself when one more step, the
-    recorder's tail (:data:`SMOKE_TAIL_STEPS` steps at the pace measured) and the margin would pass the limit, so a
+    recorder's tail (:data:`SMOKE_TAIL_STEPS` steps at the pace measured and :data:`SMOKE_TAIL_SECONDS`) and the
+    margin would pass the limit, so a
     slow method's rung trains as many of its iterations as its share of the budget allows, then renders its probe
     and times its rays, instead of being killed with nothing judged."""
     if limit.seconds is None:
         return None
     return Pace(end=time.time() + limit.seconds, step_seconds=1.0, render_seconds=SMOKE_TAIL_STEPS,
-                startup_seconds=0.0, margin_seconds=max(PACE_MARGIN * limit.seconds, PACE_MARGIN_SECONDS))
+                startup_seconds=SMOKE_TAIL_SECONDS,
+                margin_seconds=max(PACE_MARGIN * limit.seconds, PACE_MARGIN_SECONDS))
 
 
 def recent_step(scalars: Scalars) -> float | None:
@@ -85,8 +90,8 @@ def stopped_at_deadline(result, limit: Limit, pace: Pace | None, step: float | N
     events show. A run that stops early of its own accord is not excused by it."""
     if pace is None or limit.seconds is None or result.timed_out or result.returncode != 0 or not step:
         return False
-    return result.seconds >= (limit.seconds - pace.margin_seconds - (SMOKE_TAIL_STEPS + 2) * step
-                              - PACE_SLACK_SECONDS)
+    return result.seconds >= (limit.seconds - pace.margin_seconds - pace.startup_seconds
+                              - (SMOKE_TAIL_STEPS + 2) * step - PACE_SLACK_SECONDS)
 
 
 class SmokeCancelled(Exception):
