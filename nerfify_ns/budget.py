@@ -261,6 +261,12 @@ PACE_MARGIN = 0.04
 PACE_MARGIN_SECONDS = 3.0
 
 
+def pace_margin(seconds: float) -> float:
+    """The time a paced process of ``seconds`` keeps in hand: :data:`PACE_MARGIN` of it, at least
+    :data:`PACE_MARGIN_SECONDS`."""
+    return max(PACE_MARGIN * seconds, PACE_MARGIN_SECONDS)
+
+
 def within_budget(record: dict | None, summary: dict) -> bool | None:
     """Whether a budgeted run's training and evaluation fit its wall-clock budget (``within_budget`` of the run's
     ``eval/summary.json``): it trained and its checkpoints were evaluated without reaching the limit, which is the

@@ -502,11 +502,10 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
     :data:`UNMEASURED_ITERATIONS`."""
     from nerfify_ns.budget import (
         PACE_CEILING,
-        PACE_MARGIN,
-        PACE_MARGIN_SECONDS,
         POST_SECONDS,
         RENDER_COST,
         fit_iterations,
+        pace_margin,
         scaled_step,
         training_limit,
     )
@@ -555,8 +554,7 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
         limit = training_limit(budget, left)
         ceiling = max(iterations, min(most, math.ceil(iterations * PACE_CEILING)))
         pace = Pace(end=time.time() + left - POST_SECONDS, step_seconds=step, render_seconds=fit.render_one_seconds,
-                    startup_seconds=timing["startup_seconds"], margin_seconds=max(PACE_MARGIN * left,
-                                                                                 PACE_MARGIN_SECONDS))
+                    startup_seconds=timing["startup_seconds"], margin_seconds=pace_margin(left))
         env = {ENV_PACE: pace.to_env()}
         record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
                   "ceiling": ceiling, "every": every, "seconds_per_iteration": round(step, 4),

@@ -9,7 +9,7 @@ import statistics
 import time
 from pathlib import Path
 
-from nerfify_ns.budget import PACE_MARGIN, PACE_MARGIN_SECONDS, Limit
+from nerfify_ns.budget import Limit, pace_margin
 from nerfify_ns.dataset import DataLike, as_dataset
 from nerfify_ns.runtime.events import ITER_TIME_TAG, LOSS_TAG, Scalars, read_scalars
 from nerfify_ns.runtime.launch import (
@@ -67,14 +67,12 @@ that a short run stopped itself at its deadline."""
 def smoke_pace(limit: Limit) -> Pace | None:
     """The smoke rung's deadline (None without a time limit): the training stops itself when one more step, the
     recorder's tail (:data:`SMOKE_TAIL_STEPS` steps at the pace measured and :data:`SMOKE_TAIL_SECONDS`) and the
-    margin would pass the limit, so a
-    slow method's rung trains as many of its iterations as its share of the budget allows, then renders its probe
-    and times its rays, instead of being killed with nothing judged."""
+    margin would pass the limit, so a slow method's rung trains as many of its iterations as its share of the
+    budget allows, then renders its probe and times its rays, instead of being killed with nothing judged."""
     if limit.seconds is None:
         return None
     return Pace(end=time.time() + limit.seconds, step_seconds=1.0, render_seconds=SMOKE_TAIL_STEPS,
-                startup_seconds=SMOKE_TAIL_SECONDS,
-                margin_seconds=max(PACE_MARGIN * limit.seconds, PACE_MARGIN_SECONDS))
+                startup_seconds=SMOKE_TAIL_SECONDS, margin_seconds=pace_margin(limit.seconds))
 
 
 def recent_step(scalars: Scalars) -> float | None:
