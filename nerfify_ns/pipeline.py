@@ -67,7 +67,8 @@ class FamilyError(NerfifyError):
     view-synthesis model): one line saying what was read and what cannot be built."""
 
     def __init__(self, family: Any, parts: int):
-        super().__init__(f"a {family.headline()} paper: {family.why}; read {parts} novel part(s) of it "
+        method = f"; {family.method_line()}" if getattr(family, "method", "") else ""
+        super().__init__(f"a {family.headline()} paper: {family.why}{method}; read {parts} novel part(s) of it "
                          f"({runfolder.PLAN}, {runfolder.REPORT_HTML}), built none")
 
 
@@ -337,7 +338,7 @@ def _train(plan: dict, folder: Path, data: Dataset, budget: Budget, outcome: Out
         summary = evaluate_run(folder, data, folder / runfolder.EVAL_DIR, iterations=run.ceiling or run.iterations,
                                every=run.every, label=plan["method"],
                                method_args=[*_train_args(plan, budget), *run.args], env=run.env,
-                               timeout=run.limit.timeout, limit=run.limit,
+                               timeout=run.limit.timeout, limit=run.limit, estimated=run.iterations,
                                on_progress=_step_progress(stage, f"training {plan['method']}",
                                                           "rendering and scoring the checkpoints"))
         summary = _record_run(folder, summary, run)

@@ -63,6 +63,9 @@ def test_the_evaluation_names_the_limit_and_the_iterations_done(tmp_path, monkey
                                  "time it had left when training started)")
     unlimited = run_eval.evaluate_run(plugin, scene, tmp_path / "eval2", iterations=600, every=200)
     assert seen["timeout"] == math.inf and "no time limit" in unlimited["reason"]
+    paced = run_eval.evaluate_run(plugin, scene, tmp_path / "eval3", iterations=600, every=200, limit=limit,
+                                  estimated=300)
+    assert paced["reason"].startswith("stopped at 241 of the 300 iterations estimated to fit (at most 600): the 900 s")
 
 
 class _Stage:

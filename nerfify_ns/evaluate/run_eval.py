@@ -157,6 +157,13 @@ def _evaluable_after_limit(run) -> bool:
             and all(math.isfinite(v) for v in run.losses.values()))
 
 
+def _planned(iterations: int, estimated: int | None) -> str:
+    """What a run stopped short of: its iterations, or, for a paced run, the budget's estimate and its ceiling."""
+    if estimated is None or estimated == iterations:
+        return f"{iterations} iterations"
+    return f"the {estimated} iterations estimated to fit (at most {iterations})"
+
+
 def evaluate_run(
     plugin_dir: Path,
     scene: DataLike,
@@ -173,6 +180,7 @@ def evaluate_run(
     timeout: float | None = None,
     limit: Limit | None = None,
     on_progress: ProgressHook | None = None,
+    estimated: int | None = None,
 ) -> dict:
     """Train the plugin in ``plugin_dir`` on ``scene`` (a dataset or its folder, any format the dataset reader
     reads, through its Nerfstudio dataparser) and evaluate it into ``out_dir``.
@@ -220,7 +228,7 @@ def evaluate_run(
     stopped = ""
     if not run.ok:
         reason = (
-            f"stopped at {run.last_step + 1} of {iterations} iterations: {limit.describe()}" if run.timed_out
+            f"stopped at {run.last_step + 1} of {_planned(iterations, estimated)}: {limit.describe()}" if run.timed_out
             else f"exit code {run.returncode}" if run.returncode != 0
             else "non-finite training loss" if run.losses
             else "no training loss logged"

@@ -36,6 +36,7 @@ class FamilySpec:
     scene: dict
     cues: tuple[tuple[re.Pattern, float], ...]
     against: tuple[tuple[re.Pattern, float], ...] = ()
+    method: str = ""
 
 
 @dataclass(frozen=True)
@@ -63,10 +64,18 @@ class Family:
     """The sentences that decided it: {quote, section, page, line, cue}."""
     also: list = field(default_factory=list)
     """Other families that passed their threshold (a dynamic splatting paper: ["dynamic"])."""
+    method: str = ""
+    """For a family that cannot be built: Nerfstudio's own method of its kind (``splatfacto``), or empty."""
 
     def to_dict(self) -> dict:
         return {"name": self.name, "buildable": self.buildable, "why": self.why, "scene": dict(self.scene),
-                "also": list(self.also), "scores": dict(self.scores), "evidence": list(self.evidence)}
+                "also": list(self.also), "scores": dict(self.scores), "evidence": list(self.evidence),
+                **({"method": self.method} if self.method else {})}
+
+    def method_line(self) -> str:
+        """Where a researcher can train the family's own kind of model here, or empty."""
+        return (f"Nerfstudio's method of this kind is {self.method} (`ns-train {self.method}` trains it on this "
+                f"machine, the CPU included), but no plugin is derived from it") if self.method else ""
 
     def headline(self) -> str:
         extra = f" (also {', '.join(self.also)})" if self.also else ""
@@ -90,7 +99,8 @@ def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
             families[name] = FamilySpec(
                 name=name, buildable=bool(spec["buildable"]), threshold=float(spec["threshold"]),
                 why=str(spec.get("why", "")), scene=dict(spec.get("scene") or {}),
-                cues=_patterns(spec["cues"], name), against=_patterns(spec.get("against"), name))
+                cues=_patterns(spec["cues"], name), against=_patterns(spec.get("against"), name),
+                method=str(spec.get("method") or "") if not spec["buildable"] else "")
         precedence = tuple(data["precedence"])
         unknown = [p for p in precedence if p not in families]
         if unknown:
@@ -150,4 +160,4 @@ def detect_family(doc: Any, rules: Rules | None = None, family: FamilyRules | No
     if spec is None:
         return Family(STATIC, True, scores=record, evidence=[], also=[])
     return Family(name, spec.buildable, spec.why if not spec.buildable else "", dict(spec.scene), record, evidence,
-                  also=[p for p in passed[1:]])
+                  also=[p for p in passed[1:]], method=spec.method)

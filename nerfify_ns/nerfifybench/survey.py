@@ -220,6 +220,8 @@ def read_plan(row: PaperRow, out: Path, lines: list[str] | None = None) -> None:
     if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
         data = load_json(chosen, what="the base chosen")
         row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
+    if family.get("buildable") is False and family.get("method"):  # the family's own method, not a ray-marched base
+        row.base, row.base_reason = str(family["method"]), f"the {row.family} family's Nerfstudio method; nothing built"
     row.contributions = plan.get("contributions", [])
     row.holes = plan.get("holes", [])
     for path, custom in _customs(plan):
@@ -304,7 +306,7 @@ def _read_paper(paper: Path, out: Path) -> int:
     """The child of one survey row: the paper's read stage (ingest, families, ledger, plan, the equation compiler),
     as ``ns-nerfify PAPER --dry-run`` runs it, with the plan written to ``out/plan.yaml``. 2: bad input, one line."""
     from nerfify_ns.errors import NerfifyError
-    from nerfify_ns.pipeline import PaperOptions, run_paper
+    from nerfify_ns.pipeline import FamilyError, PaperOptions, run_paper
     from nerfify_ns.plan import Plan
 
     try:
@@ -317,7 +319,7 @@ def _read_paper(paper: Path, out: Path) -> int:
     (out / "base.json").write_text(json.dumps({"base": result.derived.base, "reason": result.derived.base_reason}))
     family = result.derived.family
     if family is not None and not family.buildable:
-        print(f"failed plan: a {family.headline()} paper: {family.why}")
+        print(f"failed plan: {FamilyError(family, len(result.derived.holes))}")
         return 1
     return 0
 

@@ -258,13 +258,15 @@ def _reference_method(entry: PaperEntry, task: Task, data: Path, folder: Path) -
     from nerfify_ns.evaluate.metrics import as_rgb, lpips
     from nerfify_ns.evaluate.run_eval import CPU_ARGS, loss_stats
     from nerfify_ns.runtime.isolated import isolation_env
+    from nerfify_ns.runtime.presets import for_method
 
     b, method = entry.budget, entry.reference.method
     dataset = read_dataset(data)
     env = isolation_env(folder / "isolation", [method])
     out = folder / "eval"
     run = train_for_curve(method, dataset, out / "train", iterations=b.iterations, every=b.every,
-                          method_args=[*CPU_ARGS, *train_args(b, task.seed)], timeout=b.timeout, env=env)
+                          method_args=for_method(method, [*CPU_ARGS, *train_args(b, task.seed)]), timeout=b.timeout,
+                          env=env)
     summary = {"iterations_done": run.last_step + 1, "losses": loss_stats(run.losses),
                "train_log": str(run.log_path)}
     if not run.ok:

@@ -20,7 +20,9 @@ nothing when CUDA is available, unless forced. Each patch is small and named:
 * ``freed_memory``  glibc reuses freed blocks instead of unmapping them (no page faults per activation);
 * ``density_reuse`` the hash encodings of nerfacc's alpha test reused by the field's pass over the
                     surviving samples (the last six: :mod:`nerfify_ns.runtime.fused`, each exact to
-                    float rounding).
+                    float rounding);
+* ``splatting``     Gaussian splatting (splatfacto, gsplat's ``rasterization``) rendered by a torch rasteriser
+                    that composites what gsplat's CUDA kernels do (:mod:`nerfify_ns.runtime.splat_cpu`).
 
 One compatibility fix is applied always, GPU or not, because it concerns the pinned torch, not the
 device: Nerfstudio 1.1.5 checkpoints hold numpy scalars, which torch >= 2.6's safe ``torch.load``
@@ -165,6 +167,12 @@ def _patch_freed_memory() -> None:
     reuse_freed_memory()
 
 
+def _patch_splatting() -> None:
+    from nerfify_ns.runtime import splat_cpu
+
+    splat_cpu.install()
+
+
 def _patch_density_reuse() -> None:
     import nerfacc.estimators.occ_grid as occ_grid
     from nerfstudio.model_components.ray_samplers import VolumetricSampler
@@ -189,6 +197,7 @@ PATCHES: dict[str, Callable[[], None]] = {
     "occupancy_chunks": _patch_occupancy_chunks,
     "freed_memory": _patch_freed_memory,
     "density_reuse": _patch_density_reuse,
+    "splatting": _patch_splatting,
 }
 
 

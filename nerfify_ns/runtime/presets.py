@@ -5,6 +5,7 @@ must be for its loss to move."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from importlib import resources
 
@@ -27,6 +28,26 @@ def smoke_presets() -> dict[str, dict]:
 def preset_args(method: str) -> list[str]:
     """The ns-train arguments that shrink ``method`` for a small CPU scene (none if unknown)."""
     return [str(a) for a in smoke_presets().get(method, {}).get("args", [])]
+
+
+RAY_BATCH_FLAGS = ("--pipeline.datamanager.train-num-rays-per-batch", "--pipeline.datamanager.eval-num-rays-per-batch")
+"""The ns-train options of a data manager that samples rays; one that loads whole images has neither."""
+
+
+def for_method(method: str, args: Sequence[str]) -> list[str]:
+    """``args`` as ``method`` takes them: without the ray-batch options when its data manager loads whole images
+    (``whole_images`` in its preset: splatfacto), where tyro would refuse them."""
+    if not smoke_presets().get(method, {}).get("whole_images"):
+        return list(args)
+    out, skip = [], False
+    for a in args:
+        if skip:
+            skip = False
+        elif a in RAY_BATCH_FLAGS:
+            skip = True
+        else:
+            out.append(a)
+    return out
 
 
 def smoke_iterations(base: str | None, given: int | None = None) -> int:

@@ -739,6 +739,7 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
     plan["notes"] = notes
     plan["evidence"] = {path: _evidence_line(e) for path, e in sorted(d.evidence.items())}
     plan["family"] = {"name": family.name, "buildable": family.buildable, "why": family.why, "also": family.also,
+                      **({"method": family.method} if family.method else {}),
                       "evidence": [f"{_where(e['page'], e['line'], e['section'])}: \"{_short(e['quote'])}\""
                                    for e in family.evidence]}
     plan["contributions"] = [{"part": p.id, "heading": p.heading, "status": p.status, "why": p.why,
@@ -747,7 +748,9 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
                               "claim": _short((p.own_claims or p.claims or [""])[0])}
                              for p in ledger.parts if p.status in ("new", "known")]
     if not family.buildable:
-        notes.append(f"family {family.name}: {family.why}; the plan records what was read, nothing is built")
+        notes.append(f"family {family.name}: {family.why}; the plan records what was read, nothing is built"
+                     + (f"; {family.method_line()}; the base above is only the nearest ray-marched model"
+                        if family.method else ""))
     validate(plan, g)
     return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=decision.reason, evidence=d.evidence,
                        detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger)

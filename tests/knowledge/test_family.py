@@ -59,3 +59,8 @@ def test_a_paper_the_grammar_cannot_build_stops_after_its_plan(tmp_path, name, f
     plan = yaml.safe_load((out / "plan.yaml").read_text())
     assert plan["family"]["name"] == family and plan["family"]["buildable"] is False
     assert (out / "report.html").is_file() and not (out / "pyproject.toml").exists()
+    if family == "splatting":  # the family's own Nerfstudio method is named, not a ray-marched base
+        assert plan["family"]["method"] == "splatfacto"
+        assert "ns-train splatfacto" in failed[0]
+    else:
+        assert "method" not in plan["family"]

@@ -51,7 +51,7 @@ def test_active_without_cuda():
     state = probe(env=AUTO)
     assert state["applied"] == ["lpips", "nerfacc", "hashgrid", "cpu_default", "seeded_workers", "denormals",
                                 "fused_optimizer", "contraction", "occupancy_chunks", "freed_memory",
-                                "density_reuse"]
+                                "density_reuse", "splatting"]
     assert state["lpips"] == "OfflineLPIPS"
     assert {state[k] for k in ("optimizer", "contraction", "occupancy")} == {"nerfify_ns.runtime.fused"}
     assert state["denormal_kept"] is False
