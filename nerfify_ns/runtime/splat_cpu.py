@@ -40,8 +40,23 @@ PAIR_CHUNK = 4_000_000
 """Pairs screened at once in the first (gradient-free) pass: bounds its memory (~100 MB a chunk)."""
 
 
-def _pairs(means2d: Tensor, radii: Tensor, width: int, height: int, tile_size: int) -> tuple[Tensor, Tensor]:
-    """(Gaussian, pixel) index pairs: every pixel of the tiles each visible Gaussian's radius box meets."""
+def _within(lo: Tensor, hi: Tensor, centre: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """The pixel range ``[lo, hi)`` cut to the pixels whose centres (index + 0.5) lie within ``centre +- half``, with
+    one pixel of margin for rounding; an infinite ``half`` leaves it as it is."""
+    first = torch.ceil(centre - half - 0.5) - 1
+    last = torch.floor(centre + half - 0.5) + 2
+    first = torch.where(torch.isfinite(first), first, torch.zeros_like(first)).clamp(min=0, max=1 << 30).long()
+    last = torch.where(torch.isfinite(last), last, torch.full_like(last, 1 << 30)).clamp(min=0, max=1 << 30).long()
+    return torch.maximum(lo, first), torch.minimum(hi, last)
+
+
+def _pairs(
+    means2d: Tensor, radii: Tensor, conics: Tensor, opacities: Tensor, width: int, height: int, tile_size: int,
+    alpha_box: bool = True,
+) -> tuple[Tensor, Tensor]:
+    """(Gaussian, pixel) index pairs gsplat could composite: the pixels of the tiles each visible Gaussian's radius
+    box meets, cut to the box of its ellipse ``alpha >= 1/255`` (one pixel of margin): a pixel outside that ellipse
+    is skipped by gsplat's alpha test, so leaving it out changes nothing and saves most of the pairs."""
     visible = torch.nonzero(radii > 0).squeeze(-1)
     if visible.numel() == 0:
         empty = torch.zeros(0, dtype=torch.long, device=means2d.device)
@@ -56,6 +71,18 @@ def _pairs(means2d: Tensor, radii: Tensor, width: int, height: int, tile_size: i
     x0, y0 = tx0 * tile_size, ty0 * tile_size
     x1 = torch.clamp(tx1 * tile_size, max=width)
     y1 = torch.clamp(ty1 * tile_size, max=height)
+    if alpha_box:
+        # the ellipse 0.5 d^T conic d <= log(255 o): its box has half-widths sqrt(2 log(255 o) * covariance diagonal)
+        a, b, c = conics[visible].detach().unbind(-1)
+        det = a * c - b * b
+        reach = 2.0 * torch.log(torch.clamp(opacities[visible].detach() * 255.0, min=1e-30))
+        definite = (det > 0) & (a > 0)
+        inf = torch.full_like(a, float("inf"))
+        hx = torch.where(definite, torch.sqrt(torch.clamp(reach * c / det, min=0.0)), inf)
+        hy = torch.where(definite, torch.sqrt(torch.clamp(reach * a / det, min=0.0)), inf)
+        x0, x1 = _within(x0, x1, m[:, 0], hx)
+        y0, y1 = _within(y0, y1, m[:, 1], hy)
+        x1 = torch.where(definite & (reach <= 0), x0, x1)  # opacity below 1/255: no pixel passes
     bw, bh = (x1 - x0).clamp(min=0), (y1 - y0).clamp(min=0)
     counts = bw * bh
     keep = counts > 0
@@ -104,10 +131,11 @@ def _composite(
     tile_size: int,
     radii: Tensor,
     absgrad_into: Tensor | None,
+    alpha_box: bool = True,
 ) -> tuple[Tensor, Tensor]:
     """One camera: colours ``[H, W, D]`` and alphas ``[H, W, 1]``, composited front to back."""
     n_pix = width * height
-    gauss, pixel = _pairs(means2d, radii, width, height, tile_size)
+    gauss, pixel = _pairs(means2d, radii, conics, opacities, width, height, tile_size, alpha_box)
     keep = _screen(means2d, conics, opacities, gauss, pixel, width)
     gauss, pixel = gauss[keep], pixel[keep]
     out_c = colors.new_zeros(n_pix, colors.shape[-1])
@@ -127,15 +155,17 @@ def _composite(
 
         m_pairs.register_hook(gather_abs)
     alpha = torch.clamp(opacities[gauss] * torch.exp(-sigma), max=ALPHA_MAX)
-    log_t = torch.log1p(-alpha)
+    # one running sum over every pixel's pairs, in float64: in float32 a sum over millions of pairs would lose the
+    # per-pixel digits when each pixel's start is subtracted
+    log_t = torch.log1p(-alpha).double()
     inclusive = torch.cumsum(log_t, 0)
     # segment starts: the first pair of each pixel; transmittance restarts at 1 there
     first = torch.ones_like(pixel, dtype=torch.bool)
     first[1:] = pixel[1:] != pixel[:-1]
     seg_id = torch.cumsum(first.long(), 0) - 1
     base = (inclusive - log_t)[first]  # the cumulative sum before each segment
-    inclusive = inclusive - base[seg_id]
-    exclusive = inclusive - log_t
+    inclusive = (inclusive - base[seg_id]).to(alpha.dtype)
+    exclusive = inclusive - log_t.to(alpha.dtype)
     included = inclusive.detach() > math.log(T_MIN)  # gsplat stops before the pair taking T to <= 1e-4
     weight = torch.where(included, alpha * torch.exp(exclusive), torch.zeros_like(alpha))
     out_c = out_c.index_add(0, pixel, weight[:, None] * colors[gauss])
@@ -169,10 +199,13 @@ def rasterize(
     distributed: bool = False,
     camera_model: str = "pinhole",
     covars: Tensor | None = None,
+    *,
+    alpha_box: bool = True,
 ) -> tuple[Tensor, Tensor, dict[str, Any]]:
     """``gsplat.rendering.rasterization`` on the CPU: ``(render_colors [C, H, W, D], render_alphas [C, H, W, 1],
     info)``. ``sparse_grad`` and ``channel_chunk`` change only how gsplat's kernels work, not what they return,
-    and are accepted; ``distributed`` is not supported."""
+    and are accepted; ``distributed`` is not supported. ``alpha_box=False`` screens every pixel of a Gaussian's
+    tiles (the same image, more pairs: the benchmark's baseline)."""
     from gsplat.cuda._torch_impl import _fully_fused_projection, _quat_scale_to_covar_preci, _spherical_harmonics
 
     if distributed:
@@ -212,7 +245,7 @@ def rasterize(
     for cam in range(c):
         img, a = _composite(
             rendered_means2d[cam], conics[cam], opac[cam], cols[cam], depths[cam], width, height, tile_size, radii[cam],
-            absgrads[cam] if absgrads is not None else None,
+            absgrads[cam] if absgrads is not None else None, alpha_box,
         )
         if backgrounds is not None:
             bg = backgrounds[cam]
