@@ -69,8 +69,11 @@ class ScheduleHook(nn.Module):
     def write(self, value: float, model: nn.Module, datamanager: Any) -> None:  # pragma: no cover
         raise NotImplementedError
 
-    def run(self, step: int, model: nn.Module, pipeline: Any = None) -> None:
-        self.write(self.value(step), model, getattr(pipeline, "datamanager", None))
+    def run(self, step: int, model: nn.Module, pipeline: Any = None, scale: float = 1.0) -> None:
+        """Write the value of training step ``step``: the schedule read at ``step / scale`` (``scale``: run steps
+        per paper step, below 1 when a budgeted run is shorter than the paper's, so that its phases end within it)."""
+        paper_step = int(step / scale) if 0 < scale < 1 else int(step)
+        self.write(self.value(paper_step), model, getattr(pipeline, "datamanager", None))
 
 
 class Anneal(ScheduleHook):
@@ -185,11 +188,17 @@ class ImageCurriculum(ScheduleHook):
             sampler.active = lambda index: index < count
 
 
+STEP_SCALE_FIELD = "schedule_step_scale"
+"""The generated model config's field of run steps per paper step, read by every hook (1.0: the paper's schedule)."""
+
+
 def training_callbacks(hooks: Iterable[ScheduleHook], model: nn.Module, attributes: Any | None) -> list:
-    """Nerfstudio TrainingCallbacks running each hook before every ``hook.every``-th training iteration."""
+    """Nerfstudio TrainingCallbacks running each hook before every ``hook.every``-th training iteration, on the
+    paper's schedule compressed by the model config's ``schedule_step_scale`` (absent: 1.0)."""
     from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
 
     pipeline = getattr(attributes, "pipeline", None)
+    scale = float(getattr(getattr(model, "config", None), STEP_SCALE_FIELD, 1.0) or 1.0)
     return [TrainingCallback(where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
                              update_every_num_iters=max(int(hook.every), 1), func=hook.run,
-                             kwargs={"model": model, "pipeline": pipeline}) for hook in hooks]
+                             kwargs={"model": model, "pipeline": pipeline, "scale": scale}) for hook in hooks]

@@ -561,8 +561,11 @@ def model_context(ctx: Context) -> dict:
         imports += proposal["imports"]
     hooks, hook_imports = schedule_hooks(ctx)
     imports += hook_imports
+    from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD  # the plugin's own name for it (torch: on use)
+
     return {
         "hooks": hooks,
+        "step_scale_field": STEP_SCALE_FIELD,
         "renderer_samples": bool(custom_renderer) and _renderer_needs_samples(ctx),
         "cls": f"{ctx.names.prefix}Model",
         "config_cls": f"{ctx.names.prefix}ModelConfig",

@@ -183,6 +183,12 @@ def _scale_steps(plan: Plan, used: dict[str, str], fit: ScheduleFit) -> None:
     spec = step_parameters()
     terminals = default_registry().terminals
     base = plan.get("base")
+    hooks = spec.get("hooks")
+    if hooks and any(path.startswith(hooks + ".") for path in used):
+        from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD as field_name
+
+        fit.changes.append({"path": f"config:{field_name}", "from": 1.0, "to": round(factor, 6)})
+        fit.args += [f"--pipeline.model.{_flag(field_name)}", f"{factor:.6g}"]
     for path, terminal in used.items():
         names = spec["terminals"].get(terminal) or []
         extra = (spec.get("config") or {}).get(terminal) or {}

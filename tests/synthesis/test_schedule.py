@@ -94,3 +94,51 @@ def test_a_part_measured_to_need_its_own_batch_rule_goes_before_its_base():
     assert float(fit.args[flag + 1]) == pytest.approx(lr / 4)
     assert scale_schedule(_plan(), 30000, rays=_plan()["datamanager"]["train_num_rays_per_batch"] // 16
                           ).batch["rule"] == "linear"
+
+
+def test_schedule_hooks_of_a_shorter_run_read_the_paper_s_schedule_compressed():
+    """A budgeted run shorter than the paper's passes one factor to every schedule hook (the plugin keeps the paper's
+    steps): a keyframe curriculum that ends at the paper's step 300,000 ends within a 600-iteration run."""
+    import torch
+
+    from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD, ImageCurriculum
+
+    plan = Plan.of(load_reference_plan("kplanes-time"))
+    plan["trainer"]["max_num_iterations"] = 300_000
+    plan["model"]["schedule_hooks"] = {"image_curriculum": {"rule": "keyframes", "keyframe_stride": 30,
+                                                             "end_step": 300_000, "start_fraction": 0.25}}
+    fit = scale_schedule(plan, 600)
+    flag = f"--pipeline.model.{STEP_SCALE_FIELD.replace('_', '-')}"
+    assert flag in fit.args and float(fit.args[fit.args.index(flag) + 1]) == 0.002
+    assert {"path": f"config:{STEP_SCALE_FIELD}", "from": 1.0, "to": 0.002} in fit.changes
+    assert "model.schedule_hooks" not in " ".join(c["path"] for c in fit.changes)  # the plan's steps stay
+
+    hook, written = ImageCurriculum("keyframes", 0.25, 30, 300_000), []
+    hook.write = lambda value, model, datamanager: written.append(value)
+    for step in (0, 599, 600):
+        hook.run(step, torch.nn.Module(), None, scale=0.002)
+    assert written == pytest.approx([1 / 30, 1 / 30, 1.0])  # all images from the run's step 600 on, as from the paper's 300,000
+    hook.run(600, torch.nn.Module(), None)  # unscaled: still on its keyframes
+    assert written[-1] == pytest.approx(1 / 30)
+    assert STEP_SCALE_FIELD not in " ".join(scale_schedule(Plan.of(load_reference_plan("kplanes-time")), 600).args)
+
+
+def test_a_plugin_with_schedule_hooks_has_the_step_scale_field(tmp_path):
+    """The generated model config carries the field the budgeted run sets (``ns-train`` refuses an unknown one), with
+    the paper's schedule (1.0) as its default; a plugin without hooks has none."""
+    import ast
+
+    from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD
+    from nerfify_ns.synthesis.compose import compose
+
+    plan = Plan.of(load_reference_plan("kplanes-time"))
+    plan["method"] = "hooked"
+    plan["model"]["schedule_hooks"] = {"image_curriculum": {"rule": "keyframes", "keyframe_stride": 4,
+                                                             "end_step": 2000, "start_fraction": 0.25}}
+    out = compose(plan, tmp_path / "hooked", record=False).out
+    source = next(out.rglob("model.py")).read_text()
+    fields = {n.target.id: n for c in ast.walk(ast.parse(source)) if isinstance(c, ast.ClassDef)
+              and c.name.endswith("ModelConfig") for n in c.body if isinstance(n, ast.AnnAssign)}
+    assert ast.literal_eval(fields[STEP_SCALE_FIELD].value) == 1.0
+    plain = compose(Plan.of(load_reference_plan("kplanes-time")), tmp_path / "plain", record=False).out
+    assert STEP_SCALE_FIELD not in next(plain.rglob("model.py")).read_text()
