@@ -71,6 +71,22 @@ def test_time_encoding_is_kept_for_timestamps_and_pruned_without(tmp_path):
     assert _records(static)["model.field.MLPField.pos_encoding"]["reason"].startswith("the scene has no timestamps")
 
 
+def test_a_keyframe_curriculum_keeps_four_key_frames_of_a_small_scene(tmp_path):
+    """A video paper's stride (DyNeRF: key frames 30 apart) on a scene of 12 training images would leave one image
+    to learn from until the curriculum ends: the stride is capped at a quarter of the images, and the record says
+    why; a stride that leaves enough stays."""
+    scene = write_scene("dynamic", tmp_path / "dynamic", resolution=16, n_train=12, n_val=1, n_test=1)
+    plan = _dynamic_plan()
+    plan["model"]["schedule_hooks"] = {"image_curriculum": {"rule": "keyframes", "keyframe_stride": 30,
+                                                             "end_step": 300000, "start_fraction": 0.25}}
+    pruned = prune_plan(plan, probe_scene(scene))
+    assert pruned["model"]["schedule_hooks"]["image_curriculum"]["keyframe_stride"] == 3
+    record = _records(pruned)["model.schedule_hooks.image_curriculum.keyframe_stride"]
+    assert "12 training images" in record["reason"]
+    plan["model"]["schedule_hooks"]["image_curriculum"]["keyframe_stride"] = 2
+    assert prune_plan(plan, probe_scene(scene))["model"]["schedule_hooks"]["image_curriculum"]["keyframe_stride"] == 2
+
+
 def test_keep_all_changes_nothing_but_notes(tmp_path):
     plan = load_reference_plan("nerfacto")
     kept = adopt_scene(plan, probe_scene(_small("default", tmp_path)))
