@@ -83,7 +83,7 @@ def test_matches_the_per_pixel_reference_in_values_and_gradients():
         info2["means2d"][0], info2["conics"][0], info2["opacities"][0], colors, info2["depths"][0], info2["radii"][0]
     )
     theirs = torch.autograd.grad((ref_img2 * weights).sum(), (means, scales, opacities, colors))
-    for a, b in zip(ours, theirs):
+    for a, b in zip(ours, theirs, strict=True):
         assert torch.allclose(a, b, atol=1e-4, rtol=1e-3)
         assert a.abs().sum() > 0
 
@@ -125,7 +125,7 @@ def test_cutting_pairs_to_the_alpha_ellipse_changes_nothing():
         outs.append((img, alpha, grads))
     (i1, a1, g1), (i2, a2, g2) = outs
     assert torch.equal(i1, i2) and torch.equal(a1, a2)
-    for x, y in zip(g1, g2):
+    for x, y in zip(g1, g2, strict=True):
         assert torch.allclose(x, y, atol=1e-6)
 
 

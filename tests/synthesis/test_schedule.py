@@ -117,7 +117,8 @@ def test_schedule_hooks_of_a_shorter_run_read_the_paper_s_schedule_compressed():
     hook.write = lambda value, model, datamanager: written.append(value)
     for step in (0, 599, 600):
         hook.run(step, torch.nn.Module(), None, scale=0.002)
-    assert written == pytest.approx([1 / 30, 1 / 30, 1.0])  # all images from the run's step 600 on, as from the paper's 300,000
+    # every image from the run's step 600 on, as from the paper's 300,000
+    assert written == pytest.approx([1 / 30, 1 / 30, 1.0])
     hook.run(600, torch.nn.Module(), None)  # unscaled: still on its keyframes
     assert written[-1] == pytest.approx(1 / 30)
     assert STEP_SCALE_FIELD not in " ".join(scale_schedule(Plan.of(load_reference_plan("kplanes-time")), 600).args)
