@@ -568,6 +568,12 @@ class _Deriver:
         eps = self._hp("adam_eps")
         if h is None or not isinstance(h.value, int | float):
             return
+        grids = self._stand_in_grids(plan)
+        if grids:
+            self.notes.append(f"the paper's learning rate ({h.raw or h.value}) is set for its own parameters; the "
+                              f"plan trains feature grids the paper does not state ({', '.join(grids)}, from the "
+                              "base), whose learning rates the base's configuration tunes, so the base's stay")
+            return
         groups = [g for g in (plan.get("optimizers") or {}) if g != "camera_opt"]
         sentence = h.sentence.lower()
         for group in groups:
@@ -595,6 +601,22 @@ class _Deriver:
                 self._apply(plan, f"optimizers.{group}.scheduler", {kind_s: {"lr_final": float(final.value),
                                                                             "max_steps": steps}}, final,
                             f"exponential decay of the learning rate to {final.value} over {steps} steps")
+
+    def _stand_in_grids(self, plan: Plan) -> list[str]:
+        """The plan's feature-grid terminals (hash tables, planes, tensors: the registry's ``feature_grid`` trait)
+        that stand in from the base: no sentence of the paper states them."""
+        from nerfify_ns.grammar import derive
+        from nerfify_ns.registry import default_registry
+
+        registry, out = default_registry(), []
+        for path, terminal in derive(plan, self.g).used.items():
+            if terminal not in registry.terminals or not registry[terminal].code.traits.get("feature_grid"):
+                continue
+            stated = any(path == k or path.startswith(k + ".") for k, e in self.evidence.items()
+                         if e.get("source") == "paper")
+            if not stated:
+                out.append(terminal)
+        return out
 
     # ----------------------------------------------------------------- holes
     def contribution_holes(self, plan: Plan, ledger: Ledger) -> list[Hole]:

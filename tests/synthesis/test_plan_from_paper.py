@@ -443,3 +443,27 @@ def test_close_call_tie_breaks(first, second, criterion):
         assert (win.name, other.name, why) == ("a-base", "b-base", criterion)
         assert sentence.startswith("close call between") and "a-base is chosen because" in sentence
     assert is_close(2.0, 1.85, 0.1) and not is_close(2.0, 1.7, 0.1) and not is_close(0.0, 0.0, 0.1)
+
+
+def test_a_learning_rate_set_for_an_mlp_does_not_reach_the_base_s_feature_grids(tmp_path, foo_paper):
+    """A dynamic MLP paper (its learning rate of 5e-4 set for its own network) stands on a base with space-time
+    planes it never states: the planes keep the base's learning rate (a grid trained at an MLP's rate barely moves,
+    and a smaller CPU batch scales it further down) and a note says why; a paper that states its grid (the hash
+    encoding of ``foo_paper``) still gets its own rate."""
+    doc = write_paper(tmp_path, {
+        "Abstract": "We present a dynamic radiance field for dynamic scenes captured as multi-view videos.",
+        "3 Method": (
+            "We model dynamic scenes captured as multi-view videos with a time-conditioned neural radiance field: "
+            "an MLP with 8 layers of 256 units maps position, direction and time to colour and density. The "
+            "time-varying content of each frame is fed through positional encoding of the timestamps. Dynamic "
+            "regions of the video frames change over time; the temporal signal is smooth between frames."),
+        "4 Implementation": "We train with the Adam optimizer and a learning rate of 5e-4 for 200000 iterations."})
+    derived = derive(doc)
+    grids = [t for t in derived.plan.get(f"{FIELD}.pos_encoding") if t in ("kplanes_time", "kplanes", "hash")]
+    assert grids, f"the dynamic paper was expected on a time-capable base with planes, not {derived.base}"
+    base_rates = {g: v["optimizer"] for g, v in load_reference_plan(derived.base)["optimizers"].items()}
+    rates = {g: v["optimizer"] for g, v in derived.plan["optimizers"].items()}
+    assert rates == base_rates
+    assert any("learning rate" in n and "feature grids the paper does not state" in n for n in derived.plan["notes"])
+    own = derive(foo_paper)
+    assert own.plan.get("optimizers.fields.optimizer") == {"adam": {"lr": 0.01, "eps": 1e-15}}

@@ -142,7 +142,7 @@ POSITION_TERMINALS = [
                   ctor="HashEncoding(num_levels={{ p.num_levels }}, min_res={{ p.min_res }}, max_res={{ p.max_res }}, "
                        "log2_hashmap_size={{ p.log2_hashmap_size }}, features_per_level={{ p.features_per_level }}, "
                        "implementation=\"tcnn\")",
-                  traits={"domain": "unit"}),
+                  traits={"feature_grid": True, "domain": "unit"}),
         harness=Harness(cases=POINT_CASES, small=SMALL)),
     TerminalDef(
         "kplanes", "PosEncoding", KPlanes,
@@ -152,7 +152,7 @@ POSITION_TERMINALS = [
         code=Code(("from .components.kplanes import MultiScaleKPlanes",),
                   ctor="MultiScaleKPlanes(resolutions={{ p.resolutions }}, num_components={{ p.num_components }}, "
                        "reduce={{ p.reduce | tojson }})",
-                  component="kplanes", traits={"domain": "signed_unit"}),
+                  component="kplanes", traits={"feature_grid": True, "domain": "signed_unit"}),
         harness=Harness(cases=POINT_CASES, small=SMALL)),
     TerminalDef(
         "kplanes_time", "PosEncoding", KPlanesTime,
@@ -164,7 +164,7 @@ POSITION_TERMINALS = [
         code=Code(("from .components.kplanes import MultiScaleKPlanes",),
                   ctor="MultiScaleKPlanes(resolutions={{ p.resolutions }}, num_components={{ p.num_components }}, "
                        "reduce={{ p.reduce | tojson }}, time_resolution={{ p.time_resolution }})",
-                  component="kplanes", traits={"domain": "signed_unit", "times": True}),
+                  component="kplanes", traits={"feature_grid": True, "domain": "signed_unit", "times": True}),
         harness=Harness(call=_call_times, cases=POINT_CASES, small=SMALL),
         duties=({"requires_scene": {"timestamps": True}},), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
     TerminalDef(
@@ -175,7 +175,7 @@ POSITION_TERMINALS = [
         code=Code(("from nerfstudio.field_components.encodings import TriplaneEncoding",),
                   ctor="TriplaneEncoding(resolution={{ p.resolution }}, num_components={{ p.num_components }}, "
                        "reduce={{ p.reduce | tojson }})",
-                  traits={"domain": "signed_unit"}),
+                  traits={"feature_grid": True, "domain": "signed_unit"}),
         harness=Harness(cases=POINT_CASES, small=SMALL)),
     TerminalDef(
         "fourier_features", "PosEncoding", FourierFeatures,
@@ -316,7 +316,7 @@ TENSOR_TERMINALS = [
         "nerfstudio.field_components.encodings.TensorVMEncoding", card="tensorf_vm",
         contract=Contract({"positions": POSITIONS_SIGNED}, features("[N, 3 * density_components]")),
         code=Code(("from nerfstudio.field_components.encodings import TensorVMEncoding",),
-                  traits={"cls": "TensorVMEncoding"}),
+                  traits={"feature_grid": True, "cls": "TensorVMEncoding"}),
         harness=Harness(build=_tensor_builder("TensorVMEncoding"), cases=POINT_CASES, small=SMALL),
         config=TENSORF_CONFIG),
     TerminalDef(
@@ -325,7 +325,7 @@ TENSOR_TERMINALS = [
         "nerfstudio.field_components.encodings.TensorCPEncoding", card="tensorf_cp",
         contract=Contract({"positions": POSITIONS_SIGNED}, features("[N, density_components]")),
         code=Code(("from nerfstudio.field_components.encodings import TensorCPEncoding",),
-                  traits={"cls": "TensorCPEncoding"}),
+                  traits={"feature_grid": True, "cls": "TensorCPEncoding"}),
         harness=Harness(build=_tensor_builder("TensorCPEncoding"), cases=POINT_CASES, small=SMALL),
         config=TENSORF_CONFIG),
 ]
