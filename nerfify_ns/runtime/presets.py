@@ -34,20 +34,23 @@ RAY_BATCH_FLAGS = ("--pipeline.datamanager.train-num-rays-per-batch", "--pipelin
 """The ns-train options of a data manager that samples rays; one that loads whole images has neither."""
 
 
+def options(args: Sequence[str]) -> list[tuple[str, list[str]]]:
+    """ns-train arguments as (option, its values) in order: the values are what follows an option up to the next."""
+    out: list[tuple[str, list[str]]] = []
+    for a in args:
+        if a.startswith("--") or not out:
+            out.append((a, []))
+        else:
+            out[-1][1].append(a)
+    return out
+
+
 def for_method(method: str, args: Sequence[str]) -> list[str]:
     """``args`` as ``method`` takes them: without the ray-batch options when its data manager loads whole images
     (``whole_images`` in its preset: splatfacto), where tyro would refuse them."""
     if not smoke_presets().get(method, {}).get("whole_images"):
         return list(args)
-    out, skip = [], False
-    for a in args:
-        if skip:
-            skip = False
-        elif a in RAY_BATCH_FLAGS:
-            skip = True
-        else:
-            out.append(a)
-    return out
+    return [a for flag, values in options(args) if flag not in RAY_BATCH_FLAGS for a in (flag, *values)]
 
 
 def smoke_iterations(base: str | None, given: int | None = None) -> int:
@@ -80,13 +83,6 @@ def generated_smoke_args(base: str) -> list[str]:
     """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
     and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
     the plugin's sizes come from its plan, already pruned for the scene."""
-    args, out, i = preset_args(base), [], 0
-    while i < len(args):
-        flag, values = args[i], []
-        i += 1
-        while i < len(args) and not args[i].startswith("--"):
-            values.append(args[i])
-            i += 1
-        if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model."):
-            out += [flag, *values]
+    out = [a for flag, values in options(preset_args(base))
+           if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model.") for a in (flag, *values)]
     return [*out, "--mixed-precision", "False"]
