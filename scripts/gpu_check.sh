@@ -6,7 +6,8 @@
 #       vanilla-nerf checkpoint back (PSNR, SSIM and stock LPIPS on the GPU);
 #   (c) the suite's CUDA-aware tests pass there;
 #   (d) the main job end to end: 'ns-nerfify examples/gridlite_paper.md' (the ladder in its sandbox, then training
-#       and evaluation on CUDA inside the sandbox, with the GPU's device nodes bound in).
+#       and evaluation on CUDA inside the sandbox, with the GPU's device nodes bound in);
+#   (e) the CPU rasteriser of the 'splatting' patch against gsplat's own CUDA kernels (built there on first use).
 #
 #   scripts/gpu_check.sh --prepare   here, with the package registry: Python 3.12 wheels of Nerfstudio 1.1.5 and
 #                                    the dependencies a CUDA image with torch lacks (.whl/), wheels of nerfify-ns
@@ -204,6 +205,7 @@ import torchmetrics.image.lpip as tm
 from nerfstudio.field_components.encodings import HashEncoding
 from nerfify_ns.runtime import nerfacc_cpu
 from nerfstudio.configs.method_configs import all_methods  # discovery loads our entry point and the plugins'
+from nerfstudio.models import splatfacto
 ours = ("nerfify-generated", "vanilla-nerf-ref", "nerfacto-ref")
 state = {
     "cuda": torch.cuda.is_available(),
@@ -212,6 +214,7 @@ state = {
     "lpips_class": tm.LearnedPerceptualImagePatchSimilarity.__name__,
     "hash_pytorch_fwd": HashEncoding.pytorch_fwd.__module__,
     "nerfacc_cpu_installed": nerfacc_cpu.is_installed(),
+    "splatfacto_rasterization": splatfacto.rasterization.__module__,
     "registered": [m for m in ours if m in all_methods],
     "device_type": {m: all_methods[m].machine.device_type for m in ("vanilla-nerf", "nerfacto") + ours
                     if m in all_methods},
@@ -220,7 +223,8 @@ print(json.dumps(state, indent=1))
 ok = (state["cuda"] and applied == [] and state["applied_after_method_discovery"] == []
       and state["lpips_class"] == "LearnedPerceptualImagePatchSimilarity"
       and state["hash_pytorch_fwd"] == "nerfstudio.field_components.encodings"
-      and not state["nerfacc_cpu_installed"] and state["registered"] == list(ours)
+      and not state["nerfacc_cpu_installed"] and state["splatfacto_rasterization"] == "gsplat.rendering"
+      and state["registered"] == list(ours)
       and set(state["device_type"].values()) == {"cuda"})
 print("activate() on this machine:", "no patch, stock classes, cuda default" if ok else "NOT as expected")
 sys.exit(0 if ok else 1)
@@ -376,6 +380,13 @@ EOF
 }
 export -f main_job
 step d_main_job 260 main_job
+
+splat_oracle() {
+  # gsplat builds its CUDA extension here (minutes, once), then renders beside the CPU rasteriser
+  "$PY" -m pytest -q -s -p no:cacheprovider -p no:xdist -rA tests/runtime/test_splat_cuda_oracle.py
+}
+export -f splat_oracle
+step e_splat_cpu_against_gsplat_cuda 300 splat_oracle
 
 note "summary"
 fails=0
