@@ -360,6 +360,8 @@ main_job() {
       "$SCRATCH/util-main-job.csv"
   fi
   cp "$out/report.json" "$OUT/main-job-report.json" 2>/dev/null
+  cp "$out/eval/summary.json" "$OUT/main-job-eval-summary.json" 2>/dev/null
+  tail -c 200000 "$out/eval/train/"*.train.log >"$OUT/main-job-train.log" 2>/dev/null
   "$PY" - "$out" "$rc" <<'EOF'
 import json, re, sys
 from pathlib import Path
@@ -372,6 +374,10 @@ for stage in run.get("stages", []):
 devices = {str(cfg.relative_to(out)): (re.findall(r"device_type: (\w+)", cfg.read_text()) or ["?"])[0]
            for cfg in sorted(out.glob("**/config.yml"))}
 print("device_type:", json.dumps(devices, indent=1))
+from nerfify_ns.runtime.events import ITER_TIME_TAG, read_scalars
+for events in sorted((out / "eval").glob("**/events.out.tfevents*")):  # each step's wall time, as Nerfstudio logs it
+    times = sorted(read_scalars(events.parent).get(ITER_TIME_TAG, {}).items())
+    print("step times (s):", events.parent.relative_to(out), [(k, round(v, 3)) for k, v in times][:40])
 summary = out / "eval" / "summary.json"
 print("eval summary:", summary.read_text()[:1500] if summary.is_file() else None)
 trained = [k for k, v in devices.items() if k.startswith("eval/") and v == "cuda"]
