@@ -174,6 +174,32 @@ def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int | None, fi
             fit.args += [f"--optimizers.{_flag(group)}.{part}.{_flag(name)}", str(after)]
 
 
+def training_covers_stages(plan: Plan) -> str | None:
+    """``plan``'s training made long enough for every stage its schedule hooks end (``schedule.yaml``:
+    ``stage_end``): when the last stage ends at or past ``trainer.max_num_iterations``, the training becomes that
+    stage and then the stated count, and the line saying so is returned (also kept in the plan's notes and the
+    training length's evidence); None when every stage ends within the training."""
+    spec = step_parameters()
+    key, hooks = spec.get("stage_end"), plan.get(spec.get("hooks") or "")
+    stated = plan.get("trainer.max_num_iterations")
+    if not key or not isinstance(hooks, dict) or not isinstance(stated, int) or stated < 1:
+        return None
+    ends = {name: params[key] for name, params in hooks.items()
+            if isinstance(params, dict) and isinstance(params.get(key), int) and not isinstance(params[key], bool)}
+    if not ends or max(ends.values()) < stated:
+        return None
+    last = max(ends, key=ends.get)
+    total = ends[last] + stated
+    line = (f"the schedule's {last} stage ends at step {ends[last]}, at or after the {stated} iterations the paper "
+            f"states: a stage cannot outlast the training, so the stated count is read as what follows it, and the "
+            f"plan trains {total} iterations (the stage, then {stated})")
+    plan.set("trainer.max_num_iterations", total)
+    evidence = plan.evidence
+    evidence["trainer.max_num_iterations"] = (f"{evidence.get('trainer.max_num_iterations', stated)}; then {line}")
+    plan.setdefault("notes", []).append(line)
+    return line
+
+
 def _scale_steps(plan: Plan, used: dict[str, str], fit: ScheduleFit) -> None:
     """The step counts of ``schedule.yaml``'s ``terminals`` and ``config`` sections scaled by ``fit.factor``
     (``used``: the plan's terminals by path)."""

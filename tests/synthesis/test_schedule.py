@@ -143,3 +143,38 @@ def test_a_plugin_with_schedule_hooks_has_the_step_scale_field(tmp_path):
     assert ast.literal_eval(fields[STEP_SCALE_FIELD].value) == 1.0
     plain = compose(Plan.of(load_reference_plan("kplanes-time")), tmp_path / "plain", record=False).out
     assert STEP_SCALE_FIELD not in next(plain.rglob("model.py")).read_text()
+
+
+def _staged(stated: int, end: int) -> Plan:
+    plan = Plan.of(load_reference_plan("kplanes-time"))
+    plan["trainer"]["max_num_iterations"] = stated
+    plan.evidence["trainer.max_num_iterations"] = f'p.6: "trained at {stated} iterations"'
+    plan["model"]["schedule_hooks"] = {"image_curriculum": {"rule": "keyframes", "keyframe_stride": 30,
+                                                             "end_step": end, "start_fraction": 0.25}}
+    return plan
+
+
+def test_a_stage_that_ends_after_the_stated_training_lengthens_it():
+    """A paper trains a first stage for 300,000 iterations and states 200,000 elsewhere: the stated count cannot hold
+    the stage, so the plan trains the stage and then the stated count, and says why; a run's compression then ends
+    the stage within the run (at 300 / 500 of it) instead of past its end."""
+    from nerfify_ns.synthesis.schedule import training_covers_stages
+
+    plan = _staged(200_000, 300_000)
+    line = training_covers_stages(plan)
+    assert plan["trainer"]["max_num_iterations"] == 500_000
+    assert line and "image_curriculum" in line and "300000" in line and "500000" in line
+    assert line in plan["notes"] and line in plan.evidence["trainer.max_num_iterations"]
+    assert plan.evidence["trainer.max_num_iterations"].startswith('p.6: "trained at 200000 iterations"')
+    assert plan["model"]["schedule_hooks"]["image_curriculum"]["end_step"] == 300_000  # the paper's stage stays
+    assert training_covers_stages(plan) is None  # once is enough
+    assert scale_schedule(plan, 500).factor == pytest.approx(0.001)  # the stage ends at the run's step 300
+
+
+def test_stages_within_the_training_change_nothing():
+    from nerfify_ns.synthesis.schedule import training_covers_stages
+
+    for plan in (_staged(30_000, 3_000), Plan.of(load_reference_plan("nerfacto"))):
+        before = plan.copy()
+        assert training_covers_stages(plan) is None
+        assert plan == before

@@ -96,6 +96,7 @@ from nerfify_ns.synthesis.novel.results import (  # noqa: F401
     Implementation,
 )
 from nerfify_ns.synthesis.novel.widths import WidthError
+from nerfify_ns.synthesis.schedule import training_covers_stages
 
 
 def plan_context(plan: Plan) -> dict:
@@ -216,6 +217,7 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
             new_holes.append(h)
     plan["holes"] = new_holes
     _built_within(records, texts, plan)
+    training_covers_stages(plan)  # a stage a hook built here ends within the training
     if words.unread:
         where, reason, _ = words.unread[0]
         plan.setdefault("notes", []).append(
