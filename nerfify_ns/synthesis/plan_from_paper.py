@@ -301,7 +301,7 @@ class _Deriver:
 
     def base_evidence(self, path: str, base: str) -> None:
         self.evidence.setdefault(path, {"source": "base", "quote": "", "section": "", "page": None, "line": None,
-                                        "card": "", "what": f"from the base plan {base!r}, not stated in the paper"})
+                                        "card": "", "what": FROM_BASE.format(base=base)})
 
     # ----------------------------------------------------------------- base
     def candidates(self) -> dict[str, float]:
@@ -845,6 +845,19 @@ def _base_evidence(d: _Deriver, plan: Plan, g: Grammar, base: str) -> None:
         if not any(k == slot or k.startswith(slot + ".") or slot.startswith(k + ".") for k in d.evidence):
             d.base_evidence(slot, base)
     d.base_evidence("base", base)
+
+
+FROM_BASE = "from the base plan {base!r}, not stated in the paper"
+"""The evidence of a value the plan keeps from its base plan (read back by :func:`base_of`)."""
+
+
+def base_of(evidence: str) -> str | None:
+    """The base plan a value comes from, when its evidence line says it is the base's (:data:`FROM_BASE`)."""
+    head, _, tail = FROM_BASE.partition("{base!r}")
+    if not (evidence.startswith(head) and evidence.endswith(tail)):
+        return None
+    name = evidence[len(head):len(evidence) - len(tail)]
+    return name[1:-1] if len(name) > 2 and name[0] == name[-1] and name[0] in "'\"" else None
 
 
 def _evidence_line(e: dict) -> str:

@@ -63,7 +63,16 @@ class ScheduleFit:
         """The plan's ``schedule`` annotation."""
         why = (f"the run trains {self.run_iterations} of the paper's {self.paper_iterations} iterations: every "
                f"step count of the schedule is scaled by {self.factor:.4g}")
-        if self.batch and self.batch["factor"] != 1.0:
+        set_at = (self.batch or {}).get("set_at") or {}
+        if set_at:
+            why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per "
+                    f"step: the learning rates are scaled for it ({self.batch['rule']} scaling rule) from the batch "
+                    "they were set for: " + ", ".join(
+                        f"{g}'s, from {v['from']}, set for {v['rays']} rays, by {v['factor']:.4g}"
+                        for g, v in set_at.items())
+                    + ("" if self.batch["factor"] == 1.0 else
+                       f"; the paper's own by {self.batch['factor']:.4g}"))
+        elif self.batch and self.batch["factor"] != 1.0:
             why += (f"; it trains on {self.batch['run_rays']} of the paper's {self.batch['paper_rays']} rays per "
                     f"step: every learning rate is scaled by {self.batch['factor']:.4g} ({self.batch['rule']} "
                     f"scaling rule)")
@@ -145,26 +154,34 @@ def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int | None, fi
     MLP ``width`` times the paper's (``used``: the plan's terminals by path)."""
     paper_rays = int(((plan.get("datamanager") or {}).get("train_num_rays_per_batch")) or 0)
     rule = step_parameters()["batch"]
-    factor = 1.0
-    if rays and 0 < paper_rays and rays < paper_rays:
-        # a part, else a base, measured to need its own rule
-        parts = rule.get("parts") or {}
-        own = (next((parts[t] for t in used.values() if t in parts), None)
-               or (rule.get("bases") or {}).get(plan.get("base")) or {})
-        factor = (rays / paper_rays) ** own.get("exponent", rule["exponent"])
-        fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(factor, 6),
+    parts = rule.get("parts") or {}  # a part, else a base, measured to need its own rule
+    own = (next((parts[t] for t in used.values() if t in parts), None)
+           or (rule.get("bases") or {}).get(plan.get("base")) or {})
+    exponent = own.get("exponent", rule["exponent"])
+    set_at = _learning_rates_set_at(plan, paper_rays)
+    factors: dict[str, float] = {}
+    for group, (reference, _source) in set_at.items():
+        factors[group] = (rays / reference) ** exponent if rays and 0 < rays < reference else 1.0
+    if rays and any(0 < rays < reference for reference, _ in set_at.values()):
+        paper_factor = (rays / paper_rays) ** exponent if 0 < rays < paper_rays else 1.0
+        fit.batch = {"paper_rays": paper_rays, "run_rays": rays, "factor": round(paper_factor, 6),
                      "rule": own.get("rule", rule["rule"])}
+        base_set = {g: {"rays": r, "from": src, "factor": round(factors[g], 6)} for g, (r, src) in set_at.items()
+                    if src and r != paper_rays}
+        if base_set:
+            fit.batch["set_at"] = base_set
+    scale = 1.0
     if width < 1.0:
         scale, name = width_factor(width)
         fit.width = {"ratio": round(width, 6), "factor": round(scale, 6), "rule": name}
-        factor *= scale
-    if factor == 1.0:
-        return
     for path, terminal in used.items():
         names = rule["learning_rates"].get(terminal) or []
         if not names or not path.startswith("optimizers."):
             continue
         group, part = path.split(".")[1:3]  # optimizers.<group>.<optimizer|scheduler>.<terminal>
+        factor = factors.get(group, 1.0) * scale
+        if factor == 1.0:
+            continue
         for name in names:
             before = _value(plan, path, terminal, name)
             if not isinstance(before, int | float) or isinstance(before, bool):
@@ -172,6 +189,27 @@ def _scale_learning_rates(plan: Plan, used: dict[str, str], rays: int | None, fi
             after = float(f"{before * factor:.6g}")
             fit.changes.append({"path": f"{path}.{name}", "from": before, "to": after})
             fit.args += [f"--optimizers.{_flag(group)}.{part}.{_flag(name)}", str(after)]
+
+
+def _learning_rates_set_at(plan: Plan, paper_rays: int) -> dict[str, tuple[int, str]]:
+    """Per optimiser group, the ray batch its learning rates were set for, and where they come from ('' for the
+    paper): the paper's batch, unless the plan keeps its base plan's rates (their evidence says so), which its base
+    set for the base's own batch (DyNeRF states 24,576 rays; its space-time planes train at K-Planes' rates, set for
+    4,096)."""
+    from nerfify_ns.synthesis.plan_from_paper import base_of
+    from nerfify_ns.synthesis.resources import load_reference_plan
+
+    out = {}
+    for group in plan.get("optimizers") or {}:
+        base = base_of(str(plan.evidence.get(f"optimizers.{group}.optimizer", "")))
+        reference = paper_rays
+        if base:
+            try:
+                reference = int(load_reference_plan(base)["datamanager"]["train_num_rays_per_batch"])
+            except (KeyError, TypeError, ValueError, OSError):
+                base = None
+        out[group] = (reference or paper_rays, f"the base plan {base!r}" if base else "")
+    return out
 
 
 def training_covers_stages(plan: Plan) -> str | None:

@@ -178,3 +178,32 @@ def test_stages_within_the_training_change_nothing():
         before = plan.copy()
         assert training_covers_stages(plan) is None
         assert plan == before
+
+
+def test_learning_rates_kept_from_the_base_scale_from_the_base_s_batch():
+    """A paper that states a batch of 24,576 rays but whose plan keeps its base's learning rates (K-Planes' 1e-2,
+    set for 4,096): a 512-ray run scales those from 4,096, not from the paper's 24,576 (which would make them 2.4x
+    smaller still); a rate the paper states scales from the paper's batch. The record says which batch each was
+    set for."""
+    from nerfify_ns.synthesis.plan_from_paper import FROM_BASE, base_of
+
+    plan = Plan.of(load_reference_plan("kplanes-time"))
+    base_rays = plan["datamanager"]["train_num_rays_per_batch"]
+    plan["datamanager"]["train_num_rays_per_batch"] = 24576
+    groups = [g for g in plan["optimizers"] if g != "camera_opt"]
+    for g in groups:
+        plan.evidence[f"optimizers.{g}.optimizer"] = FROM_BASE.format(base="kplanes-time")
+    assert base_of(plan.evidence[f"optimizers.{groups[0]}.optimizer"]) == "kplanes-time"
+    lr = {g: plan.get(f"optimizers.{g}.optimizer.adam.lr") for g in groups}
+    fit = scale_schedule(plan, 30000, rays=512)
+    for g in groups:
+        change = next(c for c in fit.changes if c["path"] == f"optimizers.{g}.optimizer.adam.lr")
+        assert change["to"] == pytest.approx(lr[g] * (512 / base_rays) ** 0.5, rel=1e-5)
+    assert fit.batch["set_at"][groups[0]]["rays"] == base_rays
+    assert "set for 4096 rays" in fit.record()["reason"]
+
+    plan.evidence[f"optimizers.{groups[0]}.optimizer"] = 'p.6: "a learning rate of 5e-4"'  # the paper's own
+    fit = scale_schedule(plan, 30000, rays=512)
+    change = next(c for c in fit.changes if c["path"] == f"optimizers.{groups[0]}.optimizer.adam.lr")
+    assert change["to"] == pytest.approx(lr[groups[0]] * (512 / 24576) ** 0.5, rel=1e-5)
+    assert base_of('p.6: "a learning rate of 5e-4"') is None
