@@ -82,6 +82,16 @@ class Family:
         return f"{self.name}{extra}"
 
 
+def stands_on(plan: dict) -> str:
+    """The Nerfstudio method a plan stands on, as a researcher would name it: its family's own method when the grammar
+    cannot build the family (a splatting paper's ``splatfacto``, not the ray-marched base the chooser fell back on),
+    else its base."""
+    family = plan.get("family") if isinstance(plan.get("family"), dict) else {}
+    if family.get("buildable") is False and family.get("method"):
+        return str(family["method"])
+    return str(plan.get("base") or "")
+
+
 def _patterns(items: Any, where: str) -> tuple[tuple[re.Pattern, float], ...]:
     out = []
     for item in items or ():

@@ -48,6 +48,7 @@ from typing import Any
 from nerfify_ns import runfolder
 from nerfify_ns.budget import DEFAULT_BUDGET_SECONDS
 from nerfify_ns.errors import NerfifyError
+from nerfify_ns.knowledge.family import stands_on
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry, load_suite
 from nerfify_ns.safeio import load_json, load_yaml
 
@@ -220,8 +221,8 @@ def read_plan(row: PaperRow, out: Path, lines: list[str] | None = None) -> None:
     if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
         data = load_json(chosen, what="the base chosen")
         row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
-    if family.get("buildable") is False and family.get("method"):  # the family's own method, not a ray-marched base
-        row.base, row.base_reason = str(family["method"]), f"the {row.family} family's Nerfstudio method; nothing built"
+    if stands_on(plan) != plan.get("base", ""):  # the family's own method, not a ray-marched base
+        row.base, row.base_reason = stands_on(plan), f"the {row.family} family's Nerfstudio method; nothing built"
     row.contributions = plan.get("contributions", [])
     row.holes = plan.get("holes", [])
     for path, custom in _customs(plan):

@@ -180,10 +180,13 @@ def run_generated(suite: Suite, entry: PaperEntry, task: Task, folder: Path) -> 
 
 
 def _plan_base(run_dir: Path) -> str | None:
+    """The method the run's plan stands on (a splatting paper's splatfacto; else the plan's base)."""
     import yaml
 
+    from nerfify_ns.knowledge.family import stands_on
+
     plan = run_dir / runfolder.PLAN
-    return (yaml.safe_load(plan.read_text()) or {}).get("base") if plan.is_file() else None
+    return (stands_on(yaml.safe_load(plan.read_text()) or {}) or None) if plan.is_file() else None
 
 
 def _metrics(summary: dict | None) -> dict:

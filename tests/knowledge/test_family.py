@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from nerfify_ns.knowledge.family import detect_family
+from nerfify_ns.knowledge.family import detect_family, stands_on
 from nerfify_ns.knowledge.kb import KnowledgeBase
+from nerfify_ns.nerfifybench.tasks import _plan_base
 from nerfify_ns.paper import ingest
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
 from nerfify_ns.synthesis.resources import load_reference_plan
@@ -62,5 +63,8 @@ def test_a_paper_the_grammar_cannot_build_stops_after_its_plan(tmp_path, name, f
     if family == "splatting":  # the family's own Nerfstudio method is named, not a ray-marched base
         assert plan["family"]["method"] == "splatfacto"
         assert "ns-train splatfacto" in failed[0]
+        assert plan["base"] != "splatfacto" and stands_on(plan) == "splatfacto"
+        assert _plan_base(out) == "splatfacto"  # the bench's base column
     else:
         assert "method" not in plan["family"]
+        assert stands_on(plan) == plan["base"] == _plan_base(out)
