@@ -16,6 +16,7 @@ call it.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
@@ -212,18 +213,21 @@ def _learning_rates_set_at(plan: Plan, paper_rays: int) -> dict[str, tuple[int, 
     return out
 
 
-def training_covers_stages(plan: Plan) -> str | None:
+def training_covers_stages(plan: Plan, unstated: Collection[str] = ()) -> str | None:
     """``plan``'s training made long enough for every stage its schedule hooks end (``schedule.yaml``:
     ``stage_end``): when the last stage ends at or past ``trainer.max_num_iterations``, the training becomes that
     stage and then the stated count, and the line saying so is returned (also kept in the plan's notes and the
-    training length's evidence); None when every stage ends within the training."""
+    training length's evidence); None when every stage ends within the training. A stage's end among ``unstated``
+    (plan paths of values the paper does not give, asked in ``equations.yaml``) lengthens nothing."""
     spec = step_parameters()
-    key, hooks = spec.get("stage_end"), plan.get(spec.get("hooks") or "")
+    slot = spec.get("hooks") or ""
+    key, hooks = spec.get("stage_end"), plan.get(slot)
     stated = plan.get("trainer.max_num_iterations")
     if not key or not isinstance(hooks, dict) or not isinstance(stated, int) or stated < 1:
         return None
     ends = {name: params[key] for name, params in hooks.items()
-            if isinstance(params, dict) and isinstance(params.get(key), int) and not isinstance(params[key], bool)}
+            if isinstance(params, dict) and isinstance(params.get(key), int) and not isinstance(params[key], bool)
+            and f"{slot}.{name}.{key}" not in unstated}
     if not ends or max(ends.values()) < stated:
         return None
     last = max(ends, key=ends.get)

@@ -178,6 +178,11 @@ def test_stages_within_the_training_change_nothing():
         before = plan.copy()
         assert training_covers_stages(plan) is None
         assert plan == before
+    # a stage's end the paper does not give (asked in equations.yaml, a default) lengthens nothing
+    plan = _staged(1_000, 2_000)
+    before = plan.copy()
+    assert training_covers_stages(plan, unstated={"model.schedule_hooks.image_curriculum.end_step"}) is None
+    assert plan == before
 
 
 def test_learning_rates_kept_from_the_base_scale_from_the_base_s_batch():

@@ -217,7 +217,10 @@ def implement_holes(doc: Any, plan: dict, *, corrections: dict | None = None, re
             new_holes.append(h)
     plan["holes"] = new_holes
     _built_within(records, texts, plan)
-    training_covers_stages(plan)  # a stage a hook built here ends within the training
+    asked = {f"{path}.{name}" for r in records for part in getattr(r, "parts", None) or [] if isinstance(part, dict)
+             for path in part.get("placed") or [] for name, choice in (part.get("parameters") or {}).items()
+             if isinstance(choice, dict) and choice.get("source") == "asked"}
+    training_covers_stages(plan, unstated=asked)  # a stage the paper states ends within the training
     if words.unread:
         where, reason, _ = words.unread[0]
         plan.setdefault("notes", []).append(
