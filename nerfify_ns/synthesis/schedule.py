@@ -232,9 +232,9 @@ def training_covers_stages(plan: Plan, unstated: Collection[str] = ()) -> str | 
         return None
     last = max(ends, key=ends.get)
     total = ends[last] + stated
-    line = (f"the schedule's {last} stage ends at step {ends[last]}, at or after the {stated} iterations the paper "
-            f"states: a stage cannot outlast the training, so the stated count is read as what follows it, and the "
-            f"plan trains {total} iterations (the stage, then {stated})")
+    line = (f"the schedule's {last} stage ends at step {ends[last]}, at or after the plan's {stated} training "
+            f"iterations: a stage cannot outlast the training, so that count is read as what follows the stage, and "
+            f"the plan trains {total} iterations (the stage, then {stated})")
     plan.set("trainer.max_num_iterations", total)
     evidence = plan.evidence
     evidence["trainer.max_num_iterations"] = (f"{evidence.get('trainer.max_num_iterations', stated)}; then {line}")
