@@ -221,8 +221,9 @@ def read_plan(row: PaperRow, out: Path, lines: list[str] | None = None) -> None:
     if chosen.is_file():  # the reference plan the base is (a time-capable one stands on nerfacto's loop)
         data = load_json(chosen, what="the base chosen")
         row.base, row.base_reason = str(data.get("base") or row.base), str(data.get("reason") or "")[:300]
-    if stands_on(plan) != plan.get("base", ""):  # the family's own method, not a ray-marched base
-        row.base, row.base_reason = stands_on(plan), f"the {row.family} family's Nerfstudio method; nothing built"
+    method = stands_on(plan)
+    if method != plan.get("base", ""):  # the family's own method, not a ray-marched base
+        row.base, row.base_reason = method, f"the {row.family} family's Nerfstudio method; nothing built"
     row.contributions = plan.get("contributions", [])
     row.holes = plan.get("holes", [])
     for path, custom in _customs(plan):
