@@ -25,6 +25,7 @@ from nerfify_ns.registry.bases import plugin_facts as bases
 from nerfify_ns.registry.snippets import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
+from nerfify_ns.synthesis.proxy import proxy_spec
 
 
 def one(mapping: dict) -> tuple[str, Any]:
@@ -294,6 +295,7 @@ def mlp_field(ctx: Context) -> dict:
     else:
         rgb_ctor = None
     skips = list(backbone_skips(backbone)) if backbone else None
+    widths = [*(backbone_widths(backbone) if backbone else []), *wrappers["widths"]]
     architecture = (f"{backbone['num_layers']} x {backbone['layer_width']} MLP" if backbone
                     else f"{custom_bb['cls']} backbone")
     if backbone.get("hidden_norm", "none") == "layer":
@@ -303,9 +305,8 @@ def mlp_field(ctx: Context) -> dict:
                          f"{backbone['color_layers']} x {backbone['color_width']} colour branch")
     return {
         "cls": f"{ctx.names.prefix}Field",
-        "widths": backbone_widths(backbone) if backbone else [],
-        "kwargs": "".join(f", {w['param']}=self.config.{w['name']}" for w in backbone_widths(backbone)) if backbone
-        else "",
+        "widths": widths,
+        "kwargs": "".join(f", {w['param']}=self.config.{w['name']}" for w in widths),
         "summary": f"Radiance field of the plan: {pe_name} positions, {de_name} directions, "
                    f"{architecture}, {dh_name} density.",
         "imports": sorted(set(imports)),
@@ -349,6 +350,7 @@ def field_wrappers(ctx: Context) -> dict:
     conditioners: list[dict] = []
     blend: dict | None = None
     imports: list[str] = []
+    widths: list[dict] = []
     for name in members:
         member = f"{path}.{name}"
         terminal = ctx.derivation.used.get(member)
@@ -371,7 +373,9 @@ def field_wrappers(ctx: Context) -> dict:
         code = snippet(name)
         imports += _imports(ctx, code)
         params = ctx.params(member)
-        ctor = render_snippet(code["ctor"], params, ctx.names.package)
+        sized = wrapper_widths(name, params)
+        widths += sized
+        ctor = render_snippet(code["ctor"], {**params, **{w["of"]: w["param"] for w in sized}}, ctx.names.package)
         ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[name].doc)
         if code.get("stage") == "blend":
             if blend is not None:
@@ -382,7 +386,19 @@ def field_wrappers(ctx: Context) -> dict:
     if conditioners:
         imports += _imports(ctx, {"imports": ["from .components.field_wrappers import condition"],
                                   "component": "field_wrappers"})
-    return {"conditioners": conditioners, "blend": blend, "imports": imports}
+    return {"conditioners": conditioners, "blend": blend, "imports": imports, "widths": widths}
+
+
+def wrapper_widths(terminal: str, params: dict) -> list[dict]:
+    """A field wrapper's sizes that a CPU proxy may lower (``proxy.yaml``'s ``width`` entries with a ``config``
+    field: a deformation network's width, per-frame codes' dimension) as fields of the generated model config, the
+    plan's values their defaults: the field builds the wrapper from them (``of``: the wrapper's parameter)."""
+    entries = (proxy_spec().get("width") or {}).get(terminal) or {}
+    return [{"name": entry["config"], "param": entry["config"], "of": param, "value": int(params[param]),
+             "doc": f"{entry.get('what', 'width').capitalize()} of the field wrapper {terminal} (the plan's value; "
+                    "a CPU proxy may train smaller)."}
+            for param, entry in entries.items()
+            if entry.get("config") and isinstance(params.get(param), int) and not isinstance(params.get(param), bool)]
 
 
 def schedule_hooks(ctx: Context) -> tuple[list[dict], list[str]]:

@@ -58,6 +58,10 @@ class Knob:
     """The proxy's value (None: the plan's)."""
     original: Any = None
     """The paper's value where the plan was pruned for the scene (``pruned``: its ``from``), else None."""
+    what: str = ""
+    """What the value is, in the report's words (widths: ``MLP width`` unless ``proxy.yaml`` says otherwise)."""
+    learning_rates: bool = False
+    """Widths: the learning rates follow this one (the backbone's; ``schedule.yaml``'s width rule)."""
 
     @property
     def papers(self) -> Any:
@@ -110,7 +114,9 @@ def knobs(plan: dict, rays: int) -> list[Knob]:
                 flag = f"--pipeline.model.{_flag(fields[name])}" if name in fields else None
                 found[kind].append(Knob(kind, f"{path}.{name}", flag, value, int(knob["floor"]),
                                         float(knob.get("weight", knob.get("exponent", 1.0))),
-                                        original=pruned.get(f"{path}.{name}")))
+                                        original=pruned.get(f"{path}.{name}"),
+                                        what=knob.get("what", KIND_WORDS[kind] if kind == "width" else ""),
+                                        learning_rates=bool(knob.get("learning_rates"))))
     found["rays"].append(Knob("rays", RAYS_PATH, RAYS_FLAG, int(rays), int(spec["rays"]["floor"])))
     return [k for kind in spec["order"] for k in found.get(kind, [])]
 
@@ -157,7 +163,8 @@ class ProxyFit:
     @property
     def width_ratio(self) -> float:
         """The MLP's width over the paper's (1.0: the paper's): the learning rates follow it (``schedule.yaml``)."""
-        return min([k.total() / k.total(k.paper) for k in self.changed if k.kind == "width"], default=1.0)
+        return min([k.total() / k.total(k.paper) for k in self.changed if k.kind == "width" and k.learning_rates],
+                   default=1.0)
 
     @property
     def changed(self) -> list[Knob]:
@@ -186,7 +193,7 @@ class ProxyFit:
             if k.kind == "rays" and (k in self.changed or (paper_rays or 0) > k.current):
                 parts.append(f"{k.current} instead of {paper_rays or k.paper} rays per step")
             elif k.kind == "width" and k in self.changed:
-                parts.append(f"MLP width {k.value} instead of {k.papers} ({k.path})")
+                parts.append(f"{k.what} {k.value} instead of {k.papers} ({k.path})")
         if self.scene:
             parts.append(f"a {self.scene['resolution']} px scene with {self.scene['n_test']} test views instead of "
                          f"{self.scene['from_resolution']} px with {self.scene['from_n_test']}")
@@ -199,7 +206,7 @@ class ProxyFit:
         """The plan's ``schedule.proxy`` annotation."""
         not_scaled = [f"{k.path}: no ns-train argument sets it for this base" for k in self.knobs if k.flag is None]
         passes = self.time.iterations * self.rays / max(self.train_pixels, 1)
-        scaled = ", ".join([*dict.fromkeys(KIND_WORDS[k.kind] for k in self.changed),
+        scaled = ", ".join([*dict.fromkeys(k.what or KIND_WORDS[k.kind] for k in self.changed),
                             *(["the scene"] if self.scene else [])])
         why = (f"the paper's settings do not fit the budget: {self.time.describe()}; the proxy scales {scaled} "
                f"({'reaching' if self.reached else 'short of'} the target of {self.target['iterations']} iterations "
@@ -327,6 +334,7 @@ def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
         value = [min(v, k.floor) for v in k.paper] if isinstance(k.paper, list) else min(k.paper, k.floor)
         values[k.path] = value
         args += [k.flag, *([str(v) for v in value] if isinstance(value, list) else [str(value)])]
-    width = min([k.total(values[k.path]) / k.total(k.paper) for k in settings if k.kind == "width"], default=1.0)
+    width = min([k.total(values[k.path]) / k.total(k.paper) for k in settings
+                 if k.kind == "width" and k.learning_rates], default=1.0)
     return [*args, *width_learning_rates(plan, width)], values
 

@@ -254,8 +254,9 @@ def test_typed_options_compose(tmp_path):
     plugin = compose(options_plan(), tmp_path / "plugin", record=False)
     field = _flat(_generated(plugin, "field.py"))
     assert "skip_connections=(1, 2)" in field and "BranchedMLP(" in field and "color_width=24" in field
-    for ctor in ("CameraTimeOffset(num_images=num_images, init=0.01)", "DeformationNetwork(num_layers=2",
-                 "FrameCodes(num_frames=8, dim=4)", "TimeEmbedding(num_frequencies=2",
+    for ctor in ("CameraTimeOffset(num_images=num_images, init=0.01)",
+                 "DeformationNetwork(num_layers=2, layer_width=deformation_layer_width",
+                 "FrameCodes(num_frames=8, dim=frame_codes_dim)", "TimeEmbedding(num_frequencies=2",
                  'FieldBlend(num_fields=2, mode="mixer"'):
         assert ctor in field, ctor
     assert "conditioned=k > 0" in field  # the blend's first field is static
@@ -360,6 +361,38 @@ def test_the_typed_options_train(plugin_on_path):
     assert windows and all(abs(w - 4.0 * 7 / 20) < 1e-5 for w in windows), windows  # annealed to step 7
     codes = [p for n, p in model.named_parameters() if "frame_codes" in n]
     assert codes and all(p.requires_grad for p in codes)  # frozen for steps 0-4 only
+
+
+def test_a_wrappers_sizes_are_config_fields_a_proxy_can_lower(plugin_on_path):
+    """The deformation network's width, the time embedding's and the frame codes' dimension are fields of the
+    generated model config, the plan's values their defaults: the plugin builds them from the plan's sizes, and a
+    run that lowers one (a CPU proxy's ns-train argument) trains the smaller wrapper, the plugin's code unchanged."""
+    import dataclasses
+
+    from nerfify_ns.verify.assembled import build_model
+
+    plan = options_plan()
+    _, config = plugin_on_path(plan)
+    spec = config.typed_options_method
+    model_config = spec.config.pipeline.model
+    assert (model_config.deformation_layer_width, model_config.time_embedding_layer_width,
+            model_config.frame_codes_dim) == (32, 16, 4)
+
+    def sizes(model):
+        found = {}
+        for name, module in model.named_modules():
+            if name.endswith("wrappers.frame_codes"):
+                found["codes"] = tuple(module.codes.shape)
+            if name.endswith("wrappers.deformation"):
+                found["deformation"] = max(m.out_features for m in module.modules() if hasattr(m, "out_features"))
+        return found
+
+    assert sizes(build_model(spec)) == {"codes": (8, 4), "deformation": 32}
+    lowered = dataclasses.replace(model_config, deformation_layer_width=8, frame_codes_dim=2)
+    spec.config.pipeline.model = lowered
+    model = build_model(spec)
+    assert sizes(model) == {"codes": (8, 2), "deformation": 8}
+    spec.config.pipeline.model = model_config
 
 
 def test_hand_written_components_train(plugin_on_path):

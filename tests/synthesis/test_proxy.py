@@ -198,3 +198,29 @@ def test_fewer_rays_are_not_taken_when_the_step_is_mostly_the_models_parameters(
     # keeping them is what brings the run nearest the target: more passes over the pixels than the halved batch
     halved = kept.time.iterations * 512
     assert halved > bound.time.iterations * bound.rays
+
+
+def test_a_field_wrappers_sizes_are_widths_that_do_not_move_the_learning_rates():
+    """A deformation network run on every sample and per-frame codes appended to the backbone's input cost time
+    like the backbone's width: the proxy may lower them last, through the generated config's fields, names each in
+    the headline in its own words, and only the backbone's width moves the learning rates."""
+    plan = _nerf_plan()
+    plan.set("model.field_wrappers", {"deformation": {"num_layers": 8, "layer_width": 256},
+                                      "frame_codes": {"num_frames": 24, "dim": 1024}})
+    widths = {k.path.rsplit(".", 2)[-2] + "." + k.path.rsplit(".", 1)[-1]: k for k in knobs(plan, 512)
+              if k.kind == "width"}
+    assert widths["deformation.layer_width"].flag == "--pipeline.model.deformation-layer-width"
+    assert widths["frame_codes.dim"].flag == "--pipeline.model.frame-codes-dim"
+    assert [k.learning_rates for k in widths.values()] == [True, False, False]  # the backbone's, then the wrappers'
+    narrow = _fit(plan, 150)
+    changed = {k.path: k for k in narrow.changed if k.kind == "width"}
+    codes = changed["model.field_wrappers.frame_codes.dim"]
+    assert codes.value < 1024 and f"frame code dimension {codes.value} instead of 1024" in narrow.headline(4096)
+    assert "--pipeline.model.frame-codes-dim" in narrow.args()
+    backbone = changed.get("model.field.MLPField.backbone.layer_width")
+    assert narrow.width_ratio == (backbone.value / 256 if backbone else 1.0)
+    # the smoke rung measures at every width's floor; its learning rates follow the backbone's alone
+    args, values = smoke_samples(plan)
+    assert values["model.field_wrappers.frame_codes.dim"] == 32
+    assert values["model.field_wrappers.deformation.layer_width"] == 64
+    assert float(args[args.index("--optimizers.fields.optimizer.lr") + 1]) == pytest.approx(5e-4 * 4)
