@@ -196,8 +196,10 @@ def mlp_field(ctx: Context) -> dict:
     else:
         code = snippet(pe_name)
         imports += _imports(ctx, code)
-        pe = {"ctor": render_snippet(code["ctor"], ctx.params(pe_path), pkg), "domain": code["domain"],
-              "times": bool(code.get("times"))}
+        pe_params = ctx.params(pe_path)
+        pe_sizes = config_sizes(pe_name, pe_params)
+        pe = {"ctor": render_snippet(code["ctor"], {**pe_params, **{w["of"]: w["param"] for w in pe_sizes}}, pkg),
+              "domain": code["domain"], "times": bool(code.get("times")), "sizes": pe_sizes}
 
     de_name, _ = one(fp["dir_encoding"])
     de_path = f"{root}.dir_encoding.{de_name}"
@@ -295,7 +297,7 @@ def mlp_field(ctx: Context) -> dict:
     else:
         rgb_ctor = None
     skips = list(backbone_skips(backbone)) if backbone else None
-    widths = [*(backbone_widths(backbone) if backbone else []), *wrappers["widths"]]
+    widths = [*(backbone_widths(backbone) if backbone else []), *pe.get("sizes", []), *wrappers["widths"]]
     architecture = (f"{backbone['num_layers']} x {backbone['layer_width']} MLP" if backbone
                     else f"{custom_bb['cls']} backbone")
     if backbone.get("hidden_norm", "none") == "layer":
@@ -373,7 +375,7 @@ def field_wrappers(ctx: Context) -> dict:
         code = snippet(name)
         imports += _imports(ctx, code)
         params = ctx.params(member)
-        sized = wrapper_widths(name, params)
+        sized = config_sizes(name, params)
         widths += sized
         ctor = render_snippet(code["ctor"], {**params, **{w["of"]: w["param"] for w in sized}}, ctx.names.package)
         ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[name].doc)
@@ -389,16 +391,27 @@ def field_wrappers(ctx: Context) -> dict:
     return {"conditioners": conditioners, "blend": blend, "imports": imports, "widths": widths}
 
 
-def wrapper_widths(terminal: str, params: dict) -> list[dict]:
-    """A field wrapper's sizes that a CPU proxy may lower (``proxy.yaml``'s ``width`` entries with a ``config``
-    field: a deformation network's width, per-frame codes' dimension) as fields of the generated model config, the
-    plan's values their defaults: the field builds the wrapper from them (``of``: the wrapper's parameter)."""
-    entries = (proxy_spec().get("width") or {}).get(terminal) or {}
-    return [{"name": entry["config"], "param": entry["config"], "of": param, "value": int(params[param]),
-             "doc": f"{entry.get('what', 'width').capitalize()} of the field wrapper {terminal} (the plan's value; "
-                    "a CPU proxy may train smaller)."}
+def config_sizes(terminal: str, params: dict) -> list[dict]:
+    """A part's sizes that a CPU proxy may lower (``proxy.yaml``'s ``grid`` and ``width`` entries with a ``config``
+    field: a deformation network's width, per-frame codes' dimension, space-time planes' resolutions) as fields of
+    the generated model config, the plan's values their defaults: the field builds the part from them (``of``: the
+    part's parameter; ``type``: the field's annotation)."""
+    spec = proxy_spec()
+    entries = {k: v for kind in ("grid", "width") for k, v in ((spec.get(kind) or {}).get(terminal) or {}).items()}
+    return [{"name": entry["config"], "param": entry["config"], "of": param,
+             "value": tuple(int(v) for v in params[param]) if isinstance(params[param], list) else int(params[param]),
+             "type": "Tuple[int, ...]" if isinstance(params[param], list) else "int",
+             "doc": f"{entry.get('what', 'width').capitalize()} of {terminal} (the plan's value; a CPU proxy may "
+                    "train smaller)."}
             for param, entry in entries.items()
-            if entry.get("config") and isinstance(params.get(param), int) and not isinstance(params.get(param), bool)]
+            if entry.get("config") and _sized(params.get(param))]
+
+
+def _sized(value: Any) -> bool:
+    """An int, or a non-empty list of ints (not a bool)."""
+    if isinstance(value, list):
+        return bool(value) and all(_sized(v) for v in value)
+    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def schedule_hooks(ctx: Context) -> tuple[list[dict], list[str]]:

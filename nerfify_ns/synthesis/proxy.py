@@ -30,7 +30,10 @@ from nerfify_ns.plan import Plan
 
 RAYS_PATH = "datamanager.train_num_rays_per_batch"
 RAYS_FLAG = "--pipeline.datamanager.train-num-rays-per-batch"
-KIND_WORDS = {"samples": "samples per ray", "rays": "rays per step", "width": "MLP width"}
+KIND_WORDS = {"samples": "samples per ray", "rays": "rays per step", "grid": "grid resolutions",
+              "width": "MLP width"}
+SIZES = ("grid", "width")
+"""The kinds whose entries are sizes of a part (the generated config declares them: ``config``)."""
 
 
 @lru_cache(maxsize=1)
@@ -62,6 +65,8 @@ class Knob:
     """What the value is, in the report's words (widths: ``MLP width`` unless ``proxy.yaml`` says otherwise)."""
     learning_rates: bool = False
     """Widths: the learning rates follow this one (the backbone's; ``schedule.yaml``'s width rule)."""
+    smoke_at_floor: bool = True
+    """The smoke rung measures the step at the floor (``proxy.yaml``'s ``smoke: plan``: at the plan's value)."""
 
     @property
     def papers(self) -> Any:
@@ -102,7 +107,7 @@ def knobs(plan: dict, rays: int) -> list[Knob]:
     defaults = load_grammar().terminals
     found: dict[str, list[Knob]] = {kind: [] for kind in spec["order"]}
     pruned = {p.get("path"): p.get("from") for p in plan.get("pruned") or [] if isinstance(p, dict) and "from" in p}
-    for kind in ("samples", "width"):
+    for kind in ("samples", *SIZES):
         for path, terminal in used.items():
             for name, knob in ((spec.get(kind) or {}).get(terminal) or {}).items():
                 params = defaults[terminal].params
@@ -115,8 +120,9 @@ def knobs(plan: dict, rays: int) -> list[Knob]:
                 found[kind].append(Knob(kind, f"{path}.{name}", flag, value, int(knob["floor"]),
                                         float(knob.get("weight", knob.get("exponent", 1.0))),
                                         original=pruned.get(f"{path}.{name}"),
-                                        what=knob.get("what", KIND_WORDS[kind] if kind == "width" else ""),
-                                        learning_rates=bool(knob.get("learning_rates"))))
+                                        what=knob.get("what", KIND_WORDS[kind] if kind in SIZES else ""),
+                                        learning_rates=bool(knob.get("learning_rates")),
+                                        smoke_at_floor=knob.get("smoke", "floor") == "floor"))
     found["rays"].append(Knob("rays", RAYS_PATH, RAYS_FLAG, int(rays), int(spec["rays"]["floor"])))
     return [k for kind in spec["order"] for k in found.get(kind, [])]
 
@@ -130,7 +136,7 @@ def sample_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> f
 def width_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> float:
     values = values or {}
     return math.prod((k.total(values.get(k.path)) / k.total(k.paper)) ** k.weight
-                     for k in settings if k.kind == "width") or 1.0
+                     for k in settings if k.kind in SIZES) or 1.0
 
 
 @dataclass
@@ -192,7 +198,7 @@ class ProxyFit:
         for k in self.knobs:
             if k.kind == "rays" and (k in self.changed or (paper_rays or 0) > k.current):
                 parts.append(f"{k.current} instead of {paper_rays or k.paper} rays per step")
-            elif k.kind == "width" and k in self.changed:
+            elif k.kind in SIZES and k in self.changed:
                 parts.append(f"{k.what} {k.value} instead of {k.papers} ({k.path})")
         if self.scene:
             parts.append(f"a {self.scene['resolution']} px scene with {self.scene['n_test']} test views instead of "
@@ -327,7 +333,8 @@ def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
     and the values by plan path (what :class:`Measured` records)."""
     from nerfify_ns.synthesis.schedule import width_learning_rates
 
-    settings = [k for k in knobs(plan, 1) if k.kind in ("samples", "width") and k.flag is not None]
+    settings = [k for k in knobs(plan, 1) if k.kind in ("samples", *SIZES) and k.flag is not None
+                and k.smoke_at_floor]
     args: list[str] = []
     values: dict[str, Any] = {}
     for k in settings:

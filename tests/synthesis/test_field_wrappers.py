@@ -395,6 +395,30 @@ def test_a_wrappers_sizes_are_config_fields_a_proxy_can_lower(plugin_on_path):
     spec.config.pipeline.model = model_config
 
 
+def test_space_time_planes_are_built_from_the_configs_resolutions(plugin_on_path):
+    """The field's space-time planes read their resolutions from the generated model config (the plan's the
+    default): a run that halves them (a CPU proxy) trains smaller planes, the plugin's code unchanged."""
+    import dataclasses
+
+    from nerfify_ns.verify.assembled import build_model
+
+    plan = small(Plan.of(load_reference_plan("vanilla-nerf")), "plane-sizes")
+    plan.set("model.field.MLPField.pos_encoding", {"kplanes_time": {"resolutions": [8, 16], "num_components": 4,
+                                                                     "time_resolution": 5}})
+    _, config = plugin_on_path(plan)
+    spec = config.plane_sizes_method
+    model_config = spec.config.pipeline.model
+    assert tuple(model_config.kplanes_resolutions) == (8, 16)
+
+    def resolutions(model):
+        return {tuple(m.resolutions) for m in model.modules() if type(m).__name__ == "MultiScaleKPlanes"}
+
+    assert resolutions(build_model(spec)) == {(8, 16)}  # the coarse and the fine field alike
+    spec.config.pipeline.model = dataclasses.replace(model_config, kplanes_resolutions=(4, 8))
+    assert resolutions(build_model(spec)) == {(4, 8)}
+    spec.config.pipeline.model = model_config
+
+
 def test_hand_written_components_train(plugin_on_path):
     _, config = plugin_on_path(hand_plan(), SOURCES)
     model, losses = _train(config.hand_wrapped_method)

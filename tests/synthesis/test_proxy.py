@@ -224,3 +224,15 @@ def test_a_field_wrappers_sizes_are_widths_that_do_not_move_the_learning_rates()
     assert values["model.field_wrappers.frame_codes.dim"] == 32
     assert values["model.field_wrappers.deformation.layer_width"] == 64
     assert float(args[args.index("--optimizers.fields.optimizer.lr") + 1]) == pytest.approx(5e-4 * 4)
+
+
+def test_space_time_planes_resolutions_are_a_width_measured_at_the_plans_value():
+    """K-Planes' resolutions cost a step through their parameters (Adam, the planes' regularisers): the proxy may
+    halve every scale, through the generated config's field, but the smoke rung measures the step at the plan's
+    planes (``smoke: plan``), so a run whose planes fit keeps them."""
+    plan = Plan.of(load_reference_plan("kplanes-time"))
+    planes = next(k for k in knobs(plan, 4096) if k.path.endswith("kplanes_time.resolutions"))
+    assert planes.kind == "grid" and planes.flag == "--pipeline.model.kplanes-resolutions"
+    assert planes.halved() == [max(32, r // 2) for r in planes.paper] and not planes.learning_rates
+    args, values = smoke_samples(plan)
+    assert "--pipeline.model.kplanes-resolutions" not in args and planes.path not in values
