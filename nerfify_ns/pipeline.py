@@ -555,7 +555,8 @@ def _fit_training(plan: Plan, folder: Path, budget: Budget, data: Dataset, timin
         limit = training_limit(budget, left)
         ceiling = max(iterations, min(most, math.ceil(iterations * PACE_CEILING)))
         pace = Pace(end=time.time() + left - POST_SECONDS, step_seconds=step, render_seconds=fit.render_one_seconds,
-                    startup_seconds=timing["startup_seconds"], margin_seconds=pace_margin(left))
+                    startup_seconds=timing["startup_seconds"], margin_seconds=pace_margin(left),
+                    iterations=iterations if budget.scale_schedule else 0.0)
         env = {ENV_PACE: pace.to_env()}
         record = {"seconds": budget.seconds, "seconds_left": round(left, 1), "iterations": iterations,
                   "ceiling": ceiling, "every": every, "seconds_per_iteration": round(step, 4),

@@ -194,11 +194,18 @@ STEP_SCALE_FIELD = "schedule_step_scale"
 
 def training_callbacks(hooks: Iterable[ScheduleHook], model: nn.Module, attributes: Any | None) -> list:
     """Nerfstudio TrainingCallbacks running each hook before every ``hook.every``-th training iteration, on the
-    paper's schedule compressed by the model config's ``schedule_step_scale`` (absent: 1.0)."""
+    paper's schedule compressed by the model config's ``schedule_step_scale`` (absent: 1.0), read at every call: a
+    budgeted run that turns out slower than planned lowers it as it goes, so the schedule's stages still end within
+    the steps the run gets."""
     from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackLocation
 
     pipeline = getattr(attributes, "pipeline", None)
-    scale = float(getattr(getattr(model, "config", None), STEP_SCALE_FIELD, 1.0) or 1.0)
+    config = getattr(model, "config", None)
+
+    def runner(hook: ScheduleHook):
+        def run(step: int) -> None:
+            hook.run(step, model=model, pipeline=pipeline, scale=float(getattr(config, STEP_SCALE_FIELD, 1.0) or 1.0))
+        return run
+
     return [TrainingCallback(where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
-                             update_every_num_iters=max(int(hook.every), 1), func=hook.run,
-                             kwargs={"model": model, "pipeline": pipeline, "scale": scale}) for hook in hooks]
+                             update_every_num_iters=max(int(hook.every), 1), func=runner(hook)) for hook in hooks]

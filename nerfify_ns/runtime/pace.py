@@ -26,6 +26,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
+
+from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD
 
 ENV_PACE = "NERFIFY_TRAIN_PACE"
 """The training's :class:`Pace` as JSON (set by the pipeline for a budgeted run)."""
@@ -52,6 +55,8 @@ class Pace:
     """Starting the rendering process (a Nerfstudio process)."""
     margin_seconds: float
     """Time kept in hand for what no estimate covers."""
+    iterations: float = 0.0
+    """The iterations the run's schedule was compressed for (its model config's ``schedule_step_scale``); 0: none."""
 
     def to_env(self) -> str:
         return json.dumps(asdict(self))
@@ -64,7 +69,8 @@ class Pace:
             return None
         try:
             fields = json.loads(text)
-            pace = cls(**{k: float(fields[k]) for k in cls.__dataclass_fields__})
+            pace = cls(**{k: float(fields[k]) for k in cls.__dataclass_fields__ if k != "iterations"},
+                       iterations=float(fields.get("iterations", 0.0)))
         except (ValueError, TypeError, KeyError):
             return None
         return pace if pace.step_seconds > 0 else None
@@ -79,6 +85,8 @@ class PaceKeeper:
         self.durations: deque[float] = deque(maxlen=WINDOW)
         self.every: list[float] = []
         self.last: float | None = None
+        self.planned_scale: float | None = None
+        """The model config's ``schedule_step_scale`` as the run started (:func:`_follow_deadline`)."""
 
     def step_seconds(self) -> float | None:
         """The next step's expected seconds (median of the recent steps), None before :data:`MEASURED_STEPS` were
@@ -96,6 +104,14 @@ class PaceKeeper:
         slower = statistics.median(self.every) / self.pace.step_seconds
         return (self.clock() + step + self.pace.startup_seconds
                 + checkpoints_after * self.pace.render_seconds * slower + self.pace.margin_seconds)
+
+    def expected_iterations(self, step: int, checkpoints_after: int) -> float | None:
+        """The iterations the run will have trained when it stops, at the recent steps' pace, after training step
+        ``step`` (counted from 0); None while the pace is unmeasured."""
+        finish, seconds = self.finish(checkpoints_after), self.step_seconds()
+        if finish is None or not seconds:
+            return None
+        return step + 1 + (1 + (self.pace.end - finish) / seconds if finish <= self.pace.end else 0.0)
 
     def after_step(self, checkpoints_after: int) -> bool:
         """Record a step that just ended; True when the run should stop now (``checkpoints_after``: the checkpoints
@@ -120,6 +136,22 @@ def _checkpoints_before(folder: Path, step: int) -> int:
     return count
 
 
+def _follow_deadline(model: Any, keeper: PaceKeeper, step: int, checkpoints: int) -> None:
+    """A run slower than planned compresses its schedule further: the model config's ``schedule_step_scale`` (set
+    for the planned iterations) times the iterations now expected over the planned ones, never raised (a stage
+    that ended stays ended), so the paper's stages end within the steps the run gets."""
+    config = getattr(model, "config", None)
+    if keeper.pace.iterations <= 0 or not hasattr(config, STEP_SCALE_FIELD):
+        return
+    planned = keeper.planned_scale
+    if planned is None:
+        planned = keeper.planned_scale = float(getattr(config, STEP_SCALE_FIELD) or 1.0)
+    expected = keeper.expected_iterations(step, checkpoints)
+    if expected is not None:
+        scale = planned * min(1.0, expected / keeper.pace.iterations)
+        setattr(config, STEP_SCALE_FIELD, min(float(getattr(config, STEP_SCALE_FIELD) or 1.0), scale))
+
+
 def install(text: str | None = None) -> bool:
     """Keep the deadline of :data:`ENV_PACE` (or ``text``) in Nerfstudio's trainer; False when there is none."""
     pace = Pace.from_env(text if text is not None else os.environ.get(ENV_PACE))
@@ -134,11 +166,14 @@ def install(text: str | None = None) -> bool:
 
     def paced_train_iteration(self, step: int):
         result = train_iteration(self, step)
-        if not self.stop_training and keeper.after_step(_checkpoints_before(self.checkpoint_dir, step) + 1):
+        checkpoints = _checkpoints_before(self.checkpoint_dir, step) + 1
+        if not self.stop_training and keeper.after_step(checkpoints):
             self.stop_training = True  # Nerfstudio's loop ends before the next step and saves this one
             self._nerfify_stopped_at = step
             print(f"{STOP_LINE}: after step {step}, a step taking {keeper.step_seconds():.3f} s "
                   f"(planned {pace.step_seconds:.3f} s)", file=sys.stderr, flush=True)
+        elif not self.stop_training:
+            _follow_deadline(getattr(getattr(self, "pipeline", None), "model", None), keeper, step, checkpoints)
         return result
 
     def paced_after_train(self):

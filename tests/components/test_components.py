@@ -426,3 +426,29 @@ def test_charbonnier_is_finite(pred, target):
     assert out.dim() == 0 and all_finite(out, *grads(out, [p]))
     if pred.numel() and bool((pred == target).all()):
         assert abs(float(out.detach()) - 1e-3) < 1e-7  # the floor is eps
+
+
+def test_schedule_hooks_read_the_step_scale_at_every_call():
+    """A budgeted run's schedule scale may be lowered while it trains (the pace follows a slower run): the hooks'
+    callbacks read the model config's ``schedule_step_scale`` at each call, not once when they were made."""
+    from torch import nn
+
+    from nerfify_ns.components.schedule_hooks import Anneal, training_callbacks
+
+    class Part(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.window = 0.0
+
+    class Config:
+        schedule_step_scale = 0.1
+
+    model = nn.Module()
+    model.deformation = Part()
+    model.config = Config()
+    (callback,) = training_callbacks([Anneal(target="deformation.window", end_value=10.0, end_step=1000)], model, None)
+    callback.run_callback(step=20)  # paper step 200 of 1,000
+    assert model.deformation.window == pytest.approx(2.0)
+    model.config.schedule_step_scale = 0.05
+    callback.run_callback(step=20)  # paper step 400
+    assert model.deformation.window == pytest.approx(4.0)

@@ -3,6 +3,7 @@ step would leave too little time to render its checkpoints, and trains on while 
 
 from __future__ import annotations
 
+import json
 import time
 
 import pytest
@@ -149,3 +150,63 @@ def test_a_real_training_stops_itself_at_its_deadline_with_a_checkpoint_and_is_e
     log = (tmp_path / "eval" / "train").glob("*.train.log")
     assert any(STOP_LINE in p.read_text() for p in log)
     assert summary["train_wall_seconds"] < 600
+
+
+class _Config:
+    schedule_step_scale = 0.01  # the run's 100 planned iterations of a paper's 10,000
+
+
+class _Model:
+    config = _Config()
+
+
+def test_a_run_slower_than_planned_compresses_its_schedule_so_its_stages_still_end():
+    """The schedule was scaled for the planned iterations; when the steps take twice the planned time, the run
+    will train about half of them, and the model config's schedule scale follows (never raised again), so a stage
+    the paper ends at three fifths of its training ends within the run."""
+    from nerfify_ns.runtime.pace import _follow_deadline
+
+    clock = Clock()
+    pace = Pace(end=clock.now + 100.0 + 10 + 2 * 5 + 2, step_seconds=1.0, render_seconds=5.0, startup_seconds=10.0,
+                margin_seconds=2.0, iterations=100)
+    keeper, model = PaceKeeper(pace, clock), _Model()
+    model.config = _Config()
+    scales = []
+    for step in range(200):
+        clock.now += 2.0  # twice the planned step
+        if keeper.after_step(2):
+            break
+        _follow_deadline(model, keeper, step, 2)
+        scales.append(model.config.schedule_step_scale)
+    done = step + 1
+    assert 45 <= done <= 55  # about half the planned 100
+    assert scales[0] == 0.01 and scales[-1] == pytest.approx(0.01 * done / 100, rel=0.1)
+    assert all(b <= a for a, b in zip(scales, scales[1:], strict=False))
+    stage_end = 0.6 * 10_000  # the paper's step where a stage ends
+    assert stage_end * scales[-1] < done  # the stage ends within the run
+
+
+def test_a_faster_run_keeps_its_planned_schedule_and_no_pace_changes_nothing():
+    from nerfify_ns.runtime.pace import _follow_deadline
+
+    clock = Clock()
+    pace = Pace(end=clock.now + 200.0, step_seconds=1.0, render_seconds=5.0, startup_seconds=10.0,
+                margin_seconds=2.0, iterations=100)
+    keeper, model = PaceKeeper(pace, clock), _Model()
+    model.config = _Config()
+    for step in range(40):
+        clock.now += 0.5
+        keeper.after_step(2)
+        _follow_deadline(model, keeper, step, 2)
+    assert model.config.schedule_step_scale == 0.01
+    unplanned = PaceKeeper(Pace(end=clock.now + 200.0, step_seconds=1.0, render_seconds=5.0, startup_seconds=10.0,
+                                margin_seconds=2.0), clock)
+    model.config.schedule_step_scale = 0.5
+    for step in range(20):
+        clock.now += 3.0
+        unplanned.after_step(2)
+        _follow_deadline(model, unplanned, step, 2)
+    assert model.config.schedule_step_scale == 0.5
+    assert Pace.from_env(pace.to_env()) == pace
+    legacy = {k: v for k, v in json.loads(pace.to_env()).items() if k != "iterations"}
+    assert Pace.from_env(json.dumps(legacy)).iterations == 0.0
