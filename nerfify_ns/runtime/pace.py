@@ -28,8 +28,6 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD
-
 ENV_PACE = "NERFIFY_TRAIN_PACE"
 """The training's :class:`Pace` as JSON (set by the pipeline for a budgeted run)."""
 MEASURED_STEPS = 10
@@ -140,6 +138,8 @@ def _follow_deadline(model: Any, keeper: PaceKeeper, step: int, checkpoints: int
     """A run slower than planned compresses its schedule further: the model config's ``schedule_step_scale`` (set
     for the planned iterations) times the iterations now expected over the planned ones, never raised (a stage
     that ended stays ended), so the paper's stages end within the steps the run gets."""
+    from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD  # torch: only in the training process
+
     config = getattr(model, "config", None)
     if keeper.pace.iterations <= 0 or not hasattr(config, STEP_SCALE_FIELD):
         return
