@@ -25,7 +25,7 @@ from nerfify_ns.registry.bases import plugin_facts as bases
 from nerfify_ns.registry.snippets import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
-from nerfify_ns.synthesis.proxy import proxy_spec
+from nerfify_ns.synthesis.proxy import SIZES, proxy_spec
 
 
 def one(mapping: dict) -> tuple[str, Any]:
@@ -397,7 +397,7 @@ def config_sizes(terminal: str, params: dict) -> list[dict]:
     the generated model config, the plan's values their defaults: the field builds the part from them (``of``: the
     part's parameter; ``type``: the field's annotation)."""
     spec = proxy_spec()
-    entries = {k: v for kind in ("grid", "width") for k, v in ((spec.get(kind) or {}).get(terminal) or {}).items()}
+    entries = {k: v for kind in SIZES for k, v in ((spec.get(kind) or {}).get(terminal) or {}).items()}
     return [{"name": entry["config"], "param": entry["config"], "of": param,
              "value": tuple(int(v) for v in params[param]) if isinstance(params[param], list) else int(params[param]),
              "type": "Tuple[int, ...]" if isinstance(params[param], list) else "int",
