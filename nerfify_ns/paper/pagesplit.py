@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import re
 import statistics
+from collections import Counter
 from dataclasses import dataclass
 
 from nerfify_ns.paper.builder import CAPTION, Block
@@ -23,9 +24,15 @@ _RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
 # "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
 _HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)"
                       r"(?P<title>(?:[A-Z]|\d[A-Z]\b)[^\n]{1,90})$")
-# a heading glued to the end of the previous line: "...Research.1. Introduction"
-_GLUED = re.compile(r"^(?P<before>.*[a-z.)\]])(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
+# a heading glued to the end of the previous line: "...Research.1. Introduction" (not a cross-reference's
+# number: "...see Sections 4.2 and 4.4. Beyond existing approaches" holds no heading)
+_GLUED = re.compile(r"^(?P<before>.*(?:[a-z)\]]|[a-z)\]]\.))(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
                     r"(?: [A-Za-z-]+){0,6})$")
+# a markdown heading: hashes, a space, text (a lone "#" is what an extractor leaves of a formula's bracket)
+_MD_HEADING = re.compile(r"^#{1,6}\s+\S")
+# a heading's number alone on its line, its title on the next ("3.1" then "SCENE REPRESENTATIONS": the layout
+# pdftotext gives a heading whose number and title are set apart)
+_NUMBER_ALONE = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})\.?$")
 _NAMED = re.compile(r"^(?P<name>Abstract|References|Acknowledge?ments?)\b[.:]?\s*(?P<rest>.*)$", re.IGNORECASE)
 _EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
 # a paragraph that opens with a run-in heading ("Ray Importance Sampling. We ...") starts on a line of its own
@@ -40,7 +47,7 @@ def is_page_split(text: str) -> bool:
     lines with no markdown heading at all (a PDF's text saved as ``.md``)."""
     lines = text.splitlines()
     pages = sum(1 for line in lines if PAGE_MARK.match(line))
-    others = sum(1 for line in lines if line.startswith("#") and not PAGE_MARK.match(line))
+    others = sum(1 for line in lines if _MD_HEADING.match(line) and not PAGE_MARK.match(line))
     return (pages >= 2 and others <= pages) or (others == 0 and pages == 0 and len(lines) >= 100)
 
 
@@ -91,6 +98,25 @@ def _title_like(title: str) -> bool:
         return False
     letters = sum(c.isalpha() for c in title)
     return letters >= 0.6 * len(title.replace(" ", "")) and not re.search(r"\d{3,}", title)
+
+
+def running_lines(lines: list[_Line], least: int = 3) -> frozenset[str]:
+    """Lines that follow a bare number (a page number) at least ``least`` times: running headers and footers
+    ("Preprint", a venue's banner) printed under every page number, which are never a heading's title."""
+    after = Counter(b.text for a, b in zip(lines, lines[1:]) if _NUMBER_ALONE.match(a.text))
+    return frozenset(text for text, n in after.items() if n >= least and not _NUMBER_ALONE.match(text))
+
+
+def _split_heading(s: str, following: _Line | None, previous: str | None,
+                   running: frozenset[str]) -> tuple[str, str] | None:
+    """(number, title) when ``s`` is a heading's number alone and the next line its title."""
+    m = _NUMBER_ALONE.match(s)
+    if m is None or following is None or following.text in running:
+        return None
+    title = following.text
+    if not re.match(r"^(?:[A-Z]|\d[A-Z]\b)", title) or title.endswith(".") or not _title_like(title):
+        return None
+    return (m.group("num"), title.strip()) if _follows(previous, m.group("num")) else None
 
 
 def _heading(s: str, previous: str | None) -> tuple[str, str, str] | None:
@@ -145,6 +171,8 @@ def page_split_blocks(text: str) -> list[Block]:
     previous: str | None = None
     next_equation = 1
     in_abstract = False
+    running = running_lines(lines)
+    skip = False
 
     def flush() -> None:
         if para:
@@ -153,9 +181,20 @@ def page_split_blocks(text: str) -> list[Block]:
             blocks.append(Block(kind, body, Location(page=para[0].page, line=para[0].line)))
             para.clear()
 
-    for x in lines[start:]:
+    rest = lines[start:]
+    for k, x in enumerate(rest):
+        if skip:  # the title of a heading whose number was the line before
+            skip = False
+            continue
         s = x.text
         loc = Location(page=x.page, line=x.line)
+        split = _split_heading(s, rest[k + 1] if k + 1 < len(rest) else None, previous, running)
+        if split is not None:
+            flush()
+            number, heading = split
+            blocks.append(Block("heading", heading, loc, level=number.count(".") + 1, number=number))
+            previous, skip = number, True
+            continue
         named = _NAMED.match(s)
         if named and (len(s) < 20 or named.group("name").lower() == "abstract") and previous is None \
                 and named.group("name").lower() == "abstract" and not in_abstract:

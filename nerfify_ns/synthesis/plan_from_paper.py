@@ -58,6 +58,11 @@ HOLE_SYMBOLS = {
 }
 
 
+
+def _scalar(hp) -> bool:
+    """A hyperparameter read as one number (not a range or a list of values)."""
+    return hp is not None and isinstance(hp.value, int | float) and not isinstance(hp.value, bool)
+
 class HyperparameterError(NerfifyError):
     """A card's hyperparameter expression that cannot be evaluated (a bug in the card, named with it)."""
 
@@ -585,14 +590,14 @@ class _Deriver:
                 kind = "adam"
             params = {"lr": float(h.value)}
             if kind == "adam":
-                params["eps"] = float(eps.value) if eps is not None and eps.sentence == h.sentence else \
+                params["eps"] = float(eps.value) if _scalar(eps) and eps.sentence == h.sentence else \
                     float(current["optimizer"].get(kind, {}).get("eps", 1e-15)
                           if kind in current["optimizer"] else 1e-15)
             elif "eps" in current["optimizer"].get(kind, {}):
                 params["eps"] = current["optimizer"][kind]["eps"]
             self._apply(plan, f"optimizers.{group}.optimizer", {kind: params}, h,
                         f"{kind} with learning rate {h.value}")
-            if final is not None and isinstance(final.value, int | float) and final.value < h.value:
+            if _scalar(final) and final.value < h.value:
                 steps = iterations or int(plan.get("trainer.max_num_iterations") or 200000)
                 kind_s = "exponential_decay"
                 if not re.search(r"exponential", final.sentence, re.IGNORECASE):

@@ -55,3 +55,24 @@ def test_headings_title_abstract_and_equations_are_recovered():
     assert [(e.number, e.text) for e in equations] == [("1", "Δx = D(γ(x), γ(t))")]
     assert equations[0].loc.page == 2
     assert any("5123. The emptiness voxel" in b.text for b in blocks if b.kind == "para")
+
+
+# pdftotext's layout for a conference template: a heading's number alone on its line and its title (in capitals)
+# on the next, page numbers on lines of their own, each followed by the running header; a lone "#" left of a
+# formula's bracket; a cross-reference's number at a line's end ("Sections 2 and 4.") before a capitalised line.
+SPLIT = "\n".join(["Streamed Fields for Dynamic Scenes", "Ann Author1, Ben Writer2", "ABSTRACT",
+                   "We stream feature channels over time.", "1", "INTRODUCTION",
+                   "Dynamic scenes are hard to store.", "1", "Under review as a conference paper",
+                   "More introduction text follows here.", "2", "METHOD",
+                   "We describe the field in Sections 2 and 4.", "2", "Under review as a conference paper",
+                   "2.1", "STREAMED CHANNELS", "Each entry stores F + k(T - 1) channels.", "#",
+                   "A sliding window picks F channels at time t. Shown in Sections 2.1 and 3.",
+                   "Beyond this the field is standard.", "3", "Under review as a conference paper",
+                   "3", "EXPERIMENTS", "Results."] + ["Filler line of running text."] * 100)
+
+
+def test_a_split_number_and_title_is_a_heading_and_page_numbers_are_not():
+    assert is_page_split(SPLIT)  # a lone "#" is no markdown heading
+    headings = [(b.number, b.text) for b in page_split_blocks(SPLIT) if b.kind == "heading"]
+    assert headings == [("", "Abstract"), ("1", "INTRODUCTION"), ("2", "METHOD"), ("2.1", "STREAMED CHANNELS"),
+                        ("3", "EXPERIMENTS")]

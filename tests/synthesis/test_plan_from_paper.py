@@ -467,3 +467,17 @@ def test_a_learning_rate_set_for_an_mlp_does_not_reach_the_base_s_feature_grids(
     assert any("learning rate" in n and "feature grids the paper does not state" in n for n in derived.plan["notes"])
     own = derive(foo_paper)
     assert own.plan.get("optimizers.fields.optimizer") == {"adam": {"lr": 0.01, "eps": 1e-15}}
+
+
+def test_an_epsilon_read_as_a_range_keeps_the_base_s_and_derives_the_plan(tmp_path):
+    """A flattened exponent ("1.0−15" for 1.0e-15) reads as a range of two numbers: the optimiser keeps the base's
+    epsilon instead of ending the plan in a traceback."""
+    doc = write_paper(tmp_path, {
+        "3 Method": "We use a multiresolution hash encoding following Instant-NGP [4] and the proposal sampler of [3].",
+        "4 Implementation": "The network is optimized with the Adam optimizer with a learning rate of 0.01, "
+                            "β = [0.9, 0.99], and ϵ = 1.0−15, for 20000 iterations."})
+    assert any(h.name == "adam_eps" and isinstance(h.value, list) for h in doc.hyperparameters)
+    plan = derive(doc).plan
+    for group in ("fields", "proposal_networks"):
+        adam = plan["optimizers"][group]["optimizer"]["adam"]
+        assert adam["lr"] == pytest.approx(0.01) and adam["eps"] == pytest.approx(1e-15)
