@@ -7,7 +7,9 @@ view-synthesis training method at all, decided from what its title, abstract and
 The cues, weights and thresholds are data (``families.yaml``). Each cue counts once per sentence, weighted by where
 the sentence is: the title and abstract say what the paper is about, the method sections what it does; the
 introduction and related work describe other people's methods and count little. The family whose score passes its
-threshold and comes first in ``precedence`` wins; a paper that passes none is ``static``.
+threshold and comes first in ``precedence`` wins, among the families whose score is at least ``dominance`` times the
+best score that passed (a surface paper that mentions Gaussian splatting and covariance matrices in passing is not
+a splatting paper); a paper that passes none is ``static``.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ class FamilyRules:
     weights: dict
     precedence: tuple[str, ...]
     families: dict[str, FamilySpec]
+    dominance: float = 0.0
 
 
 @dataclass
@@ -115,7 +118,8 @@ def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
         unknown = [p for p in precedence if p not in families]
         if unknown:
             raise KeyError(f"precedence names unknown families {unknown}")
-        return FamilyRules(weights=dict(data["weights"]), precedence=precedence, families=families)
+        return FamilyRules(weights=dict(data["weights"]), precedence=precedence, families=families,
+                           dominance=float(data.get("dominance", 0.0)))
     except (OSError, KeyError, TypeError, ValueError, re.error, yaml.YAMLError) as exc:
         raise KnowledgeError(f"{path}: cannot read the paper families ({exc}); fix families.yaml") from exc
 
@@ -161,6 +165,8 @@ def detect_family(doc: Any, rules: Rules | None = None, family: FamilyRules | No
         scores[name] = round(score, 2)
         found[name] = ev
     passed = [n for n in fr.precedence if scores.get(n, 0.0) >= fr.families[n].threshold]
+    best = max((scores[n] for n in passed), default=0.0)
+    passed = [n for n in passed if scores[n] >= fr.dominance * best]
     name = passed[0] if passed else STATIC
     spec = fr.families.get(name)
     evidence = []

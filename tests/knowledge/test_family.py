@@ -68,3 +68,24 @@ def test_a_paper_the_grammar_cannot_build_stops_after_its_plan(tmp_path, name, f
     else:
         assert "method" not in plan["family"]
         assert stands_on(plan) == plan["base"] == _plan_base(out)
+
+
+def test_a_family_passed_by_a_margin_far_below_another_s_does_not_take_precedence(tmp_path):
+    """Precedence (splatting before surface) decides only among comparable scores: a surface paper that builds
+    rotation matrices and compares with Gaussian splatting in passing stays a surface paper."""
+    from synthetic_papers import write_paper
+
+    doc = write_paper(tmp_path, {
+        "3 Method": ("We represent the surface as the zero-level set of a signed distance function. "
+                     "The signed distance field is trained with an eikonal loss. Each camera's rotation matrix is "
+                     "refined jointly; the covariance matrix of the pose noise is diagonal. Surface reconstruction "
+                     "follows NeuS. The signed distance function is converted to density for volume rendering."),
+        "4 Experiments": ("We compare with 3D Gaussian splatting [2], whose 3D Gaussians are rasterized, and with "
+                          "splatting-based baselines. Meshes are extracted with marching cubes.")},
+        title="RaySurf: Surface Reconstruction with Signed Distance Functions",
+        abstract="We present RaySurf, a signed distance function method for multi-view surface reconstruction.")
+    family = detect_family(doc, KB.rules)
+    scores = {name: v["score"] for name, v in family.scores.items()}
+    assert scores["splatting"] >= family.scores["splatting"]["threshold"], scores  # it passes its threshold
+    assert scores["splatting"] < 0.5 * scores["surface"], scores
+    assert family.name == "surface" and "splatting" not in family.also, family.to_dict()
