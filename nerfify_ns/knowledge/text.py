@@ -54,9 +54,14 @@ def normalize_arxiv_id(value: str | None) -> str | None:
     return None
 
 
+_TYPOGRAPHIC = {"l": "[lℓ]"}
+"""Letters papers also set in a typographic variant: the script l of "ℓ2 loss", "ℓ1 regulariser"."""
+
+
 def alias_pattern(alias: str) -> re.Pattern:
     """A case-insensitive pattern for ``alias`` in running text: whole words only, any run of
-    spaces, hyphens, underscores, slashes or "~" between its words, an optional plural 's'/'es'.
+    spaces, hyphens, underscores, slashes or "~" between its words, an optional plural 's'/'es'; an "l" also
+    matches the script "ℓ" ("ℓ2-loss" is the "l2 loss").
     A '+' in the alias is kept literally ("nerf++" does not match plain "NeRF"). Knowledge-base tables
     compile their aliases once (``KnowledgeBase.card_aliases``); ``re`` caches the rest."""
     tokens = re.findall(r"[0-9a-z]+|\+", _strip_accents(alias).lower())
@@ -72,7 +77,7 @@ def alias_pattern(alias: str) -> re.Pattern:
             continue
         if previous_word:
             parts.append(sep)
-        parts.append(re.escape(tok))
+        parts.append("".join(_TYPOGRAPHIC.get(ch, re.escape(ch)) for ch in tok))
         previous_word = True
     suffix = r"(?:e?s)?" if previous_word else ""
     return re.compile(r"(?<![0-9A-Za-z])" + "".join(parts) + suffix + r"(?![0-9A-Za-z+])", re.IGNORECASE)

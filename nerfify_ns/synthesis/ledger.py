@@ -43,7 +43,8 @@ HEADING_WEIGHT = 6
 the part says most about what it is)."""
 GENERIC_HEADING_WORDS = ("field", "fields", "model", "network", "networks", "method", "representation", "rendering",
                          "optimisation", "optimization", "training", "loss", "losses", "scene", "scenes", "radiance",
-                         "neural", "overview", "details", "design", "architecture", "sampling", "volume", "efficient")
+                         "neural", "overview", "details", "design", "architecture", "sampling", "volume", "efficient",
+                         "function", "functions", "objective", "objectives")
 """Heading words too common to link a claim about the whole paper to one part."""
 _STOP = set("""a an the of for and or to in on with by from as at is are was were be been this that these those we our
 it its their which using use used into via each per than then also can may more most such both not only all any

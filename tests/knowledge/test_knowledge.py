@@ -493,3 +493,11 @@ def test_components_import_only_torch_nerfstudio_and_stdlib():
     assert not foreign, foreign
     project = {n for n in _imports(folder) if n.split(".")[0] == "nerfify_ns"}
     assert all(n.startswith("nerfify_ns.components") for n in project), project
+
+
+def test_an_alias_matches_the_script_l_papers_set_for_l():
+    from nerfify_ns.knowledge.text import alias_pattern
+
+    l2 = alias_pattern("l2 loss")
+    assert l2.search("by minimizing the ℓ2-loss between the rendered colours") and l2.search("an L2 loss")
+    assert not l2.search("a kl2 loss") and not alias_pattern("l1").search("the 2ℓ1 term")

@@ -183,3 +183,42 @@ def test_the_words_of_the_papers_family_count_little_for_where_a_part_lands(tmp_
     scores = _ledger(tmp_path, STREAM).new[0].production_scores
     assert scores["FieldWrapper"] > _ledger(tmp_path, STREAM, family="dynamic").new[0].production_scores.get(
         "FieldWrapper", 0)
+
+
+DEPTH_LOSS = """# KeyNeRF: Radiance Fields Supervised by Keypoints
+
+## Abstract
+
+KeyNeRF fits a radiance field to a few photographs and the keypoints structure from motion returns with them.
+
+## 1 Introduction
+
+Radiance fields need many views. Structure from motion returns sparse keypoints with the camera poses. We learn
+the plenoptic function by our novel radiance field that conditions on keypoints.
+
+## 3 Method
+
+### 3.1 Keypoint Depth
+
+We add a loss that pulls the expected termination depth of each ray towards the depth of the keypoint seen
+through its pixel, weighted by the keypoint's reprojection error, so that few views suffice.
+
+### 3.2 Loss Function
+
+The radiance field that conditions on keypoints is trained by minimizing the ℓ2-loss between the rendered colours
+and the observed colours of the rays of a batch; we learn it with plain gradient descent.
+"""
+
+
+def test_a_loss_on_another_quantity_than_colour_is_a_regulariser(tmp_path: Path):
+    # "loss" says that a part is a loss, not which: a term added on depth is a term beside the photometric loss
+    ledger = _ledger(tmp_path, DEPTH_LOSS)
+    assert ("Keypoint Depth", "Regularizers") in _new(ledger), _new(ledger)
+
+
+def test_a_loss_function_section_is_not_linked_to_a_claim_by_the_word_function(tmp_path: Path):
+    # "Loss Function" shares only "function" with the claim about the plenoptic function: no link, and the
+    # section (the l2 loss, written with a script l) is no new part
+    ledger = _ledger(tmp_path, DEPTH_LOSS)
+    part = next(p for p in ledger.parts if p.heading == "Loss Function")
+    assert part.status != "new", (part.status, part.why)

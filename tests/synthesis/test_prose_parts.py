@@ -275,3 +275,19 @@ def test_the_built_parts_pass_every_rung(tmp_path, dynamic_scene, dynamic_built,
     checked = {c["component"] for c in report.rung("contract").details["cases"] if c["status"] == "pass"}
     assert {"deformation", "camera_time_offset", "field_blend", "image_curriculum", "gradient_importance",
             "mlp"} <= checked
+
+
+def test_a_loss_term_naming_the_part_it_acts_on_stays_a_loss():
+    """A regulariser's sentences name the network it penalises; that does not make the regulariser a deformation
+    network (the hole stays where the derivation filed it, not built from those sentences)."""
+    plan = _dynamic_plan()
+    plan["scene"]["timestamps"] = True
+    result, plan = _build("Regularizers", "model.regularizers",
+                          ["We regularize the offsets of the deformation network that maps each point into the "
+                           "canonical space by penalising their mean squared magnitude."], plan=plan)
+    assert result.status == NOT_IMPLEMENTED and not isinstance(result, prose.ProseResult)
+    assert "field_wrappers" not in plan["model"]
+    # the same sentences filed as a backbone hole are placed where they state a part
+    result, plan = _build("Backbone", "model.field.MLPField.backbone",
+                          ["A deformation network maps each point into the canonical space."], plan=plan)
+    assert isinstance(result, prose.ProseResult) and result.production == "FieldWrapper"

@@ -90,6 +90,7 @@ class Spec:
     parts: list
     tens_words: dict = field(default_factory=dict)
     scale_words: dict = field(default_factory=dict)
+    kept_losses: tuple = ()          # productions of loss terms a hole is never refiled from (prose.yaml)
 
 
 def _compile(pattern: str, spec_words: dict) -> re.Pattern:
@@ -169,7 +170,7 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
         parts.append(part)
     return Spec(comp(data["negation"]), int(data["negation_window"]), comp(data["out_of_scope_sections"]),
                 mentions, words["number_words"], words["ordinal_words"], parts, words["tens_words"],
-                words["scale_words"])
+                words["scale_words"], tuple(data.get("kept_losses") or ()))
 
 
 # ------------------------------------------------------------------------------------------ sentences
@@ -614,7 +615,8 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
     """The hole built from its sentences (a ProseResult, the plan changed in place), or ``compiled`` unchanged
     when the compiler implemented it or no sentence of the hole states a typed part. A part of the hole's own
     production is looked for first; a hole the derivation filed under another production (an encoding) whose own
-    sentences state a typed part of one of PRODUCTIONS is placed there, and its record says so."""
+    sentences state a typed part of one of PRODUCTIONS is placed there, and its record says so (never a loss term's
+    hole: ``kept_losses``)."""
     if compiled.status != NOT_IMPLEMENTED or not hole.get("slot"):
         return compiled
     spec = load_spec()
@@ -622,7 +624,8 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
     slot, production = hole["slot"], hole["production"]
     stated = _stated_parts(spec, production, scope)
     refiled = ""
-    for other in [p for p in PRODUCTIONS if p != production] if not stated else []:
+    others = [p for p in PRODUCTIONS if p != production] if production not in spec.kept_losses else []
+    for other in others if not stated else []:
         # the derivation filed the part elsewhere, but its own sentences state a typed part of another production
         stated = _stated_parts(spec, other, scope)
         other_slot = _slot_in(plan, other)
