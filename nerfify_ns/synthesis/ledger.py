@@ -55,7 +55,8 @@ def _rules() -> dict:
     data = yaml.safe_load(LEDGER_FILE.read_text(encoding="utf-8"))
     comp = lambda items: [re.compile(p, re.IGNORECASE) for p in items]  # noqa: E731
     return {
-        "claim": comp(data["claim"]), "borrow": comp(data["borrow"]),
+        "claim": comp(data["claim"]), "borrow": comp(data["cites"] + data["borrow"]),
+        "cites": comp(data["cites"]),
         "contributions_intro": re.compile(data["contributions_intro"], re.IGNORECASE),
         "whole_paper": re.compile(data["whole_paper"]),
         "first_person": re.compile(data["first_person"], re.IGNORECASE),
@@ -431,7 +432,8 @@ class _Reader:
                 continue
             for paragraph in s.paragraphs:
                 for sentence in split_sentences(paragraph.text):
-                    if sentence in held or not self.r["first_person"].search(sentence) or _borrows(sentence, self.r):
+                    if sentence in held or not self.r["first_person"].search(sentence) \
+                            or any(p.search(sentence) for p in self.r["cites"]):
                         continue
                     if any(p.search(sentence) for p in self.r["schedule_phase"]):
                         page, line, _ = _loc(paragraph.loc)

@@ -222,3 +222,32 @@ def test_a_loss_function_section_is_not_linked_to_a_claim_by_the_word_function(t
     ledger = _ledger(tmp_path, DEPTH_LOSS)
     part = next(p for p in ledger.parts if p.heading == "Loss Function")
     assert part.status != "new", (part.status, part.why)
+
+
+CURRICULUM = """# TickNeRF: Radiance Fields of Moving Scenes
+
+## Abstract
+
+TickNeRF renders a moving scene at any time from a monocular video.
+
+## 1 Introduction
+
+Dynamic scenes change over time.
+
+## 3 Method
+
+A deformation network maps each point and time into a canonical space queried by a static field.
+
+## 4 Implementation Details
+
+We train for 200k iterations with a batch of 4096 rays. To ease training, we apply a curriculum learning strategy
+where we incrementally add images with higher time stamps. We use the Adam optimizer.
+"""
+
+
+def test_a_curriculum_stated_in_the_details_is_a_schedule_hook_unless_it_cites(tmp_path: Path):
+    ledger = _ledger(tmp_path, CURRICULUM, family="dynamic")
+    phases = [p for p in ledger.new if p.production == "ScheduleHook"]
+    assert len(phases) == 1 and "curriculum" in phases[0].sentences[0], _new(ledger)
+    cited = CURRICULUM.replace("we apply a curriculum", "following [4], we apply a curriculum")
+    assert not [p for p in _ledger(tmp_path, cited, family="dynamic").new if p.production == "ScheduleHook"]
