@@ -37,6 +37,7 @@ class Rules:
     comparison: tuple[re.Pattern, ...]
     hyperparameter_cards: dict
     scene_cues: tuple = ()   # (flag, value, (pattern, ...)) per scene fact a paper can state
+    experiment_details: re.Pattern | None = None   # a subsection of the experiments that is the method's details
 
 
 def load_rules(path: str | None = None) -> Rules:
@@ -69,7 +70,9 @@ def read_rules(path: Path | str = DETECT_FILE) -> Rules:
             own=comp(cues["own"]),
             contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards,
             scene_cues=tuple((str(flag), spec["value"], comp(spec["patterns"]))
-                             for flag, spec in (data.get("scene_cues") or {}).items()))
+                             for flag, spec in (data.get("scene_cues") or {}).items()),
+            experiment_details=re.compile(data["experiment_details"], re.IGNORECASE)
+            if data.get("experiment_details") else None)
     except (OSError, KeyError, TypeError, re.error, yaml.YAMLError) as exc:
         raise KnowledgeError(f"{path}: cannot read the detection rules ({exc}); fix detect.yaml") from exc
 
@@ -93,6 +96,9 @@ def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
         role = own or parent or "method"
         if parent == "prior" and role == "method":
             role = "prior"  # a subsection of related work describes others' methods, whatever its heading says
+        if parent == "experiments" and role == "method" and not (
+                rules.experiment_details is not None and rules.experiment_details.search(heading)):
+            role = "experiments"  # "4.1 Rendering" under the experiments reports results, whatever its heading says
         roles[i] = role
         stack.append((level, number, role))
     return roles

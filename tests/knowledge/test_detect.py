@@ -143,3 +143,19 @@ def test_seathru_appendix_detects_no_technique(real_detections):
     for d in detections:
         if d.used:
             assert any(e.kind == "equation" and e.quote in latex for e in d.evidence), d.card
+
+
+def test_a_subsection_of_the_experiments_named_after_the_method_reports_results(tmp_path):
+    """"4.1 Rendering" under "4 Experiments" is results, not the method; "4.3 Implementation details" is the
+    method's details wherever it is."""
+    from nerfify_ns.knowledge.sentences import section_roles
+
+    doc = write_paper(tmp_path, {"3 Method": "We render with a proposal sampler.",
+                                 "4 Experiments": "We evaluate on two datasets.",
+                                 "4.1 Rendering": "Our renders are sharper than the baselines'.",
+                                 "4.2 Feature Model": "Lifted features improve occupancy prediction.",
+                                 "4.3 Implementation Details": "We train for 20k iterations."})
+    roles = {s.title: section_roles(doc)[i] for i, s in enumerate(doc.sections)}
+    assert roles["Method"] == "method" and roles["Experiments"] == "experiments"
+    assert roles["Rendering"] == "experiments" and roles["Feature Model"] == "experiments"
+    assert roles["Implementation Details"] == "method"
