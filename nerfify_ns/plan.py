@@ -77,6 +77,8 @@ class Hole:
     """Why it is new (no card's equation matches, a claim no card covers) and why it lands at its production."""
     hyperparameters: list[dict] = field(default_factory=list)
     """The paper's hyperparameters stated in the part's section ({name, value, sentence})."""
+    sections: list[str] = field(default_factory=list)
+    """The further sections of a contribution developed over sibling subsections (its sentences are the part's)."""
 
     def to_dict(self) -> dict:
         return asdict(self)

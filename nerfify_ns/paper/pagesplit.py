@@ -35,6 +35,9 @@ _MD_HEADING = re.compile(r"^#{1,6}\s+\S")
 _NUMBER_ALONE = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})\.?$")
 _NAMED = re.compile(r"^(?P<name>Abstract|References|Acknowledge?ments?)\b[.:]?\s*(?P<rest>.*)$", re.IGNORECASE)
 _EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
+# an equation's number alone on its line, its body on the short lines above it (pdftotext sets a display equation's
+# pieces on lines of their own: "Lσd = E(σd)" then "(6)")
+_EQ_NUM_ALONE = re.compile(r"^\(\s*(?P<num>\d{1,3})\s*\)$")
 # a paragraph that opens with a run-in heading ("Ray Importance Sampling. We ...") starts on a line of its own
 _RUN_IN = re.compile(r"^[A-Z][\w-]*(?: (?:[A-Z0-9][\w-]*|of|for|and|the|in|with|via|to|on)){1,6}\.\s+[A-Z]")
 _MATHY = re.compile(r"[=+∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\≈≤≥×·∈→−‖∥⊙⊗]")
@@ -158,6 +161,18 @@ def _dehyphenate(lines: list[str]) -> str:
     return re.sub(r"\s+", " ", text).strip()
 
 
+def _equation_lines(para: list[_Line], most: int = 40) -> list[_Line]:
+    """The lines at the end of ``para`` that make a display equation: short, with math in them or a few symbols,
+    back to the prose that introduces it (a line ending a sentence or a clause, or a long line)."""
+    body: list[_Line] = []
+    for x in reversed(para[-most:]):
+        t = x.text
+        if len(t) > 80 or t.endswith((".", ":", ";")) or (len(t.split()) > 4 and not _MATHY.search(t)):
+            break
+        body.insert(0, x)
+    return body if body and any(_MATHY.search(x.text) for x in body) else []
+
+
 def page_split_blocks(text: str) -> list[Block]:
     """The blocks of a page-split extraction (see the module docstring), in reading order."""
     lines = _lines(text)
@@ -217,6 +232,17 @@ def page_split_blocks(text: str) -> list[Block]:
             blocks.append(Block("heading", heading, loc, level=number.count(".") + 1, number=number))
             previous = number
             continue
+        alone = _EQ_NUM_ALONE.match(s)
+        if alone and int(alone.group("num")) in (next_equation, next_equation + 1):
+            body = _equation_lines(para)
+            if body:
+                del para[len(para) - len(body):]
+                flush()
+                blocks.append(Block("equation", " ".join(x.text for x in body), Location(page=body[0].page,
+                                                                                         line=body[0].line),
+                                    number=alone.group("num")))
+                next_equation = int(alone.group("num")) + 1
+                continue
         eq = _EQ_NUM.match(s)
         if eq and int(eq.group("num")) in (next_equation, next_equation + 1) and _MATHY.search(eq.group("body")) \
                 and len(eq.group("body")) < 240:

@@ -120,6 +120,10 @@ class Part:
     """The opening of a section whose run-in paragraphs are the parts (its claims announce them)."""
     appendix: bool = False
     """In an appendix or supplementary section (after the references, or numbered A, B, ...)."""
+    parent: str = ""
+    """The number of the section its section is a subsection of ("3" for a part of 3.2; "" at the top level)."""
+    more_sections: list = field(default_factory=list)
+    """The sibling subsections merged into it (their sentences are this part's)."""
     claims: list = field(default_factory=list)
     """The claims that link to it (their text)."""
     own_claims: list = field(default_factory=list)
@@ -270,8 +274,9 @@ class _Reader:
             appendix = after_references or bool(re.search(r"[A-Za-z]", number)) or \
                 bool(re.search(r"\b(?:appendix|supplementa)", title, re.I))
             page, line, order = _loc(s.loc)
+            parent = number.rsplit(".", 1)[0] if "." in number else ""
             current = Part(f"p{len(parts) + 1}", title, heading, page=page, line=line, generic=generic,
-                           appendix=appendix)
+                           appendix=appendix, parent=parent)
             section_parts = [current]
             orders = [order]
             for p in s.paragraphs:
@@ -279,7 +284,7 @@ class _Reader:
                 ppage, pline, porder = _loc(p.loc)
                 if m and not self.r["run_in_not"].match(m.group("title")) and len(m.group("title")) >= 6:
                     current = Part(f"p{len(parts) + len(section_parts) + 1}", m.group("title"), heading,
-                                   page=ppage, line=pline, appendix=section_parts[0].appendix)
+                                   page=ppage, line=pline, appendix=section_parts[0].appendix, parent=parent)
                     section_parts.append(current)
                     orders.append(porder)
                     text = p.text[m.end():]
@@ -288,7 +293,7 @@ class _Reader:
                 for sentence in split_sentences(text):
                     if _run_in_sentence(sentence, self.r) and current.sentences:
                         current = Part("", sentence.rstrip(". "), heading, page=ppage, line=pline,
-                                       appendix=section_parts[0].appendix)
+                                       appendix=section_parts[0].appendix, parent=parent)
                         section_parts.append(current)
                         orders.append(porder)
                         continue
@@ -677,13 +682,15 @@ def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None, family:
 
 
 def _merge(parts: list[Part]) -> None:
-    """Adjacent new parts of one section that land on the same production are one contribution."""
+    """Adjacent new parts of one section, or of sibling subsections (3.1, 3.2 of section 3: a representation
+    developed over several subsections), that land on the same production are one contribution."""
     last: Part | None = None
     for p in parts:
         if p.status != "new":
             last = None if p.status == "new" else last
             continue
-        if last is not None and last.section == p.section and last.production == p.production:
+        siblings = last is not None and (last.section == p.section or (p.parent and last.parent == p.parent))
+        if siblings and last.production == p.production:
             last.heading = f"{last.heading}; {p.heading}"
             last.sentences += p.sentences
             last.orders += p.orders
@@ -691,6 +698,8 @@ def _merge(parts: list[Part]) -> None:
             last.hyperparameters += p.hyperparameters
             last.claims += [c for c in p.claims if c not in last.claims]
             last.own_claims += p.own_claims
+            last.more_sections += [x for x in [p.section, *p.more_sections]
+                                   if x != last.section and x not in last.more_sections]
             p.status, p.why = "merged", f"part of {last.id} ({last.heading})"
             continue
         last = p

@@ -641,6 +641,7 @@ class _Deriver:
             hole.contribution = f"{part.id}: {part.heading}"
             hole.claim = (part.own_claims or part.claims or [""])[0][:400]
             hole.hyperparameters = [dict(h) for h in part.hyperparameters[:20]]
+            hole.sections = list(part.more_sections)
             hole.why = (f"{part.why}; lands at {part.production} (meaning scores "
                         f"{', '.join(f'{k} {v}' for k, v in part.production_scores.items())})")
             holes.append(hole)

@@ -76,3 +76,13 @@ def test_a_split_number_and_title_is_a_heading_and_page_numbers_are_not():
     headings = [(b.number, b.text) for b in page_split_blocks(SPLIT) if b.kind == "heading"]
     assert headings == [("", "Abstract"), ("1", "INTRODUCTION"), ("2", "METHOD"), ("2.1", "STREAMED CHANNELS"),
                         ("3", "EXPERIMENTS")]
+
+
+def test_an_equation_number_alone_on_its_line_takes_the_short_lines_above_it():
+    text = "\n".join(["Streamed Fields", "Ann Author1, Ben Writer2", "1", "METHOD",
+                      "We penalise the dynamic density so that the dynamic field is used only when",
+                      "needed:", "Lσd = E(σd)", "(1)", "The weight of this term is small, and the flow reads",
+                      "v = MLPv(Hv(x, t))", "x′ = x + v", "(2)", "Then the next paragraph starts here."]
+                     + ["Filler line of running text."] * 100)
+    equations = [(b.number, b.text) for b in page_split_blocks(text) if b.kind == "equation"]
+    assert equations == [("1", "Lσd = E(σd)"), ("2", "v = MLPv(Hv(x, t)) x′ = x + v")]
