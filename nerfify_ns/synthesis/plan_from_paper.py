@@ -739,7 +739,7 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
     decision = d.choose_base() if reference_plans else BaseDecision(
         base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
         "are not consulted)", [], criterion="ablation")
-    decision = _base_for_family(decision, family, kb, ledger)
+    decision = _base_for_family(decision, family, kb)
     base = decision.base
     plan = _start(doc, base, kb)
     d.scene(plan)
@@ -812,13 +812,9 @@ def _without_claims(detections: list[Detection], ledger: Ledger) -> list[Detecti
     return out
 
 
-def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase,
-                     ledger: Ledger | None = None) -> BaseDecision:
+def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase) -> BaseDecision:
     """The base must hold the family's scene facts (a dynamic paper stands on a time-capable base): when the chosen
-    one does not, the first reference plan in the knowledge base's order that does, with the reason. A paper whose
-    own new part is what carries time (a deformation network, a time embedding, per-frame codes: a field wrapper
-    that reads the samples' times, stated in the part's sentences) stays on the best host of its techniques: the
-    wrapper makes that base's field dynamic (D-NeRF is NeRF with a deformation network, not a space-time grid)."""
+    one does not, the first reference plan in the knowledge base's order that does, with the reason."""
     if not family.scene:
         return decision
     def fits(name: str) -> bool:
@@ -826,12 +822,6 @@ def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase,
         return all(scene.get(k) == v for k, v in family.scene.items())
     if fits(decision.base):
         return decision
-    carriers = _time_carriers(ledger, decision.base) if ledger is not None else []
-    if carriers and set(family.scene) == {"timestamps"}:
-        part, wrapper = carriers[0]
-        return dataclasses.replace(decision, reason=f"{decision.reason}; the paper is a {family.name} one and its own "
-                                   f"part '{part}' ({wrapper}, built as a field wrapper) carries time on this "
-                                   "base's field")
     other = next((b for b in base_order(kb) if fits(b)), None)
     if other is None:
         return decision
@@ -839,33 +829,6 @@ def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase,
     return dataclasses.replace(decision, base=other, reason=f"{other}: the paper is a {family.name} one ({facts}); "
                                f"{decision.base} cannot hold that (it was the best host of the paper's techniques: "
                                f"{decision.reason})")
-
-
-def _time_carriers(ledger: Ledger, base: str) -> list[tuple[str, str]]:
-    """(part heading, wrapper) for each new FieldWrapper part of ``ledger`` whose own sentences state a field wrapper
-    that reads the samples' times (the registry's ``requires_scene: timestamps`` duty) and that ``base`` can apply
-    (every constraint of the wrapper holds on a plan of that base)."""
-    from nerfify_ns.registry.core import default_registry
-    from nerfify_ns.synthesis.novel import prose
-
-    spec, terminals = prose.load_spec(), default_registry().terminals
-    base_plan = load_reference_plan(base)
-
-    def carries_time(name: str) -> bool:
-        term = terminals.get(name)
-        return term is not None and {"requires_scene": {"timestamps": True}} in list(term.duties) and all(
-            c.holds({}, base_plan) for c in term.constraints) and "MLPField" in (base_plan["model"]["field"] or {})
-    kinds = [p for p in spec.parts if p.production == "FieldWrapper" and carries_time(p.terminal)]
-    out = []
-    for part in ledger.new:
-        if part.production != "FieldWrapper":
-            continue
-        scope = prose.hole_sentences({"section": part.section, "text": " ".join(part.sentences),
-                                      "claim": " ".join(part.own_claims)}, [], spec)
-        stated = next((k for k in kinds if prose.statements(k, scope, spec)), None)
-        if stated is not None:
-            out.append((part.heading, stated.name.replace("_", " ")))
-    return out
 
 
 def _start(doc: Any, base: str, kb: KnowledgeBase) -> Plan:
