@@ -26,8 +26,8 @@ _HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s
                       r"(?P<title>(?:[A-Z]|\d[A-Z]\b)[^\n]{1,90})$")
 # a heading glued to the end of the previous line: "...Research.1. Introduction" (not a cross-reference's
 # number: "...see Sections 4.2 and 4.4. Beyond existing approaches" holds no heading)
-_GLUED = re.compile(r"^(?P<before>.*(?:[a-z)\]]|[a-z)\]]\.))(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?(?P<title>[A-Z][A-Za-z-]+"
-                    r"(?: [A-Za-z-]+){0,6})$")
+_GLUED = re.compile(r"^(?P<before>.*[a-z)\]]\.?)(?P<num>\d{1,2}(?:\.\d{1,2}){0,3})\.\s?"
+                    r"(?P<title>[A-Z][A-Za-z-]+(?: [A-Za-z-]+){0,6})$")
 # a markdown heading: hashes, a space, text (a lone "#" is what an extractor leaves of a formula's bracket)
 _MD_HEADING = re.compile(r"^#{1,6}\s+\S")
 # a heading's number alone on its line, its title on the next ("3.1" then "SCENE REPRESENTATIONS": the layout
@@ -106,7 +106,7 @@ def _title_like(title: str) -> bool:
 def running_lines(lines: list[_Line], least: int = 3) -> frozenset[str]:
     """Lines that follow a bare number (a page number) at least ``least`` times: running headers and footers
     ("Preprint", a venue's banner) printed under every page number, which are never a heading's title."""
-    after = Counter(b.text for a, b in zip(lines, lines[1:]) if _NUMBER_ALONE.match(a.text))
+    after = Counter(b.text for a, b in zip(lines, lines[1:], strict=False) if _NUMBER_ALONE.match(a.text))
     return frozenset(text for text, n in after.items() if n >= least and not _NUMBER_ALONE.match(text))
 
 
