@@ -227,3 +227,22 @@ def test_gridlite_luminance_prior_passes_every_rung_and_trains(tmp_path):
     values = [v for _, v in sorted(losses(read_scalars(runs[0])).items())]
     k = max(1, len(values) // 5)
     assert all(math.isfinite(v) for v in values) and sum(values[-k:]) < sum(values[:k]), values
+
+
+def test_a_flattened_text_equation_is_named_as_not_read_not_as_missing(tmp_path):
+    """A PDF's text saved as .txt: the regulariser's equation is recovered as text (number alone on its line), which
+    the compiler cannot parse; the part's record says so (cause: the equation not read), not "no equation"."""
+    lines = ["SparseFlow: Dynamic Fields With Sparse Motion", "Ann Author1, Ben Writer2", "Abstract",
+             "We present SparseFlow, a dynamic radiance field for videos of moving scenes.", "1", "Introduction",
+             "Dynamic scenes change over time and videos show them from one camera.", "2", "Method",
+             "A static field and a dynamic field are blended by density.", "2.1", "Dynamic Density Regularization",
+             "We propose to regularize the dynamic density by minimizing its expectation over all samples, so that",
+             "the dynamic field is used only where needed:", "Lσd = E(σd)", "(1)",
+             "The weight of this regularizer is 0.01 in all experiments."] + ["Filler line of running text."] * 100
+    paper = tmp_path / "paper.txt"
+    paper.write_text("\n".join(lines))
+    implementation = implement_holes(ingest(paper), plan_from_paper(ingest(paper)).plan)
+    records = [r for r in implementation.records if r.production == "Regularizers"]
+    assert records, [(r.production, r.reason) for r in implementation.records]
+    assert "flattened text without LaTeX ('Lσd = E(σd)')" in records[0].reason, records[0].reason
+    assert records[0].cause == "equation not read"

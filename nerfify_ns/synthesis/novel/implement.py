@@ -412,6 +412,11 @@ def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> 
     return plan
 
 
+def _short_text(text: str, most: int = 60) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= most else text[:most - 3] + "..."
+
+
 def _implement_one(work: _Hole) -> HoleResult:
     res = work.result
     own = work.hole_items()
@@ -424,7 +429,14 @@ def _implement_one(work: _Hole) -> HoleResult:
         return res
     later = work.following(own)
     if not own and not later:
-        res.reason = "no equation of the paper belongs to this part (the hole names none the reader found)"
+        flat = [e for e in work.hole.get("equations", []) if not (e.get("latex") or "").strip() and e.get("text")]
+        if flat:  # a text extraction's equations: what the compiler parses is LaTeX
+            res.reason = ("equations not read: " + "; ".join(f"Eq. {e.get('number') or '?'} is flattened text "
+                                                             f"without LaTeX ('{_short_text(e['text'])}')"
+                                                             for e in flat[:3])
+                          + " (the compiler parses LaTeX; a PDF or LaTeX source of the paper gives it)")
+        else:
+            res.reason = "no equation of the paper belongs to this part (the hole names none the reader found)"
         return res
     roots = work.roots(own, later)
     if not roots:
