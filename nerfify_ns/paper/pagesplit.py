@@ -3,8 +3,10 @@ sections; the paper's own numbered headings, title, abstract, paragraphs, captio
 recovered from the running text.
 
 Such a text is what a PDF-to-text tool writes: lines wrapped at the column width, words hyphenated across lines,
-headings on a line of their own ("3.1. Representation") or glued to the end of the previous one ("Research.1.
-Introduction"), equations flattened onto one line ending in their number ("F: (x, d, t) -> (c, sigma), (1)"). A heading
+headings on a line of their own ("3.1. Representation"), glued to the end of the previous one ("Research.1.
+Introduction") or with the number alone on the line before the title ("3.1" / "SCENE REPRESENTATIONS"; a running
+header printed under every page number is never a title), equations flattened onto one line ending in their number
+("F: (x, d, t) -> (c, sigma), (1)") or set in short lines above their number alone ("Lσd = E(σd)" / "(6)"). A heading
 is only taken when its number follows the previous heading's (2 -> 2.1 -> 2.2 -> 3, A.1 -> A.2), so a line that
 merely starts with a number ("5123. The emptiness voxel ...") is never a section.
 """
