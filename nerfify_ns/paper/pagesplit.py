@@ -105,7 +105,7 @@ def _title_like(title: str) -> bool:
     return letters >= 0.6 * len(title.replace(" ", "")) and not re.search(r"\d{3,}", title)
 
 
-def running_lines(lines: list[_Line], least: int = 3) -> frozenset[str]:
+def _running_lines(lines: list[_Line], least: int = 3) -> frozenset[str]:
     """Lines that follow a bare number (a page number) at least ``least`` times: running headers and footers
     ("Preprint", a venue's banner) printed under every page number, which are never a heading's title."""
     after = Counter(b.text for a, b in zip(lines, lines[1:], strict=False) if _NUMBER_ALONE.match(a.text))
@@ -114,14 +114,13 @@ def running_lines(lines: list[_Line], least: int = 3) -> frozenset[str]:
 
 def _split_heading(s: str, following: _Line | None, previous: str | None,
                    running: frozenset[str]) -> tuple[str, str] | None:
-    """(number, title) when ``s`` is a heading's number alone and the next line its title."""
+    """(number, title) when ``s`` is a heading's number alone and the next line its title (a title that ends a
+    sentence is running text): the two read as one heading line, "3.1 SCENE REPRESENTATIONS"."""
     m = _NUMBER_ALONE.match(s)
-    if m is None or following is None or following.text in running:
+    if m is None or following is None or following.text in running or following.text.endswith("."):
         return None
-    title = following.text
-    if not re.match(r"^(?:[A-Z]|\d[A-Z]\b)", title) or title.endswith(".") or not _title_like(title):
-        return None
-    return (m.group("num"), title.strip()) if _follows(previous, m.group("num")) else None
+    head = _heading(f"{m.group('num')} {following.text}", previous)
+    return (head[1], head[2]) if head is not None and not head[0] else None
 
 
 def _heading(s: str, previous: str | None) -> tuple[str, str, str] | None:
@@ -188,7 +187,7 @@ def page_split_blocks(text: str) -> list[Block]:
     previous: str | None = None
     next_equation = 1
     in_abstract = False
-    running = running_lines(lines)
+    running = _running_lines(lines)
     skip = False
 
     def flush() -> None:

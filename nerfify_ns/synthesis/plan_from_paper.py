@@ -58,10 +58,10 @@ HOLE_SYMBOLS = {
 }
 
 
-
 def _scalar(hp) -> bool:
     """A hyperparameter read as one number (not a range or a list of values)."""
     return hp is not None and isinstance(hp.value, int | float) and not isinstance(hp.value, bool)
+
 
 class HyperparameterError(NerfifyError):
     """A card's hyperparameter expression that cannot be evaluated (a bug in the card, named with it)."""
@@ -571,7 +571,7 @@ class _Deriver:
         h = self._hp("learning_rate")
         final = self._hp("learning_rate_final")
         eps = self._hp("adam_eps")
-        if h is None or not isinstance(h.value, int | float):
+        if not _scalar(h):
             return
         grids = self._stand_in_grids(plan)
         if grids:

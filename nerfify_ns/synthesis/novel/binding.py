@@ -31,7 +31,7 @@ from nerfify_ns.synthesis.novel.adapters import (
     Provision,
 )
 from nerfify_ns.synthesis.novel.items import Item, _norm, describe
-from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords
+from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords, _short
 from nerfify_ns.synthesis.novel.objective import sums_over
 from nerfify_ns.synthesis.novel.results import HoleResult
 from nerfify_ns.synthesis.novel.widths import Widths
@@ -640,11 +640,6 @@ def _first_seen(pool: list[Item]) -> dict[str, tuple]:
                 if isinstance(node, Symbol):
                     first.setdefault(node.key, (it.position, k, n))
     return first
-
-
-def _short(text: str, limit: int = 200) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _loose(sym: Symbol) -> str:

@@ -412,11 +412,6 @@ def revert(implementation: Implementation, hole_ids: list[str], reason: str) -> 
     return plan
 
 
-def _short_text(text: str, most: int = 60) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= most else text[:most - 3] + "..."
-
-
 def _implement_one(work: _Hole) -> HoleResult:
     res = work.result
     own = work.hole_items()
@@ -432,7 +427,7 @@ def _implement_one(work: _Hole) -> HoleResult:
         flat = [e for e in work.hole.get("equations", []) if not (e.get("latex") or "").strip() and e.get("text")]
         if flat:  # a text extraction's equations: what the compiler parses is LaTeX
             res.reason = ("equations not read: " + "; ".join(f"Eq. {e.get('number') or '?'} is flattened text "
-                                                             f"without LaTeX ('{_short_text(e['text'])}')"
+                                                             f"without LaTeX ('{_short(e['text'], 60)}')"
                                                              for e in flat[:3])
                           + " (the compiler parses LaTeX; a PDF or LaTeX source of the paper gives it)")
         else:

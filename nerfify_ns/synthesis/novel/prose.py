@@ -40,6 +40,7 @@ import yaml
 
 from nerfify_ns import runfolder
 from nerfify_ns.synthesis.novel.implement import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, HoleResult
+from nerfify_ns.synthesis.novel.notation import _short
 
 SPEC_FILE = Path(__file__).with_name("prose.yaml")
 PRODUCTIONS = ("FieldWrapper", "PixelSampler", "ScheduleHook", "Backbone", "PosEncoding")
@@ -348,11 +349,6 @@ def _coerce(spec_param: Any, value: Any) -> tuple[Any, str]:
     return (out if isinstance(value, list) else out[0]), ""
 
 
-def _short(text: str, limit: int = 220) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
 @dataclass
 class Choice:
     value: Any
@@ -382,7 +378,7 @@ class _Reader:
         self.missing: list[str] = []       # a required parameter the paper's statement does not name
 
     def quote(self, s: Sentence) -> str:
-        return _short(s.text)
+        return _short(s.text, 220)
 
     def run(self) -> dict[str, Choice]:
         first = self.found[0]
@@ -655,7 +651,7 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
         choices = reader.run()
         st = found[0]
         record = {"part": part.name, "terminal": part.terminal,
-                  "statement": {"quote": _short(st.sentence.text), "where": st.sentence.where,
+                  "statement": {"quote": _short(st.sentence.text, 220), "where": st.sentence.where,
                                 "matched": _short(st.match.group(0), 120)},
                   "parameters": {k: c.to_dict() for k, c in choices.items()}}
         if optional:
