@@ -816,7 +816,7 @@ def _split_top(m: Mapped) -> list[Mapped]:
     joined: list[Mapped] = []
     previous_kind = "quad"
     for piece, kind in pieces:
-        piece = piece.sub(r"&", " ").strip()
+        piece = _unwrap_row(piece.sub(r"&", " ").strip())
         piece = _strip_punctuation(piece)
         if not piece.text:
             previous_kind = kind
@@ -828,6 +828,17 @@ def _split_top(m: Mapped) -> list[Mapped]:
             joined.append(piece)
         previous_kind = kind
     return [chunk for piece in joined for chunk in _top_level_commas(piece)]
+
+
+def _unwrap_row(m: Mapped) -> Mapped:
+    """A row that is one brace group around an equation (``&{\\mathcal{L} = ...}``, the aligned rows some LaTeX
+    converters write): the group's content, a leading ``\\quad`` dropped."""
+    for _ in range(4):
+        content, end = read_group(m.text, 0) if m.text.startswith("{") else (None, 0)
+        if content is None or end != len(m.text) or not _RELATION.search(content):
+            break
+        m = m.slice(1, end - 1).sub(r"^\s*\\q?quad(?![A-Za-z])", " ").strip()
+    return m
 
 
 _RELATION = re.compile(r"(?<![<>\\])=|:=|\\(?:approx|coloneqq|triangleq|doteq|equiv)(?![A-Za-z])")

@@ -174,6 +174,8 @@ class _Resolver:
         if lower is not None and not (isinstance(lower, Number) and lower.value in (0.0, 1.0)):
             if upper is None or self._is_sample_upper(upper, scope):
                 raise ResolveError("a sum over samples that does not start at the first sample", index)
+        if upper is None and lower is None and self._indexes_rays(r.body, index):
+            return "rays", "full", None  # sum_{i,k} f(r_i(t_k)): i numbers the rays, k their samples
         if upper is None:
             if index in self.c.ray_indices and lower is None:
                 return "rays", "full", None
@@ -193,6 +195,11 @@ class _Resolver:
         if lower is None:
             raise ResolveError(f"a finite range over '{index}' without a lower limit", index)
         return "range", "full", None
+
+    def _indexes_rays(self, body: Expr, index: str) -> bool:
+        """Whether ``index`` numbers the rays in ``body``: it subscripts a ray (``\\mathbf{r}_i``)."""
+        return any(isinstance(n, Symbol) and n.name in self.c.ray_indices and index in n.subscripts
+                   for n in walk(body))
 
     def _is_sample_upper(self, upper: Expr, scope) -> bool:
         return isinstance(upper, Symbol) and not upper.args and upper.key in self.c.sample_counts

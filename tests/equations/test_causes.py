@@ -439,3 +439,55 @@ def test_a_compiled_loss_is_computed_in_float32_whatever_its_inputs_precision(tm
     got = module.half()(pred.half(), target.half())
     assert torch.isfinite(got) and got.dtype == torch.float32
     torch.testing.assert_close(got, want, rtol=2e-3, atol=0)
+
+
+CAUCHY = r"""# CauchyNeRF: A Sparsity Prior
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, and add a sparsity prior on
+the density.
+
+## 3 Method
+
+### 3.1 Sparsity prior
+
+We add a prior based on a Cauchy loss over the density at every sample $t_k$ of every ray $\mathbf{r}_i$ of the
+batch:
+
+$$\mathcal{L}_{s} = \lambda_{s} \sum_{i, k} \log\left(1 + 2\sigma(\mathbf{r}_{i}(t_{k}))^{2}\right) \tag{2}$$
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4 and set $\lambda_s = WEIGHT$.
+"""
+
+
+@pytest.mark.parametrize("stated, want", [(r"10^{-4}", 1e-4), (r"5 \times 10^{-3}", 5e-3), ("", None)])
+def test_a_regulariser_with_its_own_weight_summed_over_rays_and_samples(tmp_path, stated, want):
+    """A test paper's prior written with its own weight (L_s = lambda_s sum_{i,k} ...) over the rays r_i and their
+    samples t_k: the weight is taken out of the component and becomes the regulariser's weight, its value read from
+    the sentence in whatever notation it is written (or left at 1 and said); i numbers the rays because it
+    subscripts a ray. The component is the hand-written sum over rays and samples, gradients included."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "cauchy.md"
+    text = CAUCHY.replace("WEIGHT", stated) if stated else CAUCHY.replace(" and set $\\lambda_s = WEIGHT$", "")
+    path.write_text(text)
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "Regularizers"]
+    assert record.status == IMPLEMENTED, record.reason
+    assert any("own weight in the paper's equation" in n for n in record.notes), record.notes
+    assert record.component.get("weight") == (pytest.approx(want) if want is not None else None)
+    if want is None:
+        assert any("has no value in the paper: the weight stays 1" in n for n in record.notes), record.notes
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]().double()
+    sigma = (torch.rand(4, 6, 1, dtype=torch.float64) * 2).requires_grad_()
+    got = module(sigma)
+    want_value = torch.log(1 + 2 * sigma[..., 0] ** 2).sum()  # the paper's sum over i and k, without lambda_s
+    torch.testing.assert_close(got, want_value, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want_value, (sigma,))

@@ -289,12 +289,14 @@ def test_a_loss_on_densities_becomes_a_regulariser_with_the_papers_constants(tmp
     result = implement_holes(doc, plan_from_paper(doc).plan)
     record, module = _component(result, "regularizers")  # the ledger puts it at Regularizers: no placing needed
     assert record.status == IMPLEMENTED and record.production == "Regularizers", record.reason
-    assert record.bindings["lambda"] == {**record.bindings["lambda"], "as": "constant", "value": 0.01}
+    # lambda is the term's own weight: taken out of the component, the plugin adds the term times 0.01
+    assert "lambda" not in record.bindings and record.component["weight"] == 0.01
+    assert any(n.startswith("weight 0.01: cal L_s's own weight lambda") for n in record.notes), record.notes
     assert record.bindings["c"]["value"] == 0.5 and "where $\\lambda = 0.01$" in record.bindings["c"]["evidence"]
     member = [k for k in result.plan.get("model.regularizers") if k.startswith("custom_")]
     assert member == ["custom_regularizers"] and validate(result.plan)
     sigma = torch.rand(4, 6, 1, dtype=torch.float64)
-    want = (0.01 * (torch.sqrt(1 + sigma[..., 0] ** 2 / 0.5) - 1).sum(1)).mean()  # Eq. 3, per ray, as a mean
+    want = ((torch.sqrt(1 + sigma[..., 0] ** 2 / 0.5) - 1).sum(1)).mean()  # Eq. 3 without lambda, per ray, a mean
     torch.testing.assert_close(module().double()(sigma), want)
 
 

@@ -52,6 +52,7 @@ class _Attempt:
     composite: Equation | None = None
     dropped: list = field(default_factory=list)     # notes on rewrites
     roots: list = field(default_factory=list)
+    own_weights: list = field(default_factory=list)  # Symbol: a loss term's own weight, taken out of its equation
 
 
 class _Hole:
@@ -105,7 +106,18 @@ class _Hole:
             return []
         last = max(it.position for it in own)
         section = next((it.section for it in self.items if it.position > last and it.section != own[-1].section), None)
+        if section in self._other_parts_sections():  # another part's own equations, built there
+            return []
         return [it for it in self.items if it.section == section and it.position > last] if section else []
+
+    def _other_parts_sections(self) -> set[str]:
+        """The sections another novel part of the plan stands on (its own equations are that part's)."""
+        mine = {self.hole.get("section"), *(self.hole.get("sections") or [])}
+        out = set()
+        for h in self.plan.get("holes") or []:
+            if isinstance(h, dict):
+                out |= {h.get("section"), *(h.get("sections") or [])}
+        return {s for s in out - mine if s}
 
     def definitions(self, pool: list[Item]) -> dict[str, list[tuple[Equation, Item]]]:
         out: dict[str, list] = {}
@@ -171,6 +183,7 @@ class _Hole:
         """The equations the roots need (each symbol's definition nearest the roots) and every free symbol's
         binding; raises _Unbound naming what is missing."""
         self._basis, self._concat_used, self._provision_used = {}, set(), {}
+        self._own_weights = []
         defs = self.definitions(pool)
         self._defs = defs
         first = _first_seen(pool)
@@ -230,7 +243,7 @@ class _Hole:
                 equations.insert(0, Equation(lhs, Number(float(b["value"])), None, "=", "", (), None))
                 items.insert(0, None)
         outputs = [composite.defines] if composite is not None else [eq.defines for eq in roots]
-        return _Attempt(equations, outputs, items, composite, notes, list(roots)), bindings
+        return _Attempt(equations, outputs, items, composite, notes, list(roots), list(self._own_weights)), bindings
 
     def _pick_definition(self, key, defs, root_items, sym: Symbol | None = None):
         """The definition of ``key`` the part uses: one that defines it per sample when it is read with a sample
@@ -267,6 +280,7 @@ class _Hole:
                 kept.append(item)
             if len(kept) != len(rhs.items) and kept:
                 rhs = Concat(tuple(kept)) if len(kept) > 1 else kept[0]
+        rhs = self._own_weight(rhs, eq, notes)
         rhs = self._bind_bases(rhs, eq, notes)
         rhs = self._inline_functions(rhs, eq, notes)
         if eq.relation == "propto":  # a definition up to a constant factor: the factor is 1, said in the record
@@ -277,6 +291,23 @@ class _Hole:
         if rhs is eq.rhs:
             return eq
         return Equation(eq.lhs, rhs, eq.number, eq.relation, eq.source, eq.also, eq.free_index)
+
+    def _own_weight(self, rhs, eq: Equation, notes: list[str]):
+        """A regulariser written with its own weight (``L_s = lambda_s sum_{i,k} ...``): the weight is the term's
+        weight in the total loss (the plugin adds the component times it), not a quantity the component computes;
+        the factor is taken out and said, and its value is resolved where the paper states it."""
+        if self.adapter.production != "Regularizers" or not (isinstance(rhs, BinOp) and rhs.op == "*"):
+            return rhs
+        for weight, rest in ((rhs.left, rhs.right), (rhs.right, rhs.left)):
+            d = self.role_of(weight) if isinstance(weight, Symbol) else None
+            if d is not None and d.role == "loss_weight" and \
+                    not any(isinstance(n, Symbol) and n.key == weight.key for n in walk(rest)):
+                self._own_weights.append(weight)
+                notes.append(f"({eq.number or '?'}) {safe_comment(weight.key, 30)}: the term's own weight in the "
+                             "paper's equation, applied as the regulariser's weight in the loss (the component "
+                             "computes the term without it)")
+                return rest
+        return rhs
 
     def _inline_functions(self, expr, eq, notes):
         """A function the paper defines with a dummy argument (``P(x) \\propto e^{-|x|/0.1} + ...``) and applies to

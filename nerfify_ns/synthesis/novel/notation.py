@@ -24,7 +24,7 @@ from typing import Any
 import yaml
 
 from nerfify_ns.equations import ParseFailure, parse_expression
-from nerfify_ns.equations.ir import Symbol, walk
+from nerfify_ns.equations.ir import BinOp, Neg, Number, Symbol, walk
 from nerfify_ns.equations.mathsym import GREEK
 from nerfify_ns.knowledge.cards import card_notation
 
@@ -238,6 +238,22 @@ class StatedShape:
     where: str
 
 
+def _number(expr) -> float | None:
+    """The value of a number the paper writes in any notation (a product or quotient of numbers, a sign), else
+    None."""
+    if isinstance(expr, Number):
+        return float(expr.value)
+    if isinstance(expr, Neg):
+        inner = _number(expr.arg)
+        return None if inner is None else -inner
+    if isinstance(expr, BinOp) and expr.op in ("*", "/"):
+        left, right = _number(expr.left), _number(expr.right)
+        if left is None or right is None or (expr.op == "/" and right == 0.0):
+            return None
+        return left * right if expr.op == "*" else left / right
+    return None
+
+
 @dataclass
 class PaperWords:
     """What the paper's sentences say about its symbols."""
@@ -348,12 +364,11 @@ class PaperWords:
         # "$\lambda=0.1$, $\alpha=0.01$": a symbol's value stated in the text
         for m in _INLINE_MATH.finditer(text):
             for part in re.split(r",\s*(?=\\?[A-Za-z])", m.group(1)):
-                c = re.fullmatch(r"\s*(\\?[A-Za-z]+(?:_\{?[A-Za-z0-9]+\}?)?)\s*=\s*"
-                                 r"([-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?)\s*", part)
+                c = re.fullmatch(r"\s*(\\?[A-Za-z]+(?:_\{?[A-Za-z0-9]+\}?)?)\s*=\s*([^=<>]{1,60}?)\s*", part)
                 if c:
-                    expr = parse_expression(c.group(1))
-                    if isinstance(expr, Symbol):
-                        self.constants.setdefault(symbol_loose_key(expr), (float(c.group(2)), text, where))
+                    expr, value = parse_expression(c.group(1)), _number(parse_expression(c.group(2)))
+                    if isinstance(expr, Symbol) and value is not None:  # 0.1, 1e-4, 10^{-4}, 5 \times 10^{-3}
+                        self.constants.setdefault(symbol_loose_key(expr), (value, text, where))
         # "where ⊗ represents the dot product": what the paper calls an operator (checked against the shapes)
         for m in re.finditer(r"(⊗|⊙|∘|\\otimes|\\odot|\\circ)\s*\$?\s*(?:represents|denotes|is)\s+"
                              r"(?:the\s+|a\s+|an\s+)?"

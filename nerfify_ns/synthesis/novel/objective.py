@@ -53,14 +53,41 @@ def sums_over(eq: Equation, keys: set[str]) -> bool:
     return len(summands) >= 2 and any(coefficient(t, k) is not None for t in summands for k in keys - {eq.defines})
 
 
-def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWeight | None:
-    """The coefficient of the part's output (one of ``outputs``) in a sum of two or more terms that another
-    equation of the paper defines (its objective), resolved to a number; None when no such sum names it."""
+def _stated_numbers(items: list) -> dict[str, tuple[float, str]]:
+    """Every symbol an equation of the paper sets to a number (``\\lambda = 10^{-4}``), with where."""
     numbers: dict[str, tuple[float, str]] = {}
     for it in items:
         for e in it.equations():
             if e.defines and isinstance(e.rhs, Number):
                 numbers.setdefault(e.defines, (float(e.rhs.value), it.where))
+    return numbers
+
+
+def _stated(coef: Symbol, numbers: dict, words: Any) -> tuple[float, str] | None:
+    """The number an equation or a sentence of the paper sets the symbol to, with where; None if none does."""
+    stated = numbers.get(coef.key)
+    if stated is None and words is not None and symbol_loose_key(coef) in words.constants:
+        value, _quote, where = words.constants[symbol_loose_key(coef)]
+        stated = (float(value), where)
+    return stated
+
+
+def own_weight(weight: Symbol, output: str, items: list, words: Any) -> ObjectiveWeight:
+    """The weight a loss term carries in its own equation (``L_s = lambda_s sum ...``), resolved to the number the
+    paper sets it to, or left at 1 and said."""
+    stated = _stated(weight, _stated_numbers(items), words)
+    if stated is None:
+        return ObjectiveWeight(None, f"{output}'s own weight {weight.key} has no value in the paper: the weight "
+                                     "stays 1 (set it in the plan's weight)")
+    value, where = stated
+    return ObjectiveWeight(value, f"weight {value:g}: {output}'s own weight {weight.key} in its equation, "
+                                  f"{weight.key} = {value:g} at {where}")
+
+
+def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWeight | None:
+    """The coefficient of the part's output (one of ``outputs``) in a sum of two or more terms that another
+    equation of the paper defines (its objective), resolved to a number; None when no such sum names it."""
+    numbers = _stated_numbers(items)
     for it in items:
         for e in it.equations():
             summands = terms(e.rhs)
@@ -74,10 +101,7 @@ def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWe
                 if not isinstance(coef, Symbol):  # written in the sum (1 for a bare term)
                     value = float(coef.value if isinstance(coef, Number) else coef)
                     return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient in {objective}")
-                stated = numbers.get(coef.key)
-                if stated is None and words is not None and symbol_loose_key(coef) in words.constants:
-                    value, _quote, where = words.constants[symbol_loose_key(coef)]
-                    stated = (float(value), where)
+                stated = _stated(coef, numbers, words)
                 if stated is None:
                     return ObjectiveWeight(None, f"{output}'s coefficient {coef.key} in {objective} has no value in "
                                                  "the paper: the weight stays 1 (set it in the plan's weight)")
