@@ -491,3 +491,66 @@ def test_a_regulariser_with_its_own_weight_summed_over_rays_and_samples(tmp_path
     want_value = torch.log(1 + 2 * sigma[..., 0] ** 2).sum()  # the paper's sum over i and k, without lambda_s
     torch.testing.assert_close(got, want_value, rtol=1e-10, atol=1e-12)
     _grads_match(got, want_value, (sigma,))
+
+
+BATCH_MEAN = r"""# MeanNeRF: A Relative Loss
+
+## Abstract
+
+We use positional encoding, hierarchical sampling and volume rendering as NeRF does, with a relative photometric
+loss.
+
+## 3 Method
+
+### 3.1 Relative photometric loss
+
+We optimise the rendered colours with respect to a relative squared error over a batch of rays $\mathcal{R}$:
+
+LOSS
+
+## 4 Experiments
+
+We train for 200k iterations with a learning rate of 5e-4.
+"""
+
+OWN_EQUATION = r"""$$\mathcal{L}_{rel} = \frac{1}{|\mathcal{R}|} \sum_{\mathbf{r} \in \mathcal{R}}
+\frac{\| C(\mathbf{r})-\hat{C}(\mathbf{r}) \|_{2}^{2}}{\hat{C}(\mathbf{r})^2 + 0.01} \tag{2}$$"""
+
+OBJECTIVE_TERM = r"""$$\mathcal{L} = \mathcal{L}_{rel} + \lambda_{TV} \mathcal{L}_{TV} \tag{2}$$
+
+where the relative error and the total variation over the voxels $\mathcal{V}$ are:
+
+$$&{\mathcal{L}_{rel} = \frac{1}{|\mathcal{R}|} \sum_{\mathbf{r} \in \mathcal{R}}
+\frac{\| C(\mathbf{r})-\hat{C}(\mathbf{r}) \|_{2}^{2}}{\hat{C}(\mathbf{r})^2 + 0.01}} \\
+&{\quad \mathcal{L}_{TV} = \frac{1}{|\mathcal{V}|} \sum_{\mathbf{v} \in \mathcal{V}}
+\sqrt{\Delta_{x}^{2}(\mathbf{v}, d)}}$$"""
+
+
+@pytest.mark.parametrize("loss", [OWN_EQUATION, OBJECTIVE_TERM], ids=["its-own-equation", "a-term-of-the-objective"])
+def test_a_loss_averaged_over_the_batch_compares_the_estimate_with_the_observation(tmp_path, loss):
+    """A test paper's loss written as a mean over the batch's rays (1/|R| sum over r in R) between C and its hat,
+    with no sentence naming the ground truth: the sum over the rays divided by their number is the loss's own mean,
+    the hat marks the estimate (the render) and the plain C the observation. The component is the hand-written loss,
+    which is not symmetric in the two (the estimate is in the denominator), gradients included. Written as a term of
+    a numbered objective and defined in the unnumbered block after it (each row one brace group, as some LaTeX
+    converters write aligned rows; the other row unreadable), it is the same part."""
+    from nerfify_ns.paper import ingest
+    from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+    from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+
+    path = tmp_path / "relative.md"
+    path.write_text(BATCH_MEAN.replace("LOSS", loss))
+    doc = ingest(path)
+    (record,) = [r for r in implement_holes(doc, plan_from_paper(doc).plan).records if r.production == "RGBLoss"]
+    assert record.status == IMPLEMENTED, record.reason
+    assert record.bindings["C"]["role"] == "target_colour" and record.bindings["hat C"]["role"] == "ray_colour"
+    assert any("is the mean over the batch" in n for n in record.notes), record.notes
+    namespace = {"__name__": "compiled_for_test"}
+    exec(compile(record.source, "<component>", "exec"), namespace)  # noqa: S102 - our own generated source
+    module = namespace[record.component["class"]]().double()
+    pred = torch.rand(5, 3, dtype=torch.float64, requires_grad=True)
+    target = torch.rand(5, 3, dtype=torch.float64)
+    got = module(pred, target)
+    want = (((target - pred) ** 2).sum(-1, keepdim=True) / (pred**2 + 0.01)).mean()
+    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
+    _grads_match(got, want, (pred,))

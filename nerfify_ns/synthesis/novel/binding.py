@@ -31,6 +31,7 @@ from nerfify_ns.synthesis.novel.adapters import (
     Provision,
 )
 from nerfify_ns.synthesis.novel.items import Item, _norm, describe
+from nerfify_ns.synthesis.novel.items import _parse as _parse_item  # noqa: PLC2701
 from nerfify_ns.synthesis.novel.notation import Definition, Notation, PaperWords, _short
 from nerfify_ns.synthesis.novel.objective import sums_over
 from nerfify_ns.synthesis.novel.results import HoleResult
@@ -96,9 +97,29 @@ class _Hole:
         if not own and self.hole.get("section"):
             own = [it for it in self.items if it.section == self.hole["section"]]
             sections = [self.hole["section"]]
+        own += self._unnumbered_after(own)
         for it in own:
             it.in_hole = True
         return own
+
+    def _unnumbered_after(self, own: list[Item]) -> list[Item]:
+        """Unnumbered blocks right after one of the part's equations in its section (the "where the terms are:"
+        block that defines what the numbered equation adds up)."""
+        claimed = {_norm(e.get("latex", "")) for h in self.plan.get("holes") or [] if isinstance(h, dict)
+                   and h is not self.hole for e in h.get("equations") or [] if isinstance(e, dict) and e.get("latex")}
+        out = []
+        for it in own:
+            _parse_item(it)
+            read = set().union(*(uses(e) for e in it.equations())) if it.equations() else set()
+            after = [x for x in self.items if x.section == it.section and x.position > it.position]
+            nxt = min(after, key=lambda x: x.position) if after else None
+            while nxt is not None and not nxt.number and nxt not in own and nxt not in out:
+                _parse_item(nxt)
+                if _norm(nxt.latex) not in claimed and any(e.defines in read for e in nxt.equations()):
+                    out.append(nxt)
+                later = [x for x in after if x.position > nxt.position]
+                nxt = min(later, key=lambda x: x.position) if later else None
+        return out
 
     def following(self, own: list[Item]) -> list[Item]:
         """Equations of the section right after the hole's last one (a paper's final form of the part)."""
@@ -183,7 +204,7 @@ class _Hole:
         """The equations the roots need (each symbol's definition nearest the roots) and every free symbol's
         binding; raises _Unbound naming what is missing."""
         self._basis, self._concat_used, self._provision_used = {}, set(), {}
-        self._own_weights = []
+        self._own_weights, self._observed = [], None
         defs = self.definitions(pool)
         self._defs = defs
         first = _first_seen(pool)
@@ -223,6 +244,7 @@ class _Hole:
             items.append(None)
         bindings: dict[str, dict] = {}
         unbound: list[str] = []
+        self._observed = self._observation(free)
         for key in sorted(free, key=lambda k: (first.get(k, (1 << 30,)), k)):
             sym, eq = free[key]
             try:
@@ -281,6 +303,7 @@ class _Hole:
             if len(kept) != len(rhs.items) and kept:
                 rhs = Concat(tuple(kept)) if len(kept) > 1 else kept[0]
         rhs = self._own_weight(rhs, eq, notes)
+        rhs = self._batch_mean(rhs, eq, notes)
         rhs = self._bind_bases(rhs, eq, notes)
         rhs = self._inline_functions(rhs, eq, notes)
         if eq.relation == "propto":  # a definition up to a constant factor: the factor is 1, said in the record
@@ -307,6 +330,30 @@ class _Hole:
                              "paper's equation, applied as the regulariser's weight in the loss (the component "
                              "computes the term without it)")
                 return rest
+        return rhs
+
+    def _batch_mean(self, rhs, eq: Equation, notes: list[str]):
+        """A loss written as the mean over the batch's rays (``\\frac{1}{|\\mathcal{R}|} \\sum_{\\mathbf{r} \\in
+        \\mathcal{R}} ...``): the per-ray term, which the loss's interface averages over the batch."""
+        if self.adapter.production not in ("RGBLoss", "Regularizers"):
+            return rhs
+        pairs = []
+        if isinstance(rhs, BinOp) and rhs.op == "*":
+            pairs = [(rhs.left, rhs.right), (rhs.right, rhs.left)]
+        elif isinstance(rhs, BinOp) and rhs.op == "/":
+            pairs = [(BinOp("/", Number(1.0), rhs.right), rhs.left)]
+        for scale, total in pairs:
+            if not (isinstance(total, Reduce) and total.kind == "sum" and total.axis == "rays"
+                    and total.condition is not None and isinstance(scale, BinOp) and scale.op == "/"
+                    and isinstance(scale.left, Number) and scale.left.value == 1.0):
+                continue
+            size = scale.right
+            counted = size.args[0] if isinstance(size, Apply) and size.func == "abs" and len(size.args) == 1 else None
+            if isinstance(counted, Symbol) and getattr(total.condition.right, "key", None) == counted.key:
+                notes.append(f"({eq.number or '?'}) the sum over the rays divided by their number "
+                             f"|{safe_comment(counted.key, 20)}| is the mean over the batch: the per-ray term, "
+                             "averaged by the loss")
+                return total.body
         return rhs
 
     def _inline_functions(self, expr, eq, notes):
@@ -423,6 +470,10 @@ class _Hole:
             value, quote, where2 = stated
             return {"as": "constant", "role": role if kind == "constant" else "constant", "source": "paper",
                     "evidence": f"{where2}: \"{_short(quote)}\"", "value": value}
+        if key == self._observed:
+            self._provision_used["target_colour"] = key
+            return self._input("target_colour", "convention", "the plain symbol of an estimate and its observation "
+                               "(C and its hat): the observed colour")
         if role in self.provisions and self.provisions[role].columns:
             return self._column(key, sym, role, where)
         if role in self.provisions and role not in self._provision_used and not self._read_per_ray(sym, role):
@@ -475,6 +526,20 @@ class _Hole:
         said = self.words.first_sentence(sym)
         paper = f"; the paper: \"{_short(said[0], 140)}\" ({said[1]})" if said else ""
         raise _Unbound(f"'{name}' ({where}): {what}{paper}")
+
+    def _observation(self, free: dict) -> str | None:
+        """Of two rendered colours a loss compares, ``C`` and ``\\hat{C}`` (both a ray's colour in the notation, no
+        ground truth named), the plain one is the observation: a hat marks the estimate (the render)."""
+        if "target_colour" not in self.provisions:
+            return None
+        colours = {key: sym for key, (sym, _) in free.items() if sym is not None
+                   and (self.role_of(sym) or Definition("", "")).role == "ray_colour"}
+        hatted = [sym for sym in colours.values() if "hat" in sym.decorations]
+        plain = [key for key, sym in colours.items() if not sym.decorations]
+        if len(colours) == 2 and len(hatted) == 1 and len(plain) == 1 and \
+                hatted[0].name == colours[plain[0]].name:
+            return plain[0]
+        return None
 
     def _column(self, key: str, sym: Symbol, role: str, where: str) -> dict:
         """A quantity the interface gives one column per output of a decomposition (the blended fields' shares of a
