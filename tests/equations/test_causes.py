@@ -554,3 +554,25 @@ def test_a_loss_averaged_over_the_batch_compares_the_estimate_with_the_observati
     want = (((target - pred) ** 2).sum(-1, keepdim=True) / (pred**2 + 0.01)).mean()
     torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-12)
     _grads_match(got, want, (pred,))
+
+
+@pytest.mark.parametrize("stated, want", [(0.1, 0.5 * 0.1), (None, 0.5)])
+def test_a_loss_terms_own_weight_and_its_coefficient_in_the_objective_multiply(stated, want):
+    """A term weighted in its own equation and again in the objective: the plugin's weight is the product; an own
+    weight the paper gives no number counts 1 (said), and the objective's coefficient still applies."""
+    from types import SimpleNamespace
+
+    from nerfify_ns.equations import Symbol
+    from nerfify_ns.synthesis.novel.items import Item, _parse
+    from nerfify_ns.synthesis.novel.notation import symbol_loose_key
+    from nerfify_ns.synthesis.novel.objective import term_weight
+
+    own = Symbol("lambda", ("s",))
+    words = {symbol_loose_key(own): (stated, "we set lambda_s", "Sec. 4")} if stated is not None else {}
+    item = Item(number="5", latex=r"\mathcal{L} = \mathcal{L}_{c} + 0.5 \mathcal{L}_{s}", section="3", order=0,
+                where="Sec. 3", in_hole=False)
+    _parse(item)
+    got = term_weight(["cal L_s"], own, [item], SimpleNamespace(constants=words))
+    assert got is not None and got.value == pytest.approx(want), got
+    assert "own weight lambda_s" in got.note and "coefficient in the objective" in got.note
+    assert ("has no value in the paper" in got.note) == (stated is None)

@@ -110,15 +110,15 @@ class _Hole:
         out = []
         for it in own:
             _parse_item(it)
-            read = set().union(*(uses(e) for e in it.equations())) if it.equations() else set()
-            after = [x for x in self.items if x.section == it.section and x.position > it.position]
-            nxt = min(after, key=lambda x: x.position) if after else None
-            while nxt is not None and not nxt.number and nxt not in own and nxt not in out:
+            read = set().union(*(uses(e) for e in it.equations()))
+            after = sorted((x for x in self.items if x.section == it.section and x.position > it.position),
+                           key=lambda x: x.position)
+            for nxt in after:  # up to the next numbered equation or one of the part's own
+                if nxt.number or nxt in own or nxt in out:
+                    break
                 _parse_item(nxt)
                 if _norm(nxt.latex) not in claimed and any(e.defines in read for e in nxt.equations()):
                     out.append(nxt)
-                later = [x for x in after if x.position > nxt.position]
-                nxt = min(later, key=lambda x: x.position) if later else None
         return out
 
     def following(self, own: list[Item]) -> list[Item]:

@@ -87,7 +87,7 @@ from nerfify_ns.synthesis.novel.items import (  # noqa: F401 - re-exported
     equation_counts,
 )
 from nerfify_ns.synthesis.novel.notation import Notation, PaperWords
-from nerfify_ns.synthesis.novel.objective import objective_weight, own_weight
+from nerfify_ns.synthesis.novel.objective import term_weight
 from nerfify_ns.synthesis.novel.results import (  # noqa: F401
     IMPLEMENTED,
     NOT_IMPLEMENTED,
@@ -550,13 +550,7 @@ def _implement_one(work: _Hole) -> HoleResult:
                          "C(r) = sum_i C_i(r)")
     res.notes += wiring.notes + _operator_discrepancies(work, att, full)
     if res.production == "Regularizers":  # the term's weight: its own factor, else its coefficient in the objective
-        weighted = objective_weight(list(att.outputs), work.items, work.words)
-        if att.own_weights:
-            own = own_weight(att.own_weights[0], att.outputs[0], work.items, work.words)
-            if weighted is not None:  # weighted twice: in its own equation and in the objective
-                value = None if None in (own.value, weighted.value) else own.value * weighted.value
-                own = type(own)(value if value is not None else own.value, f"{own.note}; {weighted.note}")
-            weighted = own
+        weighted = term_weight(list(att.outputs), next(iter(att.own_weights), None), work.items, work.words)
         if weighted is not None:
             if weighted.value is not None:
                 res.component["weight"] = weighted.value

@@ -72,16 +72,30 @@ def _stated(coef: Symbol, numbers: dict, words: Any) -> tuple[float, str] | None
     return stated
 
 
-def own_weight(weight: Symbol, output: str, items: list, words: Any) -> ObjectiveWeight:
-    """The weight a loss term carries in its own equation (``L_s = lambda_s sum ...``), resolved to the number the
-    paper sets it to, or left at 1 and said."""
-    stated = _stated(weight, _stated_numbers(items), words)
+def _resolved(coef: Symbol, label: str, numbers: dict, words: Any) -> ObjectiveWeight:
+    """A loss term's weight written as a symbol (``label`` says which and where), resolved to the number the paper
+    sets it to, or left at 1 and said."""
+    stated = _stated(coef, numbers, words)
     if stated is None:
-        return ObjectiveWeight(None, f"{output}'s own weight {weight.key} has no value in the paper: the weight "
-                                     "stays 1 (set it in the plan's weight)")
+        return ObjectiveWeight(None, f"{label} has no value in the paper: the weight stays 1 (set it in the plan's "
+                                     "weight)")
     value, where = stated
-    return ObjectiveWeight(value, f"weight {value:g}: {output}'s own weight {weight.key} in its equation, "
-                                  f"{weight.key} = {value:g} at {where}")
+    return ObjectiveWeight(value, f"weight {value:g}: {label}, {coef.key} = {value:g} at {where}")
+
+
+def term_weight(outputs: list[str], own: Symbol | None, items: list, words: Any) -> ObjectiveWeight | None:
+    """The weight the plugin adds a loss term with: its own factor in its equation (``L_s = lambda_s sum ...``;
+    ``own``), times its coefficient in the objective; a factor the paper gives no number counts 1 and is said. None
+    when the paper weights the term nowhere."""
+    weighted = objective_weight(outputs, items, words)
+    if own is None:
+        return weighted
+    mine = _resolved(own, f"{outputs[0]}'s own weight {own.key} in its equation", _stated_numbers(items), words)
+    if weighted is None:
+        return mine
+    known = [w.value for w in (mine, weighted) if w.value is not None]
+    value = known[0] * known[1] if len(known) == 2 else (known[0] if known else None)
+    return ObjectiveWeight(value, f"{mine.note}; {weighted.note}")
 
 
 def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWeight | None:
@@ -101,11 +115,5 @@ def objective_weight(outputs: list[str], items: list, words: Any) -> ObjectiveWe
                 if not isinstance(coef, Symbol):  # written in the sum (1 for a bare term)
                     value = float(coef.value if isinstance(coef, Number) else coef)
                     return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient in {objective}")
-                stated = _stated(coef, numbers, words)
-                if stated is None:
-                    return ObjectiveWeight(None, f"{output}'s coefficient {coef.key} in {objective} has no value in "
-                                                 "the paper: the weight stays 1 (set it in the plan's weight)")
-                value, where = stated
-                return ObjectiveWeight(value, f"weight {value:g}: {output}'s coefficient {coef.key} in {objective}, "
-                                              f"{coef.key} = {value:g} at {where}")
+                return _resolved(coef, f"{output}'s coefficient {coef.key} in {objective}", numbers, words)
     return None
