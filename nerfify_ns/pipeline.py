@@ -50,7 +50,7 @@ from nerfify_ns.outcome import Outcome, Progress, Stage
 from nerfify_ns.paper import Document, clean_markdown, ingest, key_terms_report, require_nerf_paper
 from nerfify_ns.plan import Plan
 from nerfify_ns.runlog import run_log
-from nerfify_ns.runtime.presets import generated_smoke_args, smoke_iterations
+from nerfify_ns.runtime.presets import for_method, generated_smoke_args, smoke_iterations
 from nerfify_ns.scenes import write_scene
 from nerfify_ns.synthesis.compose import plugin_sources, write_plugin
 from nerfify_ns.synthesis.novel import Implementation, implement_holes
@@ -337,7 +337,8 @@ def _train(plan: dict, folder: Path, data: Dataset, budget: Budget, outcome: Out
                    f"at most {run.ceiling})")
         summary = evaluate_run(folder, data, folder / runfolder.EVAL_DIR, iterations=run.ceiling or run.iterations,
                                every=run.every, label=plan["method"],
-                               method_args=[*_train_args(plan, budget), *run.args], env=run.env,
+                               method_args=for_method(plan["base"], [*_train_args(plan, budget), *run.args]),
+                               env=run.env,
                                timeout=run.limit.timeout, limit=run.limit, estimated=run.iterations,
                                on_progress=_step_progress(stage, f"training {plan['method']}",
                                                           "rendering and scoring the checkpoints"))

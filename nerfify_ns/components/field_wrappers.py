@@ -11,6 +11,13 @@ Positions are world positions (before the field's normalisation or contraction);
   et al. 2021, arXiv 2011.13961, Sec. 4, Eqs. 2-3); its own sinusoidal encodings of x and t; optionally the
   coarse-to-fine window over the frequencies of x (Nerfies, Park et al. 2021, arXiv 2011.12948, Eqs. 8-9), which
   a schedule hook may anneal (``window``).
+- :class:`GaussianDeformation`: the deformation of a set of 3D Gaussians from a canonical space to time t, an MLP
+  F(gamma(x), gamma(t)) -> (Delta x, Delta r, Delta s) of each Gaussian's centre, rotation (a quaternion) and
+  log-scale (Deformable 3D Gaussians, Yang et al. 2024, arXiv 2309.13101, Sec. 3.2, Eqs. 4-5; the multi-head
+  decoder of 4D Gaussian Splatting, Wu et al. 2024, arXiv 2310.08528, Eq. 8): the conditioner's positions are the
+  deformed centres, its features the rotation and scale offsets ``[N, 7]``, which the splatting model adds to the
+  canonical ones. Optionally annealed Gaussian noise on its time input (``time_noise``, the annealing smooth training
+  of Deformable 3D Gaussians, Sec. 3.3, Eq. 6), which a schedule hook may anneal.
 - :class:`TimeEmbedding`: a learned embedding of continuous time, an MLP on the sinusoidal encoding gamma(t),
   concatenated to the field's features (the time input of D-NeRF's T-NeRF baseline, Sec. 5, through an MLP).
 - :class:`FrameCodes`: learned time-variant latent codes z_t, one per frame, concatenated to the encoded position
@@ -39,8 +46,8 @@ from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
 
-__all__ = ["Sinusoids", "DeformationNetwork", "TimeEmbedding", "FrameCodes", "CameraTimeOffset", "FieldBlend",
-           "BlendedField", "condition", "mlp"]
+__all__ = ["Sinusoids", "DeformationNetwork", "GaussianDeformation", "TimeEmbedding", "FrameCodes", "CameraTimeOffset",
+           "FieldBlend", "BlendedField", "condition", "mlp"]
 
 Conditioned = tuple[Tensor, Tensor, Tensor]
 
@@ -114,6 +121,63 @@ class DeformationNetwork(nn.Module):
         if self.zero_at_t0:
             delta = delta * (t != 0).to(delta)
         return (x + delta).to(positions.dtype), times, positions.new_zeros(*positions.shape[:-1], 0)
+
+
+class GaussianDeformation(DeformationNetwork):
+    """Deformable 3D Gaussians' deformation field (Yang et al. 2024, arXiv 2309.13101, Sec. 3.2, Eq. 4):
+    (Delta x, Delta r, Delta s) = F_theta(gamma(sg(x)), gamma(t)), an MLP of ``num_layers`` x ``layer_width`` on the
+    encodings of a canonical Gaussian's centre and of time, with three heads (centre, rotation quaternion, log-scale;
+    the multi-head decoder of 4D-GS, Eq. 8). The Gaussian at time t has centre x + Delta x, rotation r + Delta r and
+    log-scale s + Delta s (Eq. 5). The heads start at zero, so training starts from the canonical Gaussians; with
+    ``zero_at_t0`` there is no deformation at t = 0; with ``stop_gradient`` the encoding reads the centre without
+    its gradient (Eq. 4's sg; the centre still learns through x + Delta x). ``time_noise``: beta of the annealing
+    smooth training (Sec. 3.3, Eq. 6): while training, gamma(t) + N(0, 1) beta Delta t, Delta t the mean interval
+    between the training times seen so far (0 noise until two were seen); a schedule hook anneals beta to 0.
+
+    Conditioner interface: ``forward(positions [N, 3], times [N, 1], camera_indices [N])`` returns the deformed
+    centres, the times, and features ``[N, 7]`` = (Delta r [4], Delta s [3])."""
+
+    HEADS = (3, 4, 3)
+    """Widths of the centre, rotation (quaternion) and log-scale offsets."""
+
+    def __init__(self, num_layers: int = 8, layer_width: int = 256, position_frequencies: int = 10,
+                 time_frequencies: int = 6, zero_at_t0: bool = False, stop_gradient: bool = True) -> None:
+        super().__init__(num_layers, layer_width, position_frequencies, time_frequencies, zero_at_t0)
+        self.stop_gradient = stop_gradient
+        last = self.network[-1]
+        self.network[-1] = nn.Linear(last.in_features, sum(self.HEADS))
+        nn.init.zeros_(self.network[-1].weight)
+        nn.init.zeros_(self.network[-1].bias)
+        self.register_buffer("time_noise", torch.tensor(0.0))
+        self.seen_times: set[float] = set()
+        """Distinct training times seen (at most :data:`MAX_TIMES`): their mean interval scales the noise."""
+
+    def get_out_dim(self) -> int:
+        return sum(self.HEADS[1:])
+
+    MAX_TIMES = 100_000
+
+    def time_interval(self) -> float:
+        """The mean interval between the distinct training times seen (0 before two were)."""
+        if len(self.seen_times) < 2:
+            return 0.0
+        return (max(self.seen_times) - min(self.seen_times)) / (len(self.seen_times) - 1)
+
+    def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
+        x, t = _float(positions), _float(times)
+        encoded_t = self.time_encoding(t)
+        if self.training and t.numel():
+            if len(self.seen_times) < self.MAX_TIMES:
+                self.seen_times.update(round(float(v), 6) for v in torch.unique(t.detach()).tolist()[:64])
+            scale = float(self.time_noise) * self.time_interval()
+            if scale > 0:  # Eq. 6: gamma(t) + X(i), X(i) = N(0, 1) beta Delta t (beta annealed by a hook)
+                encoded_t = encoded_t + torch.randn_like(encoded_t) * scale
+        encoded = torch.cat([self.position_encoding(x.detach() if self.stop_gradient else x), encoded_t], dim=-1)
+        delta = self.network.to(x.dtype)(encoded)
+        if self.zero_at_t0:
+            delta = delta * (_float(times) != 0).to(delta)
+        move, rest = delta.split([self.HEADS[0], sum(self.HEADS[1:])], dim=-1)
+        return (x + move).to(positions.dtype), times, rest.to(positions.dtype)
 
 
 class TimeEmbedding(nn.Module):

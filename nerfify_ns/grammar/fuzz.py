@@ -125,6 +125,8 @@ class PlanSampler:
         if unseen and param.type in ("int", "float", "int_list", "float_list") and self.rng.random() < 0.5:
             kind = self.rng.choice(unseen)  # coverage-guided: an edge not seen yet
         if param.type == "bool":
+            if unseen and self.rng.random() < 0.5:  # coverage-guided: a value not seen yet
+                return self.rng.choice(unseen) == "True"
             return self.rng.random() < 0.5
         if param.type == "enum":
             return self.rng.choice(list(param.values))
@@ -212,6 +214,8 @@ class PlanSampler:
             loss = v.message.split("model.losses.")[-1].split()[0].rstrip(")")
             plan.set(f"model.losses.{loss}", self.terminal(loss))
             return True
+        if v.rule == "requires_terminal" and self.rng.random() < 0.5 and self._settle_slot(plan, v):
+            return True
         if v.rule in ("requires_base", "requires_terminal"):
             return self._drop_or_redraw(plan, v.path)
         if v.rule == "param_constraint":
@@ -222,6 +226,31 @@ class PlanSampler:
                 return True
             plan.set(v.path, self.terminal(v.production))
             return True
+        return False
+
+    def _settle_slot(self, plan: Plan, v: Violation) -> bool:
+        """A duty on another slot settled at that slot: an alternative it allows drawn there, or the slot emptied
+        when it must be absent (a base without a sampler); False when the duty names no optional or choice slot."""
+        term = self.g.terminals.get(v.production)
+        for duty in term.duties if term is not None else ():
+            arg = duty.get("requires_terminal")
+            if not arg:
+                continue
+            slot, allowed = arg["slot"], list(arg["any_of"])
+            current = plan.get(slot)
+            held = next(iter(current), None) if isinstance(current, dict) else current
+            if held in allowed:
+                continue
+            symbol = self.g.slot_symbol(slot)
+            nt = self.g.nonterminals.get(symbol or "")
+            options = [a for a in allowed if a is not None and a != CUSTOM]
+            if options and nt is not None and nt.kind == "choice":
+                alt = self.rng.choice(options)
+                plan.set(slot, {alt: self.symbol(alt)})
+                return True
+            if None in allowed and current is not None and self._optional(slot):
+                plan.delete(slot)
+                return True
         return False
 
     def _drop_or_redraw(self, plan: Plan, path: str) -> bool:

@@ -437,7 +437,11 @@ class _Emitter:
         members = [("method", "methodname", True)]
         members += [("description", "string", False), ("paper", "object", False)] if annotations else []
         for slot in start.slots:
-            members.append((slot.name, self.symbol(slot.symbol, slot.name, fx), not slot.optional))
+            decided = fx.choice(slot.name)
+            if decided is ABSENT or slot.name in fx.forbidden:
+                continue
+            required = not slot.optional or slot.name in fx.required or decided != "*"
+            members.append((slot.name, self.symbol(slot.symbol, slot.name, fx), required))
         if not annotations:  # a model's plan: its evidence (path -> quote), at most EVIDENCE_ITEMS of them
             return self.obj("plan", members + [("evidence", "evidence-map", False)])
         members += [("evidence", "object", False), ("pruned", "array", False), ("holes", "array", False),

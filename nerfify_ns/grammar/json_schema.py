@@ -113,7 +113,10 @@ def _choice_in(g: Grammar, slot: str, any_of: list[str]) -> dict[str, Any]:
     symbol = g.slot_symbol(slot)
     if symbol in g.nonterminals and g.nonterminals[symbol].kind == "enum":
         return _at(slot, {"enum": any_of})
-    return {"anyOf": [_at(f"{slot}.{alt}", {}) for alt in any_of]}
+    options = [_at(f"{slot}.{alt}", {}) for alt in any_of if alt is not None]
+    if None in any_of:  # the slot may be absent
+        options.append({"not": _at(slot, {})})
+    return {"anyOf": options}
 
 
 def _duty_schema(g: Grammar, duty: dict) -> dict[str, Any]:

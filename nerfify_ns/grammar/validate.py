@@ -261,8 +261,13 @@ def _duty_holds(g: Grammar, d: Derivation, plan: dict, duty: dict) -> str | None
         return None if not bad else f"requires a scene with {bad} (plan.scene says otherwise)"
     if rule == "requires_terminal":
         chosen = d.choices.get(arg["slot"])
-        return None if chosen in arg["any_of"] else (
-            f"requires {arg['slot']} to be one of {arg['any_of']}, got {chosen!r}")
+        if chosen in arg["any_of"]:
+            return None
+        allowed = [a for a in arg["any_of"] if a is not None]
+        if not allowed:
+            return f"requires no {arg['slot']}, got {chosen!r}"
+        return (f"requires {arg['slot']} to be one of {allowed}{' or absent' if None in arg['any_of'] else ''}, "
+                f"got {chosen!r}")
     raise ValueError(f"unknown duty {rule}")
 
 

@@ -39,6 +39,7 @@ class FamilySpec:
     cues: tuple[tuple[re.Pattern, float], ...]
     against: tuple[tuple[re.Pattern, float], ...] = ()
     method: str = ""
+    base: str = ""
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,8 @@ class Family:
     why: str = ""
     """For a family that cannot be built: what cannot be built, in one sentence."""
     scene: dict = field(default_factory=dict)
-    """Scene facts the family implies (``{"timestamps": True}`` for a dynamic scene)."""
+    """Scene facts the family implies (``{"timestamps": True}`` for a dynamic scene), and those of the families that
+    also passed (a dynamic splatting paper's timestamps)."""
     scores: dict = field(default_factory=dict)
     """Every family's score (and its threshold), for the record."""
     evidence: list = field(default_factory=list)
@@ -69,11 +71,14 @@ class Family:
     """Other families that passed their threshold (a dynamic splatting paper: ["dynamic"])."""
     method: str = ""
     """For a family that cannot be built: Nerfstudio's own method of its kind (``splatfacto``), or empty."""
+    base: str = ""
+    """The base every paper of the family stands on (a splatting paper: ``splatfacto``, 3D Gaussians), or empty:
+    the base is chosen among the reference plans (and never one that another family reserves)."""
 
     def to_dict(self) -> dict:
         return {"name": self.name, "buildable": self.buildable, "why": self.why, "scene": dict(self.scene),
                 "also": list(self.also), "scores": dict(self.scores), "evidence": list(self.evidence),
-                **({"method": self.method} if self.method else {})}
+                **({"method": self.method} if self.method else {}), **({"base": self.base} if self.base else {})}
 
     def method_line(self) -> str:
         """Where a researcher can train the family's own kind of model here, or empty."""
@@ -113,7 +118,8 @@ def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
                 name=name, buildable=bool(spec["buildable"]), threshold=float(spec["threshold"]),
                 why=str(spec.get("why", "")), scene=dict(spec.get("scene") or {}),
                 cues=_patterns(spec["cues"], name), against=_patterns(spec.get("against"), name),
-                method=str(spec.get("method") or "") if not spec["buildable"] else "")
+                method=str(spec.get("method") or "") if not spec["buildable"] else "",
+                base=str(spec.get("base") or ""))
         precedence = tuple(data["precedence"])
         unknown = [p for p in precedence if p not in families]
         if unknown:
@@ -175,5 +181,8 @@ def detect_family(doc: Any, rules: Rules | None = None, family: FamilyRules | No
     record = {n: {"score": s, "threshold": fr.families[n].threshold} for n, s in scores.items()}
     if spec is None:
         return Family(STATIC, True, scores=record, evidence=[], also=[])
-    return Family(name, spec.buildable, spec.why if not spec.buildable else "", dict(spec.scene), record, evidence,
-                  also=[p for p in passed[1:]], method=spec.method)
+    also = [p for p in passed[1:]]
+    scene = {k: v for other in also for k, v in fr.families[other].scene.items()}  # a dynamic splatting paper
+    scene.update(spec.scene)
+    return Family(name, spec.buildable, spec.why if not spec.buildable else "", scene, record, evidence,
+                  also=also, method=spec.method, base=spec.base)

@@ -25,7 +25,8 @@ _UPOW = r"10\s*−\s*\d+"  # "10−7": a flattened superscript with a true minus
 _E = r"\d+(?:\.\d+)?[eE][-−+]?\d+"
 _PLAIN = r"(?:\d{1,3}(?:,\d{3})+(?!\d)|\d+(?:\.\d+)?|\.\d+)(?:[kKM](?![A-Za-z]))?"
 _VAL = rf"(?:{_SCI}|{_E}|{_POW}|{_UPOW}|{_PLAIN})"
-NUMBER = rf"(?<![\w.^/])(?P<num>[-−]?{_VAL}(?:\s*[–—]\s*{_VAL}|-(?=\d){_VAL})?)(?![\d])"
+NUMBER = rf"(?<![\w.^/])(?P<num>[-−]?{_VAL}(?:\s*[–—]\s*{_VAL}|-(?=\d){_VAL})?)(?![\d])(?![-]?D\b)"
+"""A number in any notation; never the count of a dimension ("3D Gaussians", "4-D"), which names a thing."""
 INTEGER = r"(?P<num>\d+)(?![\d.])"
 
 _INLINE_MATH = re.compile(r"\$([^$]{1,400})\$")

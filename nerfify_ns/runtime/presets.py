@@ -46,8 +46,9 @@ def options(args: Sequence[str]) -> list[tuple[str, list[str]]]:
 
 
 def for_method(method: str, args: Sequence[str]) -> list[str]:
-    """``args`` as ``method`` takes them: without the ray-batch options when its data manager loads whole images
-    (``whole_images`` in its preset: splatfacto), where tyro would refuse them."""
+    """``args`` as ``method`` (a built-in method, or the base of a generated plugin) takes them: without the
+    ray-batch options when its data manager loads whole images (``whole_images`` in its preset: splatfacto), where
+    tyro would refuse them."""
     if not smoke_presets().get(method, {}).get("whole_images"):
         return list(args)
     return [a for flag, values in options(args) if flag not in RAY_BATCH_FLAGS for a in (flag, *values)]
@@ -81,8 +82,16 @@ def render_cost(base: str | None, default: float) -> float:
 
 def generated_smoke_args(base: str) -> list[str]:
     """ns-train arguments for a generated plugin derived from ``base`` on a small CPU scene: the pipeline
-    and ray-batch arguments of the base's preset and no mixed precision. Model arguments are left out:
+    and ray-batch arguments of the base's preset, its ``plugin_args`` (a size of the scene, not of the paper's
+    method: splatfacto's random initial Gaussians) and no mixed precision. Model arguments are otherwise left out:
     the plugin's sizes come from its plan, already pruned for the scene."""
     out = [a for flag, values in options(preset_args(base))
            if flag.startswith("--pipeline.") and not flag.startswith("--pipeline.model.") for a in (flag, *values)]
-    return [*out, "--mixed-precision", "False"]
+    return [*out, *plugin_args(base), "--mixed-precision", "False"]
+
+
+def plugin_args(base: str) -> list[str]:
+    """ns-train arguments every CPU run of a plugin derived from ``base`` takes, the smoke rung's included: a size of
+    the small scene, not of the paper's method (``plugin_args`` of the base's preset: splatfacto's random initial
+    Gaussians)."""
+    return [str(a) for a in smoke_presets().get(base, {}).get("plugin_args", [])]

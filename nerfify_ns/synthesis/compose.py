@@ -67,7 +67,7 @@ def plugin_files(ctx: dict) -> nx.DiGraph:
     sampler_files = (f"{pkg}/pixel_sampler.py",) if ctx.get("pixel_sampler") else ()
     files += [PluginFile(sampler_files[0], "pixel_sampler.py.j2", component_files)] if sampler_files else []
     files += [
-        PluginFile(f"{pkg}/model.py", "model.py.j2", (*field_files, *component_files)),
+        PluginFile(f"{pkg}/model.py", ctx["model_template"], (*field_files, *component_files)),
         PluginFile(f"{pkg}/config.py", "config.py.j2", (f"{pkg}/model.py", *sampler_files)),
         PluginFile(f"{pkg}/__init__.py", "__init__.py.j2", (f"{pkg}/config.py",)),
         PluginFile("pyproject.toml", "pyproject.toml.j2", (f"{pkg}/config.py",)),

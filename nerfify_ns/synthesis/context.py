@@ -344,9 +344,11 @@ def backbone_widths(backbone: dict) -> list[dict]:
                                                "value; a CPU proxy may train narrower)."))]
 
 
-def field_wrappers(ctx: Context) -> dict:
+def field_wrappers(ctx: Context, file: str = "field.py") -> dict:
     """The plan's field wrappers (``model.field_wrappers``), in the plan's order: conditioners (each built in the
-    field, a ``(name, constructor)``) and at most one blend (the field then is several copies of itself)."""
+    field, or in a model of Gaussians in ``model.py``: a ``(name, constructor)``; ``part``: the name schedule hooks
+    know it by, its terminal's first ``schedulable`` part) and at most one blend (the field then is several copies
+    of itself)."""
     path = "model.field_wrappers"
     members = ctx.plan.get(path) or {}
     conditioners: list[dict] = []
@@ -361,7 +363,7 @@ def field_wrappers(ctx: Context) -> dict:
             component = custom_component(entry, ctx.names.package)
             imports.append(component["import"])
             ctor = call(component["cls"], "num_images=num_images", component["kwargs"])
-            ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[CUSTOM].doc)
+            ctx.part(file, "field wrapper", member, ctx.grammar.terminals[CUSTOM].doc)
             if entry.get("wrapper") == "blend":
                 if blend is not None:
                     raise NerfifyError(f"{member}: the plan blends its fields twice (one blend per field)")
@@ -378,13 +380,13 @@ def field_wrappers(ctx: Context) -> dict:
         sized = config_sizes(name, params)
         widths += sized
         ctor = render_snippet(code["ctor"], {**params, **{w["of"]: w["param"] for w in sized}}, ctx.names.package)
-        ctx.part("field.py", "field wrapper", member, ctx.grammar.terminals[name].doc)
+        ctx.part(file, "field wrapper", member, ctx.grammar.terminals[name].doc)
         if code.get("stage") == "blend":
             if blend is not None:
                 raise NerfifyError(f"{member}: the plan blends its fields twice (one blend per field)")
             blend = {"ctor": ctor, "num_fields": params["num_fields"], "static_first": params["static_first"]}
         else:
-            conditioners.append({"name": name, "ctor": ctor})
+            conditioners.append({"name": name, "ctor": ctor, "part": (code.get("schedulable") or [name])[0]})
     if conditioners:
         imports += _imports(ctx, {"imports": ["from .components.field_wrappers import condition"],
                                   "component": "field_wrappers"})
@@ -464,6 +466,21 @@ def pixel_sampler(ctx: Context) -> dict | None:
         what = name
     return {"cls": f"{ctx.names.prefix}PixelSampler", "config_cls": f"{ctx.names.prefix}PixelSamplerConfig",
             "map": ctor, "imports": sorted(set(imports)), "source": path, "what": what}
+
+
+def primitives(ctx: Context) -> dict:
+    """A model of explicit primitives (3D Gaussians, no field): the plan's wrappers, applied by the model to the
+    Gaussians at the camera's time; a part the template cannot apply to Gaussians (a blend of fields, a regulariser
+    of the field's samples) is refused here in one line (the grammar's duties keep such parts out of a valid
+    plan)."""
+    wrappers = field_wrappers(ctx, file="model.py")
+    if wrappers["blend"] is not None:
+        raise NerfifyError("a blend of fields in a model of Gaussians: the model has no field to copy")
+    unsupported = [f"model.{slot}" for slot in ("regularizers",) if ctx.plan.get(f"model.{slot}")]
+    if unsupported:
+        raise NerfifyError(f"{', '.join(unsupported)} in a model of Gaussians: a regulariser of the field's "
+                           "samples has nothing to read there")
+    return {"cls": None, "wrappers": wrappers, "widths": wrappers["widths"]}
 
 
 def custom_field(ctx: Context) -> dict:
@@ -571,8 +588,9 @@ def model_context(ctx: Context) -> dict:
         regularizers.append({"name": name, "weight": params["weight"],
                              "expr": render(code["expr"], params, ctx.names.package, field=base["field_attr"])})
         ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
-    sampler_name, _ = one(ctx.plan.get("model.sampler"))
-    ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
+    if ctx.plan.get("model.sampler"):
+        sampler_name, _ = one(ctx.plan.get("model.sampler"))
+        ctx.part("model.py", "sampler", f"model.sampler.{sampler_name}", ctx.grammar.terminals[sampler_name].doc)
     custom_sampler = ctx.custom("model.sampler")
     if custom_sampler:
         imports.append(custom_sampler["import"])
@@ -628,7 +646,7 @@ def _derived_values(ctx: Context, base_name: str, fields: dict[str, Any]) -> lis
     """Base-config switches implied by what the plan contains (or leaves out)."""
     out: list[KW] = []
     model = ctx.plan.get("model")
-    mlp = (model["field"].get("MLPField") or {})
+    mlp = ((model.get("field") or {}).get("MLPField") or {})
     if "background_color" in fields and not ctx.custom("model.renderer"):
         out.append(KW("background_color", py(ctx.params("model.renderer")["background"]), "model.renderer.background"))
     elif "background_color" in fields and ctx.plan.get("model.renderer.custom.params.background"):
@@ -739,7 +757,8 @@ def config_context(ctx: Context, base: dict) -> dict:
         "trainer": [KW(k, py(v), f"trainer.{k}") for k, v in trainer.items()],
         "datamanager_cls": datamanager["cls"],
         "datamanager": [KW(k, py(dm[k]), f"datamanager.{k}")
-                        for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")]
+                        for k in ("train_num_rays_per_batch", "eval_num_rays_per_batch")
+                        if not base.get("whole_images")]  # a data manager of whole images draws no rays
         + ([KW("pixel_sampler", f"{sampler['config_cls']}()", sampler["source"])] if sampler else []),
         "pixel_sampler": sampler,
         "dataparser": dataparser["ctor"],
@@ -751,8 +770,11 @@ def config_context(ctx: Context, base: dict) -> dict:
 def build_context(ctx: Context) -> dict:
     """The full template context of a plugin."""
     base = {"name": ctx.plan["base"], "config_module": None, **bases()[ctx.plan["base"]]}
-    field_kind, _ = one(ctx.plan["model"]["field"])
-    field_ctx = {"MLPField": mlp_field, "TensorialField": tensorial_field, CUSTOM: custom_field}[field_kind](ctx)
+    if "field" in ctx.plan["model"]:
+        field_kind, _ = one(ctx.plan["model"]["field"])
+        field_ctx = {"MLPField": mlp_field, "TensorialField": tensorial_field, CUSTOM: custom_field}[field_kind](ctx)
+    else:  # a base of explicit primitives (splatfacto): its model applies the wrappers to the Gaussians
+        field_kind, field_ctx = None, primitives(ctx)
     field_ctx.setdefault("custom", None)
     field_ctx.setdefault("kwargs", "")
     model = model_context(ctx)
@@ -768,6 +790,7 @@ def build_context(ctx: Context) -> dict:
         "base": base,
         "field": field_ctx,
         "field_template": {"MLPField": "field_mlp.py.j2", "TensorialField": "field_tensorial.py.j2"}.get(field_kind),
+        "model_template": base.get("template", "model.py.j2"),
         "pixel_sampler": config["pixel_sampler"],
         "model": model,
         "config": config,

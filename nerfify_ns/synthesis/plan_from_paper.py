@@ -39,7 +39,7 @@ from nerfify_ns.knowledge.bases import find_base_statements
 from nerfify_ns.knowledge.cards import Card, HyperparameterMap
 from nerfify_ns.knowledge.citations import CitationGraph, build_citation_graph, find_spans, match_target
 from nerfify_ns.knowledge.detect import Detection, detect_scene, detect_techniques
-from nerfify_ns.knowledge.family import Family, detect_family
+from nerfify_ns.knowledge.family import Family, detect_family, family_rules
 from nerfify_ns.knowledge.kb import KnowledgeBase
 from nerfify_ns.knowledge.sentences import role_of_section, section_roles, sentences
 from nerfify_ns.plan import Hole, Plan, free_method_name
@@ -581,6 +581,14 @@ class _Deriver:
             return
         groups = [g for g in (plan.get("optimizers") or {}) if g != "camera_opt"]
         sentence = h.sentence.lower()
+        named = [g for g in groups if re.search(rf"\b{re.escape(g.split('_')[0][:6])}\w*\b[^.;:]{{0,80}}"
+                                                 rf"{re.escape(str(h.raw or h.value).lower())}", sentence)]
+        if named:  # "the learning rate of the deformation network decays from 8e-4 to 1.6e-6": that group's
+            groups = named
+        elif len(groups) > 3:  # a model of many groups (a splatting base's per-attribute rates)
+            self.notes.append(f"the paper's learning rate ({h.raw or h.value}) names none of the model's "
+                              f"{len(groups)} parameter groups ({', '.join(groups)}); the base's rates stay")
+            return
         for group in groups:
             current = plan.get(f"optimizers.{group}")
             kind = next(iter(current["optimizer"]))
@@ -813,8 +821,24 @@ def _without_claims(detections: list[Detection], ledger: Ledger) -> list[Detecti
 
 
 def _base_for_family(decision: BaseDecision, family: Family, kb: KnowledgeBase) -> BaseDecision:
-    """The base must hold the family's scene facts (a dynamic paper stands on a time-capable base): when the chosen
-    one does not, the first reference plan in the knowledge base's order that does, with the reason."""
+    """The family's own base when it has one (a splatting paper stands on splatfacto's 3D Gaussians, which hold a
+    dynamic scene's times through the plan's wrappers); never a base another family reserves (a NeRF paper that
+    names 3D-GS does not stand on Gaussians); and the base must hold the family's scene facts (a dynamic paper stands
+    on a time-capable base): when the chosen one does not, the first reference plan in the knowledge base's order
+    that does, with the reason."""
+    if family.base:
+        if decision.base == family.base:
+            return decision
+        return dataclasses.replace(decision, base=family.base, reason=(
+            f"{family.base}: the paper is a {family.headline()} one, whose primitives only {family.base} holds "
+            f"(the best host of its other techniques was {decision.base}: {decision.reason})"))
+    reserved = {spec.base for spec in family_rules().families.values() if spec.base}
+    if decision.base in reserved:
+        other = next((b for b in base_order(kb) if b not in reserved), None)
+        if other is not None:
+            decision = dataclasses.replace(decision, base=other, reason=(
+                f"{other}: the plainest base; {decision.base} (the best host of the paper's techniques: "
+                f"{decision.reason}) is the base of another family's papers, not a {family.name} one's"))
     if not family.scene:
         return decision
     def fits(name: str) -> bool:

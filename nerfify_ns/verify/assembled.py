@@ -4,6 +4,8 @@ RayBundle, losses backpropagated; nominal and stiff cases. Runs only inside a pr
 from __future__ import annotations
 
 import copy
+import inspect
+import math
 
 import torch
 from torch import nn
@@ -17,8 +19,9 @@ DENSITY_MODULES = ("backbone", "density_head", "mlp_base", "mlp_base_mlp", "line
 """Field submodules whose output is (or starts with) the pre-activation density."""
 
 
-PROBE_CAPS = {"grid_resolution": 32, "grid_levels": 2}
-"""Model config values capped in the probe's model (an occupancy grid update runs the field on every cell)."""
+PROBE_CAPS = {"grid_resolution": 32, "grid_levels": 2, "num_random": 5000}
+"""Model config values capped in the probe's model (an occupancy grid update runs the field on every cell; a
+splatting model's random initial Gaussians are rasterised in every pass)."""
 
 
 def build_model(spec, scale: float = 1.0):
@@ -64,19 +67,85 @@ def field_forward(field, case: str = "nominal") -> dict[str, torch.Tensor]:
     }
 
 
+class _NoOptimizers:
+    """What a model's callbacks read of the trainer's optimisers in the harness (splatfacto keeps them for its
+    densification, which runs after an iteration, never in the harness): none."""
+
+    optimizers: dict = {}
+
+
 def before_iteration(model, step: int = 0) -> None:
-    """Run the model's own BEFORE_TRAIN_ITERATION callbacks (occupancy grid update, proposal annealing)."""
+    """Run the model's own BEFORE_TRAIN_ITERATION callbacks (occupancy grid update, proposal annealing, a splatting
+    model's step counter)."""
     from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
 
-    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None))
+    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(_NoOptimizers(), None, None, None))
     for cb in callbacks:
         cb.run_callback_at_location(step, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
 
 
+def renders_cameras(model) -> bool:
+    """A model that renders whole cameras (splatting: ``get_outputs(camera)``), not ray bundles."""
+    try:
+        return "camera" in inspect.signature(type(model).get_outputs).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+CAMERA_CASES = {"grazing_rays": "a camera facing away from the scene (it sees no Gaussian)",
+                "scene_scale_1e-3": "the scene and the camera 1e-3 times as large",
+                "scene_scale_1e3": "the scene and the camera 1e3 times as large"}
+"""The model cases a model of cameras meets, and what each is for it; the others (near and far planes, rays that
+miss, an empty ray batch) have no meaning where whole images are rasterised (:func:`camera_case_not_applicable`)."""
+
+
+def camera_case_not_applicable(model, case: str) -> str | None:
+    """Why ``case`` does not apply to a model that renders cameras, or None."""
+    if not renders_cameras(model) or case == "nominal" or case in CAMERA_CASES or case.startswith("density") \
+            or case == "half":
+        return None
+    return f"a model that rasterises whole cameras has no {case.replace('_', ' ')} (rays, near and far planes)"
+
+
+def small_camera(model, case: str = "nominal", size: int = 24, time: float = 0.5):
+    """A ``size`` x ``size`` pinhole camera looking at the centre of the model's scene box from 8/3 of its half
+    extent (4 for the [-1.5, 1.5]^3 box), at time ``time``, camera index 0; ``grazing_rays``: facing away."""
+    from nerfstudio.cameras.cameras import Cameras, CameraType
+
+    aabb = model.scene_box.aabb.float()
+    centre, half = aabb.mean(0), (aabb[1] - aabb[0]).abs().max() / 2
+    eye = centre + torch.tensor([0.0, -1.0, 0.25]) / math.sqrt(1.0625) * half * (8.0 / 3.0)
+    back = torch.nn.functional.normalize(eye - centre, dim=0)
+    if case == "grazing_rays":
+        back = -back
+    right = torch.nn.functional.normalize(torch.linalg.cross(torch.tensor([0.0, 0.0, 1.0]), back), dim=0)
+    up = torch.linalg.cross(back, right)
+    c2w = torch.stack([right, up, back, eye], dim=1)[None]
+    focal = float(size)
+    camera = Cameras(camera_to_worlds=c2w, fx=focal, fy=focal, cx=size / 2, cy=size / 2, width=size, height=size,
+                     camera_type=CameraType.PERSPECTIVE, times=torch.tensor([[time]]))
+    camera.metadata = {"cam_idx": 0}
+    return camera
+
+
 def train_step(model, case: str = "nominal", rays: int = 16):
-    """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done)."""
+    """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done); a model that
+    renders cameras: on a small camera (:func:`small_camera`)."""
     model.train()
     before_iteration(model)
+    if renders_cameras(model):
+        from nerfify_ns.registry.examples import RUN_SEED
+
+        camera = small_camera(model, case)
+        height, width = int(camera.height), int(camera.width)
+        batch = {"image": torch.rand(height, width, 3, generator=torch.Generator().manual_seed(5 + RUN_SEED))}
+        outputs = model.get_outputs(camera)
+        metrics = model.get_metrics_dict(outputs, batch)
+        losses = model.get_loss_dict(outputs, batch, metrics)
+        total = sum(v for v in losses.values() if isinstance(v, torch.Tensor))
+        if isinstance(total, torch.Tensor) and total.requires_grad:
+            total.backward()
+        return outputs, losses, total
     bundle = ray_bundle(case, rays, times=True)
     if case in ("grazing_rays", "missing_rays"):
         bundle.nears = bundle.fars = None  # the model's own collider decides

@@ -630,6 +630,7 @@ class Probe:
         import torch
 
         from nerfify_ns.registry import examples
+        from nerfify_ns.verify.assembled import renders_cameras, small_camera
         from nerfify_ns.verify.checker import MODEL_OUTPUTS, REPEAT_CASE, REPEAT_STEPS, ModuleWatch, watched_modules
 
         cap = self.pipe.cap
@@ -645,7 +646,10 @@ class Probe:
             for k in range(REPEAT_STEPS):
                 examples.set_run_seed(base + 7919 * (k + 1))  # other rays each pass
                 torch.manual_seed(examples.RUN_SEED)
-                outputs = model(examples.ray_bundle("nominal", times=True))
+                if renders_cameras(model):  # another time each pass
+                    outputs = model.get_outputs(small_camera(model, time=float(torch.rand(1))))
+                else:
+                    outputs = model(examples.ray_bundle("nominal", times=True))
                 for key in MODEL_OUTPUTS:
                     if cap.is_tensor(outputs.get(key)):
                         sums.setdefault(f"out:{key}", []).append(cap.abs_sum(outputs[key]))
@@ -688,7 +692,13 @@ class Probe:
         import torch
 
         from nerfify_ns.registry.examples import RUN_SEED
-        from nerfify_ns.verify.assembled import MODEL_CASES, grad_problems, output_problems, patch_density
+        from nerfify_ns.verify.assembled import (
+            MODEL_CASES,
+            camera_case_not_applicable,
+            grad_problems,
+            output_problems,
+            patch_density,
+        )
 
         for case in MODEL_CASES:
             torch.manual_seed(RUN_SEED)
@@ -701,6 +711,10 @@ class Probe:
             scale = {"scene_scale_1e-3": 1e-3, "scene_scale_1e3": 1e3}.get(case, 1.0)
             try:
                 model = self.shared_model(spec, scale)
+                why = camera_case_not_applicable(model, case)
+                if why:
+                    self._emit_model_case(case, "n/a", [why])
+                    continue
                 why, restore = (
                     patch_density(model, self.package, case) if case.startswith("density") else (None, None)
                 )

@@ -25,6 +25,22 @@ COST_RAYS = (1, 4)
 first probe batch: what a step's time owes to its rays (and what to the model's parameters) is their difference."""
 
 
+def as_pixels(rgb, image):
+    """(rendered colours, ground truth) as rows of pixels ``[N, C]``. A model that renders whole images (splatting)
+    gives an image ``[h, w, 3]`` and its batch the full image ``[H, W, C]`` (8-bit when cached so): the ground truth
+    is taken to [0, 1] and averaged over d x d blocks when the model renders at 1/d of the resolution (splatfacto's
+    first steps), here, not by the model's code; ray batches are returned as they are."""
+    import torch
+
+    if not (torch.is_tensor(rgb) and torch.is_tensor(image)) or rgb.ndim != 3 or image.ndim != 3:
+        return rgb, image
+    target = image.float() / 255.0 if image.dtype == torch.uint8 else image.float()
+    factor = target.shape[0] // max(rgb.shape[0], 1)
+    if factor > 1 and target.shape[0] == rgb.shape[0] * factor and target.shape[1] == rgb.shape[1] * factor:
+        target = torch.nn.functional.avg_pool2d(target.permute(2, 0, 1)[None], factor)[0].permute(1, 2, 0)
+    return rgb.reshape(-1, rgb.shape[-1]), target.reshape(-1, target.shape[-1])
+
+
 def install(pipe) -> dict:
     """Record (step, the rendered colour (``RGB_KEYS``), batch['image']) of every training step, and the summed
     absolute output of every call of the model's parts that are not torch's or Nerfstudio's (``mod:NAME``, one value
@@ -64,13 +80,15 @@ def install(pipe) -> dict:
         batch = last.get("batch")
         # the model's rendered colour: nerfacto-like models write "rgb", vanilla-nerf and mipnerf "rgb_fine"
         rgb = next((outputs[k] for k in RGB_KEYS if isinstance(outputs, dict) and k in outputs), None)
+        image = batch[1].get("image") if isinstance(batch, tuple) and len(batch) == 2 and isinstance(
+            batch[1], dict) else None
+        rgb, image = as_pixels(rgb, image)
         if cap.is_tensor(rgb):
             arrays["rgb"] = cap.array(rgb)[0]
         if last.get("watch") is not None:
             arrays.update(last["watch"].take())
-        if isinstance(batch, tuple) and len(batch) == 2 and isinstance(batch[1], dict) and cap.is_tensor(
-                batch[1].get("image")):
-            arrays["image"] = cap.array(batch[1]["image"])[0]
+        if cap.is_tensor(image):
+            arrays["image"] = cap.array(image)[0]
         pipe.send({"kind": "step", "rung": "smoke", "step": int(step)}, arrays)
         return outputs, losses, metrics
 
@@ -98,8 +116,9 @@ def render_probe(pipe, last: dict) -> None:
             rgb = next((outputs[k] for k in RGB_KEYS if isinstance(outputs, dict) and k in outputs), None)
             if not cap.is_tensor(rgb) or not isinstance(batch, dict) or not cap.is_tensor(batch.get("image")):
                 return
+            rgb, image = as_pixels(rgb, batch["image"])
             rgbs.append(cap.array(rgb)[0])
-            images.append(cap.array(batch["image"])[0])
+            images.append(cap.array(image)[0])
     pipe.send({"kind": "probe", "rung": "smoke", "steps": [s for s, _, _ in probe]},
               {"rgb": np.concatenate(rgbs), "image": np.concatenate(images)})
 

@@ -21,6 +21,7 @@ from nerfify_ns.runtime.launch import (
     train_command,
 )
 from nerfify_ns.runtime.pace import ENV_PACE, WINDOW, Pace
+from nerfify_ns.runtime.presets import for_method, plugin_args
 from nerfify_ns.runtime.sandbox import Limits, python_cmd, run_sandboxed
 from nerfify_ns.verify.checker import PipeReader, decode
 from nerfify_ns.verify.plugin import PluginInfo
@@ -128,6 +129,19 @@ def warmup_args(plan: dict | None) -> list[str]:
     return args
 
 
+def hook_schedule_args(plan: dict | None, iterations: int) -> list[str]:
+    """ns-train arguments that run the plan's schedule hooks (a warm-up that freezes a part, an annealed scalar)
+    over the rung's ``iterations`` instead of the paper's ``trainer.max_num_iterations``: every stage of the
+    schedule is reached, so a part a hook holds back is trained inside the rung too."""
+    from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD
+
+    model = (plan or {}).get("model") or {}
+    paper = int(((plan or {}).get("trainer") or {}).get("max_num_iterations") or 0)
+    if not model.get("schedule_hooks") or paper <= iterations or iterations <= 0:
+        return []
+    return [f"--pipeline.model.{STEP_SCALE_FIELD.replace('_', '-')}", f"{iterations / paper:.6g}"]
+
+
 def photometric(scalars: Scalars) -> dict[int, float]:
     """Sum of the ``rgb`` losses per step (Train Loss Dict/rgb_loss, rgb_loss_coarse/fine), else the total."""
     tags = [t for t in scalars if t.startswith("Train Loss Dict/") and "rgb" in t]
@@ -223,7 +237,10 @@ def smoke_rung(
     scene = as_dataset(scene)
     layout = RunLayout(workdir, GENERATED_METHOD, log_name="train.log")
     cmd = train_command(GENERATED_METHOD, scene, layout, iterations=iterations,
-                        method_args=[*SMOKE_ARGS, *warmup_args(info.plan), *(extra_args or [])])
+                        method_args=for_method((info.plan or {}).get("base", ""),
+                                               [*SMOKE_ARGS, *plugin_args((info.plan or {}).get("base", "")),
+                                                *warmup_args(info.plan),
+                                                *hook_schedule_args(info.plan, iterations), *(extra_args or [])]))
     pace = smoke_pace(limit)
     env = {**(env or {}), ENV_GENERATED: str(info.root), "NERFIFY_LPIPS_WEIGHTS": "none",
            **({ENV_PACE: pace.to_env()} if pace is not None else {})}

@@ -113,7 +113,7 @@ VALID: dict[str, dict] = {
 # (rule the violation must name, plan)
 INVALID: dict[str, tuple[str, dict]] = {
     "unknown slot": ("unknown_slot", mutate("nerfacto", lambda p: p["model"].update(shader={}))),
-    "missing slot": ("missing_slot", mutate("nerfacto", lambda p: p["model"].pop("sampler"))),
+    "missing slot": ("missing_slot", mutate("nerfacto", lambda p: p["model"].pop("renderer"))),
     "two alternatives": ("choice_arity", mutate("vanilla-nerf", lambda p: p["model"]["sampler"].update(
         proposal={}))),
     "unknown production": ("unknown_alternative", mutate("nerfacto", lambda p: field(p).update(

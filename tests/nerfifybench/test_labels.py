@@ -146,7 +146,7 @@ def test_every_labelled_paper_has_a_family_and_labelled_items(name):
 
 def test_the_dev_corpus_labels():
     """What the papers say, as labelled: NeRF is all cards; the dynamic papers have a time part of their own; the
-    Gaussian-splatting papers build on primitives the grammar cannot build."""
+    Gaussian-splatting papers' own parts include primitives of their own (anchors, their Gaussians)."""
     dev = labelled("dev.yaml")
     assert {p.id for p in dev.papers} == {"nerf", "bionerf", "gh_nerf", "seathru_nerf", "nerfplayer", "hexplane",
                                           "dynerf", "deformable_3dgs", "scaffold_gs", "4dgs"}

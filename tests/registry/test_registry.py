@@ -20,7 +20,7 @@ from nerfify_ns.verify.components import run_terminal
 ROOT = Path(__file__).resolve().parents[2]
 FRAME = {"Method", "Base", "Optimizer", "Scheduler", "*"}
 """Productions of the method's frame (no technique card, no contract)."""
-CARDLESS = {"deformation", "time_embedding", "frame_codes", "camera_time_offset", "field_blend",
+CARDLESS = {"deformation", "gaussian_deformation", "time_embedding", "frame_codes", "camera_time_offset", "field_blend",
             "gradient_importance", "view_selection", "anneal", "freeze", "image_curriculum"}
 """Terminals of the field-wrapper, pixel-sampler and schedule-hook productions whose technique cards are not in the
 knowledge base yet (it is kept apart from the registry); their implementations' docstrings name the papers."""

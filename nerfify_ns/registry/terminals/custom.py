@@ -172,6 +172,11 @@ FEATURES = {"features": T("[N, out_dim]", doc="encoded features (width: the comp
 LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
 RAYS = {"ray_bundle": T("[R]", "rays", role="rays")}
 
+SAMPLED = {"requires_terminal": {"slot": "model.sampler", "any_of": ["hierarchical", "proposal", "occupancy_grid",
+                                                                    "custom"]}}
+"""Duty of a component that reads the field's samples along rays or draws the training rays: a model with a ray
+sampler (a model of Gaussians rasterises whole images)."""
+
 INTERFACES: dict[str, Interface] = {i.production: i for i in [
     Interface("PosEncoding", "forward(positions [N, 3]) -> [N, get_out_dim()]", (),
               Contract({"positions": T("[N, 3]", range=(-1.0, 1.0), grad=True, role="positions")}, FEATURES),
@@ -221,7 +226,7 @@ INTERFACES: dict[str, Interface] = {i.production: i for i in [
                         "weights": T("[R, S, num_fields]", range=(0.0, 1.0),
                                      doc="each blended field's share of a sample")},
                        LOSS, sizes={"num_fields": 3}),
-              _regularizer, VALUE_CASES),
+              _regularizer, VALUE_CASES, duties=(SAMPLED,)),
     Interface("Field", "a nerfstudio Field: __init__(aabb, num_images, ...); forward(ray_samples [R, S]) -> "
               "{DENSITY: [R, S, 1] >= 0, RGB: [R, S, 3] in [0, 1]}", ("aabb", "num_images"),
               Contract(RAYS, {"density": T("[R, S, 1]", range=(0.0, None)),
@@ -250,7 +255,7 @@ INTERFACES: dict[str, Interface] = {i.production: i for i in [
                         "image_indices": T("[N]", "long", role="camera_indices", doc="their training-set indices")},
                        {"weights": T("[N, H, W]", range=(0.0, None), doc="unnormalised pixel probabilities")},
                        sizes={"H": 6, "W": 5}, doc="reads the batch's images and indices; writes the pixel map"),
-              _pixel_map, ("zeros", "empty_batch")),
+              _pixel_map, ("zeros", "empty_batch"), duties=(SAMPLED,)),
     Interface("ScheduleHook", "a subclass of components.schedule_hooks.ScheduleHook (the plugin has it): "
               "forward(steps [N] long) -> values [N] (the value written at each step); write(value, model, "
               "datamanager) applies one value; check(model) raises when the model lacks what it changes; "

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import SAMPLER_LOSS_CASES, VALUE_CASES, composite_samples
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
 
 LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
 PHOTOMETRIC_IN = {"pred": T("[R, 3]", range=(0.0, 1.0), grad=True, doc="rendered colours"),
@@ -140,14 +140,19 @@ TIME_PLANES = {"requires_terminal": {"slot": "model.field.MLPField.pos_encoding"
 
 
 def regularizer(name, params, doc, implementation, card, function, expr, inputs, *, extra=(), duties=(),
-                traits=None) -> TerminalDef:
+                traits=None, constraints=()) -> TerminalDef:
     """A regulariser of ``nerfify_ns.components.regularizers``, added to the base model's loss dictionary."""
     return TerminalDef(
         name, "Regularizers", params, doc, implementation, card=card, contract=Contract(inputs, LOSS),
         code=Code((f"from .components.regularizers import {function}",), expr=expr, component="regularizers",
                   traits=traits or {}),
-        harness=Harness(build=_none, call=_regularizer(function, *extra), cases=VALUE_CASES), duties=duties)
+        harness=Harness(build=_none, call=_regularizer(function, *extra), cases=VALUE_CASES), duties=duties,
+        constraints=tuple(constraints))
 
+
+SAMPLED_DENSITIES = Constraint(
+    "it reads the densities of the field's samples along rays: a model with a ray sampler (a model of Gaussians "
+    "has none)", lambda p, plan: bool((plan.get("model") or {}).get("sampler")))
 
 TERMINALS = [
     TerminalDef("l2", "RGBLoss", None, "Mean squared error between rendered and observed colour (NeRF Eq. 6).",
@@ -203,7 +208,7 @@ TERMINALS = [
                 "density_sparsity({{ field }}.last_density, scale={{ p.scale }})",
                 {"densities": T("[R, S, 1]", range=(0.0, 5.0), grad=True, role="densities",
                                 doc="sigma of each sample")},
-                extra=("scale",), traits={"keeps_density": True}),
+                extra=("scale",), traits={"keeps_density": True}, constraints=(SAMPLED_DENSITIES,)),
     TerminalDef("tensor_l1", "Regularizers", TensorL1,
                 "L1 norm of the density factors (TensoRF Sec. 4, sparsity).",
                 "nerfstudio.models.tensorf.TensoRFModel", card="tensorf_vm", harness=Harness(in_model=True),

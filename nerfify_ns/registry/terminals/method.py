@@ -102,11 +102,14 @@ class CosineDecay:
 
 def base(name: str, b: dict) -> TerminalDef:
     """A base model: the Nerfstudio model whose loop (sampling, rendering, losses) the plugin reuses, as
-    ``registry/bases.yaml`` defines it (its one definition: templates, smoke presets and reference plans read it)."""
+    ``registry/bases.yaml`` defines it (its one definition: templates, smoke presets and reference plans read it).
+    Its duties: the sampler and field it runs (a base of explicit primitives, ``sampler: null``, has none: the
+    slots must stay empty)."""
+    duties = [{"requires_terminal": {"slot": f"model.{slot}", "any_of": [b[slot], "custom"] if b[slot] else [None]}}
+              for slot in ("sampler", "field")]
     return TerminalDef(name, "Base", None, b["doc"], b["model"], card=b["card"], config_class=b["config"],
                        param_groups=tuple(b.get("groups") or ("fields",)), harness=Harness(in_model=True),
-                       duties=({"requires_terminal": {"slot": "model.sampler", "any_of": [b["sampler"], "custom"]}},
-                               {"requires_terminal": {"slot": "model.field", "any_of": [b["field"], "custom"]}}))
+                       duties=tuple(duties))
 
 
 def _ctor(cls: str, args: str) -> str:

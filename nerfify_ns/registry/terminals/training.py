@@ -27,6 +27,11 @@ WEIGHTS = {"weights": T("[N, H, W]", range=(0.0, None), doc="unnormalised probab
 MAP_CASES = ("zeros", "empty_batch")
 STEPS = {"steps": T("[N]", "long", role="steps", doc="training steps")}
 HOOK_CASES = ("empty_batch",)
+RAY_BATCHES = Constraint(
+    "it draws or restricts the training rays: a model trained on ray batches (a model of Gaussians has no ray "
+    "sampler; its data manager loads whole images)",
+    lambda p, plan: bool((plan.get("model") or {}).get("sampler")))
+"""Rule of a part that draws or restricts the training pixels (a rule, not a duty: the plan's ray sampler is there)."""
 
 
 @dataclass
@@ -156,7 +161,8 @@ TERMINALS = [
         contract=Contract(IMAGES, WEIGHTS, sizes=MAP_SIZES, doc="reads the batch's images; writes the pixel map"),
         code=Code((MAP_IMPORT.format("GradientImportance"),),
                   ctor="GradientImportance(uniform_fraction={{ p.uniform_fraction }})", component="pixel_samplers"),
-        harness=Harness(build=_build("GradientImportance", "uniform_fraction"), call=map_call, cases=MAP_CASES)),
+        harness=Harness(build=_build("GradientImportance", "uniform_fraction"), call=map_call, cases=MAP_CASES),
+        constraints=(RAY_BATCHES,)),
     TerminalDef(
         "view_selection", "PixelSampler", ViewSelection,
         "Training views chosen by a rule (every n-th view, or the first n): the others are never sampled.",
@@ -164,7 +170,8 @@ TERMINALS = [
         contract=Contract(IMAGES, WEIGHTS, sizes=MAP_SIZES, doc="reads the image indices; writes the pixel map"),
         code=Code((MAP_IMPORT.format("ViewSelection"),),
                   ctor="ViewSelection(rule={{ p.rule | tojson }}, n={{ p.n }})", component="pixel_samplers"),
-        harness=Harness(build=_build("ViewSelection", "rule", "n"), call=map_call, cases=MAP_CASES)),
+        harness=Harness(build=_build("ViewSelection", "rule", "n"), call=map_call, cases=MAP_CASES),
+        constraints=(RAY_BATCHES,)),
     TerminalDef(
         "anneal", "ScheduleHook", Anneal,
         "A scalar of the model annealed between two values over a range of steps (e.g. Nerfies' coarse-to-fine "
@@ -206,5 +213,6 @@ TERMINALS = [
                        "keyframe_stride={{ p.keyframe_stride }}, end_step={{ p.end_step }})",
                   component="schedule_hooks", traits={"writes": "datamanager", "needs_map_sampler": True}),
         harness=Harness(build=_build("ImageCurriculum", "rule", "start_fraction", "keyframe_stride", "end_step"),
-                        call=hook_call, cases=HOOK_CASES)),
+                        call=hook_call, cases=HOOK_CASES),
+        constraints=(RAY_BATCHES,)),
 ]

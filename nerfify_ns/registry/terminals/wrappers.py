@@ -24,7 +24,12 @@ SMALL = {"num_layers": 2, "layer_width": 16, "position_frequencies": 4, "time_fr
 TIMES = {"requires_scene": {"timestamps": True}}
 """Duty of a wrapper that reads the samples' times: only for scenes whose frames carry times."""
 MLP_FIELD = {"requires_terminal": {"slot": "model.field", "any_of": ["MLPField"]}}
-"""Duty of every wrapper: the generated neural field (MLPField) applies them."""
+"""Duty of a wrapper of samples: the generated neural field (MLPField) applies them."""
+MLP_FIELD_OR_PRIMITIVES = {"requires_terminal": {"slot": "model.field", "any_of": ["MLPField", None]}}
+"""Duty of a wrapper that also conditions explicit primitives: the neural field applies it, or, in a model of
+Gaussians (no field), the model applies it to the Gaussians' centres and the camera's time."""
+PRIMITIVES = {"requires_base": ["splatfacto"]}
+"""Duty of a wrapper of explicit primitives (3D Gaussians): a splatting base."""
 
 TIMES_NEED_PADDED_SAMPLES = Constraint(
     "a wrapper that reads times reads each sample's ray time; instant-ngp's packed samples carry none",
@@ -75,6 +80,22 @@ class Deformation:
     """Frequencies of the deformation's own encoding of t."""
     zero_at_t0: bool = param(True)
     """No displacement at t = 0: the canonical space is the scene at the first time (D-NeRF Eq. 2)."""
+
+
+@dataclass
+class GaussianDeformation:
+    num_layers: int = param(8, range=(1, 16))
+    """Hidden layers of the deformation MLP F_theta (Deformable 3D Gaussians: D = 8)."""
+    layer_width: int = param(256, range=(8, 1024))
+    """Units per hidden layer of the deformation MLP (Deformable 3D Gaussians: W = 256)."""
+    position_frequencies: int = param(10, range=(1, 16))
+    """Frequencies of the deformation's encoding of a Gaussian's centre (Deformable 3D Gaussians: 10)."""
+    time_frequencies: int = param(6, range=(1, 16))
+    """Frequencies of the deformation's encoding of t (Deformable 3D Gaussians: 6)."""
+    zero_at_t0: bool = param(False)
+    """No deformation at t = 0: the canonical Gaussians are the scene at the first time."""
+    stop_gradient: bool = param(True)
+    """The encoding reads a Gaussian's centre without its gradient (Deformable 3D Gaussians Eq. 4: gamma(sg(x)))."""
 
 
 @dataclass
@@ -196,6 +217,30 @@ TERMINALS = [
                         call=_conditioner_call("positions"), cases=POINT_CASES, small=SMALL),
         duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES,)),
     TerminalDef(
+        "gaussian_deformation", "FieldWrapper", GaussianDeformation,
+        "A deformation field of 3D Gaussians from a canonical set to time t: an MLP F(gamma(sg(x)), gamma(t)) -> "
+        "(Delta x, Delta r, Delta s) added to each Gaussian's centre, rotation and log-scale (Deformable 3D "
+        "Gaussians Eqs. 4-5; 4D-GS's multi-head decoder, Eq. 8).",
+        "nerfify_ns.components.field_wrappers.GaussianDeformation",
+        contract=Contract({"positions": T("[N, 3]", grad=True, role="positions", doc="canonical Gaussians' centres"),
+                           "times": TIMES_IN},
+                          {"positions": T("[N, 3]", doc="the centres at time t, x + Delta x"),
+                           "features": T("[N, 7]", doc="rotation (quaternion) and log-scale offsets (Delta r, "
+                                                       "Delta s)")},
+                          doc="reads the Gaussians' centres and the time; writes centres and offsets"),
+        code=Code((IMPORT.format("GaussianDeformation"),),
+                  ctor=ctor("GaussianDeformation", "num_layers={{ p.num_layers }}, layer_width={{ p.layer_width }}, "
+                            "position_frequencies={{ p.position_frequencies }}, "
+                            "time_frequencies={{ p.time_frequencies }}, zero_at_t0={{ p.zero_at_t0 }}, "
+                            "stop_gradient={{ p.stop_gradient }}"),
+                  component=COMPONENT, traits={"stage": "condition", "schedulable": [
+                      "deformation", "deformation.window", "deformation.time_noise"]}),
+        harness=Harness(build=_conditioner_build("GaussianDeformation", "num_layers", "layer_width",
+                                                 "position_frequencies", "time_frequencies", "zero_at_t0",
+                                                 "stop_gradient"),
+                        call=_conditioner_call("positions", "features"), cases=POINT_CASES, small=SMALL),
+        duties=(TIMES, PRIMITIVES)),
+    TerminalDef(
         "time_embedding", "FieldWrapper", TimeEmbedding,
         "A learned time embedding, an MLP on gamma(t), appended to the field's input (time conditioning).",
         "nerfify_ns.components.field_wrappers.TimeEmbedding",
@@ -236,7 +281,7 @@ TERMINALS = [
                   component=COMPONENT, traits={"stage": "condition", "schedulable": ["camera_time_offset"]}),
         harness=Harness(build=_conditioner_build("CameraTimeOffset", "init"), call=_conditioner_call("times"),
                         cases=("empty_batch", "half")),
-        duties=(TIMES, MLP_FIELD), constraints=(TIMES_NEED_PADDED_SAMPLES, TIMES_ARE_READ)),
+        duties=(TIMES, MLP_FIELD_OR_PRIMITIVES), constraints=(TIMES_NEED_PADDED_SAMPLES, TIMES_ARE_READ)),
     TerminalDef(
         "field_blend", "FieldWrapper", FieldBlend,
         "Several copies of the field blended per sample: by density (NeRF-W Eq. 10) or by a learned mixer's "

@@ -30,6 +30,7 @@ paper: the patterns are data, the terminals the registry's.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -60,6 +61,12 @@ class ParamRule:
     only_when: dict = field(default_factory=dict)
     noun: re.Pattern | None = None
     required: str = ""
+    sole: bool = False
+    """A required choice the sentences do not make is the plan's only part among the choices (what a hook can
+    reach): "we solely train the Gaussians for the first 3k iterations" freezes the one other part there is."""
+    default_by: dict = field(default_factory=dict)
+    """{other parameter: {its value: this one's default}}: a default that depends on what the part changes (an
+    annealed noise ends at 0, a coarse-to-fine window at every frequency)."""
 
 
 @dataclass
@@ -78,6 +85,9 @@ class Part:
     also: list = field(default_factory=list)
     companion: bool = False
     """Built only beside another stated part of its production (a backbone's size alone is no novel part)."""
+    alternatives: list = field(default_factory=list)
+    """Other terminals that build the same statement in another kind of model (a deformation of a field's samples,
+    or of 3D Gaussians): the first of ``terminal`` and these the grammar accepts in the plan builds it."""
 
 
 @dataclass
@@ -157,7 +167,7 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
                 name, str(rule.get("unit", "")), [comp(p) for p in rule.get("patterns") or []],
                 bool(rule.get("percent")), [(value, comp(p)) for value, p in (rule.get("choices") or {}).items()],
                 dict(rule.get("only_when") or {}), comp(rule["noun"]) if rule.get("noun") else None,
-                str(rule.get("required") or ""))
+                str(rule.get("required") or ""), bool(rule.get("sole")), dict(rule.get("default_by") or {}))
             if params[name].noun is not None:
                 mentions.append(params[name].noun)
         part = Part(entry["name"], entry["production"], entry["terminal"], entry["place"],
@@ -165,7 +175,7 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
                     params, dict(entry.get("sets") or {}), list(entry.get("captures") or []),
                     comp(entry["exact_unless"]) if entry.get("exact_unless") else None,
                     " ".join(str(entry.get("approximation") or "").split()), list(entry.get("also") or []),
-                    bool(entry.get("companion")))
+                    bool(entry.get("companion")), list(entry.get("alternatives") or []))
         if part.noun is not None:
             mentions.append(part.noun)
         parts.append(part)
@@ -366,8 +376,11 @@ class Choice:
 
 class _Reader:
     def __init__(self, part: Part, found: list[Statement], scope: list[Sentence], spec: Spec, corrected: dict,
-                 base: dict | None = None):
+                 base: dict | None = None, plan: Any = None):
         from nerfify_ns.registry import default_registry
+
+        self.plan = plan
+        """The plan the part joins (what a ``sole`` choice chooses among)."""
 
         self.part, self.found, self.scope, self.spec, self.corrected = part, found, scope, spec, corrected
         self.base = base if part.place == "options" and isinstance(base, dict) else {}
@@ -404,6 +417,8 @@ class _Reader:
             if rule.choices and self.choose(rule):
                 continue
             if rule.patterns and self.number(rule):
+                continue
+            if rule.sole and not self.corrected_value(name) and self.sole(rule):
                 continue
             if rule.required and not self.corrected_value(name):
                 self.missing.append(f"{rule.required} (\"{_short(first.sentence.text, 160)}\", "
@@ -454,20 +469,45 @@ class _Reader:
         rest = [] if rule.required else [s for s in self.scope if s.rank > 0 and noun is not None
                                          and noun.search(s.flat)]
         pool = statement_sentences + own + rest  # the statements, the hole's sentences, then about its noun
+        choices = rule.choices
+        if rule.sole and isinstance(self.plan, dict):  # the choices are parts of the plan: only those it holds
+            from nerfify_ns.registry.terminals.training import schedulable_parts
+
+            held = schedulable_parts(self.plan)
+            choices = [(value, pattern) for value, pattern in choices if value in held]
         for s in pool:
-            for value, pattern in rule.choices:
+            for value, pattern in choices:
                 m = pattern.search(s.flat)
                 if m is not None and not _negated(self.spec, s.flat, m.start()):
                     return self.set(rule.name, value, "paper", s)
         return False
 
+    def sole(self, rule: ParamRule) -> bool:
+        """The rule's one choice the plan holds (a part a schedule hook can reach), when there is exactly one."""
+        from nerfify_ns.registry.terminals.training import schedulable_parts
+
+        held = schedulable_parts(self.plan) if isinstance(self.plan, dict) else set()
+        options = [value for value, _ in rule.choices if value in held]
+        if len(options) != 1:
+            return False
+        value, _ = _coerce(self.params.get(rule.name), options[0])
+        if value is None:
+            return False
+        self.choices[rule.name] = Choice(value, "plan", unit=rule.unit, why=(
+            f"the paper's sentence names no part; {value} is the plan's only part among "
+            f"{', '.join(v for v, _ in rule.choices)}"))
+        return True
+
     def number(self, rule: ParamRule) -> bool:
         noun = rule.noun or self.part.noun
         stating = {id(st.sentence) for st in self.found}  # the sentences that state the part first
+        spans = {id(st.sentence): (st.match.start(), st.match.end()) for st in self.found}
         for s in sorted(self.scope, key=lambda x: (x.rank, id(x) not in stating, x.order)):
             for pattern in rule.patterns:
                 for m in pattern.finditer(s.flat):
-                    if not _belongs(self.spec, noun, s.flat, m):
+                    span = spans.get(id(s))  # a number inside the statement's own words is the part's
+                    inside = span is not None and span[0] <= m.start("num") < span[1]
+                    if not inside and not _belongs(self.spec, noun, s.flat, m):
                         continue
                     value = _number(self.spec, m, rule.percent)
                     if value is None:
@@ -484,6 +524,10 @@ class _Reader:
     def default(self, name: str) -> Any:
         if name in self.base:
             return copy.deepcopy(self.base[name])
+        rule = self.part.parameters.get(name)
+        for other, table in (rule.default_by if rule else {}).items():
+            if other in self.choices and self.choices[other].value in table:
+                return copy.deepcopy(table[self.choices[other].value])
         spec = self.params.get(name)
         return copy.deepcopy(spec.default) if spec is not None else None
 
@@ -586,6 +630,26 @@ def _place(part: Part, slot: str, params: dict, plan: Any, notes: list) -> list[
     return written
 
 
+def _variant(part: Part, slot: str, plan: Any) -> Part:
+    """``part`` with the first of its terminals (its own, then ``alternatives``) that the grammar accepts at
+    ``slot`` in ``plan`` (tried at its defaults, the plan left as it was); its own when none is."""
+    if not part.alternatives or part.place != "member":
+        return part
+    standing = {str(v) for v in _violations(plan)}
+    for terminal in [part.terminal, *part.alternatives]:
+        candidate = dataclasses.replace(part, terminal=terminal)
+        before = _snapshot(plan)
+        try:
+            _place(candidate, slot, {}, plan, [])
+            accepted = not [v for v in _violations(plan) if str(v) not in standing]
+        except Exception:  # noqa: BLE001 - refused here; the next terminal is tried
+            accepted = False
+        _restore(plan, before)
+        if accepted:
+            return candidate
+    return part
+
+
 def _order_members(members: Any) -> None:
     """Members of a set applied in order (the field's conditioners): a member whose contract writes the samples'
     times (a per-camera time offset) before the members that read them, so that what it writes is read; the
@@ -644,10 +708,11 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
                          f"{hole['slot']}, but its sentences state a part of {refiled} (below)")
         res.production, res.slot = refiled, slot
     built, refused, approximate = [], [], []
-    for part, found in stated + elsewhere:
-        optional = (part, found) in elsewhere
+    for stated_part, found in stated + elsewhere:
+        optional = (stated_part, found) in elsewhere
+        part = _variant(stated_part, slot, plan)
         base = plan.get(_options_path(plan, slot, part.terminal)) if part.place == "options" else None
-        reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}), base)
+        reader = _Reader(part, found, scope, spec, corrected.get(part.name, {}), base, plan)
         choices = reader.run()
         st = found[0]
         record = {"part": part.name, "terminal": part.terminal,

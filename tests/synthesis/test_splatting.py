@@ -1,0 +1,212 @@
+"""Papers of 3D Gaussian splatting stand on splatfacto: the grammar's base of explicit primitives (no field, no ray
+sampler), the deformation of the Gaussians at a camera's time (components/field_wrappers.GaussianDeformation), the
+schedule hooks a splatting paper states in prose (a warm-up that trains the Gaussians alone, annealed noise on the
+time input), the plugin's model (templates/model_splat.py.j2) and the ladder's camera harness. A paper of our own
+(tests/data/papers/prose_splatting.md) states each part in words; the slow test runs the ladder on its plan."""
+
+from __future__ import annotations
+
+import copy
+import re
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from nerfify_ns.components.field_wrappers import GaussianDeformation, condition
+from nerfify_ns.grammar.validate import check
+from nerfify_ns.knowledge.family import detect_family
+from nerfify_ns.paper import ingest
+from nerfify_ns.paper.hyperparams import NUMBER
+from nerfify_ns.synthesis.novel import IMPLEMENTED, implement_holes
+from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
+from nerfify_ns.synthesis.resources import load_reference_plan
+from nerfify_ns.verify.recorder import as_pixels
+
+PAPERS = Path(__file__).resolve().parents[1] / "data" / "papers"
+
+
+@pytest.fixture(scope="module")
+def splat_paper():
+    doc = ingest(PAPERS / "prose_splatting.md")
+    derived = plan_from_paper(doc)
+    return doc, derived, implement_holes(doc, derived.plan)
+
+
+def _splat_plan() -> dict:
+    plan = copy.deepcopy(load_reference_plan("splatfacto"))
+    plan["method"] = "splat-test"
+    plan["scene"]["timestamps"] = True
+    plan["datamanager"]["dataparser"] = "dnerf"
+    return plan
+
+
+def _rules(plan: dict) -> set[str]:
+    return {f"{v.path}:{v.rule}" for v in check(plan)}
+
+
+# ------------------------------------------------------------------------------------------ the component
+def test_the_gaussian_deformation_starts_at_the_canonical_gaussians_and_learns_all_three_offsets():
+    torch.manual_seed(0)
+    deform = GaussianDeformation(num_layers=2, layer_width=16, position_frequencies=3, time_frequencies=2)
+    means = torch.randn(50, 3, requires_grad=True)
+    times = torch.full((50, 1), 0.3)
+    moved, same_times, offsets = deform(means, times, torch.zeros(50, dtype=torch.long))
+    assert torch.equal(moved, means) and torch.equal(same_times, times)
+    assert offsets.shape == (50, 7) and not offsets.any()  # rotation (4) and log-scale (3) offsets start at 0
+    (moved.sum() + offsets.sum()).backward()
+    head = deform.network[-1]
+    assert head.weight.grad is not None and head.weight.grad.abs().sum() > 0
+    # Eq. 4's sg: the encoding reads the centre without its gradient, the centre learns through x + dx only
+    assert torch.equal(means.grad, torch.ones_like(means))
+
+
+def test_the_annealed_time_noise_scales_with_the_mean_interval_of_the_training_times():
+    torch.manual_seed(0)
+    deform = GaussianDeformation(num_layers=1, layer_width=8, position_frequencies=2, time_frequencies=2)
+    torch.nn.init.normal_(deform.network[-1].weight)
+    deform.time_noise.fill_(0.1)
+    x = torch.zeros(4, 3)
+
+    def at(t: float, training: bool = True) -> torch.Tensor:
+        deform.train(training)
+        return deform(x, torch.full((4, 1), t), torch.zeros(4, dtype=torch.long))[0]
+
+    assert torch.equal(at(0.0), at(0.0))  # one time seen: no interval, no noise
+    at(0.5), at(1.0)
+    assert deform.time_interval() == pytest.approx(0.5)
+    assert not torch.equal(at(0.5), at(0.5))  # beta * dt = 0.05 on gamma(t) while training
+    assert torch.equal(at(0.5, training=False), at(0.5, training=False))  # never at evaluation
+    deform.time_noise.fill_(0.0)  # annealed to 0
+    assert torch.equal(at(0.5), at(0.5))
+
+
+def test_condition_applies_the_deformation_to_every_gaussian_at_one_time():
+    deform = GaussianDeformation(num_layers=1, layer_width=8, position_frequencies=2, time_frequencies=2)
+    torch.nn.init.normal_(deform.network[-1].bias)
+    means = torch.zeros(6, 3)
+    moved, _, offsets = condition([deform], means, torch.full((6, 1), 0.7), None)
+    assert moved.shape == (6, 3) and offsets.shape == (6, 7)
+    assert torch.allclose(moved, moved[:1].expand(6, 3))  # the same centre at the same time moves the same way
+
+
+# ------------------------------------------------------------------------------------------ the grammar
+def test_a_model_of_gaussians_has_no_field_no_sampler_and_takes_only_its_own_wrappers():
+    plan = _splat_plan()
+    assert check(plan) == []
+    with_sampler = copy.deepcopy(plan)
+    with_sampler["model"]["sampler"] = {"proposal": {}}
+    assert "base:requires_terminal" in _rules(with_sampler)
+    deformed = copy.deepcopy(plan)
+    deformed["model"]["field_wrappers"] = {"gaussian_deformation": {}}
+    assert check(deformed) == []
+    static = copy.deepcopy(deformed)
+    static["scene"]["timestamps"] = False  # a deformation reads times
+    assert "model.field_wrappers.gaussian_deformation:requires_scene" in _rules(static)
+    samples = copy.deepcopy(plan)
+    samples["model"]["field_wrappers"] = {"deformation": {}}  # a deformation of a field's samples
+    assert "model.field_wrappers.deformation:requires_terminal" in _rules(samples)
+    for path, value in (("model.regularizers", {"density_sparsity": {}}),
+                        ("pixel_sampler", {"gradient_importance": {}})):
+        other = copy.deepcopy(deformed)
+        node = other
+        *parents, last = path.split(".")
+        for key in parents:
+            node = node[key]
+        node[last] = value
+        assert any(rule.endswith("param_constraint") for rule in _rules(other)), path
+    nerfacto = copy.deepcopy(load_reference_plan("kplanes-time"))
+    nerfacto["method"] = "ray-test"
+    nerfacto["model"]["field_wrappers"] = {"gaussian_deformation": {}}
+    assert "model.field_wrappers.gaussian_deformation:requires_base" in _rules(nerfacto)
+
+
+# ------------------------------------------------------------------------------------------ from a paper
+def test_a_dynamic_splatting_paper_stands_on_splatfacto_with_timestamps(splat_paper):
+    doc, derived, _ = splat_paper
+    family = detect_family(doc)
+    assert family.name == "splatting" and family.buildable and "dynamic" in family.also
+    assert family.scene.get("timestamps") is True  # the dynamic family's fact, which also passed
+    assert derived.plan["base"] == "splatfacto" and derived.plan["scene"]["timestamps"] is True
+    assert "field" not in derived.plan["model"] and "sampler" not in derived.plan["model"]
+
+
+def test_a_splatting_papers_parts_stated_in_prose_are_built(splat_paper):
+    _, _, built = splat_paper
+    plan = built.plan
+    deform = plan["model"]["field_wrappers"]["gaussian_deformation"]
+    assert (deform["num_layers"], deform["layer_width"]) == (6, 128)
+    hooks = plan["model"]["schedule_hooks"]
+    # "During the first 2k iterations we only train the 3D Gaussians": the plan's one other part is held
+    assert hooks["freeze"] == {"module": "deformation", "start_step": 0, "end_step": 2000}
+    # "Gaussian noise ... scaling factor of 0.05 ... anneal it linearly to zero over the first 10k iterations"
+    anneal = hooks["anneal"]
+    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == \
+        ("deformation.time_noise", 0.05, 0.0, 10000)
+    assert {r.production: r.status for r in built.records} == {"FieldWrapper": IMPLEMENTED,
+                                                               "ScheduleHook": IMPLEMENTED}
+    freeze = next(p for r in built.records for p in r.parts if p["part"] == "freeze")
+    assert freeze["parameters"]["module"]["source"] == "plan"  # the sentence names none: said so
+    assert check(plan) == []
+    # the Gaussians' own learning rates stay the base's (no sentence gives them)
+    assert plan["optimizers"]["means"] == load_reference_plan("splatfacto")["optimizers"]["means"]
+
+
+def test_a_dimension_is_not_a_number_of_a_hyperparameter():
+    text = "the learning rate of 3D Gaussians is the official one, a 4-D grid, while 8e-4 and 3 layers are values"
+    assert [m.group("num") for m in re.finditer(NUMBER, text)] == ["8e-4", "3"]
+
+
+def test_rendered_images_are_compared_with_the_ground_truth_at_their_resolution():
+    image = torch.zeros(8, 8, 4, dtype=torch.uint8)
+    image[:4, :4] = 255
+    rgb = torch.full((4, 4, 3), 0.5)
+    pixels, target = as_pixels(rgb, image)
+    assert pixels.shape == (16, 3) and target.shape == (16, 4)
+    assert target[0].tolist() == [1.0, 1.0, 1.0, 1.0] and target[-1].tolist() == [0.0, 0.0, 0.0, 0.0]
+    rays = torch.rand(5, 3)
+    assert as_pixels(rays, rays)[0] is rays  # a ray batch is left as it is
+
+
+# ------------------------------------------------------------------------------------------ the plugin
+def test_the_plugin_of_a_splatting_plan_subclasses_splatfacto(tmp_path, splat_paper):
+    from nerfify_ns.synthesis.compose import write_plugin
+
+    _, _, built = splat_paper
+    folder = tmp_path / "plugin"
+    write_plugin(copy.deepcopy(built.plan), folder)
+    package = next(p for p in folder.iterdir() if (p / "model.py").is_file())
+    model = (package / "model.py").read_text()
+    assert "class " in model and "(SplatfactoModel):" in model and '"deformation": GaussianDeformation(' in model
+    assert 'Freeze(module="deformation"' in model and 'target="deformation.time_noise"' in model
+    config = (package / "config.py").read_text()
+    assert "FullImageDatamanagerConfig(" in config and "train_num_rays_per_batch" not in config
+    assert '"deformation": {' in config
+
+
+@pytest.mark.slow
+def test_a_deformed_splatting_plugin_passes_every_rung(tmp_path, splat_paper):
+    """The plan of the paper (sizes cut for a CPU) through `ns-nerfify compose --until verify` on the dynamic scene:
+    static, contract (a camera's training step, every group's gradients), stability (camera cases; ray cases
+    recorded as not applicable) and smoke (the run's rendered images against the ground truth at their resolution,
+    the hooks' schedule compressed into the rung)."""
+    import subprocess
+    import sys
+
+    _, _, built = splat_paper
+    plan = copy.deepcopy(built.plan)
+    plan["method"] = "drift-splat-test"
+    plan["model"]["field_wrappers"]["gaussian_deformation"].update({"num_layers": 2, "layer_width": 32})
+    path = tmp_path / "plan.yaml"
+    path.write_text(yaml.safe_dump(plan))
+    out = tmp_path / "out"
+    done = subprocess.run([sys.executable, "-m", "nerfify_ns.cli", "compose", str(path), "--scene", "dynamic",
+                           "--out", str(out), "--until", "verify"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    verify = yaml.safe_load((out / "verify.json").read_text())
+    assert [(r["name"], r["status"]) for r in verify["rungs"]] == [
+        ("static", "pass"), ("contract", "pass"), ("stability", "pass"), ("smoke", "pass")]
+    cases = {(c["component"], c["case"]): c["status"] for r in verify["rungs"] if r["name"] == "stability"
+             for c in r["details"].get("cases", [])}
+    assert cases.get(("<model>", "near_eq_far")) == "n/a" and cases.get(("<model>", "scene_scale_1e3")) == "pass"
