@@ -210,3 +210,15 @@ def test_a_deformed_splatting_plugin_passes_every_rung(tmp_path, splat_paper):
     cases = {(c["component"], c["case"]): c["status"] for r in verify["rungs"] if r["name"] == "stability"
              for c in r["details"].get("cases", [])}
     assert cases.get(("<model>", "near_eq_far")) == "n/a" and cases.get(("<model>", "scene_scale_1e3")) == "pass"
+
+
+def test_a_number_in_scientific_notation_is_no_network_size():
+    """"a tiny MLP with a learning rate of 1.6×10−3" states no 6 layers of 10 units; "8 × 256" does."""
+    from nerfify_ns.synthesis.novel.prose import load_spec
+
+    part = next(p for p in load_spec().parts if p.name == "deformation")
+    sizes = {name: [m.group("num") for pattern in part.parameters[name].patterns
+                    for text in ("a tiny MLP with a learning rate of 1.6×10−3", "an MLP of 8 × 256")
+                    for m in pattern.finditer(text)]
+             for name in ("num_layers", "layer_width")}
+    assert sizes == {"num_layers": ["8"], "layer_width": ["256"]}
