@@ -321,4 +321,5 @@ def install() -> None:
 
         on_cpu._nerfify_wrapped = True  # type: ignore[attr-defined]
         on_cpu.__doc__ = original.__doc__
+        on_cpu.__wrapped__ = original  # type: ignore[attr-defined]  # its signature is the original's (inspect)
         setattr(splatfacto.SplatfactoModel, name, on_cpu)
