@@ -36,8 +36,10 @@ def test_every_reference_plan_composes_into_a_complete_package(plugins):
     for name, plugin in plugins.items():
         pkg = plugin.package
         files = set(plugin.files)
-        assert {f"{pkg}/config.py", f"{pkg}/model.py", f"{pkg}/field.py", f"{pkg}/__init__.py", "pyproject.toml",
+        field = {f"{pkg}/field.py"} if "field" in load_reference_plan(name)["model"] else set()  # Gaussians: none
+        assert {f"{pkg}/config.py", f"{pkg}/model.py", *field, f"{pkg}/__init__.py", "pyproject.toml",
                 "README.md", "plan.yaml"} <= files
+        assert field or f"{pkg}/field.py" not in files
         pyproject = (plugin.out / "pyproject.toml").read_text()
         assert '[project.entry-points."nerfstudio.method_configs"]' in pyproject
         assert f'{plugin.method} = "{pkg}.config:{pkg}_method"' in pyproject
@@ -67,7 +69,7 @@ def test_no_dead_template_branches(plugins):
 
 def test_files_are_generated_in_dependency_order(plugins):
     ctx = {"package": "pkg", "components": ["kplanes"], "custom_modules": ["components.novel"],
-           "field_template": "field_mlp.py.j2"}
+           "field_template": "field_mlp.py.j2", "model_template": "model.py.j2"}
     graph = plugin_files(ctx)
     order = list(__import__("networkx").topological_sort(graph))
     for before, after in [("pkg/components/kplanes.py", "pkg/field.py"), ("pkg/components/novel.py", "pkg/field.py"),
