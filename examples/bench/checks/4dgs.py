@@ -39,3 +39,21 @@ def tv_loss(target):
     """Eq. 9: the grid-based total variation loss on the planes."""
     assert float(target.value.get("weight", 0)) > 0, "the TV loss has no weight"
     _refs.plane_tv()
+
+
+def gaussian_deformation_field(target):
+    """Sec. 4.2, Eq. 8: the multi-head decoder gives position, rotation and scaling offsets of each canonical
+    Gaussian at time t (only one set of canonical Gaussians is kept)."""
+    d3dgs = _refs.load("deformable_3dgs")
+    d3dgs.deformation_of(d3dgs._part(target, "gaussian_deformation"))
+
+
+def gaussian_warmup(target):
+    """Sec. 4.3: "We optimize 3D Gaussians at initial 3000 iterations for warm-up"."""
+    d3dgs = _refs.load("deformable_3dgs")
+    d3dgs.warmup_of(d3dgs._part(target, "freeze"), 3000)
+
+
+def gaussians(target):
+    """Sec. 3.1 (3D-GS's Gaussians): the canonical Gaussians are what the deformation field moves."""
+    _refs.load("deformable_3dgs").gaussians(target)
