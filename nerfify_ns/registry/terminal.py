@@ -55,6 +55,12 @@ class Constraint:
     """(the terminal's parameters with defaults, the whole plan) -> whether the rule holds."""
 
 
+def samples_rays(plan: Mapping[str, Any]) -> bool:
+    """Whether the plan's model samples rays (it has a ``model.sampler``; a model of Gaussians rasterises whole
+    images): the rule of the parts that read a field's samples or draw the training rays."""
+    return bool((plan.get("model") or {}).get("sampler"))
+
+
 @dataclass(frozen=True)
 class Harness:
     """How the contract and stability rungs run the terminal at small sizes.

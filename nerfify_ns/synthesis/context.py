@@ -476,10 +476,9 @@ def primitives(ctx: Context) -> dict:
     wrappers = field_wrappers(ctx, file="model.py")
     if wrappers["blend"] is not None:
         raise NerfifyError("a blend of fields in a model of Gaussians: the model has no field to copy")
-    unsupported = [f"model.{slot}" for slot in ("regularizers",) if ctx.plan.get(f"model.{slot}")]
-    if unsupported:
-        raise NerfifyError(f"{', '.join(unsupported)} in a model of Gaussians: a regulariser of the field's "
-                           "samples has nothing to read there")
+    if ctx.plan.get("model.regularizers"):
+        raise NerfifyError("model.regularizers in a model of Gaussians: a regulariser of the field's samples has "
+                           "nothing to read there")
     return {"cls": None, "wrappers": wrappers, "widths": wrappers["widths"]}
 
 

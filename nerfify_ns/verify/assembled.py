@@ -131,29 +131,21 @@ def small_camera(model, case: str = "nominal", size: int = 24, time: float = 0.5
 def train_step(model, case: str = "nominal", rays: int = 16):
     """outputs, loss dict and total loss of one training forward on a small ray bundle (backward done); a model that
     renders cameras: on a small camera (:func:`small_camera`)."""
-    model.train()
-    before_iteration(model)
-    if renders_cameras(model):
-        from nerfify_ns.registry.examples import RUN_SEED
-
-        camera = small_camera(model, case)
-        height, width = int(camera.height), int(camera.width)
-        batch = {"image": torch.rand(height, width, 3, generator=torch.Generator().manual_seed(5 + RUN_SEED))}
-        outputs = model.get_outputs(camera)
-        metrics = model.get_metrics_dict(outputs, batch)
-        losses = model.get_loss_dict(outputs, batch, metrics)
-        total = sum(v for v in losses.values() if isinstance(v, torch.Tensor))
-        if isinstance(total, torch.Tensor) and total.requires_grad:
-            total.backward()
-        return outputs, losses, total
-    bundle = ray_bundle(case, rays, times=True)
-    if case in ("grazing_rays", "missing_rays"):
-        bundle.nears = bundle.fars = None  # the model's own collider decides
-    n = bundle.origins.shape[0]
     from nerfify_ns.registry.examples import RUN_SEED
 
-    batch = {"image": torch.rand(n, 3, generator=torch.Generator().manual_seed(5 + RUN_SEED))}
-    outputs = model(bundle)
+    model.train()
+    before_iteration(model)
+    generator = torch.Generator().manual_seed(5 + RUN_SEED)
+    if renders_cameras(model):
+        camera = small_camera(model, case)
+        batch = {"image": torch.rand(int(camera.height), int(camera.width), 3, generator=generator)}
+        outputs = model.get_outputs(camera)
+    else:
+        bundle = ray_bundle(case, rays, times=True)
+        if case in ("grazing_rays", "missing_rays"):
+            bundle.nears = bundle.fars = None  # the model's own collider decides
+        batch = {"image": torch.rand(bundle.origins.shape[0], 3, generator=generator)}
+        outputs = model(bundle)
     metrics = model.get_metrics_dict(outputs, batch)
     losses = model.get_loss_dict(outputs, batch, metrics)
     total = sum(v for v in losses.values() if isinstance(v, torch.Tensor))

@@ -643,10 +643,11 @@ class Probe:
             model = self.shared_model(spec, 1.0)
             model.train()
             watch = ModuleWatch(cap, watched_modules(model, self.package))
+            cameras = renders_cameras(model)
             for k in range(REPEAT_STEPS):
                 examples.set_run_seed(base + 7919 * (k + 1))  # other rays each pass
                 torch.manual_seed(examples.RUN_SEED)
-                if renders_cameras(model):  # another time each pass
+                if cameras:  # another time each pass
                     outputs = model.get_outputs(small_camera(model, time=float(torch.rand(1))))
                 else:
                     outputs = model(examples.ray_bundle("nominal", times=True))

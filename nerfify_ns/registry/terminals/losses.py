@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.examples import SAMPLER_LOSS_CASES, VALUE_CASES, composite_samples
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef, samples_rays
 
 LOSS = {"loss": T("[]", range=(0.0, None), doc="a non-negative scalar")}
 PHOTOMETRIC_IN = {"pred": T("[R, 3]", range=(0.0, 1.0), grad=True, doc="rendered colours"),
@@ -152,7 +152,7 @@ def regularizer(name, params, doc, implementation, card, function, expr, inputs,
 
 SAMPLED_DENSITIES = Constraint(
     "it reads the densities of the field's samples along rays: a model with a ray sampler (a model of Gaussians "
-    "has none)", lambda p, plan: bool((plan.get("model") or {}).get("sampler")))
+    "has none)", lambda p, plan: samples_rays(plan))
 
 TERMINALS = [
     TerminalDef("l2", "RGBLoss", None, "Mean squared error between rendered and observed colour (NeRF Eq. 6).",

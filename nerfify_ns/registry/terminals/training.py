@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 from nerfify_ns.registry.contract import Contract, T
 from nerfify_ns.registry.params import param
-from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef
+from nerfify_ns.registry.terminal import Code, Constraint, Harness, TerminalDef, samples_rays
 from nerfify_ns.registry.terminals.custom import CUSTOM_MEMBER
 
 MAP_SIZES = {"H": 6, "W": 5}
@@ -30,7 +30,7 @@ HOOK_CASES = ("empty_batch",)
 RAY_BATCHES = Constraint(
     "it draws or restricts the training rays: a model trained on ray batches (a model of Gaussians has no ray "
     "sampler; its data manager loads whole images)",
-    lambda p, plan: bool((plan.get("model") or {}).get("sampler")))
+    lambda p, plan: samples_rays(plan))
 """Rule of a part that draws or restricts the training pixels (a rule, not a duty: the plan's ray sampler is there)."""
 
 
