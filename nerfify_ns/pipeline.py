@@ -268,6 +268,7 @@ def _compile_equations(doc: Document, derived: DerivedPlan, options: PaperOption
                 options.agents.code(implementation)
             stage.summary = implementation.headline() + (
                 f"; {options.agents.summary()}" if options.agents is not None else "")
+    implementation.plan = Plan.of(derived.host_cards(implementation.plan))
     derived.plan, derived.holes = implementation.plan, implementation.plan["holes"]
     return implementation
 

@@ -32,7 +32,7 @@ Martin-Brualla et al. 2021, arXiv 2008.02268, Eq. 10), or by a learned per-sampl
 w = softmax(MLP(gamma(x), t)), sigma = sum_k w_k sigma_k, c = sum_k w_k c_k (the decomposition field of
 NeRFPlayer, Song et al. 2023, arXiv 2210.15947, Sec. 3.1, with K fields).
 
-Imports only torch and nerfstudio: generated plugins import this module.
+Imports only torch, nerfstudio and the k-planes component: generated plugins import this module.
 """
 
 from __future__ import annotations
@@ -45,6 +45,8 @@ from nerfstudio.cameras.rays import RaySamples
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.fields.base_field import Field
 from torch import Tensor, nn
+
+from .kplanes import MultiScaleKPlanes
 
 __all__ = ["Sinusoids", "DeformationNetwork", "GaussianDeformation", "TimeEmbedding", "FrameCodes", "CameraTimeOffset",
            "FieldBlend", "BlendedField", "condition", "mlp"]
@@ -134,20 +136,43 @@ class GaussianDeformation(DeformationNetwork):
     smooth training (Sec. 3.3, Eq. 6): while training, gamma(t) + N(0, 1) beta Delta t, Delta t the mean interval
     between the training times seen so far (0 noise until two were seen); a schedule hook anneals beta to 0.
 
+    ``encoding="planes"``: 4D-GS's spatial-temporal structure encoder (Wu et al. 2024, arXiv 2310.08528, Sec. 4.2,
+    Eq. 7) in place of gamma: the features of the six planes (x, y), (x, z), (y, z), (x, t), (y, t), (z, t) at
+    ``plane_levels`` resolutions ``plane_resolution`` x 2^l, bilinearly interpolated, multiplied over the planes of
+    a level and concatenated over the levels (a 4D K-Planes module), read by the MLP (the tiny MLP phi_d). The
+    centres are mapped into the planes' [-1, 1] by the box of the canonical Gaussians first seen (with a margin;
+    the bounding plane voxels of 4D-GS), kept as a buffer; the time noise is added to t itself. ``position_encoding``
+    is then the planes (``spatial_planes`` and ``time_planes`` for the grid regularisers).
+
     Conditioner interface: ``forward(positions [N, 3], times [N, 1], camera_indices [N])`` returns the deformed
     centres, the times, and features ``[N, 7]`` = (Delta r [4], Delta s [3])."""
 
     HEADS = (3, 4, 3)
     """Widths of the centre, rotation (quaternion) and log-scale offsets."""
+    BOX_MARGIN = 0.1
+    """Margin of the planes' box around the canonical centres first seen, as a fraction of its size per axis."""
 
     def __init__(self, num_layers: int = 8, layer_width: int = 256, position_frequencies: int = 10,
-                 time_frequencies: int = 6, zero_at_t0: bool = False, stop_gradient: bool = True) -> None:
+                 time_frequencies: int = 6, zero_at_t0: bool = False, stop_gradient: bool = True,
+                 encoding: str = "frequency", plane_resolution: int = 64, plane_levels: int = 2,
+                 plane_features: int = 32, time_resolution: int = 25) -> None:
         super().__init__(num_layers, layer_width, position_frequencies, time_frequencies, zero_at_t0)
+        if encoding not in ("frequency", "planes"):
+            raise ValueError(f"encoding must be 'frequency' or 'planes', got {encoding!r}")
         self.stop_gradient = stop_gradient
-        last = self.network[-1]
-        self.network[-1] = nn.Linear(last.in_features, sum(self.HEADS))
+        self.encoding_kind = encoding
+        if encoding == "planes":
+            self.position_encoding = MultiScaleKPlanes(
+                [int(plane_resolution) * 2 ** level for level in range(int(plane_levels))], int(plane_features),
+                reduce="product", time_resolution=int(time_resolution))
+            self.network = mlp(self.position_encoding.get_out_dim(), layer_width, num_layers, sum(self.HEADS))
+        else:
+            last = self.network[-1]
+            self.network[-1] = nn.Linear(last.in_features, sum(self.HEADS))
         nn.init.zeros_(self.network[-1].weight)
         nn.init.zeros_(self.network[-1].bias)
+        self.register_buffer("box", torch.zeros(2, 3))
+        """The planes' box [min, max] (``encoding="planes"``); all zero until the first centres are seen."""
         self.register_buffer("time_noise", torch.tensor(0.0))
         self.seen_times: set[float] = set()
         """Distinct training times seen (at most :data:`MAX_TIMES`): their mean interval scales the noise."""
@@ -163,16 +188,31 @@ class GaussianDeformation(DeformationNetwork):
             return 0.0
         return (max(self.seen_times) - min(self.seen_times)) / (len(self.seen_times) - 1)
 
+    def _in_box(self, x: Tensor) -> Tensor:
+        """Centres mapped into the planes' [-1, 1]^3 (the box set from the first centres seen; outside it, clamped)."""
+        if not bool(self.box.any()) and x.numel():
+            lo, hi = x.detach().amin(0), x.detach().amax(0)
+            pad = (hi - lo).clamp(min=1e-6) * self.BOX_MARGIN
+            self.box.copy_(torch.stack([lo - pad, hi + pad]).to(self.box))
+        lo, hi = self.box[0].to(x), self.box[1].to(x)
+        return (((x - lo) / (hi - lo).clamp(min=1e-12)) * 2.0 - 1.0).clamp(-1.0, 1.0)
+
     def forward(self, positions: Tensor, times: Tensor, camera_indices: Tensor) -> Conditioned:
         x, t = _float(positions), _float(times)
-        encoded_t = self.time_encoding(t)
+        noise = 0.0
         if self.training and t.numel():
             if len(self.seen_times) < self.MAX_TIMES:
                 self.seen_times.update(round(float(v), 6) for v in torch.unique(t.detach()).tolist()[:64])
-            scale = float(self.time_noise) * self.time_interval()
-            if scale > 0:  # Eq. 6: gamma(t) + X(i), X(i) = N(0, 1) beta Delta t (beta annealed by a hook)
-                encoded_t = encoded_t + torch.randn_like(encoded_t) * scale
-        encoded = torch.cat([self.position_encoding(x.detach() if self.stop_gradient else x), encoded_t], dim=-1)
+            noise = float(self.time_noise) * self.time_interval()  # Eq. 6: X(i) = N(0, 1) beta Delta t
+        read = x.detach() if self.stop_gradient else x
+        if self.encoding_kind == "planes":
+            t_in = t + torch.randn_like(t) * noise if noise > 0 else t
+            encoded = self.position_encoding.to(x.dtype)(self._in_box(read), t_in.clamp(0.0, 1.0))
+        else:
+            encoded_t = self.time_encoding(t)
+            if noise > 0:
+                encoded_t = encoded_t + torch.randn_like(encoded_t) * noise
+            encoded = torch.cat([self.position_encoding(read), encoded_t], dim=-1)
         delta = self.network.to(x.dtype)(encoded)
         if self.zero_at_t0:
             delta = delta * (_float(times) != 0).to(delta)

@@ -118,6 +118,10 @@ class Card:
     ``hyperparameter_cards``). ``paper/hyperparams.py`` reads them beside the generic ``hyperparams.yaml``."""
     notation: Mapping[str, str] = field(default_factory=dict, compare=False)
     """The notation of the card's equation: symbol name -> role of ``synthesis/novel/notation.yaml``."""
+    hosted_in: Mapping[str, Mapping[str, Any]] = field(default_factory=dict, compare=False)
+    """Where the technique also lives inside another part, as that part's parameters: terminal -> {param: value}
+    (K-Planes as the encoding of a deformation of Gaussians). A plan without the card's own slot that holds such a
+    part gets the technique there."""
 
     @property
     def terminal(self) -> str:
@@ -281,7 +285,16 @@ def parse_card(data: Any, path: Path) -> Card:
         equation_slot=None if data.get("equation_slot") is None else str(data["equation_slot"]),
         hyperparameter_patterns=_patterns(path, data.get("hyperparameter_patterns")),
         notation=_notation(path, data.get("notation")),
+        hosted_in=_hosted_in(path, data.get("hosted_in")),
     )
+
+
+def _hosted_in(path: Path, raw: Any) -> dict[str, dict]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in raw.items()):
+        raise _fail(path, "hosted_in must map a terminal to the parameters that make it host the technique")
+    return {k: dict(v) for k, v in raw.items()}
 
 
 def _patterns(path: Path, raw: Any) -> dict[str, dict]:

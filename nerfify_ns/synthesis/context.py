@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import re
+from importlib import resources
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,6 +26,7 @@ from nerfify_ns.registry import default_registry
 from nerfify_ns.registry.bases import plugin_facts as bases
 from nerfify_ns.registry.snippets import py, render
 from nerfify_ns.registry.terminals.heads import ACTIVATIONS, backbone_skips
+from nerfify_ns.registry.terminals.losses import plane_owner
 from nerfify_ns.registry.terminals.sampling import proposal_resolutions
 from nerfify_ns.synthesis.proxy import SIZES, proxy_spec
 
@@ -136,9 +139,19 @@ class Context:
         return custom_component(self.params(path), self.names.package)
 
     def need_component(self, snippet: dict) -> None:
-        module = snippet.get("component")
-        if module and module not in self.components:
-            self.components.append(module)
+        """The plugin carries the snippet's component module, and the component modules that one imports."""
+        pending = [snippet.get("component")]
+        while pending:
+            module = pending.pop()
+            if module and module not in self.components:
+                self.components.append(module)
+                pending += component_imports(module)
+
+
+def component_imports(module: str) -> list[str]:
+    """The modules of ``nerfify_ns.components`` that the component ``module`` imports (relatively or by name)."""
+    source = resources.files("nerfify_ns.components").joinpath(f"{module}.py").read_text()
+    return re.findall(r"^\s*from (?:\.|nerfify_ns\.components\.)(\w+) import", source, flags=re.MULTILINE)
 
 
 def card_reference(card_name: str | None, kb: KnowledgeBase | None = None) -> str:
@@ -476,9 +489,10 @@ def primitives(ctx: Context) -> dict:
     wrappers = field_wrappers(ctx, file="model.py")
     if wrappers["blend"] is not None:
         raise NerfifyError("a blend of fields in a model of Gaussians: the model has no field to copy")
-    if ctx.plan.get("model.regularizers"):
-        raise NerfifyError("model.regularizers in a model of Gaussians: a regulariser of the field's samples has "
-                           "nothing to read there")
+    if any(ctx.derivation.used.get(f"model.regularizers.{name}") == CUSTOM
+           for name in ctx.plan.get("model.regularizers") or {}):
+        raise NerfifyError("a regulariser of the plugin in a model of Gaussians: it reads the field's samples, "
+                           "which a model of Gaussians has not")
     return {"cls": None, "wrappers": wrappers, "widths": wrappers["widths"]}
 
 
@@ -552,6 +566,16 @@ def _proposal_networks(ctx: Context) -> dict | None:
     return {"ctor": ctor, "resolutions": proposal_resolutions(ctx.params(path)), "imports": imports}
 
 
+def _planes_attr(ctx: Context, base: dict) -> str | None:
+    """The model attribute a regulariser's expression reads as ``field`` (its ``position_encoding``): the base's
+    field, or the wrapper whose encoding holds the plan's feature planes (a deformation of Gaussians over planes)."""
+    owner = plane_owner(ctx.plan)
+    if owner and owner.startswith("model.field_wrappers."):
+        name = owner.rpartition(".")[2]
+        return f'self.wrappers["{((snippet(name) or {}).get("schedulable") or [name])[0]}"]'
+    return base.get("field_attr")
+
+
 def model_context(ctx: Context) -> dict:
     imports: list[str] = []
     base = bases()[ctx.plan["base"]]
@@ -567,6 +591,7 @@ def model_context(ctx: Context) -> dict:
         imports += _imports(ctx, code)
         rgb_loss = {"name": rgb_name, "ctor": render_snippet(code["ctor"], ctx.params(rgb_path), ctx.names.package)}
     regularizers, modules = [], []
+    planes = _planes_attr(ctx, base)
     for name in (ctx.plan.get("model").get("regularizers") or {}):
         path = f"model.regularizers.{name}"
         if ctx.derivation.used.get(path) == CUSTOM:
@@ -585,7 +610,7 @@ def model_context(ctx: Context) -> dict:
         params = ctx.params(path)
         imports += _imports(ctx, code)
         regularizers.append({"name": name, "weight": params["weight"],
-                             "expr": render(code["expr"], params, ctx.names.package, field=base["field_attr"])})
+                             "expr": render(code["expr"], params, ctx.names.package, field=planes)})
         ctx.part("model.py", "regulariser", path, ctx.grammar.terminals[name].doc)
     if ctx.plan.get("model.sampler"):
         sampler_name, _ = one(ctx.plan.get("model.sampler"))

@@ -25,6 +25,7 @@
 from __future__ import annotations
 
 import ast
+import copy
 import dataclasses
 import math
 import operator
@@ -88,10 +89,32 @@ class DerivedPlan:
     """What kind of method the paper describes (static, dynamic, splatting, surface, not-training) and why."""
     ledger: Ledger | None = None
     """The paper's claims and described parts, each known (a card covers it) or new (a hole)."""
+    deriver: Any = field(default=None, repr=False, compare=False)
+    """What derived the plan (its cards found and placed, notes, evidence): :meth:`host_cards` continues it."""
 
     @property
     def close_call(self) -> str:
         return self.base_choice.close_call if self.base_choice else ""
+
+    def host_cards(self, plan: dict) -> dict:
+        """``plan`` (the derived plan with the paper's own parts built into it) with the paper's cards that had no
+        slot in the base put where those parts host them (:meth:`_Deriver.host`), their evidence added and the notes
+        that said they were not used dropped; ``plan`` itself when there is nothing to host."""
+        d = self.deriver
+        if d is None or not any(name not in d.placed for name in d.used):
+            return plan
+        out = Plan.of(copy.deepcopy(dict(plan)))
+        before = list(d.notes)
+        d.host(out)
+        dropped = set(before) - set(d.notes)
+        out["notes"] = [n for n in out.get("notes") or [] if n not in dropped] + [n for n in d.notes
+                                                                                 if n not in before]
+        out["evidence"] = {**(out.get("evidence") or {}),
+                           **{path: _evidence_line(e) for path, e in sorted(d.evidence.items())
+                              if path not in (out.get("evidence") or {})}}
+        validate(out, d.g)
+        return out
+
 
     def to_dict(self) -> dict:
         return {"plan": self.plan.to_dict(), "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
@@ -354,11 +377,13 @@ class _Deriver:
                 return comp.quote, comp.section, comp.page, comp.line, "citation"
         return None
 
-    def substitute(self, plan: Plan) -> None:
+    def substitute(self, plan: Plan, only: Sequence[str] | None = None) -> None:
         """Each card of the paper (then each recovered from citations) put where the grammar places its
-        primary terminal; its other terminals only confirm what the plan already holds."""
+        primary terminal; its other terminals only confirm what the plan already holds. ``only``: these cards."""
         ordered = list(self.used) + [c.card for c in self.res.taken if c.card not in self.used]
         for card_name in dict.fromkeys(ordered):
+            if only is not None and card_name not in only:
+                continue
             c = self.cards.get(card_name)
             if c is None or c.terminal not in self.g.terminals:
                 continue
@@ -370,6 +395,34 @@ class _Deriver:
                 for ts in self.slots.get(t, ()):
                     if ts.kind != "enum" and plan.has(ts.path) and not any(ts.slot == p.slot for p in primary):
                         self._record_card(ts.slot, c)
+
+    def host(self, plan: Plan) -> None:
+        """The paper's cards that substitution left out because the base has no slot for them, once the paper's
+        own parts are in the plan: each put inside a part that hosts it (the card's ``hosted_in``: K-Planes as the
+        encoding of a deformation of Gaussians), then the rest placed again (a plane regulariser, once the plan has
+        planes). A card placed here loses the note that said it was not used."""
+        pending = [name for name in self.used if name not in self.placed and name in self.cards]
+        if not pending:
+            return
+        for name in pending:
+            c = self.cards[name]
+            used = validate(plan, self.g).used
+            for terminal, params in c.hosted_in.items():
+                for path in [p for p, t in used.items() if t == terminal]:
+                    given = plan.get(path) if isinstance(plan.get(path), dict) else {}
+                    trial = plan.copy()
+                    trial.set(path, {**given, **params})
+                    problems = check(trial, self.g)
+                    if problems:
+                        self.notes.append(f"{c.name} ({c.title}) was found in the paper but cannot be hosted at "
+                                          f"{path}: {problems[0].message}")
+                        continue
+                    plan.set(path, {**given, **params})
+                    self._record_card(f"{path}.{next(iter(params))}", c)
+        self.substitute(plan, only=[name for name in pending if name not in self.placed])
+        placed = [name for name in pending if name in self.placed]
+        self.notes = [n for n in self.notes if not any(n.startswith(f"{name} (") and "not used" in n
+                                                       for name in placed)]
 
     def _variants(self, c: Card, ts: TerminalSlot) -> tuple[list[str], list[str]]:
         """The card's terminals for the slot of ``ts``: (those with scene duties: a space-time encoding for a
@@ -789,7 +842,7 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
                         if family.method else ""))
     validate(plan, g)
     return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=decision.reason, evidence=d.evidence,
-                       detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger)
+                       detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger, deriver=d)
 
 
 def _own_cards(doc: Any, kb: KnowledgeBase) -> set[str]:

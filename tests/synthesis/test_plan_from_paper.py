@@ -151,6 +151,11 @@ def test_nerf_text_yields_a_vanilla_nerf_equivalent_plan(nerf):
     field = plan["model"]["field"]["MLPField"]
     assert field["pos_encoding"]["positional"]["num_frequencies"] == 10
     assert field["dir_encoding"]["frequency"]["num_frequencies"] == 4
+    # Eq. 4's bands are octaves, 2^0 ... 2^{L-1}: L bands from the bottom exponent to L - 1 above it (Nerfstudio's
+    # vanilla-nerf spreads its 10 over 0..8, which are not)
+    for encoding, bands in (("pos_encoding", 10), ("dir_encoding", 4)):
+        (params,) = field[encoding].values()
+        assert params["max_freq_exp"] - params["min_freq_exp"] == bands - 1, params
     assert field["backbone"] == {"num_layers": 8, "layer_width": 256, "skip_connections": [4]}
     assert plan["model"]["sampler"]["hierarchical"]["num_coarse_samples"] == 64
     assert plan["model"]["sampler"]["hierarchical"]["num_importance_samples"] == 128

@@ -34,6 +34,16 @@ def splat_paper():
     return doc, derived, implement_holes(doc, derived.plan)
 
 
+@pytest.fixture(scope="module")
+def planes_paper():
+    """A paper of our own whose deformation reads the Gaussians through K-Planes and whose planes get a TV loss:
+    its plan as the pipeline makes it (the paper's own parts built, then the cards they host)."""
+    doc = ingest(PAPERS / "prose_splatting_planes.md")
+    derived = plan_from_paper(doc)
+    built = implement_holes(doc, derived.plan)
+    return derived, derived.host_cards(built.plan)
+
+
 def _splat_plan() -> dict:
     plan = copy.deepcopy(load_reference_plan("splatfacto"))
     plan["method"] = "splat-test"
@@ -91,6 +101,33 @@ def test_condition_applies_the_deformation_to_every_gaussian_at_one_time():
     assert torch.allclose(moved, moved[:1].expand(6, 3))  # the same centre at the same time moves the same way
 
 
+def test_a_deformation_over_planes_reads_the_gaussians_in_their_box_and_learns_the_planes():
+    """4D-GS's structure encoder: six planes over (x, y, z, t), the centres mapped into the box of the first ones
+    seen; training starts at the canonical Gaussians and the planes and heads receive gradients."""
+    torch.manual_seed(0)
+    deform = GaussianDeformation(num_layers=1, layer_width=16, encoding="planes", plane_resolution=8,
+                                 plane_levels=2, plane_features=4, time_resolution=5)
+    assert len(deform.position_encoding.spatial_planes) == 6 and len(deform.position_encoding.time_planes) == 6
+    means = torch.rand(40, 3) * 10.0 + 5.0  # a box far from [-1, 1]
+    moved, _, offsets = deform(means, torch.full((40, 1), 0.25), torch.zeros(40, dtype=torch.long))
+    assert torch.equal(moved, means) and not offsets.any()
+    lo, hi = deform.box.clone()
+    assert bool((lo < means.min(0).values).all() and (hi > means.max(0).values).all())
+    deform(means * 3.0, torch.zeros(40, 1), torch.zeros(40, dtype=torch.long))
+    assert torch.equal(deform.box, torch.stack([lo, hi]))  # kept: later centres do not move it
+    torch.nn.init.normal_(deform.network[-1].weight)
+    moved, _, offsets = deform(means, torch.full((40, 1), 0.25), torch.zeros(40, dtype=torch.long))
+    (moved.sum() + offsets.sum()).backward()
+    planes = deform.position_encoding.spatial_planes + deform.position_encoding.time_planes
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in planes)
+    with torch.no_grad():  # time planes start at 1 (no motion over t); once learned, the motion depends on t
+        for plane in deform.position_encoding.time_planes:
+            plane.uniform_(0.5, 1.5)
+    early, _, _ = deform(means, torch.full((40, 1), 0.25), torch.zeros(40, dtype=torch.long))
+    later, _, _ = deform(means, torch.full((40, 1), 0.75), torch.zeros(40, dtype=torch.long))
+    assert not torch.allclose(later, early)
+
+
 # ------------------------------------------------------------------------------------------ the grammar
 def test_a_model_of_gaussians_has_no_field_no_sampler_and_takes_only_its_own_wrappers():
     plan = _splat_plan()
@@ -120,6 +157,24 @@ def test_a_model_of_gaussians_has_no_field_no_sampler_and_takes_only_its_own_wra
     nerfacto["method"] = "ray-test"
     nerfacto["model"]["field_wrappers"] = {"gaussian_deformation": {}}
     assert "model.field_wrappers.gaussian_deformation:requires_base" in _rules(nerfacto)
+
+
+def test_plane_regularisers_need_planes_of_the_field_or_of_a_deformation_of_gaussians():
+    plan = _splat_plan()
+    plan["model"]["field_wrappers"] = {"gaussian_deformation": {}}
+    plan["model"]["regularizers"] = {"plane_tv": {}, "time_smoothness": {}}
+    assert {"model.regularizers.plane_tv:param_constraint",
+            "model.regularizers.time_smoothness:param_constraint"} <= _rules(plan)  # a frequency encoding
+    plan["model"]["field_wrappers"]["gaussian_deformation"]["encoding"] = "planes"
+    assert check(plan) == []
+    hashed = copy.deepcopy(load_reference_plan("nerfacto"))
+    hashed["method"] = "hash-test"
+    hashed.setdefault("model", {})["regularizers"] = {"plane_tv": {}}
+    assert "model.regularizers.plane_tv:param_constraint" in _rules(hashed)
+    planes = copy.deepcopy(load_reference_plan("kplanes-time"))
+    planes["method"] = "planes-test"
+    planes["model"]["regularizers"] = {"plane_tv": {}, "time_smoothness": {}}
+    assert check(planes) == []
 
 
 # ------------------------------------------------------------------------------------------ from a paper
@@ -153,6 +208,21 @@ def test_a_splatting_papers_parts_stated_in_prose_are_built(splat_paper):
     assert plan["optimizers"]["means"] == load_reference_plan("splatfacto")["optimizers"]["means"]
 
 
+def test_a_technique_without_a_slot_in_the_base_lives_in_the_part_that_hosts_it(planes_paper):
+    """K-Planes has no field to encode in a model of Gaussians: once the paper's deformation is built, the card
+    makes it read the planes (its sentence quoted), and the TV loss on those planes follows; no note says they
+    were left out."""
+    derived, plan = planes_paper
+    assert "gaussian_deformation" not in (derived.plan["model"].get("field_wrappers") or {})  # built from prose
+    deform = plan["model"]["field_wrappers"]["gaussian_deformation"]
+    assert deform["encoding"] == "planes" and (deform["num_layers"], deform["layer_width"]) == (2, 64)
+    assert "K-Planes [2] module" in plan["evidence"]["model.field_wrappers.gaussian_deformation.encoding"]
+    assert "plane_tv" in plan["model"]["regularizers"]
+    assert "total variation loss" in plan["evidence"]["model.regularizers.plane_tv"]
+    assert not [n for n in plan["notes"] if "not used" in n and ("kplanes" in n or "plane_tv" in n)]
+    assert check(plan) == []
+
+
 def test_a_dimension_is_not_a_number_of_a_hyperparameter():
     text = "the learning rate of 3D Gaussians is the official one, a 4-D grid, while 8e-4 and 3 layers are values"
     assert [m.group("num") for m in re.finditer(NUMBER, text)] == ["8e-4", "3"]
@@ -183,6 +253,18 @@ def test_the_plugin_of_a_splatting_plan_subclasses_splatfacto(tmp_path, splat_pa
     config = (package / "config.py").read_text()
     assert "FullImageDatamanagerConfig(" in config and "train_num_rays_per_batch" not in config
     assert '"deformation": {' in config
+
+
+def test_the_plugin_regularises_the_planes_of_its_deformation(tmp_path, planes_paper):
+    from nerfify_ns.synthesis.compose import write_plugin
+
+    _, plan = planes_paper
+    folder = tmp_path / "plugin"
+    write_plugin(copy.deepcopy(plan), folder)
+    package = next(p for p in folder.iterdir() if (p / "model.py").is_file())
+    model = (package / "model.py").read_text()
+    assert 'encoding="planes"' in model
+    assert 'plane_tv(self.wrappers["deformation"].position_encoding.spatial_planes)' in re.sub(r"\s+", "", model)
 
 
 @pytest.mark.slow

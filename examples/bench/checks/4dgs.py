@@ -8,12 +8,24 @@ def structure_encoder(target):
     """Eq. 7: the spatial-temporal structure encoder: multi-resolution planes over (x, y), (x, z), (y, z), (x, t),
     (y, t), (z, t), each read by bilinear interpolation, the six features of a resolution multiplied (Hadamard)
     and the resolutions concatenated: six planes per resolution, combined by product."""
-    v = _refs.as_derived(target)
-    assert v.get("reduce") == "product", f"planes combined by {v.get('reduce')}, Eq. 7 by product"
-    assert len(v["resolutions"]) >= 1 and v.get("time_resolution", 0) > 1, v
     from nerfify_ns.components.kplanes import MultiScaleKPlanes
 
-    enc = MultiScaleKPlanes(resolutions=[8], num_components=2, time_resolution=5, reduce=v["reduce"]).double()
+    if target.path.startswith("model.field_wrappers.gaussian_deformation"):  # the encoder of the deformation field
+        from nerfify_ns.components.field_wrappers import GaussianDeformation
+
+        params = dict(target.plan["model"]["field_wrappers"]["gaussian_deformation"])
+        assert params.get("encoding") == "planes", \
+            f"the deformation reads {params.get('encoding', 'frequency')} encodings of x and t, Eq. 7 planes"
+        params.update(plane_resolution=8, plane_features=2, time_resolution=5, num_layers=1, layer_width=4)
+        enc = GaussianDeformation(**params).position_encoding
+        assert isinstance(enc, MultiScaleKPlanes) and enc.reduce == "product", "planes not combined by product"
+        assert len(enc.resolutions) == 2, f"{len(enc.resolutions)} resolutions, Eq. 7 has l in {{1, 2}}"
+        enc = MultiScaleKPlanes(resolutions=[8], num_components=2, time_resolution=5, reduce=enc.reduce).double()
+    else:
+        v = _refs.as_derived(target)
+        assert v.get("reduce") == "product", f"planes combined by {v.get('reduce')}, Eq. 7 by product"
+        assert len(v["resolutions"]) >= 1 and v.get("time_resolution", 0) > 1, v
+        enc = MultiScaleKPlanes(resolutions=[8], num_components=2, time_resolution=5, reduce=v["reduce"]).double()
     assert len(enc.plane_pairs) == 6, f"{len(enc.plane_pairs)} planes per resolution, Eq. 7 has six"
     values = [(k + 2) / 4 for k in range(6)]
     with torch.no_grad():

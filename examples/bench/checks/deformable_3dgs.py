@@ -20,6 +20,9 @@ def deformation_of(params: dict) -> None:
 
     net = GaussianDeformation(**params).double()
     torch.nn.init.normal_(net.network[-1].weight, std=0.1)  # trained weights: the offsets are no longer zero
+    if params.get("encoding") == "planes":  # trained space-time planes (they start at 1: no motion over t)
+        for plane in net.position_encoding.time_planes:
+            torch.nn.init.uniform_(plane, 0.5, 1.5)
     g = torch.Generator().manual_seed(0)
     x = torch.rand(5, 3, generator=g, dtype=torch.float64, requires_grad=True)
     cams = torch.zeros(5, dtype=torch.long)

@@ -132,12 +132,45 @@ def _none(p, env):
 
 PLANES = {"planes": T("[2]", "list", role="planes", grad=True, doc="feature planes, each [1, C, H, W]")}
 SAMPLER_LOSS_IN = {"ray_samples": T("[R, S]", "samples", role="samples", doc="samples of two levels")}
-PLANES_OF_KPLANES = {"requires_terminal": {"slot": "model.field.MLPField.pos_encoding",
-                                          "any_of": ["kplanes", "kplanes_time"]}}
-"""The plane regularisers read k-planes' ``spatial_planes``; a triplane encoding has one coefficient tensor and no
-such planes (found by the fuzzer, seed 0 plan 163)."""
-TIME_PLANES = {"requires_terminal": {"slot": "model.field.MLPField.pos_encoding", "any_of": ["kplanes_time"]}}
+PLANE_ENCODINGS = {"spatial": ("kplanes", "kplanes_time"), "time": ("kplanes_time",)}
+"""The field encodings whose ``position_encoding`` has the planes the regularisers read (``spatial_planes``;
+``time_planes``): a triplane encoding has one coefficient tensor and no such planes."""
+PLANES_WRAPPER = ("gaussian_deformation", "encoding", "planes")
+"""A field wrapper whose ``position_encoding`` is a K-Planes module over (x, y, z, t) when its parameter says so
+(4D-GS's structure encoder in a deformation of Gaussians)."""
 
+
+def plane_owner(plan: dict, kind: str = "spatial") -> str | None:
+    """The plan path of the part whose ``position_encoding`` holds the feature planes a plane regulariser of
+    ``kind`` ("spatial" or "time") reads: the field's k-planes encoding, or a deformation of Gaussians over planes;
+    None when the plan has no such planes."""
+    model = plan.get("model") if isinstance(plan.get("model"), dict) else {}
+    field = model.get("field") if isinstance(model.get("field"), dict) else {}
+    mlp = field.get("MLPField") if isinstance(field.get("MLPField"), dict) else {}
+    encoding = mlp.get("pos_encoding") if isinstance(mlp.get("pos_encoding"), dict) else {}
+    for name in PLANE_ENCODINGS[kind]:
+        if name in encoding:
+            return f"model.field.MLPField.pos_encoding.{name}"
+    wrappers = model.get("field_wrappers") if isinstance(model.get("field_wrappers"), dict) else {}
+    name, param_name, value = PLANES_WRAPPER
+    given = wrappers.get(name)
+    if isinstance(given, dict) and given.get(param_name) == value:
+        return f"model.field_wrappers.{name}"
+    return None
+
+
+PLANES_IN_FIELD = {"requires_terminal": {"slot": "model.field.MLPField.pos_encoding",
+                                        "any_of": list(PLANE_ENCODINGS["spatial"]) + [None]}}
+"""The part of the plane rules the exports check too: a neural field's encoding has the planes (absent: a model
+without such a field, where :data:`READS_PLANES` decides)."""
+TIME_PLANES_IN_FIELD = {"requires_terminal": {"slot": "model.field.MLPField.pos_encoding",
+                                             "any_of": list(PLANE_ENCODINGS["time"]) + [None]}}
+READS_PLANES = Constraint(
+    "it reads feature planes: the field's k-planes encoding (kplanes, kplanes_time) or a deformation of Gaussians "
+    "over planes (gaussian_deformation with encoding planes)", lambda p, plan: plane_owner(plan) is not None)
+READS_TIME_PLANES = Constraint(
+    "it reads space-time planes: the field's kplanes_time encoding or a deformation of Gaussians over planes "
+    "(gaussian_deformation with encoding planes)", lambda p, plan: plane_owner(plan, "time") is not None)
 
 def regularizer(name, params, doc, implementation, card, function, expr, inputs, *, extra=(), duties=(),
                 traits=None, constraints=()) -> TerminalDef:
@@ -186,15 +219,18 @@ TERMINALS = [
                 duties=({"requires_terminal": {"slot": "model.sampler", "any_of": ["proposal"]}},)),
     regularizer("plane_tv", PlaneTV, "Total variation of every spatial plane (K-Planes Eq. 4).",
                 "nerfify_ns.components.regularizers.plane_tv", "plane_tv", "plane_tv",
-                "plane_tv({{ field }}.position_encoding.spatial_planes)", PLANES, duties=(PLANES_OF_KPLANES,)),
+                "plane_tv({{ field }}.position_encoding.spatial_planes)", PLANES, duties=(PLANES_IN_FIELD,),
+                constraints=(READS_PLANES,)),
     regularizer("time_smoothness", TimeSmoothness,
                 "Smoothness of the time axis of space-time planes, a 1D Laplacian (K-Planes Eq. 5).",
                 "nerfify_ns.components.regularizers.time_smoothness", "time_smoothness", "time_smoothness",
-                "time_smoothness({{ field }}.position_encoding.time_planes)", PLANES, duties=(TIME_PLANES,)),
+                "time_smoothness({{ field }}.position_encoding.time_planes)", PLANES, duties=(TIME_PLANES_IN_FIELD,),
+                constraints=(READS_TIME_PLANES,)),
     regularizer("plane_l1", PlaneL1,
                 "L1 sparsity of the space-time planes towards 1 (static by default; K-Planes Eq. 6).",
                 "nerfify_ns.components.regularizers.plane_l1_to_one", "time_smoothness", "plane_l1_to_one",
-                "plane_l1_to_one({{ field }}.position_encoding.time_planes)", PLANES, duties=(TIME_PLANES,)),
+                "plane_l1_to_one({{ field }}.position_encoding.time_planes)", PLANES, duties=(TIME_PLANES_IN_FIELD,),
+                constraints=(READS_TIME_PLANES,)),
     regularizer("ray_entropy", RayEntropy,
                 "Entropy of each ray's normalised weights, minimised for sparse rays (InfoNeRF Eq. 7).",
                 "nerfify_ns.components.regularizers.ray_entropy", "ray_entropy", "ray_entropy",

@@ -20,7 +20,8 @@ from nerfify_ns.registry.terminals.custom import CUSTOM_MEMBER
 COMPONENT = "field_wrappers"
 IMPORT = "from .components.field_wrappers import {}"
 SMALL = {"num_layers": 2, "layer_width": 16, "position_frequencies": 4, "time_frequencies": 2, "num_frequencies": 2,
-         "out_dim": 8, "num_frames": 8, "dim": 8, "mixer_width": 16, "mixer_layers": 1}
+         "out_dim": 8, "num_frames": 8, "dim": 8, "mixer_width": 16, "mixer_layers": 1, "plane_resolution": 8,
+         "plane_features": 4, "time_resolution": 4}
 TIMES = {"requires_scene": {"timestamps": True}}
 """Duty of a wrapper that reads the samples' times: only for scenes whose frames carry times."""
 MLP_FIELD = {"requires_terminal": {"slot": "model.field", "any_of": ["MLPField"]}}
@@ -96,6 +97,17 @@ class GaussianDeformation:
     """No deformation at t = 0: the canonical Gaussians are the scene at the first time."""
     stop_gradient: bool = param(True)
     """The encoding reads a Gaussian's centre without its gradient (Deformable 3D Gaussians Eq. 4: gamma(sg(x)))."""
+    encoding: Literal["frequency", "planes"] = param("frequency")
+    """What the MLP reads: frequency, the sinusoidal encodings of the centre and t (Deformable 3D Gaussians Eq. 4);
+    planes, 4D-GS's spatial-temporal structure encoder, six multi-resolution planes over (x, y, z, t) (Eq. 7)."""
+    plane_resolution: int = param(64, range=(2, 1024))
+    """Spatial resolution N of the planes' first level (encoding planes; K-Planes' 64)."""
+    plane_levels: int = param(2, range=(1, 4))
+    """Levels of the planes, resolution N x 2^l each (encoding planes; 4D-GS: l in {1, 2})."""
+    plane_features: int = param(32, range=(1, 256))
+    """Features h of every plane (encoding planes; K-Planes' 32)."""
+    time_resolution: int = param(25, range=(2, 1024))
+    """Cells of the planes' time axis (encoding planes; K-Planes on D-NeRF's scenes: 25)."""
 
 
 @dataclass
@@ -232,12 +244,15 @@ TERMINALS = [
                   ctor=ctor("GaussianDeformation", "num_layers={{ p.num_layers }}, layer_width={{ p.layer_width }}, "
                             "position_frequencies={{ p.position_frequencies }}, "
                             "time_frequencies={{ p.time_frequencies }}, zero_at_t0={{ p.zero_at_t0 }}, "
-                            "stop_gradient={{ p.stop_gradient }}"),
+                            "stop_gradient={{ p.stop_gradient }}, encoding={{ p.encoding | tojson }}, "
+                            "plane_resolution={{ p.plane_resolution }}, plane_levels={{ p.plane_levels }}, "
+                            "plane_features={{ p.plane_features }}, time_resolution={{ p.time_resolution }}"),
                   component=COMPONENT, traits={"stage": "condition", "schedulable": [
                       "deformation", "deformation.window", "deformation.time_noise"]}),
         harness=Harness(build=_conditioner_build("GaussianDeformation", "num_layers", "layer_width",
                                                  "position_frequencies", "time_frequencies", "zero_at_t0",
-                                                 "stop_gradient"),
+                                                 "stop_gradient", "encoding", "plane_resolution", "plane_levels",
+                                                 "plane_features", "time_resolution"),
                         call=_conditioner_call("positions", "features"), cases=POINT_CASES, small=SMALL),
         duties=(TIMES, PRIMITIVES)),
     TerminalDef(
