@@ -11,9 +11,9 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import re
-from importlib import resources
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib import resources
 from typing import Any
 
 from nerfify_ns.errors import NerfifyError

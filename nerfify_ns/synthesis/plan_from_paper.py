@@ -842,7 +842,8 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
                         if family.method else ""))
     validate(plan, g)
     return DerivedPlan(plan=plan, holes=plan["holes"], base=base, base_reason=decision.reason, evidence=d.evidence,
-                       detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger, deriver=d)
+                       detections=detections, missing=missing, base_choice=decision, family=family, ledger=ledger,
+                       deriver=d)
 
 
 def _own_cards(doc: Any, kb: KnowledgeBase) -> set[str]:
