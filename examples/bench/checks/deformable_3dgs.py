@@ -76,3 +76,20 @@ def gaussians(target):
     plan deforms Gaussians, not a field's samples."""
     assert "gaussian_deformation" in (_refs.as_derived(target) or {}), target.path
     assert target.plan.get("base") == "splatfacto", target.plan.get("base")
+
+
+def density_control(target):
+    """Sec. 3.1 (3D-GS's adaptive density control, followed by the paper): transparent Gaussians are pruned, small
+    ones with large positional gradients cloned, large ones split, every so many steps: the plan stands on
+    splatfacto, whose model refines its Gaussians with gsplat's strategy of clone, split and prune."""
+    assert target.value == "splatfacto", f"the plan stands on {target.value}, which has no Gaussians to refine"
+    from gsplat.strategy import DefaultStrategy
+    from nerfstudio.models.splatfacto import SplatfactoModelConfig
+
+    config = SplatfactoModelConfig()
+    assert config.refine_every > 0 and config.stop_split_at > config.warmup_length, "no refinement steps"
+    assert config.cull_alpha_thresh > 0, "transparent Gaussians are never pruned"
+    assert config.densify_grad_thresh > 0 and config.densify_size_thresh > 0, "no clone or split by gradient and size"
+    strategy = DefaultStrategy(prune_opa=config.cull_alpha_thresh, grow_grad2d=config.densify_grad_thresh,
+                               grow_scale3d=config.densify_size_thresh, refine_every=config.refine_every)
+    assert callable(getattr(strategy, "step_post_backward", None)), "the strategy does not act after a step"
