@@ -99,7 +99,8 @@ class DerivedPlan:
     def host_cards(self, plan: dict) -> dict:
         """``plan`` (the derived plan with the paper's own parts built into it) with the paper's cards that had no
         slot in the base put where those parts host them (:meth:`_Deriver.host`), their evidence added and the notes
-        that said they were not used dropped; ``plan`` itself when there is nothing to host."""
+        that said they were not used dropped; ``plan`` itself when there is nothing (left) to host: a card is hosted
+        once, by the first plan given."""
         d = self.deriver
         if d is None or not any(name not in d.placed for name in d.used):
             return plan
@@ -114,7 +115,6 @@ class DerivedPlan:
                               if path not in (out.get("evidence") or {})}}
         validate(out, d.g)
         return out
-
 
     def to_dict(self) -> dict:
         return {"plan": self.plan.to_dict(), "holes": self.holes, "base": self.base, "base_reason": self.base_reason,
