@@ -207,6 +207,21 @@ def test_card_parameters_are_params_of_their_terminal_and_valid(grammar, cards):
                 assert problem is None, f"card {c.name!r}, {t}.{key}: {problem}"
 
 
+def test_a_cards_hosts_are_terminals_whose_parameters_take_the_values(grammar, cards):
+    """``hosted_in``: each host is a terminal of the grammar and each value one its parameter accepts; at least one
+    card uses it (K-Planes in a deformation of Gaussians)."""
+    terminals = grammar["terminals"]
+    hosted = [c for c in cards.values() if c.hosted_in]
+    assert any(c.name == "kplanes" for c in hosted)
+    for c in hosted:
+        for t, params in c.hosted_in.items():
+            assert t in terminals, f"card {c.name!r}: host {t!r} is not a terminal"
+            spec = terminals[t].get("params") or {}
+            for key, value in params.items():
+                assert key in spec, f"card {c.name!r}: {key!r} is not a param of host {t!r}"
+                assert check_value(spec[key], value) is None, f"card {c.name!r}, {t}.{key}: {value!r}"
+
+
 def test_a_cards_terminals_are_implemented_and_the_card_does_not_say_how(grammar, cards):
     """Implementation lives in the terminal only: every card's terminals resolve to a callable, and no card
     file carries a field that is the terminal's (a second home that could disagree with it)."""
