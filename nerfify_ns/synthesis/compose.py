@@ -12,7 +12,6 @@ import json
 import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 
 import jinja2
@@ -24,7 +23,7 @@ from nerfify_ns.atomic import atomic_dir
 from nerfify_ns.errors import NerfifyError
 from nerfify_ns.grammar import Grammar, load_grammar, validate
 from nerfify_ns.plan import Plan
-from nerfify_ns.synthesis.context import Context, Names, build_context, py
+from nerfify_ns.synthesis.context import Context, Names, build_context, component_source, py
 from nerfify_ns.synthesis.repairs import reapply_repairs
 from nerfify_ns.synthesis.resources import templates_dir
 
@@ -89,13 +88,6 @@ def _environment() -> jinja2.Environment:
     return env
 
 
-def _component_source(module: str) -> str:
-    """Our component module, copied into the plugin so it stands alone."""
-    source = resources.files("nerfify_ns.components").joinpath(f"{module}.py").read_text()
-    return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import",
-                                                                           "from . import")
-
-
 def _ruff(args: list[str], code: str, path: str) -> str:
     try:  # ruff's own lookup: the environment's scripts, the user's, or beside a ``pip install --target``
         from ruff.__main__ import find_ruff_bin
@@ -126,7 +118,7 @@ def _render(env: jinja2.Environment, f: PluginFile, ctx: dict, plan: dict, sourc
     if f.template == "plan":
         return yaml.safe_dump(Plan.of(plan).to_dict(), sort_keys=False, width=110)
     if f.template.startswith("component:"):
-        return _component_source(f.template.split(":", 1)[1])
+        return component_source(f.template.split(":", 1)[1])
     if f.template.startswith("source:"):
         return _custom_source(f.template.split(":", 1)[1], sources, f.path)
     return env.get_template(f.template).render(**ctx)

@@ -148,10 +148,16 @@ class Context:
                 pending += component_imports(module)
 
 
-def component_imports(module: str) -> list[str]:
-    """The modules of ``nerfify_ns.components`` that the component ``module`` imports (relatively or by name)."""
+def component_source(module: str) -> str:
+    """Our component module as the plugin carries it (so it stands alone): imports of other components relative."""
     source = resources.files("nerfify_ns.components").joinpath(f"{module}.py").read_text()
-    return re.findall(r"^\s*from (?:\.|nerfify_ns\.components\.)(\w+) import", source, flags=re.MULTILINE)
+    return source.replace("from nerfify_ns.components.", "from .").replace("from nerfify_ns.components import",
+                                                                           "from . import")
+
+
+def component_imports(module: str) -> list[str]:
+    """The modules of ``nerfify_ns.components`` that the component ``module`` imports."""
+    return re.findall(r"^\s*from \.(\w+) import", component_source(module), flags=re.MULTILINE)
 
 
 def card_reference(card_name: str | None, kb: KnowledgeBase | None = None) -> str:

@@ -172,6 +172,7 @@ READS_TIME_PLANES = Constraint(
     "it reads space-time planes: the field's kplanes_time encoding or a deformation of Gaussians over planes "
     "(gaussian_deformation with encoding planes)", lambda p, plan: plane_owner(plan, "time") is not None)
 
+
 def regularizer(name, params, doc, implementation, card, function, expr, inputs, *, extra=(), duties=(),
                 traits=None, constraints=()) -> TerminalDef:
     """A regulariser of ``nerfify_ns.components.regularizers``, added to the base model's loss dictionary."""
