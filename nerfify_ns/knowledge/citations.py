@@ -148,6 +148,12 @@ def _targets(sentence: str, ref_keys: set[str], ref_papers: dict[str, str | None
     return sorted(out, key=lambda t: t.start)
 
 
+def cites_earlier_work(sentence: str, kb: KnowledgeBase | None = None) -> bool:
+    """Whether ``sentence`` cites earlier work: a numbered reference marker ([7], [3, 5]) or a known paper named
+    (an alias or a bare name such as "NeRF")."""
+    return bool(_targets(sentence, set(), {}, KnowledgeBase.of(kb)))
+
+
 def _tokenize(sentence: str, targets: list[_Target]) -> str:
     """The sentence with each target replaced by a token (its index in ``targets``)."""
     parts: list[str] = []

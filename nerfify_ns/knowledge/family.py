@@ -27,6 +27,8 @@ from nerfify_ns.knowledge.sentences import Rules, sentences
 
 FAMILIES_FILE = Path(__file__).resolve().parent / "families.yaml"
 STATIC = "static"
+UP_FRONT = ("title", "abstract")
+"""The roles of the sentences where a paper says what it is."""
 
 
 @dataclass(frozen=True)
@@ -40,6 +42,9 @@ class FamilySpec:
     against: tuple[tuple[re.Pattern, float], ...] = ()
     method: str = ""
     base: str = ""
+    named_up_front: bool = False
+    """The family passes only when one of its cues is in the title or the abstract (where a paper says what it is):
+    a paper that only discusses such methods elsewhere is not one."""
 
 
 @dataclass(frozen=True)
@@ -119,7 +124,7 @@ def read_family_rules(path: Path | str = FAMILIES_FILE) -> FamilyRules:
                 why=str(spec.get("why", "")), scene=dict(spec.get("scene") or {}),
                 cues=_patterns(spec["cues"], name), against=_patterns(spec.get("against"), name),
                 method=str(spec.get("method") or "") if not spec["buildable"] else "",
-                base=str(spec.get("base") or ""))
+                base=str(spec.get("base") or ""), named_up_front=bool(spec.get("named_up_front", False)))
         precedence = tuple(data["precedence"])
         unknown = [p for p in precedence if p not in families]
         if unknown:
@@ -170,7 +175,9 @@ def detect_family(doc: Any, rules: Rules | None = None, family: FamilyRules | No
             score -= _score(units, spec.against, fr.weights)
         scores[name] = round(score, 2)
         found[name] = ev
-    passed = [n for n in fr.precedence if scores.get(n, 0.0) >= fr.families[n].threshold]
+    up_front = [u for u in units if u.role in UP_FRONT]
+    passed = [n for n in fr.precedence if scores.get(n, 0.0) >= fr.families[n].threshold
+              and (not fr.families[n].named_up_front or _score(up_front, fr.families[n].cues, fr.weights) > 0)]
     best = max((scores[n] for n in passed), default=0.0)
     passed = [n for n in passed if scores[n] >= fr.dominance * best]
     name = passed[0] if passed else STATIC

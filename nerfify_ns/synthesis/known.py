@@ -5,8 +5,9 @@ structure, in the equation compiler's own IR, not when a card's name is nearby.
     match = index.match(latex_or_text)           # Match(card='hierarchical_sampling', how='same equation')
 
 Structure means: the IR with every symbol renamed by its first appearance (``\\sigma_i \\delta_i`` and
-``\\tau_k s_k`` are the same), operands of ``+`` and ``*`` sorted (commutativity), numeric factors dropped (a
-constant weight or a 1/2 does not make a new technique), decorations and sample indices ignored, and both sides of
+``\\tau_k s_k`` are the same), operands of ``+`` and ``*`` sorted (commutativity), scale factors dropped (a
+constant, a Greek weight ``\\lambda``, a mean's ``1/N`` or a divisor ``c`` next to something computed does not make
+a new technique), decorations and sample indices ignored, and both sides of
 ``=`` compared as well as the right-hand side alone (``\\hat C`` or ``C``, ``:=`` or ``=``). A card equation found
 whole inside a larger paper equation (of a few operations at least) also counts: the paper builds on it.
 An equation the parser cannot read is compared by the sequence of its operators (sum, exp, product, sin, ...),
@@ -73,6 +74,44 @@ def _constant(e: Any) -> bool:
     return not any(isinstance(t, ir.Symbol) for t in _subtrees(e))
 
 
+GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "varepsilon", "zeta", "eta", "theta", "kappa", "lambda", "mu",
+         "nu", "xi", "rho", "sigma", "tau", "phi", "varphi", "chi", "psi", "omega"}
+"""Names of Greek letters: a Greek symbol that is neither indexed nor evaluated at a point is a weight or a scale
+(``\\lambda_s``, ``\\beta``); a Latin letter next to a parenthesis may be a function's name the parser read as a
+product (``BCE(x)``, ``S(x)``), so it is kept."""
+
+
+def _bare(e: Any) -> bool:
+    return isinstance(e, ir.Symbol) and e.index is None and not e.args
+
+
+def _scale(e: Any) -> bool:
+    """A scale: a constant, a bare Greek symbol (``\\lambda_s``), or such a scale divided by a bare symbol or a
+    constant (``\\lambda_s / N``), or a product of scales. Next to something computed it only weights it (a loss
+    weight, a mean's 1/N), so it does not make a new technique either."""
+    if _constant(e):
+        return True
+    if _bare(e):
+        return e.name in GREEK
+    if isinstance(e, ir.BinOp) and e.op == "/":
+        return _scale(e.left) and (_bare(e.right) or _constant(e.right))
+    if isinstance(e, ir.BinOp) and e.op == "*":
+        return _scale(e.left) and _scale(e.right)
+    return False
+
+
+def _divisor(e: Any) -> bool:
+    """A divisor that only scales: a constant or a bare symbol (a Cauchy scale ``c``, a count ``N``)."""
+    return _constant(e) or _bare(e)
+
+
+def _factors(e: Any) -> list:
+    """The operands of a product that are not scales (all of them when every one is)."""
+    parts = _flatten(e, "*")
+    kept = [p for p in parts if not _scale(p)]
+    return kept or [p for p in parts if not _constant(p)] or parts[:1]
+
+
 def _flatten(e: Any, op: str) -> list:
     if isinstance(e, ir.BinOp) and e.op == op:
         return _flatten(e.left, op) + _flatten(e.right, op)
@@ -110,12 +149,12 @@ class _Canon:
     @staticmethod
     def shape(e: Any) -> str:
         if isinstance(e, ir.BinOp) and e.op in COMMUTATIVE:
-            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and _constant(p))]
+            parts = _factors(e) if e.op == "*" else _flatten(e, e.op)
             if len(parts) == 1:
                 return _Canon.shape(parts[0])
             return f"{e.op}({','.join(sorted(_Canon.shape(p) for p in parts))})"
-        if isinstance(e, ir.BinOp) and e.op == "/" and _constant(e.right):
-            return _Canon.shape(e.left)  # a constant factor
+        if isinstance(e, ir.BinOp) and e.op == "/" and _divisor(e.right) and not _scale(e.left):
+            return _Canon.shape(e.left)  # a scale factor
         kids = [k for k in _children(e) if k is not None]
         return _label(e) + (f"({','.join(_Canon.shape(k) for k in kids)})" if kids else "")
 
@@ -126,12 +165,12 @@ class _Canon:
             applied = _applied(e)
             return self.names[key] + (f"({','.join(self.full(a) for a in applied)})" if applied else "")
         if isinstance(e, ir.BinOp) and e.op in COMMUTATIVE:
-            parts = [p for p in _flatten(e, e.op) if not (e.op == "*" and _constant(p))]
+            parts = _factors(e) if e.op == "*" else _flatten(e, e.op)
             if len(parts) == 1:
                 return self.full(parts[0])
             ordered = sorted(parts, key=_Canon.shape)
             return f"{e.op}({','.join(self.full(p) for p in ordered)})"
-        if isinstance(e, ir.BinOp) and e.op == "/" and _constant(e.right):
+        if isinstance(e, ir.BinOp) and e.op == "/" and _divisor(e.right) and not _scale(e.left):
             return self.full(e.left)
         kids = [k for k in _children(e) if k is not None]
         return _label(e) + (f"({','.join(self.full(k) for k in kids)})" if kids else "")

@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 
-from nerfify_ns.knowledge.citations import find_spans
+from nerfify_ns.knowledge.citations import cites_earlier_work, find_spans
 from nerfify_ns.knowledge.sentences import section_roles, split_sentences
 from nerfify_ns.synthesis.known import CardEquations
 
@@ -373,10 +373,15 @@ class _Reader:
                          "method part it describes that no card covers is taken as its own"
                          + (f"; {len(unmatched)} equation(s) no card has" if unmatched else ""))
                 return
-            if unmatched and not takes and not p.appendix:
+            restates = self._restates(p, first, opening_only=any(e.get("read") for e in unmatched))
+            if unmatched and not takes and not p.appendix and not restates:
                 p.status = "new"
                 p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {_numbers(unmatched)}), in the method, not "
                          "taken from earlier work (the paper claims it in no sentence)")
+            elif restates:
+                p.status = "unclaimed"
+                p.why = (f"it restates earlier work (\"{restates[:120]}\"), claims nothing of it, and its equation(s) "
+                         f"(Eq. {_numbers(unmatched)}) are text the parser cannot read (no evidence of anything new)")
             else:
                 p.status, p.why = "unclaimed", "the paper claims nothing of it (a description, not a contribution)"
             return
@@ -411,6 +416,14 @@ class _Reader:
         p.status = "new"
         p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
                  if unmatched else "a part the paper claims, described in prose, that no card covers")
+
+    def _restates(self, p: Part, first: list[str], opening_only: bool = False) -> str:
+        """The first of the part's sentences in the first person that cites earlier work (a reference marker or a
+        known paper's name): the part says what it takes, and whose; "" when none does. ``opening_only``: only the
+        part's opening sentence counts (a part that opens with what it takes restates it, whatever its equations)."""
+        candidates = [s for s in first if s == p.sentences[0]] if opening_only else first
+        return next((s for s in candidates
+                     if any(c.search(s) for c in self.r["cites"]) or cites_earlier_work(s, self.kb)), "")
 
     def _unbuilt(self, p: Part, cards: list) -> None:
         card = self.kb.cards[cards[0]]

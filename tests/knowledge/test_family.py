@@ -105,3 +105,27 @@ def test_a_family_passed_by_a_margin_far_below_another_s_does_not_take_precedenc
     assert scores["splatting"] >= family.scores["splatting"]["threshold"], scores  # it passes its threshold
     assert scores["splatting"] < 0.5 * scores["surface"], scores
     assert family.name == "surface" and "splatting" not in family.also, family.to_dict()
+
+
+def test_a_nerf_paper_that_discusses_gaussian_splatting_outside_its_abstract_is_not_a_splatting_paper(tmp_path):
+    """A family marked ``named_up_front`` (splatting) passes only with a cue in the title or abstract: a voxel NeRF
+    whose appendix discusses 3D-GS baselines (their Gaussians, densification, rasterizer) stays static."""
+    from synthetic_papers import write_paper
+
+    appendix = ("FSGS densifies 3D Gaussians between existing points of the 3D Gaussian splatting (3DGS) baseline. "
+                "DNGaussian employs compact Gaussian primitives rasterized with a tile-based rasterizer. "
+                "Splatting methods split the Gaussians and clone them during densification. "
+                "Each camera's rotation matrix and the Gaussians' covariance matrix are optimised by the 3D-GS "
+                "baselines.")
+    sections = {"3 Method": ("We represent the scene with multi-scale voxel grids decoded by a small MLP and "
+                             "rendered by volume rendering."),
+                "A Discussions on Competing Models": appendix}
+    doc = write_paper(tmp_path, sections, title="GridNeRF: Fast Few-shot Voxel Radiance Fields",
+                      abstract="We present GridNeRF, a voxel radiance field trained from three views.")
+    family = detect_family(doc, KB.rules)
+    assert family.scores["splatting"]["score"] >= family.scores["splatting"]["threshold"], family.scores
+    assert family.name == "static", family.to_dict()
+    (tmp_path / "named").mkdir()
+    named = write_paper(tmp_path / "named", sections, title="GridGS: Fast Few-shot Gaussian Splatting",
+                        abstract="We present GridGS, 3D Gaussian splatting trained from three views.")
+    assert detect_family(named, KB.rules).name == "splatting"

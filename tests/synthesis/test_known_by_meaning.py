@@ -109,3 +109,15 @@ def test_gridlite_gives_the_luminance_prior_as_its_only_hole():
     assert [(h["production"], h["contribution"].split(": ", 1)[1]) for h in derived.holes] == \
         [("Renderer", "Luminance prior")]
     assert derived.holes[0]["equations"][0]["number"] == "2"
+
+
+def test_a_weight_a_mean_and_a_scale_do_not_make_an_equation_new():
+    # the Cauchy sparsity penalty written with the scale folded into a constant and a plain weight (no 1/N)
+    match = INDEX.match(r"\mathcal{L}_{c} = \gamma \sum_{j,n} \log\left(1 + 3 \tau(\mathbf{x}_j(s_n))^2\right)")
+    assert match is not None and match.card == "density_sparsity", match
+
+
+def test_a_functions_name_read_as_a_product_is_not_dropped_as_a_scale():
+    # BCE(a, b) is parsed as B * C * E(a, b): its letters are kept, so a sum of it is not spherical harmonics'
+    # sum of coefficients times basis functions
+    assert INDEX.match(r"\mathcal{L}_{m} = \sum_{i,j} BCE(M_{p}(i, j), M_{g}(i, j))") is None

@@ -251,3 +251,47 @@ def test_a_curriculum_stated_in_the_details_is_a_schedule_hook_unless_it_cites(t
     assert len(phases) == 1 and "curriculum" in phases[0].sentences[0], _new(ledger)
     cited = CURRICULUM.replace("we apply a curriculum", "following [4], we apply a curriculum")
     assert not [p for p in _ledger(tmp_path, cited, family="dynamic").new if p.production == "ScheduleHook"]
+
+
+RESTATED = """# WarpNeRF: Radiance Fields of Bending Objects
+
+## Abstract
+
+WarpNeRF renders objects that bend, from a monocular video.
+
+## 1 Introduction
+
+We propose a bending field that maps every point into a rest pose queried by a static radiance field.
+
+## 3 Method
+
+### 3.1 Bending Field
+
+We propose a bending network that maps a point and a time to an offset into the rest pose.
+
+### 3.2 Rendering
+
+We now adapt NeRF volume rendering to the bent rays. The colour of a pixel at time t is then
+
+C(p,t) = sum n=1 T(hn,t) a(hn,t) c(p(hn,t),d) (3)
+
+where T is the transmittance along the bent ray.
+
+## 4 Experiments
+
+We compare with D-NeRF on ten scenes.
+"""
+
+
+def test_a_part_that_opens_with_the_earlier_work_it_takes_restates_it(tmp_path: Path):
+    # no claim links to the rendering part; its equation is flattened text the parser cannot read, and its first
+    # sentence says it adapts NeRF's: a restatement, not a new part (the bending field stays new)
+    ledger = _ledger(tmp_path, RESTATED, family="dynamic")
+    rendering = next(p for p in ledger.parts if p.heading == "Rendering")
+    assert rendering.status == "unclaimed" and "restates earlier work" in rendering.why, (rendering.status,
+                                                                                         rendering.why)
+    assert any(p.heading == "Bending Field" for p in ledger.new), _new(ledger)
+    own = RESTATED.replace("We now adapt NeRF volume rendering to the bent rays.",
+                           "We render the bent rays with a new compositing rule.")
+    rendering = next(p for p in _ledger(tmp_path, own, family="dynamic").parts if p.heading == "Rendering")
+    assert rendering.status == "new", (rendering.status, rendering.why)
