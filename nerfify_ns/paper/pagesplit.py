@@ -98,8 +98,12 @@ def _follows(previous: str | None, num: str) -> bool:
 
 
 def _title_like(title: str) -> bool:
+    """Whether ``title`` reads as a heading's title: short, mostly letters, not a clause; a run-in title with its
+    sentence after it ("Efficiency. Large and detailed scenes ...": an item of a numbered list) is running text."""
     words = title.rstrip(".").split()
     if not words or len(words) > 12 or title.endswith((",", ";")) or "=" in title:
+        return False
+    if re.search(r"[a-z]\.\s+[A-Z][a-z]*\s+[a-z]", title):
         return False
     letters = sum(c.isalpha() for c in title)
     return letters >= 0.6 * len(title.replace(" ", "")) and not re.search(r"\d{3,}", title)

@@ -417,6 +417,21 @@ class _Reader:
         p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {', '.join(e['number'] or '?' for e in unmatched)})"
                  if unmatched else "a part the paper claims, described in prose, that no card covers")
 
+    def own_card(self, p: Part) -> None:
+        """A new part of a paper the knowledge base knows, landing where one of the paper's own cards does (the
+        card's production) with no equation read that no card has, is that card: the paper's technique, already
+        in the knowledge base, not a hole (its text or equations may be too garbled to name it)."""
+        if not self.target_cards or p.hole_equations is not None \
+                or any(not e["known"] and e.get("read") for e in p.equations):
+            return
+        mine = sorted(c for c in self.target_cards
+                      if c in self.kb.cards and self.kb.cards[c].production == p.production)
+        if len(mine) != 1:
+            return
+        p.status, p.covered_by = "known", mine
+        p.why = (f"it lands at {p.production}, where this paper's own technique {mine[0]} does (the knowledge base "
+                 f"already holds it), and no equation of it that the parser read is new")
+
     def _restates(self, p: Part, first: list[str], opening_only: bool = False) -> str:
         """The first of the part's sentences in the first person that cites earlier work (a reference marker or a
         known paper's name): the part says what it takes, and whose; "" when none does. ``opening_only``: only the
@@ -687,6 +702,7 @@ def read_ledger(doc: Any, kb: Any, target_cards: set[str] | None = None, family:
         reader.judge(p)
         if p.status == "new" and not p.production:
             reader.production(p)
+            reader.own_card(p)
     parts += reader.split_losses(parts)
     _merge(parts)
     parts += reader.schedule_phases(parts)

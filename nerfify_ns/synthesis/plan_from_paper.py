@@ -333,10 +333,13 @@ class _Deriver:
 
     # ----------------------------------------------------------------- base
     def candidates(self) -> dict[str, float]:
-        """Cards the paper uses (confidence) or takes from cited work (less)."""
+        """Cards the paper uses (confidence) or takes from cited work (less); a paper the knowledge base knows
+        uses the techniques it introduced (its own cards), however garbled the text that describes them."""
         weights: dict[str, float] = {}
         for name, d in self.used.items():
             weights[name] = max(weights.get(name, 0.0), d.confidence)
+        for name in _own_cards(self.doc, self.kb):
+            weights[name] = 1.0
         for comp in self.res.taken:
             if comp.card in self.cards:
                 w = self.kb.bases.choice.citation_weight(comp.relation)

@@ -86,3 +86,17 @@ def test_an_equation_number_alone_on_its_line_takes_the_short_lines_above_it():
                      + ["Filler line of running text."] * 100)
     equations = [(b.number, b.text) for b in page_split_blocks(text) if b.kind == "equation"]
     assert equations == [("1", "Lσd = E(σd)"), ("2", "v = MLPv(Hv(x, t)) x′ = x + v")]
+
+
+def test_a_numbered_list_item_with_a_run_in_title_is_not_a_heading():
+    # an introduction listing the problems "1. Parameterization. Unbounded scenes ..." before the paper's own
+    # "1. Preliminaries": the items' numbers would otherwise take the sections' places
+    listed = TEXT.replace("Dynamic scenes are hard. We build on NeRF [1] and add a",
+                          "Dynamic scenes are hard for three reasons:\n"
+                          "1. Motion. Points move between frames and the\n"
+                          "2. Memory. Long videos need more memory than\n"
+                          "3. Speed. Rendering each frame takes long. We add a")
+    listed = listed.replace("Lab Research.1. Introduction\n", "")
+    headings = [(b.number, b.text) for b in page_split_blocks(listed) if b.kind == "heading"]
+    assert ("2", "Related Work") in headings and ("3", "Method") in headings, headings
+    assert not any(t.startswith(("Motion", "Memory", "Speed")) for _, t in headings), headings

@@ -121,3 +121,36 @@ def test_a_functions_name_read_as_a_product_is_not_dropped_as_a_scale():
     # BCE(a, b) is parsed as B * C * E(a, b): its letters are kept, so a sum of it is not spherical harmonics'
     # sum of coefficients times basis functions
     assert INDEX.match(r"\mathcal{L}_{m} = \sum_{i,j} BCE(M_{p}(i, j), M_{g}(i, j))") is None
+
+
+def test_a_known_papers_garbled_part_is_its_own_card_and_its_techniques_choose_the_base(tmp_path: Path):
+    # Mip-NeRF 360's text as a PDF extraction loses the contraction's name and its equation's symbols: the part
+    # lands at SpatialDistortion, where the paper's own card (scene_contraction) does, so it is that card, not a
+    # hole; and the paper's own cards count for the base although the text names few of them
+    paper = tmp_path / "paper.md"
+    paper.write_text("""# Mip-NeRF 360: Unbounded Anti-Aliased Neural Radiance Fields
+
+## Abstract
+
+We present an extension of mip-NeRF for unbounded scenes that uses a non-linear scene parameterization, online
+distillation, and a novel regularizer.
+
+## 1 Introduction
+
+Unbounded scenes are hard for neural radiance fields.
+
+## 2 Scene and Ray Parameterization
+
+We propose a parameterization of unbounded scenes: every point outside the unit ball is contracted into a ball of
+radius two, with the mean and covariance of every Gaussian contracted by the same function, so that distant content
+takes less of the bounded domain.
+
+## 3 Experiments
+
+We evaluate on nine scenes.
+""")
+    derived = plan_from_paper(ingest(paper), KB)
+    assert not [h for h in derived.holes if h.get("production") == "SpatialDistortion"], derived.holes
+    part = next(p for p in derived.ledger.parts if p.heading == "Scene and Ray Parameterization")
+    assert part.status == "known" and part.covered_by == ["scene_contraction"], (part.status, part.why)
+    assert derived.base == "nerfacto", derived.base_reason
