@@ -42,6 +42,21 @@ _EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
 _EQ_NUM_ALONE = re.compile(r"^\(\s*(?P<num>\d{1,3})\s*\)$")
 # a paragraph that opens with a run-in heading ("Ray Importance Sampling. We ...") starts on a line of its own
 _RUN_IN = re.compile(r"^[A-Z][\w-]*(?: (?:[A-Z0-9][\w-]*|of|for|and|the|in|with|via|to|on)){1,6}\.\s+[A-Z]")
+# or in sentence case when its last word is capitalised ("Delayed use of Ambient Dimensions. Motion ..."), unless it
+# reads as a sentence: it opens with a pronoun, an article or a connective, or holds a verb ("Results are shown in
+# Table. We ...")
+_RUN_IN_SENTENCE_CASE = re.compile(r"^(?P<title>[A-Z][a-z][\w-]*(?: [a-z][\w-]*){1,4}(?: [A-Z][\w-]*){1,2})\.\s+[A-Z]")
+_NOT_A_TITLE = re.compile(r"^(?:We|Our|The|This|These|It|Its|In|For|As|To|On|At|By|If|Here|Note|Then|Thus|A|An)\b"
+                          r"|\b(?:is|are|was|were|be|been|has|have|had|can|could|will|would|we|shown|see|use[sd])\b")
+
+
+def _run_in(s: str) -> bool:
+    """Whether line ``s`` opens with a run-in heading ("Ray Importance Sampling. We ...")."""
+    if _RUN_IN.match(s):
+        return True
+    m = _RUN_IN_SENTENCE_CASE.match(s)
+    return bool(m) and not _NOT_A_TITLE.search(m.group("title"))
+
 _MATHY = re.compile(r"[=+∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\≈≤≥×·∈→−‖∥⊙⊗]")
 _FUNCTION_WORDS = {"a", "an", "the", "of", "for", "and", "with", "in", "on", "via", "from", "to", "by", "as", "at",
                    "is", "are", "using", "towards", "through", "into"}
@@ -255,7 +270,7 @@ def page_split_blocks(text: str) -> list[Block]:
             blocks.append(Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num")))
             next_equation = int(eq.group("num")) + 1
             continue
-        if (CAPTION.match(s) or _RUN_IN.match(s)) and para:
+        if (CAPTION.match(s) or _run_in(s)) and para:
             flush()
         para.append(x)
         if s.endswith((".", ":", "?")) and len(s) < 0.75 * full:

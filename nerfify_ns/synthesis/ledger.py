@@ -378,7 +378,7 @@ class _Reader:
                 p.status = "new"
                 p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {_numbers(unmatched)}), in the method, not "
                          "taken from earlier work (the paper claims it in no sentence)")
-            elif restates:
+            elif unmatched and restates:
                 p.status = "unclaimed"
                 p.why = (f"it restates earlier work (\"{restates[:120]}\"), claims nothing of it, and its equation(s) "
                          f"(Eq. {_numbers(unmatched)}) are text the parser cannot read (no evidence of anything new)")

@@ -100,3 +100,14 @@ def test_a_numbered_list_item_with_a_run_in_title_is_not_a_heading():
     headings = [(b.number, b.text) for b in page_split_blocks(listed) if b.kind == "heading"]
     assert ("2", "Related Work") in headings and ("3", "Method") in headings, headings
     assert not any(t.startswith(("Motion", "Memory", "Speed")) for _, t in headings), headings
+
+
+def test_a_run_in_heading_in_sentence_case_opens_a_paragraph_and_a_sentence_does_not():
+    text = TEXT.replace("We train for 30k iterations.",
+                        "We train for 30k iterations with a batch of rays drawn from\n"
+                        "Delayed use of Ambient Dimensions. Motion can be encoded by\n"
+                        "moving points. Results are shown in Table. We compare\n"
+                        "We compare with NeRF. The baselines are strong.")
+    paragraphs = [b.text for b in page_split_blocks(text) if b.kind == "para"]
+    assert any(p.startswith("Delayed use of Ambient Dimensions.") for p in paragraphs), paragraphs
+    assert not any(p.startswith(("Results are shown", "We compare with NeRF")) for p in paragraphs), paragraphs

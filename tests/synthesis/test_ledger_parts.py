@@ -273,9 +273,9 @@ We propose a bending network that maps a point and a time to an offset into the 
 
 We now adapt NeRF volume rendering to the bent rays. The colour of a pixel at time t is then
 
-C(p,t) = sum n=1 T(hn,t) a(hn,t) c(p(hn,t),d) (3)
+$$\hat{C}(\mathbf{p}, t) = \sum_{n=1}^{N} w_n(t) \, \mathbf{c}(\mathbf{p}_n + \Delta_n(t)) \tag{3}$$
 
-where T is the transmittance along the bent ray.
+where w are the weights along the bent ray.
 
 ## 4 Experiments
 
@@ -284,8 +284,8 @@ We compare with D-NeRF on ten scenes.
 
 
 def test_a_part_that_opens_with_the_earlier_work_it_takes_restates_it(tmp_path: Path):
-    # no claim links to the rendering part; its equation is flattened text the parser cannot read, and its first
-    # sentence says it adapts NeRF's: a restatement, not a new part (the bending field stays new)
+    # no claim links to the rendering part and its opening sentence says it adapts NeRF's: a restatement, not a new
+    # part, although no card has its equation (the bending field stays new); opened otherwise, it is new
     ledger = _ledger(tmp_path, RESTATED, family="dynamic")
     rendering = next(p for p in ledger.parts if p.heading == "Rendering")
     assert rendering.status == "unclaimed" and "restates earlier work" in rendering.why, (rendering.status,
@@ -295,3 +295,12 @@ def test_a_part_that_opens_with_the_earlier_work_it_takes_restates_it(tmp_path: 
                            "We render the bent rays with a new compositing rule.")
     rendering = next(p for p in _ledger(tmp_path, own, family="dynamic").parts if p.heading == "Rendering")
     assert rendering.status == "new", (rendering.status, rendering.why)
+
+
+def test_holding_a_value_for_some_iterations_then_easing_it_in_is_a_training_phase(tmp_path: Path):
+    start = CURRICULUM.index("To ease training")
+    end = CURRICULUM.index("time stamps.") + len("time stamps.")
+    held = (CURRICULUM[:start] + "We fix the window of the time encoding at zero for 1000 iterations and then "
+            "linearly ease in its frequencies." + CURRICULUM[end:])
+    phases = [p for p in _ledger(tmp_path, held, family="dynamic").new if p.production == "ScheduleHook"]
+    assert len(phases) == 1 and "linearly ease in" in phases[0].sentences[0], _new(_ledger(tmp_path, held))
