@@ -379,9 +379,12 @@ class _Reader:
                 p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {_numbers(unmatched)}), in the method, not "
                          "taken from earlier work (the paper claims it in no sentence)")
             elif unmatched and restates:
+                read = any(e.get("read") for e in unmatched)
                 p.status = "unclaimed"
-                p.why = (f"it restates earlier work (\"{restates[:120]}\"), claims nothing of it, and its equation(s) "
-                         f"(Eq. {_numbers(unmatched)}) are text the parser cannot read (no evidence of anything new)")
+                p.why = (f"it restates earlier work (\"{restates[:120]}\"), claims nothing of it, and "
+                         + (f"opens with what it takes (Eq. {_numbers(unmatched)} is that work's, as written here)"
+                            if read else f"its equation(s) (Eq. {_numbers(unmatched)}) are text the parser cannot "
+                                         "read (no evidence of anything new)"))
             else:
                 p.status, p.why = "unclaimed", "the paper claims nothing of it (a description, not a contribution)"
             return
