@@ -304,3 +304,33 @@ def test_holding_a_value_for_some_iterations_then_easing_it_in_is_a_training_pha
             "linearly ease in its frequencies." + CURRICULUM[end:])
     phases = [p for p in _ledger(tmp_path, held, family="dynamic").new if p.production == "ScheduleHook"]
     assert len(phases) == 1 and "linearly ease in" in phases[0].sentences[0], _new(_ledger(tmp_path, held))
+
+
+DELAYED = """# AmbiNeRF: Radiance Fields with Ambient Coordinates
+
+## Abstract
+
+AmbiNeRF renders scenes whose topology changes over time.
+
+## 1 Introduction
+
+We propose ambient coordinates beside the three spatial ones.
+
+## 3 Method
+
+### 3.1 Ambient Coordinates
+
+We propose to embed the template in higher dimensions with ambient coordinates predicted per point.
+
+Delayed use of Ambient Dimensions. We keep the ambient coordinates off at first and ease in their frequencies
+after a number of iterations, so that motion is first explained by the positions.
+
+## 4 Experiments
+
+We evaluate on twelve scenes.
+"""
+
+
+def test_a_part_that_delays_or_eases_something_in_is_a_schedule_hook(tmp_path: Path):
+    ledger = _ledger(tmp_path, DELAYED, family="dynamic")
+    assert ("Delayed use of Ambient Dimensions", "ScheduleHook") in _new(ledger), _new(ledger)

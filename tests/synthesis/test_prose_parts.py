@@ -291,3 +291,19 @@ def test_a_loss_term_naming_the_part_it_acts_on_stays_a_loss():
     result, plan = _build("Backbone", "model.field.MLPField.backbone",
                           ["A deformation network maps each point into the canonical space."], plan=plan)
     assert isinstance(result, prose.ProseResult) and result.production == "FieldWrapper"
+
+
+def test_a_part_whose_sentences_name_a_member_another_part_built_is_not_that_member():
+    """A schedule part ("we delay the ambient dimensions ...") that says motion can also be encoded by the
+    deformation another part already built is not refiled to that deformation: it built nothing of its own, so it
+    stays unbuilt (a part filed elsewhere whose sentences state a member the plan lacks is still placed there)."""
+    plan = _dynamic_plan()
+    plan["scene"]["timestamps"] = True
+    sentences = ["Motion can be encoded by a deformation network that maps each point into the canonical space, "
+                 "or by moving along the ambient dimensions.",
+                 "We therefore delay the use of the ambient dimensions for a number of iterations."]
+    first, plan = _build("ScheduleHook", "model.schedule_hooks", sentences, plan=plan)
+    assert isinstance(first, prose.ProseResult) and first.production == "FieldWrapper"  # the plan had none
+    assert plan["model"]["field_wrappers"]["deformation"]
+    again, plan = _build("ScheduleHook", "model.schedule_hooks", sentences, plan=plan)
+    assert again.status == NOT_IMPLEMENTED and not isinstance(again, prose.ProseResult), again

@@ -687,8 +687,11 @@ def build(hole: dict, sentences: list, plan: Any, corr: dict | None, compiled: H
     others = [p for p in PRODUCTIONS if p != production] if production not in spec.kept_losses else []
     for other in others if not stated else []:
         # the derivation filed the part elsewhere, but its own sentences state a typed part of another production
-        stated = _stated_parts(spec, other, scope)
+        # (one the plan does not hold yet: a member another part already built is that part's, and a sentence here
+        # that names it, "motion can be encoded by deforming points ...", does not make this part the same one)
         other_slot = _slot_in(plan, other)
+        stated = [(p, found) for p, found in _stated_parts(spec, other, scope)
+                  if not (p.place == "member" and other_slot and plan.get(f"{other_slot}.{p.terminal}") is not None)]
         if stated and other_slot:
             refiled, slot = other, other_slot
             break
