@@ -113,6 +113,19 @@ def _loss_fell(out: Path) -> tuple[bool, str]:
     return ok, f"{len(values)} losses, mean of the first 20% {first:.4f}, of the last 20% {last:.4f}"
 
 
+def _kept(built, trained) -> bool:
+    """Whether the plan that trained holds the part as it was built: the same compiled component (module and
+    class; the run adds scene facts such as the background to its parameters), or the same terminals and typed
+    options with the same values."""
+    if not isinstance(built, dict) or not isinstance(trained, dict):
+        return built == trained
+    if "custom" in built:
+        ours, theirs = built["custom"], trained.get("custom") or {}
+        return (ours.get("module"), ours.get("class")) == (theirs.get("module"), theirs.get("class"))
+    return set(built) == set(trained) and all(
+        _kept(v, trained[k]) if isinstance(v, dict) else v == trained[k] for k, v in built.items())
+
+
 def _at(plan: dict, slot: str):
     """The plan's node at a record's dotted ``slot`` (None when the path is gone)."""
     node = plan
@@ -151,8 +164,8 @@ def test_shared_papers_compiled_parts_pass_every_rung_and_train(paper, tmp_path)
         ("static", "pass"), ("contract", "pass"), ("stability", "pass"), ("smoke", "pass")], ladder["rungs"]
     trained = yaml.safe_load((result.out / "plan.yaml").read_text())
     # a part is built as a compiled component (``custom``) or, from its sentences, as the typed options of a terminal
-    # (a backbone's ``hidden_norm``, a ``field_blend`` wrapper): either way the plan that trained holds it unchanged
-    reverted = [r.slot for r in built if _at(trained, r.slot) != _at(implementation.plan, r.slot)]
+    # (a backbone's ``hidden_norm``, a ``field_blend`` wrapper): either way the plan that trained still holds it
+    reverted = [r.slot for r in built if not _kept(_at(implementation.plan, r.slot), _at(trained, r.slot))]
     assert not reverted, f"built parts missing from the plan that trained: {reverted}"
     ok, what = _loss_fell(result.out)
     assert ok, what
