@@ -456,7 +456,7 @@ the density.
 
 We add a saturating prior over the density at every sample $t_k$ of every ray $\mathbf{r}_i$ of the batch:
 
-$$\mathcal{L}_{s} = \lambda_{s} \sum_{i, k} \left(1 - \exp\left(-2\sigma(\mathbf{r}_{i}(t_{k}))^{2}\right)\right) \tag{2}$$
+$$\mathcal{L}_{s} = \lambda_{s} \sum_{i, k} \left(1 - \exp(-2\sigma(\mathbf{r}_{i}(t_{k}))^{2})\right) \tag{2}$$
 
 ## 4 Experiments
 
