@@ -373,13 +373,13 @@ class _Reader:
                          "method part it describes that no card covers is taken as its own"
                          + (f"; {len(unmatched)} equation(s) no card has" if unmatched else ""))
                 return
-            restates = self._restates(p, first, opening_only=any(e.get("read") for e in unmatched))
+            read = any(e.get("read") for e in unmatched)
+            restates = self._restates(p, first, opening_only=read) if unmatched else ""
             if unmatched and not takes and not p.appendix and not restates:
                 p.status = "new"
                 p.why = (f"{len(unmatched)} equation(s) no card has (Eq. {_numbers(unmatched)}), in the method, not "
                          "taken from earlier work (the paper claims it in no sentence)")
-            elif unmatched and restates:
-                read = any(e.get("read") for e in unmatched)
+            elif restates:
                 p.status = "unclaimed"
                 p.why = (f"it restates earlier work (\"{restates[:120]}\"), claims nothing of it, and "
                          + (f"opens with what it takes (Eq. {_numbers(unmatched)} is that work's, as written here)"

@@ -317,6 +317,8 @@ class _Deriver:
         self.paths = list(grammar.symbol_paths())
         self.symbols = dict(self.paths)  # path -> the innermost symbol there (an open production's terminal)
         self.slots = slot_table(grammar)
+        self.own_cards: set[str] = set()
+        """Cards of the techniques the paper itself introduced (a paper the knowledge base knows)."""
         self.novel_sentences: dict[str, str] = {}
         """Sentences of the paper's new parts (the ledger's) -> the production of their part: a number stated there
         sets no known card's parameter of another production (a deformation MLP's width is not the backbone's)."""
@@ -338,7 +340,7 @@ class _Deriver:
         weights: dict[str, float] = {}
         for name, d in self.used.items():
             weights[name] = max(weights.get(name, 0.0), d.confidence)
-        for name in _own_cards(self.doc, self.kb):
+        for name in self.own_cards:
             weights[name] = 1.0
         for comp in self.res.taken:
             if comp.card in self.cards:
@@ -796,9 +798,11 @@ def derive_plan(doc: Any, detections: Sequence[Detection] | None = None,
     detections = list(detect_techniques(doc, kb) if detections is None else detections)
     graph = graph if graph is not None else build_citation_graph(doc, detections, kb=kb)
     family = detect_family(doc, kb.rules)
-    ledger = read_ledger(doc, kb, target_cards=_own_cards(doc, kb), family=family.name)
+    own = _own_cards(doc, kb)
+    ledger = read_ledger(doc, kb, target_cards=own, family=family.name)
     detections = _without_claims(detections, ledger)
     d = _Deriver(doc, detections, graph, g, kb)
+    d.own_cards = own
     d.novel_sentences = {x.strip(): p.production for p in ledger.new for x in p.sentences if len(x.strip()) > 20}
     decision = d.choose_base() if reference_plans else BaseDecision(
         base_order(kb)[0], "the knowledge base's plainest base (ablation no-reference-plans: the reference plans "
