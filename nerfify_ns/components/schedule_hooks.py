@@ -42,10 +42,12 @@ def _progress(steps: Tensor, start: int, end: int) -> Tensor:
 
 
 def named_parts(model: nn.Module, name: str) -> list[tuple[str, nn.Module]]:
-    """The outermost modules of ``model`` whose qualified name is ``name`` or ends with ``.<name>``."""
+    """The outermost modules of ``model`` whose qualified name is ``name`` or ends with ``.<name>``, or that call
+    themselves ``name`` (their ``part_name``: a wrapper found wherever the model holds it, e.g. the window of every
+    field's position encoding, coarse and fine)."""
     found: list[tuple[str, nn.Module]] = []
     for qualified, module in model.named_modules():
-        if qualified == name or qualified.endswith("." + name):
+        if qualified == name or qualified.endswith("." + name) or getattr(module, "part_name", None) == name:
             if not any(qualified.startswith(outer + ".") for outer, _ in found):
                 found.append((qualified, module))
     return found

@@ -36,6 +36,8 @@ class Rules:
     contrast: tuple[re.Pattern, ...]
     comparison: tuple[re.Pattern, ...]
     hyperparameter_cards: dict
+    metric: tuple[re.Pattern, ...] = ()      # a sentence that measures results (an evaluation metric named)
+    objective: tuple[re.Pattern, ...] = ()   # ... unless it speaks of training (a loss, an objective, minimising)
     scene_cues: tuple = ()   # (flag, value, (pattern, ...)) per scene fact a paper can state
     experiment_details: re.Pattern | None = None   # a subsection of the experiments that is the method's details
 
@@ -69,6 +71,7 @@ def read_rules(path: Path | str = DETECT_FILE) -> Rules:
             used_threshold=float(data["used_threshold"]), prior=comp(cues["prior"]), usage=comp(cues["usage"]),
             own=comp(cues["own"]),
             contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards,
+            metric=comp(cues.get("metric") or []), objective=comp(cues.get("objective") or []),
             scene_cues=tuple((str(flag), spec["value"], comp(spec["patterns"]))
                              for flag, spec in (data.get("scene_cues") or {}).items()),
             experiment_details=re.compile(data["experiment_details"], re.IGNORECASE)
@@ -123,6 +126,9 @@ class SentenceContext:
     comparison: bool
     contrast_spans: tuple[tuple[int, int], ...]
     own: bool = False
+    metric: bool = False
+    """The sentence measures results with an evaluation metric and says nothing of training ("we also compute the
+    mean absolute error of the intensities"): a loss it names is a metric there, not a part of the method."""
     context_weights: dict = field(default_factory=dict, compare=False, repr=False)
 
     def in_contrast(self, start: int, end: int) -> bool:
@@ -131,7 +137,7 @@ class SentenceContext:
     def use_weight(self, start: int = 0, end: int = 0) -> float:
         """How much a mention at [start, end) counts as the paper using the technique (0 = mention only)."""
         weights = self.context_weights or load_rules().context_weights
-        if self.role == "ignore" or (end > start and self.in_contrast(start, end)):
+        if self.role == "ignore" or self.metric or (end > start and self.in_contrast(start, end)):
             return 0.0
         if self.role == "prior":
             return 0.8 if self.own and not self.prior else 0.0
@@ -151,7 +157,10 @@ def read_sentence(sentence: str, role: str, rules: Rules | None = None) -> Sente
                            usage=any(p.search(sentence) for p in rules.usage),
                            comparison=any(p.search(sentence) for p in rules.comparison),
                            contrast_spans=tuple(_clause_spans(sentence, rules.contrast)),
-                           own=any(p.search(sentence) for p in rules.own), context_weights=rules.context_weights)
+                           own=any(p.search(sentence) for p in rules.own),
+                           metric=any(p.search(sentence) for p in rules.metric)
+                           and not any(p.search(sentence) for p in rules.objective),
+                           context_weights=rules.context_weights)
 
 
 @dataclass(frozen=True)

@@ -183,6 +183,17 @@ def custom_component(entry: dict, package: str) -> dict:
             "domain": entry.get("input_domain", "signed_unit"), "weight": entry.get("weight", 1.0)}
 
 
+FIELD_WINDOW = "encoding_window.window"
+"""The coarse-to-fine window over the bands of the field's position encoding: the encoding is wrapped in
+``components.encoding_window.CoarseToFine`` when a schedule hook of the plan anneals it (and only then)."""
+
+
+def annealed(plan) -> set[str]:
+    """What the plan's anneal hooks write (their ``target``)."""
+    hooks = plan.get("model.schedule_hooks") if hasattr(plan, "get") else None
+    return {str(v.get("target")) for k, v in (hooks or {}).items() if k == "anneal" and isinstance(v, dict)}
+
+
 def call(cls: str, *args: str) -> str:
     """``Cls(a, b, ...)`` without empty arguments."""
     return f"{cls}({', '.join(a for a in args if a)})"
@@ -219,6 +230,11 @@ def mlp_field(ctx: Context) -> dict:
         pe_sizes = config_sizes(pe_name, pe_params)
         pe = {"ctor": render_snippet(code["ctor"], {**pe_params, **{w["of"]: w["param"] for w in pe_sizes}}, pkg),
               "domain": code["domain"], "times": bool(code.get("times")), "sizes": pe_sizes}
+        if FIELD_WINDOW in annealed(ctx.plan) and code.get("window_layout"):
+            imports += _imports(ctx, {"imports": ["from .components.encoding_window import CoarseToFine"],
+                                      "component": "encoding_window"})
+            pe["ctor"] = (f"CoarseToFine({pe['ctor']}, bands={int(pe_params[code['window_bands']])}, "
+                          f"layout={code['window_layout']!r})")
 
     de_name, _ = one(fp["dir_encoding"])
     de_path = f"{root}.dir_encoding.{de_name}"

@@ -452,3 +452,47 @@ def test_schedule_hooks_read_the_step_scale_at_every_call():
     model.config.schedule_step_scale = 0.05
     callback.run_callback(step=20)  # paper step 400
     assert model.deformation.window == pytest.approx(4.0)
+
+
+def _window_reference(alpha: float, k: int) -> float:
+    """Nerfies Eq. 9 (Park et al. 2021), written from the paper: w_k(alpha) = (1 - cos(pi clamp(alpha - k, 0, 1))) / 2."""
+    return (1 - math.cos(math.pi * min(max(alpha - k, 0.0), 1.0))) / 2
+
+
+@pytest.mark.parametrize("share", [0.0, 0.2, 0.5, 0.77, 1.0])
+def test_coarse_to_fine_window_matches_the_paper_on_sinusoids_and_levels(share):
+    from nerfstudio.field_components.encodings import HashEncoding, NeRFEncoding
+
+    from nerfify_ns.components.encoding_window import CoarseToFine
+
+    torch.manual_seed(0)
+    x = torch.rand(7, 3, requires_grad=True)
+    # sinusoids: L = 5 frequencies, alpha = share x L; sines then cosines, dimension-major; the raw input always on
+    pe = CoarseToFine(NeRFEncoding(3, 5, 0.0, 4.0, include_input=True), 5, "sinusoids")
+    pe.window.fill_(share)
+    plain = pe.encoding(x)
+    out = pe(x)
+    for column in range(out.shape[-1]):
+        weight = 1.0 if column >= 30 else _window_reference(share * 5, (column % 15) % 5)
+        close(out[:, column], plain[:, column] * weight)
+    # levels: L = 4 grid levels of 2 features, alpha = 1 + share x (L - 1): the coarsest level always on
+    grid = CoarseToFine(HashEncoding(num_levels=4, features_per_level=2, log2_hashmap_size=8, min_res=2, max_res=16,
+                                     implementation="torch"), 4, "levels")
+    grid.window.fill_(share)
+    plain, out = grid.encoding(x), grid(x)
+    for column in range(8):
+        close(out[:, column], plain[:, column] * _window_reference(1 + share * 3, column // 2))
+    out.sum().backward()  # the gradient reaches the grid's table through the window
+    assert grid.encoding.hash_table.grad is not None and torch.isfinite(grid.encoding.hash_table.grad).all()
+
+
+def test_coarse_to_fine_window_refuses_a_layout_the_encoding_does_not_have():
+    from nerfstudio.field_components.encodings import NeRFEncoding
+
+    from nerfify_ns.components.encoding_window import CoarseToFine, band_of_columns
+
+    with pytest.raises(ValueError, match="sines and cosines"):
+        CoarseToFine(NeRFEncoding(3, 5, 0.0, 4.0, include_input=True), 4, "sinusoids")
+    with pytest.raises(ValueError, match="do not split"):
+        band_of_columns("levels", 3, 8)
+    assert band_of_columns("levels", 4, 8).tolist() == [0, 0, 1, 1, 2, 2, 3, 3]

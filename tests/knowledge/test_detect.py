@@ -159,3 +159,23 @@ def test_a_subsection_of_the_experiments_named_after_the_method_reports_results(
     assert roles["Method"] == "method" and roles["Experiments"] == "experiments"
     assert roles["Rendering"] == "experiments" and roles["Feature Model"] == "experiments"
     assert roles["Implementation Details"] == "method"
+
+
+def test_a_metric_named_where_results_are_measured_is_not_a_loss_in_use(tmp_path):
+    """"We also compute the mean absolute error (MAE) of the intensities" measures results, in the method's
+    details as much as in the experiments: the L1 loss it names is not the paper's loss. The same words as the
+    objective the paper minimises are a use."""
+    from nerfify_ns.knowledge.sentences import read_sentence
+
+    assert read_sentence("We also compute the mean absolute error (MAE) for intensity in range images.", "method").metric
+    assert read_sentence("We report PSNR, SSIM and LPIPS on the test views.", "method").metric
+    assert not read_sentence("We minimise the mean absolute error of the colours.", "method").metric
+    assert not read_sentence("Our loss is the mean absolute error between rendered and true colours.", "method").metric
+
+    def l1_used(sentence: str) -> bool:
+        doc = write_paper(tmp_path, {"3 Method": "We render each ray with volume rendering.",
+                                     "4 Experimental Setup": sentence})
+        return "rgb_l1" in used_cards(detect_techniques(doc))
+
+    assert not l1_used("We also compute the mean absolute error (MAE) for intensity in projected range images.")
+    assert l1_used("We train with an L1 loss, the mean absolute error between rendered and true pixel colours.")

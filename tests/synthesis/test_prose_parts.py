@@ -187,6 +187,40 @@ def test_an_anneal_of_the_deformations_window_is_built():
     validate(plan)
 
 
+@pytest.mark.parametrize("sentence, encoding, bands", [
+    ("Following BARF, we progressively activate the frequencies of the positional encoding from low to high over "
+     "the first 6 iterations.", "positional", 4),
+    ("We adopt a coarse-to-fine strategy: the levels of the hash grid are switched on from low to high resolution "
+     "over the first 6 iterations.", "hash", 3),
+])
+def test_a_coarse_to_fine_schedule_of_the_fields_encoding_is_built_and_trains(plugin_on_path, sentence, encoding,
+                                                                               bands):  # noqa: F811
+    """A paper that switches its field's encoding on band by band (frequencies or grid levels) in words: an anneal of
+    the encoding's window from 0 to 1, and the generated field's encoding wrapped in the window it anneals."""
+    from nerfify_ns.components.encoding_window import CoarseToFine
+
+    plan = _dynamic_plan()
+    plan["method"] = f"coarse-to-fine-{encoding}"
+    if encoding == "hash":
+        plan.set("model.field.MLPField.pos_encoding", {"hash": {"num_levels": 3, "min_res": 4, "max_res": 16,
+                                                                "log2_hashmap_size": 10, "features_per_level": 2}})
+    result, plan = _build("ScheduleHook", "model.schedule_hooks", [sentence], plan=plan)
+    assert result.status == IMPLEMENTED, result.reason
+    anneal = plan["model"]["schedule_hooks"]["anneal"]
+    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
+        "encoding_window.window", 0.0, 1.0, 6)
+    validate(plan)
+    _, config = plugin_on_path(plan)
+    model, losses = _train(getattr(config, f"coarse_to_fine_{encoding}_method"), steps=8)
+    windows = [m for m in model.modules() if type(m).__name__ == CoarseToFine.__name__]  # the plugin's own copy
+    assert len(windows) == 2 and {w.bands for w in windows} == {bands}  # vanilla NeRF's coarse and fine fields
+    assert all(float(w.window) == 1.0 for w in windows)  # annealed to every band by step 6
+    assert all(math.isfinite(x) for x in losses)
+    for hook in model.schedule_hooks:  # step 0 again: nothing but the coarsest level (or the raw input) is on
+        hook.run(0, model)
+    assert all(float(w.window) == 0.0 and float(w.weights()[w.band >= 1].max()) == 0.0 for w in windows)
+
+
 def test_importance_by_a_quantity_of_the_paper_is_an_approximation():
     result, plan = _build("PixelSampler", "pixel_sampler",
                           ["We sample rays with a probability proportional to the temporal variation of their colour."])

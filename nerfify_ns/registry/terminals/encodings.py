@@ -115,13 +115,21 @@ TIMES_NEED_PADDED_SAMPLES = Constraint(
     lambda p, plan: plan.get("base") != "instant-ngp")
 """Found by the fuzzer (seed 0 plans 10, 21): every training step failed for want of times."""
 
+def coarse_to_fine(layout: str, bands: str) -> dict[str, Any]:
+    """Traits of a field encoding whose bands a schedule hook may switch on from coarse to fine: an anneal of
+    ``encoding_window.window`` wraps it in ``components.encoding_window.CoarseToFine`` (bands laid out as
+    ``layout``, as many as its parameter ``bands``)."""
+    return {"schedulable": ["encoding_window.window"], "window_layout": layout, "window_bands": bands}
+
+
 POSITION_TERMINALS = [
     TerminalDef(
         "positional", "PosEncoding", Positional,
         "Sinusoidal positional encoding gamma(p) of raw positions (NeRF Eq. 4).",
         "nerfstudio.field_components.encodings.NeRFEncoding", card="positional_encoding", input_domain="raw",
         contract=Contract({"positions": POSITIONS_RAW}, features(f"[N, {SINUSOID_DIM}]")),
-        code=Code(NERF_ENCODING_IMPORT, ctor=NERF_ENCODING, traits={"domain": "raw"}),
+        code=Code(NERF_ENCODING_IMPORT, ctor=NERF_ENCODING,
+                  traits={"domain": "raw", **coarse_to_fine("sinusoids", "num_frequencies")}),
         harness=Harness(cases=POINT_CASES, small=SMALL)),
     TerminalDef(
         "integrated_positional", "PosEncoding", IntegratedPositional,
@@ -142,7 +150,7 @@ POSITION_TERMINALS = [
                   ctor="HashEncoding(num_levels={{ p.num_levels }}, min_res={{ p.min_res }}, max_res={{ p.max_res }}, "
                        "log2_hashmap_size={{ p.log2_hashmap_size }}, features_per_level={{ p.features_per_level }}, "
                        "implementation=\"tcnn\")",
-                  traits={"feature_grid": True, "domain": "unit"}),
+                  traits={"feature_grid": True, "domain": "unit", **coarse_to_fine("levels", "num_levels")}),
         harness=Harness(cases=POINT_CASES, small=SMALL)),
     TerminalDef(
         "kplanes", "PosEncoding", KPlanes,

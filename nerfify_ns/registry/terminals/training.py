@@ -52,7 +52,9 @@ class ViewSelection:
 class Anneal:
     target: str = param("deformation.window")
     """The annealed scalar, ``<part>.<attribute>``: an attribute of every part of the model whose name ends with
-    ``<part>`` (``deformation.window``: the coarse-to-fine window of the deformation's encoding of x)."""
+    ``<part>`` (``deformation.window``: the coarse-to-fine window of the deformation's encoding of x;
+    ``encoding_window.window``: the share from coarse to fine, 0 to 1, of the bands of the field's position
+    encoding, its frequencies or grid levels, switched on in turn)."""
     start_value: float = param(0.0, range=(-1.0e6, 1.0e6))
     """Value up to start_step."""
     end_value: float = param(10.0, range=(-1.0e6, 1.0e6))

@@ -67,6 +67,9 @@ class ParamRule:
     default_by: dict = field(default_factory=dict)
     """{other parameter: {its value: this one's default}}: a default that depends on what the part changes (an
     annealed noise ends at 0, a coarse-to-fine window at every frequency)."""
+    named_only: tuple = ()
+    """Choices taken only when a sentence names them, never as the plan's sole part (what exists only once a hook
+    changes it: the window of the field's encoding)."""
 
 
 @dataclass
@@ -167,7 +170,8 @@ def load_spec(path: str = str(SPEC_FILE)) -> Spec:
                 name, str(rule.get("unit", "")), [comp(p) for p in rule.get("patterns") or []],
                 bool(rule.get("percent")), [(value, comp(p)) for value, p in (rule.get("choices") or {}).items()],
                 dict(rule.get("only_when") or {}), comp(rule["noun"]) if rule.get("noun") else None,
-                str(rule.get("required") or ""), bool(rule.get("sole")), dict(rule.get("default_by") or {}))
+                str(rule.get("required") or ""), bool(rule.get("sole")), dict(rule.get("default_by") or {}),
+                tuple(rule.get("named_only") or ()))
             if params[name].noun is not None:
                 mentions.append(params[name].noun)
         part = Part(entry["name"], entry["production"], entry["terminal"], entry["place"],
@@ -487,7 +491,7 @@ class _Reader:
         from nerfify_ns.registry.terminals.training import schedulable_parts
 
         held = schedulable_parts(self.plan) if isinstance(self.plan, dict) else set()
-        options = [value for value, _ in rule.choices if value in held]
+        options = [value for value, _ in rule.choices if value in held and value not in rule.named_only]
         if len(options) != 1:
             return False
         value, _ = _coerce(self.params.get(rule.name), options[0])
