@@ -455,7 +455,7 @@ def test_schedule_hooks_read_the_step_scale_at_every_call():
 
 
 def _window_reference(alpha: float, k: int) -> float:
-    """Nerfies Eq. 9 (Park et al. 2021), written from the paper: w_k(alpha) = (1 - cos(pi clamp(alpha - k, 0, 1))) / 2."""
+    """Nerfies Eq. 9 (Park et al. 2021), from the paper: w_k(alpha) = (1 - cos(pi clamp(alpha - k, 0, 1))) / 2."""
     return (1 - math.cos(math.pi * min(max(alpha - k, 0.0), 1.0))) / 2
 
 

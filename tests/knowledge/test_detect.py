@@ -167,7 +167,8 @@ def test_a_metric_named_where_results_are_measured_is_not_a_loss_in_use(tmp_path
     objective the paper minimises are a use."""
     from nerfify_ns.knowledge.sentences import read_sentence
 
-    assert read_sentence("We also compute the mean absolute error (MAE) for intensity in range images.", "method").metric
+    assert read_sentence("We also compute the mean absolute error (MAE) of intensities in range images.",
+                         "method").metric
     assert read_sentence("We report PSNR, SSIM and LPIPS on the test views.", "method").metric
     assert not read_sentence("We minimise the mean absolute error of the colours.", "method").metric
     assert not read_sentence("Our loss is the mean absolute error between rendered and true colours.", "method").metric

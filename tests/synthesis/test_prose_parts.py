@@ -193,8 +193,8 @@ def test_an_anneal_of_the_deformations_window_is_built():
     ("We adopt a coarse-to-fine strategy: the levels of the hash grid are switched on from low to high resolution "
      "over the first 6 iterations.", "hash", 3),
 ])
-def test_a_coarse_to_fine_schedule_of_the_fields_encoding_is_built_and_trains(plugin_on_path, sentence, encoding,
-                                                                               bands):  # noqa: F811
+def test_a_coarse_to_fine_schedule_of_the_fields_encoding_is_built_and_trains(
+        plugin_on_path, sentence, encoding, bands):  # noqa: F811
     """A paper that switches its field's encoding on band by band (frequencies or grid levels) in words: an anneal of
     the encoding's window from 0 to 1, and the generated field's encoding wrapped in the window it anneals."""
     from nerfify_ns.components.encoding_window import CoarseToFine
