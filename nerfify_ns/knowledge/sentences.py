@@ -38,6 +38,7 @@ class Rules:
     hyperparameter_cards: dict
     metric: tuple[re.Pattern, ...] = ()      # a sentence that measures results (an evaluation metric named)
     objective: tuple[re.Pattern, ...] = ()   # ... unless it speaks of training (a loss, an objective, minimising)
+    table: tuple[re.Pattern, ...] = ()       # a table's rows flattened into the text: results wherever they are
     scene_cues: tuple = ()   # (flag, value, (pattern, ...)) per scene fact a paper can state
     experiment_details: re.Pattern | None = None   # a subsection of the experiments that is the method's details
 
@@ -72,6 +73,7 @@ def read_rules(path: Path | str = DETECT_FILE) -> Rules:
             own=comp(cues["own"]),
             contrast=comp(cues["contrast"]), comparison=comp(cues["comparison"]), hyperparameter_cards=hp_cards,
             metric=comp(cues.get("metric") or []), objective=comp(cues.get("objective") or []),
+            table=comp(cues.get("table") or []),
             scene_cues=tuple((str(flag), spec["value"], comp(spec["patterns"]))
                              for flag, spec in (data.get("scene_cues") or {}).items()),
             experiment_details=re.compile(data["experiment_details"], re.IGNORECASE)
@@ -85,6 +87,7 @@ def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
     rules = _rules(rules)
     roles: dict[int, str] = {}
     stack: list[tuple[int, str, str]] = []  # (level, number, role)
+    flat = ""  # the role of the last unnumbered top-level section (an extraction whose headings carry no numbers)
     for i, s in enumerate(doc.sections):
         heading = (getattr(s, "title", "") or "").strip().lower()
         own = next((role for role, pat in rules.section_roles if pat.search(heading)), None)
@@ -96,7 +99,11 @@ def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
         if parent is None and "." in number:  # "2.1" under "2" even when levels are flat
             prefix = number.rsplit(".", 1)[0]
             parent = next((roles[j] for j in range(i - 1, -1, -1) if doc.sections[j].number == prefix), None)
+        if parent is None and not number and level == 1 and own is None and flat == "experiments":
+            parent = flat  # "Dehazing Scene Reconstruction" after "Experiments and Results", both unnumbered
         role = own or parent or "method"
+        if not number and level == 1:
+            flat = role
         if parent == "prior" and role == "method":
             role = "prior"  # a subsection of related work describes others' methods, whatever its heading says
         if parent == "experiments" and role == "method" and not (
@@ -128,7 +135,8 @@ class SentenceContext:
     own: bool = False
     metric: bool = False
     """The sentence measures results with an evaluation metric and says nothing of training ("we also compute the
-    mean absolute error of the intensities"): a loss it names is a metric there, not a part of the method."""
+    mean absolute error of the intensities"), or is a table's rows flattened into the text: a technique it names is
+    a metric or a compared method there, not a part of the method."""
     context_weights: dict = field(default_factory=dict, compare=False, repr=False)
 
     def in_contrast(self, start: int, end: int) -> bool:
@@ -158,8 +166,9 @@ def read_sentence(sentence: str, role: str, rules: Rules | None = None) -> Sente
                            comparison=any(p.search(sentence) for p in rules.comparison),
                            contrast_spans=tuple(_clause_spans(sentence, rules.contrast)),
                            own=any(p.search(sentence) for p in rules.own),
-                           metric=any(p.search(sentence) for p in rules.metric)
-                           and not any(p.search(sentence) for p in rules.objective),
+                           metric=(any(p.search(sentence) for p in rules.metric)
+                                   and not any(p.search(sentence) for p in rules.objective))
+                           or any(p.search(sentence) for p in rules.table),
                            context_weights=rules.context_weights)
 
 

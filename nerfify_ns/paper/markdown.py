@@ -40,11 +40,23 @@ def markdown_blocks(text: str) -> list[Block]:
     return list(reader.blocks())
 
 
+_STAMP = re.compile(r"^arXiv:\s*\d{4}\.\d{4,5}", re.IGNORECASE)
+"""An arXiv identifier stamp ("arXiv:2312.00252v1 [cs.CV] 30 Nov 2023")."""
+_EQUATION_HEADING = re.compile(r"^(?P<body>[^\n]{0,240}?(?:=|\w\([^)]*\)|[∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\])[^\n]*?)"
+                               r"\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
+"""A heading line that is a numbered display equation: math (an ``=``, a function applied, a Greek letter or a
+script) and an equation number at its end."""
+_SECTION_NAME = re.compile(r"^(?:abstract|introduction|related work|background|method|references|appendix)\b",
+                           re.IGNORECASE)
+"""Headings that open a paper's sections: never its title."""
+
+
 class _Reader:
     def __init__(self, lines: list[str], fix, budget: Budget | None = None):
         self.lines, self.fix, self.i = lines, fix, 0
         self.budget = budget or Budget()
         self.seen_title = False
+        self.seen_heading = False
         self.last_para = ""
 
     def blocks(self) -> Iterator[Block]:
@@ -73,11 +85,19 @@ class _Reader:
         text = re.sub(r"[*_`]", "", s[hashes:]).strip()
         loc = self._loc(self.i)
         self.i += 1
-        if hashes == 1 and not self.seen_title:
-            self.seen_title = True
-            yield Block("title", text, loc)
+        if _STAMP.match(text):
+            return  # an arXiv stamp a converter set as a heading: neither the title nor a section
+        eq = _EQUATION_HEADING.match(s[hashes:].strip())
+        if eq:  # a display equation a converter set as a heading ("#### σ,c = f(x,d), (3)")
+            yield Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num"))
             return
         number, title = split_heading(text)
+        if not self.seen_title and (hashes == 1 or not self.seen_heading) and not number \
+                and not _SECTION_NAME.match(title):
+            self.seen_title = self.seen_heading = True
+            yield Block("title", text, loc)
+            return
+        self.seen_heading = True
         yield Block("heading", title, loc, level=heading_level(number, max(1, hashes - 1)), number=number)
 
     def _fence(self) -> Iterator[Block]:

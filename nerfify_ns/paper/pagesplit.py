@@ -21,7 +21,8 @@ from dataclasses import dataclass
 from nerfify_ns.paper.builder import CAPTION, Block
 from nerfify_ns.paper.document import Location
 
-PAGE_MARK = re.compile(r"^\s*#{1,3}\s*Page\s+(\d{1,4})\s*$", re.IGNORECASE)
+# a page marker: "## Page 3", or the HTML comment some converters leave ("<!-- page 3 -->")
+PAGE_MARK = re.compile(r"^\s*(?:#{1,3}\s*Page\s+(\d{1,4})|<!--\s*page\s+(\d{1,4})\s*-->)\s*$", re.IGNORECASE)
 _RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
 # "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
 _HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)"
@@ -62,13 +63,35 @@ _FUNCTION_WORDS = {"a", "an", "the", "of", "for", "and", "with", "in", "on", "vi
                    "is", "are", "using", "towards", "through", "into"}
 
 
+FLAT_HEADINGS_FIRST = 3
+"""Numbered plain-text headings ("1. Introduction", "2. Related Work", ...) before a text's first markdown heading
+that make it a flat extraction whatever its later ``#`` lines are (a table's "# Gaussians" column, "# 100K")."""
+
+
 def is_page_split(text: str) -> bool:
-    """Whether ``text`` is a flat extraction: at least two ``## Page N`` markers and few other headings, or many
-    lines with no markdown heading at all (a PDF's text saved as ``.md``)."""
+    """Whether ``text`` is a flat extraction: at least two ``## Page N`` markers and few other headings, many lines
+    with no markdown heading at all (a PDF's text saved as ``.md``), or :data:`FLAT_HEADINGS_FIRST` numbered
+    plain-text headings, the first numbered 1, before any markdown heading (the paper's sections are plain text;
+    a ``#`` line further on is what an extractor left of a table)."""
     lines = text.splitlines()
     pages = sum(1 for line in lines if PAGE_MARK.match(line))
     others = sum(1 for line in lines if _MD_HEADING.match(line) and not PAGE_MARK.match(line))
-    return (pages >= 2 and others <= pages) or (others == 0 and pages == 0 and len(lines) >= 100)
+    return ((pages >= 2 and others <= pages) or (others == 0 and pages == 0 and len(lines) >= 100)
+            or (len(lines) >= 100 and _plain_headings_first(lines)))
+
+
+def _plain_headings_first(lines: list[str]) -> bool:
+    """Whether :data:`FLAT_HEADINGS_FIRST` numbered plain-text headings, the first numbered 1, come before the
+    first markdown heading (page markers aside)."""
+    numbers: list[str] = []
+    for line in lines:
+        s = line.strip()
+        if _MD_HEADING.match(s) and not PAGE_MARK.match(s):
+            break
+        m = _HEADING.match(s)
+        if m and m.group("num")[0].isdigit() and (numbers or m.group("num") == "1"):
+            numbers.append(m.group("num"))
+    return len(numbers) >= FLAT_HEADINGS_FIRST
 
 
 @dataclass
@@ -84,7 +107,7 @@ def _lines(text: str) -> list[_Line]:
     for i, raw in enumerate(text.splitlines(), 1):
         m = PAGE_MARK.match(raw)
         if m:
-            page = int(m.group(1))
+            page = int(m.group(1) or m.group(2))
             continue
         s = raw.strip()
         if s and not _RULE.match(s):
@@ -116,8 +139,8 @@ def _title_like(title: str) -> bool:
     """Whether ``title`` reads as a heading's title: short, mostly letters, not a clause; a run-in title with its
     sentence after it ("Efficiency. Large and detailed scenes ...": an item of a numbered list) is running text."""
     words = title.rstrip(".").split()
-    if not words or len(words) > 12 or title.endswith((",", ";")) or "=" in title:
-        return False
+    if not words or len(words) > 12 or title.endswith((",", ";")) or "=" in title or CAPTION.match(title):
+        return False  # ... or a caption ("Table 3. Comparisons ...") after a page number alone on its line
     if re.search(r"[a-z]\.\s+[A-Z][a-z]*\s+[a-z]", title):
         return False
     letters = sum(c.isalpha() for c in title)
@@ -160,7 +183,8 @@ def _title_lines(lines: list[_Line]) -> tuple[str, int]:
     while i < len(lines) and i < 3:
         words = lines[i].text.split()
         lowered = [w for w in words if w.lower() in _FUNCTION_WORDS]
-        if re.search(r"\d|,|@|University|Institute", lines[i].text) or not words or not words[0][0].isupper():
+        if re.search(r"\d|,|@|University|Institute", lines[i].text) or not words or not words[0][0].isupper() \
+                or _NAMED.match(lines[i].text):
             break
         if len(words) > 3 and not lowered:
             break  # a line of names
@@ -244,6 +268,8 @@ def page_split_blocks(text: str) -> list[Block]:
             blocks.append(Block("heading", named.group("name").title(), loc, level=1))
             continue
         head = _heading(s, previous)
+        if head is not None and k + 1 < len(rest) and rest[k + 1].text[:1].islower() and not s.endswith((".", "-")):
+            head = None  # "A Gaussian" / "expands when ...": a sentence wrapped at a line that looks like a heading
         if head is not None:
             before, number, heading = head
             if before:

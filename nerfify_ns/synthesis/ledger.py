@@ -493,16 +493,23 @@ class _Reader:
 
     def production(self, p: Part) -> None:
         scores = {}
-        heading, claims = p.heading, " ".join(p.claims + p.own_claims)
+        heading, claims, own = p.heading, " ".join(p.claims + p.own_claims), " ".join(p.own_claims)
         body = _plain(" ".join(p.sentences[:30]))
         lhs = " ".join(_lhs_name(e) for e in p.equations)
         new_lhs = " ".join(_lhs_words(e) for e in p.equations if not e["known"])
         family_words = self.r["family_words"].get(self.family, set())
+        topic = getattr(self.doc, "title", "") or ""  # the paper's subject is in every part's text: not a part's
+        stems = {w[:4].lower() for w in re.findall(r"[A-Za-z]{5,}", topic)}  # "Media" is on the topic of "medium"
         for name, (terms, symbols) in self.r["productions"].items():
             score = 0.0
             for pattern, weight in terms:
-                in_body = 0.0 if pattern.pattern in family_words else math.sqrt(len(pattern.findall(body)))
-                score += weight * (HEADING_WEIGHT * bool(pattern.search(heading)) + 2 * bool(pattern.search(claims))
+                on_topic = bool(pattern.search(topic)) or any(m.group(0)[:4].lower() in stems for m in
+                                                               pattern.finditer(f"{claims} {body}") if len(m.group(0)) > 4)
+                in_body = 0.0 if pattern.pattern in family_words or on_topic \
+                    else math.sqrt(len(pattern.findall(body)))
+                # the topic counts in the part's own claims; the family's words (time, in a dynamic paper) in all
+                said = pattern.search(own if on_topic and pattern.pattern not in family_words else claims)
+                score += weight * (HEADING_WEIGHT * bool(pattern.search(heading)) + 2 * bool(said)
                                    + in_body + 3 * bool(pattern.search(new_lhs)))
             score += 2.0 * sum(1 for s in symbols if s and re.search(rf"(?:^|\s){re.escape(s)}(?:\s|$)", lhs))
             scores[name] = round(score, 2)

@@ -23,6 +23,7 @@ def statements(tmp_path, text: str, heading: str = "3 Method"):
     ("Backbones: **InstantNGP** [4] and **TensoRF**.", ["instant-ngp", "tensorf"]),
     ("Base code: Mip-NeRF-360 (forward-facing, NDC).", ["nerfacto"]),
     ("Unlike nerfacto, we build on TensoRF.", ["tensorf"]),                 # the contrast clause names nothing
+    ("Our FooNeRF builds on TensoRF for fast training.", ["tensorf"]),      # the method by its name
 ])
 def test_statements_name_their_base(tmp_path, sentence, bases):
     found = statements(tmp_path, sentence)
@@ -58,3 +59,11 @@ def test_patterns_are_data(tmp_path):
     (kb / "bases.yaml").write_text(head + "statements: []\n" + rest[rest.index("\nchoice:"):], encoding="utf-8")
     doc = write_paper(tmp_path, {"3 Method": "Our implementation is based on Instant-NGP."})
     assert find_base_statements(doc) and find_base_statements(doc, KnowledgeBase.load(kb)) == []
+
+
+def test_the_method_named_building_on_a_base_in_related_work_is_a_statement(tmp_path):
+    """ "Our FooNeRF builds on TensoRF" closing the related work is the paper's own statement; another paper's
+    building on it there is not."""
+    found = statements(tmp_path, "ZeroRF [5] adapts TensoRF. Our FooNeRF builds on TensoRF for fast training.",
+                       heading="2 Related Work")
+    assert [f.bases for f in found] == [["tensorf"]] and found[0].quote.startswith("Our FooNeRF")

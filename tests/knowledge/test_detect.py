@@ -180,3 +180,28 @@ def test_a_metric_named_where_results_are_measured_is_not_a_loss_in_use(tmp_path
 
     assert not l1_used("We also compute the mean absolute error (MAE) for intensity in projected range images.")
     assert l1_used("We train with an L1 loss, the mean absolute error between rendered and true pixel colours.")
+
+
+def test_a_table_flattened_into_a_method_section_names_compared_methods_not_parts(tmp_path):
+    """An extraction that put a results table's rows inside "3.6 Total Loss": the methods in its rows are compared,
+    not used."""
+    row = ("Method PSNR SSIM LPIPS Instant-NGP [30] 18.21 0.52 0.41 17.90 0.50 0.44 TensoRF [10] 17.32 0.51 0.42 "
+           "16.40 0.47 0.45 Ours 19.02 0.56 0.37 18.77 0.55 0.38")
+    doc = write_paper(tmp_path, {"3 Method": "We render each ray with volume rendering.", "3.6 Total Loss": row})
+    used = used_cards(detect_techniques(doc))
+    assert "hash_grid" not in used and "tensorf_vm" not in used
+
+
+def test_unnumbered_sections_after_the_experiments_report_results(tmp_path):
+    """Headings without numbers (all at one level): a section after "Experiments and Results" with no role of its
+    own ("Dehazing Scene Reconstruction") reports results; "Implementation Details" is the method's wherever it is."""
+    from nerfify_ns.knowledge.sentences import section_roles
+
+    doc = write_paper(tmp_path, {"Method": "We render with a medium.", "Scattering Model": "We model the medium.",
+                                 "Experiments and Results": "We evaluate on two datasets.",
+                                 "Dehazing Scene Reconstruction": "Our renders are clearer than the baselines'.",
+                                 "Implementation Details": "We train for 20k iterations.",
+                                 "Conclusion": "We conclude."})
+    roles = {s.title: section_roles(doc)[i] for i, s in enumerate(doc.sections)}
+    assert roles["Scattering Model"] == "method" and roles["Dehazing Scene Reconstruction"] == "experiments"
+    assert roles["Implementation Details"] == "method" and roles["Conclusion"] == "conclusion"

@@ -111,3 +111,28 @@ def test_a_run_in_heading_in_sentence_case_opens_a_paragraph_and_a_sentence_does
     paragraphs = [b.text for b in page_split_blocks(text) if b.kind == "para"]
     assert any(p.startswith("Delayed use of Ambient Dimensions.") for p in paragraphs), paragraphs
     assert not any(p.startswith(("Results are shown", "We compare with NeRF")) for p in paragraphs), paragraphs
+
+
+# a converter's text with its sections in plain numbered headings, HTML page comments, a table's column heads that
+# came out as markdown headings further on ("# Gaussians", "# 100K"), a sentence wrapped at a line that reads as an
+# appendix heading ("A Gaussian" / "expands when ..."), and a page number alone before a table's caption
+TABLE_HEADS = "\n".join(
+    ["<!-- page 1 -->", "Textured Splats: Adaptive Sampling for Gaussians", "Ann Author1", "Abstract",
+     "We allocate texture resolution by rendering error.", "1. Introduction", "Splatting is fast.",
+     "2. Related Work", "Textured Gaussians exist.", "3. Method", "We warp texture coordinates.",
+     "A Gaussian", "expands when its averaged gradient exceeds a threshold.", "<!-- page 2 -->", "7",
+     "Table 3. Comparisons between warps.", "4. Experiments", "Results follow.", "# Gaussians", "# 100K",
+     "0.775", "# 200K", "0.779"] + ["Filler line of running text."] * 100)
+
+
+def test_plain_numbered_headings_before_a_tables_hash_lines_make_a_flat_extraction():
+    assert is_page_split(TABLE_HEADS)
+    blocks = page_split_blocks(TABLE_HEADS)
+    assert blocks[0].kind == "title" and blocks[0].text == "Textured Splats: Adaptive Sampling for Gaussians"
+    headings = [(b.number, b.text) for b in blocks if b.kind == "heading"]
+    assert headings == [("", "Abstract"), ("1", "Introduction"), ("2", "Related Work"), ("3", "Method"),
+                        ("4", "Experiments")]
+    assert any("A Gaussian expands when" in b.text for b in blocks if b.kind == "para")
+    assert not any("page" in b.text for b in blocks)  # the page comments are markers, not text
+    # a markdown paper whose first heading comes before any numbered plain line stays markdown
+    assert not is_page_split("# Title\n\n## 1 Introduction\n\n" + "text\n" * 120 + "1. Introduction\n")

@@ -153,3 +153,20 @@ def test_topic(md_doc, tmp_path):
                     "Our cost model estimates join cardinalities.\n")
     with pytest.raises(NotANerfPaperError, match="Adaptive Indexing"):
         require_nerf_paper(ingest(path))
+
+
+def test_a_converters_arxiv_stamp_and_equation_headings_are_neither_title_nor_sections(tmp_path):
+    """A markdown conversion that set the arXiv stamp as the first heading, the title one level down, and two
+    display equations as headings (one with its "=" lost)."""
+    text = "\n\n".join(["# arXiv:2401.01234v1 [cs.CV] 3 Jan 2024", "## PyramidField: Scale-Aware Radiance Fields",
+                        "Ann Author, Lab", "### Abstract", "We render each pixel at its own scale. " * 3,
+                        "### 1 Introduction", "Aliasing is a problem for grid-based radiance fields. " * 3,
+                        "### 3 Method", "Each level is a separate head:",
+                        "#### σ,c = f_l(x,d), [Gauss] (3)", "and the levels are blended:",
+                        "#### f_i(x,d). [Laplacian] (4)", "We train for 20k iterations with these heads. " * 3])
+    path = tmp_path / "paper.md"
+    path.write_text(text)
+    doc = ingest(path)
+    assert doc.title == "PyramidField: Scale-Aware Radiance Fields"
+    assert [s.title for s in doc.sections] == ["Introduction", "Method"]
+    assert [e.number for e in doc.equations] == ["3", "4"]

@@ -334,3 +334,37 @@ We evaluate on twelve scenes.
 def test_a_part_that_delays_or_eases_something_in_is_a_schedule_hook(tmp_path: Path):
     ledger = _ledger(tmp_path, DELAYED, family="dynamic")
     assert ("Delayed use of Ambient Dimensions", "ScheduleHook") in _new(ledger), _new(ledger)
+
+
+TOPIC = """# HazeField: Radiance Fields in Scattering Media
+
+## Abstract
+
+We propose HazeField, a radiance field for scenes in scattering media, with a pseudo-label guided decoupling.
+
+## 1 Introduction
+
+Scattering media attenuate light. Existing methods fail in hazy scenes.
+
+## 3 Method
+
+### 3.1 Medium Rendering
+
+We render the object and the scattering medium separately: the medium's backscatter and attenuation are composited
+with the object's colour along each ray.
+
+### 3.2 Pseudo-Label Guided Decoupling
+
+We propose to guide the early training with pseudo-labels. Pseudo ground truth images of the scene without the
+scattering medium are produced by a dehazing network, and the object's colour rendered without the medium is
+supervised by minimizing the mean squared error (MSE) to these pseudo-labels during the first iterations, which
+decouples the object densities from the scattering medium.
+"""
+
+
+def test_the_papers_topic_in_every_part_does_not_decide_where_one_lands(tmp_path: Path):
+    """The title's subject (a scattering medium) is in every part's text: a part about supervising with
+    pseudo-labels is a loss term, not the renderer, even though its sentences and the paper's claims mention the
+    medium (with them counted it scored Renderer 16.4 against RGBLoss 3.8)."""
+    new = dict(_new(_ledger(tmp_path, TOPIC)))
+    assert new["Pseudo-Label Guided Decoupling"] in ("Regularizers", "RGBLoss")
