@@ -503,8 +503,8 @@ class _Reader:
         for name, (terms, symbols) in self.r["productions"].items():
             score = 0.0
             for pattern, weight in terms:
-                on_topic = bool(pattern.search(topic)) or any(m.group(0)[:4].lower() in stems for m in
-                                                               pattern.finditer(f"{claims} {body}") if len(m.group(0)) > 4)
+                found = (m.group(0) for m in pattern.finditer(f"{claims} {body}"))
+                on_topic = bool(pattern.search(topic)) or any(w[:4].lower() in stems for w in found if len(w) > 4)
                 in_body = 0.0 if pattern.pattern in family_words or on_topic \
                     else math.sqrt(len(pattern.findall(body)))
                 # the topic counts in the part's own claims; the family's words (time, in a dynamic paper) in all
