@@ -495,8 +495,9 @@ class _Reader:
         scores = {}
         heading, claims, own = p.heading, " ".join(p.claims + p.own_claims), " ".join(p.own_claims)
         body = _plain(" ".join(p.sentences[:30]))
-        lhs = " ".join(_lhs_name(e) for e in p.equations)
-        new_lhs = " ".join(_lhs_words(e) for e in p.equations if not e["known"])
+        named = [e for e in p.equations if not _defines_set(e)]  # a set of rays names no part by its letter
+        lhs = " ".join(_lhs_name(e) for e in named)
+        new_lhs = " ".join(_lhs_words(e) for e in named if not e["known"])
         family_words = self.r["family_words"].get(self.family, set())
         topic = getattr(self.doc, "title", "") or ""  # the paper's subject is in every part's text: not a part's
         stems = {w[:4].lower() for w in re.findall(r"[A-Za-z]{5,}", topic)}  # "Media" is on the topic of "medium"
@@ -553,7 +554,7 @@ class _Reader:
         for p in parts:
             if p.status != "new" or p.production != spec["from"] or p.hole_equations is not None:
                 continue
-            terms = [e for e in p.equations if loss_lhs.search(_lhs(e)) and not _sums_terms(e)]
+            terms = [e for e in p.equations if loss_lhs.search(_lhs(e)) and not _sums_terms(e) and not _defines_set(e)]
             reconstruction = [e for e in terms if _compares_render_and_target(e)]
             others = [e for e in terms if e not in reconstruction and not e["known"]]
             if not reconstruction or not others:
@@ -641,6 +642,14 @@ def _lhs(e: dict) -> str:
 
 
 _LOSS_SYMBOL = re.compile(r"\\mathcal\s*\{?\s*[LR]\s*\}?|(?<![A-Za-z\\])[LR](?![A-Za-z])|\\ell\b")
+
+
+def _defines_set(e: dict) -> bool:
+    """Whether the equation defines a set in set-builder notation (``R_C = {r | ...}``: the valid rays), which is
+    no loss term whatever its left-hand side's letter."""
+    src = e.get("latex") or e.get("text") or ""
+    rhs = src.split("=", 1)[1].strip() if "=" in src else ""
+    return bool(re.match(r"(?:\\left\s*)?(?:\\\{|\{)", rhs)) and bool(re.search(r"\||\\mid\b", rhs))
 
 
 def _sums_terms(e: dict) -> bool:

@@ -151,6 +151,15 @@ def test_a_loss_part_with_one_kind_of_term_is_not_split(tmp_path: Path):
     assert [p.production for p in _ledger(tmp_path, one).new if p.section == "Losses"] == ["RGBLoss"]
 
 
+def test_a_set_of_valid_rays_beside_the_loss_is_not_a_loss_term(tmp_path: Path):
+    # "R_C = {r | ...}": the rays the loss is taken over, in set-builder notation, not a regulariser of its own
+    rays = LOSSES.replace("\\log(A(\\mathbf r))+\\log(1-A(\\mathbf r))", "").replace(
+        "\\mathcal L_{\\mathrm{op}}=\\sum_{\\mathbf r}",
+        "\\mathcal R_{C}=\\{\\mathbf r \\mid A(\\mathbf r) \\geq 0.5\\}")
+    assert "\\mathcal R_{C}=\\{" in rays
+    assert [p.production for p in _ledger(tmp_path, rays).new if p.section == "Losses"] == ["RGBLoss"]
+
+
 def test_a_cards_reconstruction_loss_beside_a_new_term_leaves_only_the_term(tmp_path: Path):
     # the reconstruction term is the L2 card's: the part is known, its prior a part of its own
     l2 = LOSSES.replace("\\left(\\frac{\\hat C_r-C_r}{\\hat C_r+\\epsilon}\\right)^2",
