@@ -233,8 +233,9 @@ def mlp_field(ctx: Context) -> dict:
         if FIELD_WINDOW in annealed(ctx.plan) and code.get("window_layout"):
             imports += _imports(ctx, {"imports": ["from .components.encoding_window import CoarseToFine"],
                                       "component": "encoding_window"})
-            pe["ctor"] = (f"CoarseToFine({pe['ctor']}, bands={int(pe_params[code['window_bands']])}, "
-                          f"layout={code['window_layout']!r})")
+            bands = next((w["param"] for w in pe_sizes if w["of"] == code["window_bands"]),  # a proxy's size too
+                         int(pe_params[code["window_bands"]]))
+            pe["ctor"] = f"CoarseToFine({pe['ctor']}, bands={bands}, layout={code['window_layout']!r})"
 
     de_name, _ = one(fp["dir_encoding"])
     de_path = f"{root}.dir_encoding.{de_name}"
