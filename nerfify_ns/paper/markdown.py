@@ -46,8 +46,9 @@ _EQUATION_HEADING = re.compile(r"^(?P<body>[^\n]{0,240}?(?:=|\w\([^)]*\)|[∑∫
                                r"\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
 """A heading line that is a numbered display equation: math (an ``=``, a function applied, a Greek letter or a
 script) and an equation number at its end."""
-_SECTION_NAME = re.compile(r"^(?:abstract|introduction|related work|background|method|references|appendix)\b",
-                           re.IGNORECASE)
+_SECTION_NAME = re.compile(r"^(?:abstract|introduction|related work|background|method|references|appendix|overview|"
+                           r"preliminar|motivation|approach|our |experiment|results?\b|conclusion|implementation|"
+                           r"contribution|summary|limitation|discussion|acknowledg)", re.IGNORECASE)
 """Headings that open a paper's sections: never its title."""
 
 
@@ -87,7 +88,7 @@ class _Reader:
         self.i += 1
         if _STAMP.match(text):
             return  # an arXiv stamp a converter set as a heading: neither the title nor a section
-        eq = _EQUATION_HEADING.match(s[hashes:].strip())
+        eq = _EQUATION_HEADING.match(s[hashes:].strip()) if len(s) < 300 else None  # a heading's length
         if eq:  # a display equation a converter set as a heading ("#### σ,c = f(x,d), (3)")
             yield Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num"))
             return
