@@ -11,7 +11,7 @@ from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
-from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
+from nerfify_ns.paper.pagesplit import NUMBERED_LINE, is_page_split, page_split_blocks
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
 _TRAILING_NUM = re.compile(r"\s*\(\s*(\d+[a-z]?)\s*\)\s*$")
@@ -42,10 +42,9 @@ def markdown_blocks(text: str) -> list[Block]:
 
 _STAMP = re.compile(r"^arXiv:\s*\d{4}\.\d{4,5}", re.IGNORECASE)
 """An arXiv identifier stamp ("arXiv:2312.00252v1 [cs.CV] 30 Nov 2023")."""
-_EQUATION_HEADING = re.compile(r"^(?P<body>[^\n]{0,240}?(?:=|\w\([^)]*\)|[∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\])[^\n]*?)"
-                               r"\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
-"""A heading line that is a numbered display equation: math (an ``=``, a function applied, a Greek letter or a
-script) and an equation number at its end."""
+_MATH = re.compile(r"=|\w\([^)]*\)|[∑∫∏σαβγδλθμτφψωΣΦΨΩ^_\\]")
+"""Math in a heading that ends with an equation number (``NUMBERED_LINE``): an ``=``, a function applied, a Greek
+letter or a script; such a heading is a display equation a converter set as a heading."""
 _SECTION_NAME = re.compile(r"^(?:abstract|introduction|related work|background|method|references|appendix|overview|"
                            r"preliminar|motivation|approach|our |experiment|results?\b|conclusion|implementation|"
                            r"contribution|summary|limitation|discussion|acknowledg)", re.IGNORECASE)
@@ -88,8 +87,8 @@ class _Reader:
         self.i += 1
         if _STAMP.match(text):
             return  # an arXiv stamp a converter set as a heading: neither the title nor a section
-        eq = _EQUATION_HEADING.match(s[hashes:].strip()) if len(s) < 300 else None  # a heading's length
-        if eq:  # a display equation a converter set as a heading ("#### σ,c = f(x,d), (3)")
+        eq = NUMBERED_LINE.match(s[hashes:].strip()) if len(s) < 300 else None  # a heading's length
+        if eq and _MATH.search(eq.group("body")):  # a display equation set as a heading ("#### σ,c = f(x,d), (3)")
             yield Block("equation", eq.group("body").rstrip(",. "), loc, number=eq.group("num"))
             return
         number, title = split_heading(text)

@@ -37,7 +37,8 @@ _MD_HEADING = re.compile(r"^#{1,6}\s+\S")
 # pdftotext gives a heading whose number and title are set apart)
 _NUMBER_ALONE = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})\.?$")
 _NAMED = re.compile(r"^(?P<name>Abstract|References|Acknowledge?ments?)\b[.:]?\s*(?P<rest>.*)$", re.IGNORECASE)
-_EQ_NUM = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
+# a line ending with an equation's number ("Δx = D(γ(x), γ(t)), (1)"): a flattened equation when its body is math
+NUMBERED_LINE = re.compile(r"^(?P<body>.*?\S)\s*\(\s*(?P<num>\d{1,3})\s*\)\s*$")
 # an equation's number alone on its line, its body on the short lines above it (pdftotext sets a display equation's
 # pieces on lines of their own: "Lσd = E(σd)" then "(6)")
 _EQ_NUM_ALONE = re.compile(r"^\(\s*(?P<num>\d{1,3})\s*\)$")
@@ -289,7 +290,7 @@ def page_split_blocks(text: str) -> list[Block]:
                                     number=alone.group("num")))
                 next_equation = int(alone.group("num")) + 1
                 continue
-        eq = _EQ_NUM.match(s)
+        eq = NUMBERED_LINE.match(s)
         if eq and int(eq.group("num")) in (next_equation, next_equation + 1) and _MATHY.search(eq.group("body")) \
                 and len(eq.group("body")) < 240:
             flush()

@@ -183,11 +183,6 @@ def custom_component(entry: dict, package: str) -> dict:
             "domain": entry.get("input_domain", "signed_unit"), "weight": entry.get("weight", 1.0)}
 
 
-FIELD_WINDOW = "encoding_window.window"
-"""The coarse-to-fine window over the bands of the field's position encoding: the encoding is wrapped in
-``components.encoding_window.CoarseToFine`` when a schedule hook of the plan anneals it (and only then)."""
-
-
 def annealed(plan) -> set[str]:
     """What the plan's anneal hooks write (their ``target``)."""
     hooks = plan.get("model.schedule_hooks") if hasattr(plan, "get") else None
@@ -230,7 +225,9 @@ def mlp_field(ctx: Context) -> dict:
         pe_sizes = config_sizes(pe_name, pe_params)
         pe = {"ctor": render_snippet(code["ctor"], {**pe_params, **{w["of"]: w["param"] for w in pe_sizes}}, pkg),
               "domain": code["domain"], "times": bool(code.get("times")), "sizes": pe_sizes}
-        if FIELD_WINDOW in annealed(ctx.plan) and code.get("window_layout"):
+        # the coarse-to-fine window over the encoding's bands (its `schedulable` trait, registry/terminals/
+        # encodings.py: coarse_to_fine): the encoding is wrapped in it when an anneal of the plan writes it
+        if code.get("window_layout") and annealed(ctx.plan) & set(code.get("schedulable") or ()):
             imports += _imports(ctx, {"imports": ["from .components.encoding_window import CoarseToFine"],
                                       "component": "encoding_window"})
             bands = next((w["param"] for w in pe_sizes if w["of"] == code["window_bands"]),  # a proxy's size too

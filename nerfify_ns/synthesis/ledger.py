@@ -204,6 +204,10 @@ class _Reader:
         self.doc, self.kb, self.r = doc, kb, rules()
         self.family = family
         self.roles = section_roles(doc, kb.rules)
+        self.topic = getattr(doc, "title", "") or ""
+        """The paper's subject (its title): its words are in every part's text, so they say little of one part."""
+        self.topic_stems = {w[:4].lower() for w in re.findall(r"[A-Za-z]{5,}", self.topic)}
+        """The title's words by their first four letters ("Media" is on the topic of "medium")."""
         self.field_labels = self._field_labels()
         """The labels the paper writes on the field's density (sigma^obj, sigma^med): two or more are several
         fields."""
@@ -499,15 +503,14 @@ class _Reader:
         lhs = " ".join(_lhs_name(e) for e in named)
         new_lhs = " ".join(_lhs_words(e) for e in named if not e["known"])
         family_words = self.r["family_words"].get(self.family, set())
-        topic = getattr(self.doc, "title", "") or ""  # the paper's subject is in every part's text: not a part's
-        stems = {w[:4].lower() for w in re.findall(r"[A-Za-z]{5,}", topic)}  # "Media" is on the topic of "medium"
         for name, (terms, symbols) in self.r["productions"].items():
             score = 0.0
             for pattern, weight in terms:
-                found = (m.group(0) for m in pattern.finditer(f"{claims} {body}"))
-                on_topic = bool(pattern.search(topic)) or any(w[:4].lower() in stems for w in found if len(w) > 4)
-                in_body = 0.0 if pattern.pattern in family_words or on_topic \
-                    else math.sqrt(len(pattern.findall(body)))
+                hits = [m.group(0) for m in pattern.finditer(body)]
+                said_here = [m.group(0) for m in pattern.finditer(claims)] + hits
+                on_topic = bool(pattern.search(self.topic)) or any(
+                    w[:4].lower() in self.topic_stems for w in said_here if len(w) > 4)
+                in_body = 0.0 if pattern.pattern in family_words or on_topic else math.sqrt(len(hits))
                 # the topic counts in the part's own claims; the family's words (time, in a dynamic paper) in all
                 said = pattern.search(own if on_topic and pattern.pattern not in family_words else claims)
                 score += weight * (HEADING_WEIGHT * bool(pattern.search(heading)) + 2 * bool(said)

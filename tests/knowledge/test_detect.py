@@ -145,17 +145,23 @@ def test_seathru_appendix_detects_no_technique(real_detections):
             assert any(e.kind == "equation" and e.quote in latex for e in d.evidence), d.card
 
 
+def roles_by_title(tmp_path, sections: dict[str, str]) -> dict[str, str]:
+    """The role of every section of a paper of ``sections`` (heading -> body), by its title."""
+    from nerfify_ns.knowledge.sentences import section_roles
+
+    doc = write_paper(tmp_path, sections)
+    roles = section_roles(doc)
+    return {s.title: roles[i] for i, s in enumerate(doc.sections)}
+
+
 def test_a_subsection_of_the_experiments_named_after_the_method_reports_results(tmp_path):
     """"4.1 Rendering" under "4 Experiments" is results, not the method; "4.3 Implementation details" is the
     method's details wherever it is."""
-    from nerfify_ns.knowledge.sentences import section_roles
-
-    doc = write_paper(tmp_path, {"3 Method": "We render with a proposal sampler.",
-                                 "4 Experiments": "We evaluate on two datasets.",
-                                 "4.1 Rendering": "Our renders are sharper than the baselines'.",
-                                 "4.2 Feature Model": "Lifted features improve occupancy prediction.",
-                                 "4.3 Implementation Details": "We train for 20k iterations."})
-    roles = {s.title: section_roles(doc)[i] for i, s in enumerate(doc.sections)}
+    roles = roles_by_title(tmp_path, {"3 Method": "We render with a proposal sampler.",
+                                      "4 Experiments": "We evaluate on two datasets.",
+                                      "4.1 Rendering": "Our renders are sharper than the baselines'.",
+                                      "4.2 Feature Model": "Lifted features improve occupancy prediction.",
+                                      "4.3 Implementation Details": "We train for 20k iterations."})
     assert roles["Method"] == "method" and roles["Experiments"] == "experiments"
     assert roles["Rendering"] == "experiments" and roles["Feature Model"] == "experiments"
     assert roles["Implementation Details"] == "method"
@@ -195,13 +201,10 @@ def test_a_table_flattened_into_a_method_section_names_compared_methods_not_part
 def test_unnumbered_sections_after_the_experiments_report_results(tmp_path):
     """Headings without numbers (all at one level): a section after "Experiments and Results" with no role of its
     own ("Dehazing Scene Reconstruction") reports results; "Implementation Details" is the method's wherever it is."""
-    from nerfify_ns.knowledge.sentences import section_roles
-
-    doc = write_paper(tmp_path, {"Method": "We render with a medium.", "Scattering Model": "We model the medium.",
-                                 "Experiments and Results": "We evaluate on two datasets.",
-                                 "Dehazing Scene Reconstruction": "Our renders are clearer than the baselines'.",
-                                 "Implementation Details": "We train for 20k iterations.",
-                                 "Conclusion": "We conclude."})
-    roles = {s.title: section_roles(doc)[i] for i, s in enumerate(doc.sections)}
+    roles = roles_by_title(tmp_path, {"Method": "We render with a medium.", "Scattering Model": "We model the medium.",
+                                      "Experiments and Results": "We evaluate on two datasets.",
+                                      "Dehazing Scene Reconstruction": "Our renders are clearer than the baselines'.",
+                                      "Implementation Details": "We train for 20k iterations.",
+                                      "Conclusion": "We conclude."})
     assert roles["Scattering Model"] == "method" and roles["Dehazing Scene Reconstruction"] == "experiments"
     assert roles["Implementation Details"] == "method" and roles["Conclusion"] == "conclusion"
