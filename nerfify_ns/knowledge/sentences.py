@@ -93,8 +93,9 @@ def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
         own = next((role for role, pat in rules.section_roles if pat.search(heading)), None)
         level = getattr(s, "level", 1) or 1
         number = getattr(s, "number", "") or ""
-        while stack and stack[-1][0] >= level:
-            stack.pop()
+        while stack and (stack[-1][0] >= level or (number and stack[-1][1] and "." in number
+                                                     and not number.startswith(stack[-1][1] + "."))):
+            stack.pop()  # "4.1" is not under "3" when the extraction lost the heading "4"
         parent = stack[-1][2] if stack else None
         if parent is None and "." in number:  # "2.1" under "2" even when levels are flat
             prefix = number.rsplit(".", 1)[0]

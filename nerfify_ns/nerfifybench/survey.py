@@ -51,6 +51,7 @@ from nerfify_ns.errors import NerfifyError
 from nerfify_ns.knowledge.family import stands_on
 from nerfify_ns.nerfifybench.suite import NoveltyItem, PaperEntry, load_suite
 from nerfify_ns.safeio import load_json, load_yaml
+from nerfify_ns.synthesis.novel.causes import NAMES, cause_of
 
 PAPER_SUFFIXES = (".pdf", ".md", ".tex", ".txt")
 TIME_LIMIT = 300
@@ -353,25 +354,6 @@ def survey(target: Path, work: Path | None = None, verify: bool = False, train: 
     return rows
 
 
-CAUSES = (  # why a found part was not built, from its record's reason (first match wins)
-    ("no adapter for its production", r"no adapter for the \w+ production"),
-    ("prose only (no equation to compile)", r"no equation of the paper belongs|names none the reader found"),
-    ("a symbol it cannot bind", r"\bbind|unbound|cannot place|no binding|not a quantity|interface does not give"),
-    ("a width or size not stated", r"\bwidth\b|\bsize\b|sizes"),
-    ("an equation it cannot read", r"cannot read|unreadable|unknown operator|not read|parse"),
-    ("a reduction it cannot lower", r"reduc|sum over|product over"),
-    ("the contract rung", r"contract"),
-    ("the stability rung", r"stabilit|non-?finite"),
-    ("the smoke rung", r"smoke"),
-    ("no form of the part compiled", r"no form of the part compiled"),
-)
-
-
-def cause(reason: str) -> str:
-    """The cause of a part left unbuilt, from its recorded reason (``CAUSES``; 'other' when none matches)."""
-    return next((name for name, pattern in CAUSES if re.search(pattern, reason or "", re.IGNORECASE)), "other")
-
-
 def causes(rows: list[PaperRow]) -> dict:
     """Histogram: cause -> number of found parts not built (the buildable papers' holes)."""
     out: dict = {}
@@ -381,7 +363,8 @@ def causes(rows: list[PaperRow]) -> dict:
         for h in r.holes:
             if h.get("status") == "implemented":
                 continue
-            c = cause(str(h.get("reason") or h.get("why") or ""))
+            reason = str(h.get("reason") or h.get("why") or "")
+            c = h.get("cause") if h.get("cause") in NAMES else cause_of(reason)
             out[c] = out.get(c, 0) + 1
     return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 

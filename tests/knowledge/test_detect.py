@@ -167,6 +167,20 @@ def test_a_subsection_of_the_experiments_named_after_the_method_reports_results(
     assert roles["Implementation Details"] == "method"
 
 
+def test_a_capture_rig_is_no_part_of_the_method_and_a_lost_heading_adopts_no_parent(tmp_path):
+    """How the data was captured (a rig, its process) and a viewer are the system around the method; "4.1" after
+    "3.2", its heading "4" lost by the extraction, is not a subsection of "3"."""
+    roles = roles_by_title(tmp_path, {"3 The Capture Rig": "Our rig holds 22 cameras.",
+                                      "3.1 Capture Rig Design": "The cameras are mounted on a pole.",
+                                      "3.2 Capture Process": "We walk the rig through the space.",
+                                      "4.1 Perceptual Colour Space": "We train in a perceptual colour space.",
+                                      "4.2 Level of Detail": "We mask grid levels by the sample footprint.",
+                                      "5 Real-Time Rendering": "Our renderer runs on 20 GPUs."})
+    assert {roles[t] for t in ("The Capture Rig", "Capture Rig Design", "Capture Process")} == {"experiments"}
+    assert roles["Perceptual Colour Space"] == "method" and roles["Level of Detail"] == "method"
+    assert roles["Real-Time Rendering"] == "experiments"
+
+
 def test_a_metric_named_where_results_are_measured_is_not_a_loss_in_use(tmp_path):
     """"We also compute the mean absolute error (MAE) of the intensities" measures results, in the method's
     details as much as in the experiments: the L1 loss it names is not the paper's loss. The same words as the

@@ -22,6 +22,7 @@ from nerfify_ns.paper import ingest
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, implement_holes, prose
 from nerfify_ns.synthesis.novel.implement import revert
+from nerfify_ns.synthesis.novel.causes import cause_of
 from nerfify_ns.synthesis.novel.records import read_corrections, to_yaml
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
 from nerfify_ns.synthesis.resources import load_reference_plan
@@ -172,6 +173,24 @@ def test_an_anneal_of_something_the_plan_does_not_expose_is_refused():
                           ["We anneal the weight of the sparsity loss from 1 to 0 over 5000 iterations."])
     assert result.status == NOT_IMPLEMENTED and "no terminal of the plan exposes" in result.reason
     assert "schedule_hooks" not in plan["model"]
+
+
+@pytest.mark.parametrize("sentence, built", [
+    # the anneal's clause is the bracket: it changes a pruning threshold, which no terminal exposes, not the grid
+    ("Every thousand iterations, we prune grid voxels whose density falls below the pruning threshold (which we "
+     "anneal linearly from 0 to 0.2).", False),
+    ("We progressively activate the levels of the hash grid from low to high resolution over 2000 iterations.", True),
+])
+def test_an_anneal_names_what_it_changes_in_its_own_clause(sentence, built):
+    plan = small(Plan.of(load_reference_plan("nerfacto")), "prose-clause")
+    result, plan = _build("ScheduleHook", "model.schedule_hooks", [sentence], plan=plan)
+    if built:
+        assert result.status == IMPLEMENTED, result.reason
+        assert plan["model"]["schedule_hooks"]["anneal"]["target"] == "encoding_window.window"
+    else:
+        assert result.status == NOT_IMPLEMENTED and "no terminal of the plan exposes" in result.reason
+        assert cause_of(result.reason) == "no terminal for what it states"
+        assert "schedule_hooks" not in plan["model"]
 
 
 def test_an_anneal_of_the_deformations_window_is_built():

@@ -20,6 +20,7 @@ CAUSES: tuple[tuple[str, str], ...] = (
     ("smoke rung", r"ladder's smoke rung"),
     ("another ladder rung", r"the ladder's \w+ rung|the ladder failed"),
     ("no adapter for the production", r"no adapter for the \w+ production"),
+    ("no terminal for what it states", r"not built: the paper \w+ (?:something|a part) no terminal"),
     ("prose only (no equation)", r"no equation of the paper belongs|names none the reader found"),
     ("equation not read", r"equations not read|could not read Eq|unknown operator|unexpected|parse"),
     ("width", r"the size of '.*' is not fixed|\bwidths?\b.*(?:open|not stated|contradict)|WidthError|"

@@ -249,6 +249,28 @@ def hole_sentences(hole: dict, sentences: list, spec: Spec) -> list[Sentence]:
     return out
 
 
+_CLAUSE_END = re.compile(r"[;:]|\.\s")
+
+
+def _clause(text: str, start: int, end: int) -> tuple[int, int]:
+    """The span of the clause of ``text`` that holds ``text[start:end]``: the brackets around it ("we prune voxels
+    below a threshold (which we anneal linearly)": the anneal's clause names no encoding), else up to the nearest
+    semicolon, colon or sentence end on either side."""
+    opened: list[int] = []
+    for i, ch in enumerate(text[:start]):
+        if ch == "(":
+            opened.append(i)
+        elif ch == ")" and opened:
+            opened.pop()
+    if opened:
+        close = text.find(")", end)
+        if close >= 0 and "(" not in text[end:close]:
+            return opened[-1] + 1, close
+    before = [m.end() for m in _CLAUSE_END.finditer(text, 0, start)]
+    after = _CLAUSE_END.search(text, end)
+    return (before[-1] if before else 0, after.start() if after else len(text))
+
+
 # ------------------------------------------------------------------------------------------ reading
 @dataclass
 class Statement:
@@ -468,20 +490,23 @@ class _Reader:
 
     def choose(self, rule: ParamRule) -> bool:
         noun = rule.noun or self.part.noun
-        statement_sentences = [st.sentence for st in self.found]
-        own = [s for s in self.scope if s.rank == 0 and s not in statement_sentences]
-        rest = [] if rule.required else [s for s in self.scope if s.rank > 0 and noun is not None
-                                         and noun.search(s.flat)]
-        pool = statement_sentences + own + rest  # the statements, the hole's sentences, then about its noun
         choices = rule.choices
         if rule.sole and isinstance(self.plan, dict):  # the choices are parts of the plan: only those it holds
             from nerfify_ns.registry.terminals.training import schedulable_parts
 
             held = schedulable_parts(self.plan)
             choices = [(value, pattern) for value, pattern in choices if value in held]
-        for s in pool:
+        if rule.required:  # what the statement acts on is named in its own clause, not elsewhere in the paper
+            pool = [(st.sentence, _clause(st.sentence.flat, st.match.start(), st.match.end())) for st in self.found]
+        else:
+            statement_sentences = [st.sentence for st in self.found]
+            own = [s for s in self.scope if s.rank == 0 and s not in statement_sentences]
+            rest = [s for s in self.scope if s.rank > 0 and noun is not None and noun.search(s.flat)]
+            # the statements, the hole's sentences, then about its noun
+            pool = [(s, (0, len(s.flat))) for s in statement_sentences + own + rest]
+        for s, (start, end) in pool:
             for value, pattern in choices:
-                m = pattern.search(s.flat)
+                m = pattern.search(s.flat, start, end)
                 if m is not None and not _negated(self.spec, s.flat, m.start()):
                     return self.set(rule.name, value, "paper", s)
         return False
