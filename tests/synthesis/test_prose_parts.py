@@ -21,8 +21,8 @@ from nerfify_ns.grammar import validate
 from nerfify_ns.paper import ingest
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.novel import IMPLEMENTED, NOT_IMPLEMENTED, PARTLY, implement_holes, prose
-from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.causes import cause_of
+from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.records import read_corrections, to_yaml
 from nerfify_ns.synthesis.plan_from_paper import plan_from_paper
 from nerfify_ns.synthesis.resources import load_reference_plan
