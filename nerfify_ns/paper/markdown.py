@@ -11,7 +11,7 @@ from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
-from nerfify_ns.paper.pagesplit import NUMBERED_LINE, is_page_split, page_split_blocks
+from nerfify_ns.paper.pagesplit import NUMBERED_LINE, flat_blocks
 
 _EQ_NUM = re.compile(r"^\(\s*(\d+[a-z]?|[A-Z]\.?\d+)\s*\)$")
 _TRAILING_NUM = re.compile(r"\s*\(\s*(\d+[a-z]?)\s*\)\s*$")
@@ -25,7 +25,7 @@ _LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
 def read_markdown(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a ``.md`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
     text = read_text_file(path, limits)
-    blocks = page_split_blocks(text) if is_page_split(text) else markdown_blocks(text)
+    blocks = flat_blocks(text) or markdown_blocks(text)
     check_elements(blocks, path.name, limits)
     require_english(prose(blocks), path.name)
     return build(blocks, source=str(path), kind="markdown")

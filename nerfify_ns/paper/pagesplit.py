@@ -102,8 +102,9 @@ class _Line:
     line: int
 
 
-def _lines(text: str) -> list[_Line]:
-    """Every non-empty line with its page, page markers and rules dropped."""
+def _lines(text: str, origin: list[int] | None = None) -> list[_Line]:
+    """Every non-empty line with its page, page markers and rules dropped; ``origin``: the line of the file each
+    line of ``text`` comes from (a rearranged text), else its own."""
     out, page = [], 1
     for i, raw in enumerate(text.splitlines(), 1):
         m = PAGE_MARK.match(raw)
@@ -112,7 +113,7 @@ def _lines(text: str) -> list[_Line]:
             continue
         s = raw.strip()
         if s and not _RULE.match(s):
-            out.append(_Line(s, page, i))
+            out.append(_Line(s, page, origin[i - 1] if origin and i <= len(origin) else i))
     return out
 
 
@@ -218,9 +219,19 @@ def _equation_lines(para: list[_Line], most: int = 40) -> list[_Line]:
     return body if body and any(_MATHY.search(x.text) for x in body) else []
 
 
-def page_split_blocks(text: str) -> list[Block]:
-    """The blocks of a page-split extraction (see the module docstring), in reading order."""
-    lines = _lines(text)
+def flat_blocks(text: str) -> list[Block] | None:
+    """The blocks of ``text`` when it is a flat extraction (:func:`is_page_split`; two-column pages read column by
+    column first, :mod:`nerfify_ns.paper.columns`), else None (a markdown or plain text of its own kind)."""
+    from nerfify_ns.paper.columns import one_column
+
+    text, origin = one_column(text)
+    return page_split_blocks(text, origin) if is_page_split(text) else None
+
+
+def page_split_blocks(text: str, origin: list[int] | None = None) -> list[Block]:
+    """The blocks of a page-split extraction (see the module docstring), in reading order; ``origin``: the file's
+    line of each line of ``text`` when it was rearranged."""
+    lines = _lines(text, origin)
     blocks: list[Block] = []
     title, start = _title_lines(lines)
     if title:

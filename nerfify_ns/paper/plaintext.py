@@ -10,7 +10,7 @@ from nerfify_ns.paper.builder import CAPTION, Block, build, heading_level, split
 from nerfify_ns.paper.document import Document, Location
 from nerfify_ns.paper.language import prose, require_english
 from nerfify_ns.paper.limits import DEFAULT_LIMITS, Limits, check_elements, read_text_file
-from nerfify_ns.paper.pagesplit import is_page_split, page_split_blocks
+from nerfify_ns.paper.pagesplit import flat_blocks
 
 NUMBERED_HEADING = re.compile(r"^(?:\d+(?:\.\d+){0,3}\.?|[A-Z]\.(?:\d+\.?)*|Appendix [A-Z0-9]+\.?)"
                               r"\s+[A-Z][^.!?]{1,90}$")
@@ -23,7 +23,7 @@ MATHY = re.compile(r"[=+∑∫∏σαβγδλθ^_\\≈≤≥×·∈→‖]")
 def read_text(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a ``.txt`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
     text = read_text_file(path, limits)
-    blocks = page_split_blocks(text) if is_page_split(text) else text_blocks(text)
+    blocks = flat_blocks(text) or text_blocks(text)
     check_elements(blocks, path.name, limits)
     require_english(prose(blocks), path.name)
     return build(blocks, source=str(path), kind="text")
