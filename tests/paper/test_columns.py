@@ -76,7 +76,8 @@ def test_each_pages_left_column_is_read_before_its_right_one(tmp_path):
 
 @pytest.mark.parametrize("text", [
     "\n".join(textwrap.wrap("One column of running text, wrapped at sixty characters. " * 80, 60)),
-    "| method | PSNR | SSIM |\n|---|---|---|\n" + "\n".join(f"| ours{k}   |   31.{k}   |   0.9{k} |" for k in range(60)),
+    "| method | PSNR | SSIM |\n|---|---|---|\n" + "\n".join(f"| ours{k}   |   31.{k}   |   0.9{k} |"
+                                                           for k in range(60)),
     "\n".join(f"{k:>3}    {k * 1.5:>8.2f}    {k * 2.25:>8.2f}" for k in range(80)),  # a table of numbers, no pages
 ])
 def test_other_texts_are_left_as_they_are(text):
