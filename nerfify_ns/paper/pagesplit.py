@@ -21,8 +21,10 @@ from dataclasses import dataclass
 from nerfify_ns.paper.builder import CAPTION, Block
 from nerfify_ns.paper.document import Location
 
-# a page marker: "## Page 3", or the HTML comment some converters leave ("<!-- page 3 -->")
-PAGE_MARK = re.compile(r"^\s*(?:#{1,3}\s*Page\s+(\d{1,4})|<!--\s*page\s+(\d{1,4})\s*-->)\s*$", re.IGNORECASE)
+# a page marker: "## Page 3", the HTML comment some converters leave ("<!-- page 3 -->"), or a numberless break
+# ("---Page Break---": the next page)
+PAGE_MARK = re.compile(r"^\s*(?:#{1,3}\s*Page\s+(\d{1,4})|<!--\s*page\s+(\d{1,4})\s*-->"
+                       r"|[-=*]{2,}\s*page\s*break\s*[-=*]{2,})\s*$", re.IGNORECASE)
 _RULE = re.compile(r"^\s*(?:-{3,}|\*{3,}|_{3,})\s*$")
 # "3.1. Representation", "3.2.1 Anchor Point Initialization", "A.2. Hyperparameter Settings", "4 Method"
 _HEADING = re.compile(r"^(?P<num>(?:\d{1,2}|[A-H])(?:\.\d{1,2}){0,3})(?:\.\s?|\s)"
@@ -77,7 +79,7 @@ def is_page_split(text: str) -> bool:
     lines = text.splitlines()
     pages = sum(1 for line in lines if PAGE_MARK.match(line))
     others = sum(1 for line in lines if _MD_HEADING.match(line) and not PAGE_MARK.match(line))
-    return ((pages >= 2 and others <= pages) or (others == 0 and pages == 0 and len(lines) >= 100)
+    return ((pages >= 2 and others <= pages) or (others == 0 and len(lines) >= 100)
             or (len(lines) >= 100 and _plain_headings_first(lines)))
 
 
@@ -109,7 +111,7 @@ def _lines(text: str, origin: list[int] | None = None) -> list[_Line]:
     for i, raw in enumerate(text.splitlines(), 1):
         m = PAGE_MARK.match(raw)
         if m:
-            page = int(m.group(1) or m.group(2))
+            page = int(m.group(1) or m.group(2) or page + 1)
             continue
         s = raw.strip()
         if s and not _RULE.match(s):
@@ -207,13 +209,23 @@ def _dehyphenate(lines: list[str]) -> str:
     return re.sub(r"\s+", " ", text).strip()
 
 
+def _display_end(s: str) -> bool:
+    """Whether ``s`` may be the last line of a display equation set above its number: a bare full stop, or a short
+    line of math ("Ishifted[i, j] = Ir[i - di, j - dj].")."""
+    return not s.strip(".,;: ") or (bool(_MATHY.search(s)) and len(s.split()) <= 12)
+
+
 def _equation_lines(para: list[_Line], most: int = 40) -> list[_Line]:
     """The lines at the end of ``para`` that make a display equation: short, with math in them or a few symbols,
     back to the prose that introduces it (a line ending a sentence or a clause, or a long line)."""
     body: list[_Line] = []
-    for x in reversed(para[-most:]):
+    for k, x in enumerate(reversed(para[-most:])):
         t = x.text
-        if len(t) > 80 or t.endswith((".", ":", ";")) or (len(t.split()) > 4 and not _MATHY.search(t)):
+        closing = k == 0 and _display_end(t)  # the equation's own full stop
+        if x.page != para[-1].page:  # an equation is set on one page (the previous page's number is not of it)
+            break
+        if len(t) > 80 or (t.endswith((".", ":", ";")) and not closing) or (len(t.split()) > 4 and not
+                                                                             _MATHY.search(t)):
             break
         body.insert(0, x)
     return body if body and any(_MATHY.search(x.text) for x in body) else []
@@ -259,7 +271,8 @@ def page_split_blocks(text: str, origin: list[int] | None = None) -> list[Block]
             continue
         s = x.text
         loc = Location(page=x.page, line=x.line)
-        split = _split_heading(s, rest[k + 1] if k + 1 < len(rest) else None, previous, running)
+        following = rest[k + 1] if k + 1 < len(rest) and rest[k + 1].page == x.page else None  # a page number
+        split = _split_heading(s, following, previous, running)  # ends its page: the next page's line is no title
         if split is not None:
             flush()
             number, heading = split
@@ -311,7 +324,7 @@ def page_split_blocks(text: str, origin: list[int] | None = None) -> list[Block]
         if (CAPTION.match(s) or _run_in(s)) and para:
             flush()
         para.append(x)
-        if s.endswith((".", ":", "?")) and len(s) < 0.75 * full:
-            flush()  # a short line ending a sentence ends its paragraph
+        if s.endswith((".", ":", "?")) and len(s) < 0.75 * full and not _display_end(s):
+            flush()  # a short line ending a sentence ends its paragraph (not a display equation's full stop)
     flush()
     return blocks

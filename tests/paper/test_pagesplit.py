@@ -88,6 +88,26 @@ def test_an_equation_number_alone_on_its_line_takes_the_short_lines_above_it():
     assert equations == [("1", "Lσd = E(σd)"), ("2", "v = MLPv(Hv(x, t)) x′ = x + v")]
 
 
+def test_a_page_break_line_a_page_number_before_it_and_an_equation_with_its_full_stop():
+    """"---Page Break---" is a page marker; the page's number before it is no heading's number for the next page's
+    first line; a display equation set over short lines, ending in its full stop, is read above its number."""
+    filler = ["Filler line of running text that is as long as the others in the column here."] * 60
+    text = "\n".join(["Warped Views", "Ann Author", "1", "Introduction", *filler, "2", "Method",
+                      "We render the right view and shift it to the left one by its disparity, as denoted by",
+                      "4", "", "---Page Break---",
+                      "Ishifted[i, j] = Ir[i - di, j - dj].", "(1)",
+                      "Formally, we define the loss function as the mean over the pixels of the difference",
+                      "Lconsis = 1", "N", "X", "i,j", "Il", "ij - Ishifted", "ij", ".", "(2)",
+                      "To optimise it better we translate the camera to the left or the right each time.",
+                      *filler])
+    assert is_page_split(text)
+    blocks = page_split_blocks(text)
+    assert [(b.number, b.text) for b in blocks if b.kind == "heading"] == [("1", "Introduction"), ("2", "Method")]
+    assert [(b.number, b.text) for b in blocks if b.kind == "equation"] == [
+        ("1", "Ishifted[i, j] = Ir[i - di, j - dj]."), ("2", "Lconsis = 1 N X i,j Il ij - Ishifted ij .")]
+    assert {b.loc.page for b in blocks if b.kind == "equation"} == {2}
+
+
 def test_a_numbered_list_item_with_a_run_in_title_is_not_a_heading():
     # an introduction listing the problems "1. Parameterization. Unbounded scenes ..." before the paper's own
     # "1. Preliminaries": the items' numbers would otherwise take the sections' places
