@@ -24,11 +24,30 @@ _LIST = re.compile(r"^\s*(?:[-*+]\s+(?:[–—]\s+)?|\d+[.)]\s+)")
 
 def read_markdown(path: Path, limits: Limits = DEFAULT_LIMITS) -> Document:
     """Ingest a ``.md`` file (at most ``limits.max_text_chars`` characters; English prose only)."""
-    text = read_text_file(path, limits)
+    text = without_converter_markup(read_text_file(path, limits))
     blocks = flat_blocks(text) or markdown_blocks(text)
     check_elements(blocks, path.name, limits)
     require_english(prose(blocks), path.name)
     return build(blocks, source=str(path), kind="markdown")
+
+
+_ANCHOR = re.compile(r"<(span|a)\b[^<>\n]{0,200}>\s*</\1>", re.IGNORECASE)
+_INTERNAL_LINK = re.compile(r"\[((?:\\.|[^\[\]\n]){1,80})\]\(#[^()\s]{1,80}\)")
+_INLINE_TAG = re.compile(r"<(sup|sub|b|i|em|strong)>([^<>\n]{0,200})</\1>", re.IGNORECASE)
+_ESCAPED = re.compile(r"\\([\[\]()*_#])")
+
+
+def without_converter_markup(text: str) -> str:
+    """``text`` without the HTML and links a PDF-to-markdown converter leaves around the paper's own text: empty
+    anchors (``<span id="page-3-1"></span>3.2 Rendering``), in-document links around citations and references
+    (``[\\[11\\]](#page-9-7)`` is ``[11]``, ``Equation [\\(4\\)](#page-4-0)`` is ``Equation (4)``), and inline
+    tags (``ω<sup>i</sup>`` is ``ω^i``, ``<b>LPIPS</b>`` is ``LPIPS``). Lines stay where they are."""
+    if "<" not in text and "](#" not in text:
+        return text
+    text = _ANCHOR.sub("", text)
+    text = _INTERNAL_LINK.sub(lambda m: _ESCAPED.sub(r"\1", m.group(1)), text)
+    return _INLINE_TAG.sub(lambda m: ("^" if m.group(1).lower() == "sup" else "_" if m.group(1).lower() == "sub"
+                                      else "") + m.group(2), text)
 
 
 def markdown_blocks(text: str) -> list[Block]:

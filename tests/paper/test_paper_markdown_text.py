@@ -170,3 +170,23 @@ def test_a_converters_arxiv_stamp_and_equation_headings_are_neither_title_nor_se
     assert doc.title == "PyramidField: Scale-Aware Radiance Fields"
     assert [s.title for s in doc.sections] == ["Introduction", "Method"]
     assert [e.number for e in doc.equations] == ["3", "4"]
+
+
+def test_a_converters_anchors_links_and_inline_tags_are_not_the_papers_text(tmp_path):
+    """A PDF-to-markdown converter's empty anchors before headings, in-document links around citations and
+    equation references, and inline tags: the headings, citations and words are the paper's own."""
+    text = "\n\n".join([
+        "# LightSplit: Split-Sum Radiance Fields", "Ann Author, Lab", "## Abstract",
+        "We estimate lighting with a small network. " * 3,
+        '## <span id="page-1-0"></span>1 Introduction',
+        "Inverse rendering is hard [\\[11\\]](#page-9-7). We follow NeRF [\\[20,](#page-9-1) [21\\]](#page-9-2). " * 2,
+        '## <span id="page-3-1"></span>3 Method',
+        "The term in Equation [\\(4\\)](#page-4-0) depends on ω<sup>i</sup> and the <b>albedo</b>. " * 3])
+    path = tmp_path / "paper.md"
+    path.write_text(text)
+    doc = ingest(path)
+    assert [(s.number, s.title) for s in doc.sections] == [("1", "Introduction"), ("3", "Method")]
+    intro = " ".join(p.text for p in doc.sections[0].paragraphs)
+    assert "hard [11]." in intro and "NeRF [20, 21]." in intro and "#page" not in intro
+    method = " ".join(p.text for p in doc.sections[1].paragraphs)
+    assert "Equation (4) depends on ω^i and the albedo." in method and "<" not in method
