@@ -340,9 +340,34 @@ We evaluate on twelve scenes.
 """
 
 
+DECAYED = """# SparseSplats: Few-View Gaussians
+
+## Abstract
+
+SparseSplats fits Gaussians to three views.
+
+## 1 Introduction
+
+We propose to decay the opacity of the Gaussians during training.
+
+## 3 Method
+
+### 3.1 Opacity Decay Strategy
+
+We propose to decay the opacity of every Gaussian during optimization: every 50 iterations its opacity is
+multiplied by a factor below one, so that Gaussians far from the surface fade out.
+
+## 4 Experiments
+
+We evaluate on LLFF.
+"""
+
+
 def test_a_part_that_delays_or_eases_something_in_is_a_schedule_hook(tmp_path: Path):
     ledger = _ledger(tmp_path, DELAYED, family="dynamic")
     assert ("Delayed use of Ambient Dimensions", "ScheduleHook") in _new(ledger), _new(ledger)
+    ledger = _ledger(tmp_path, DECAYED, family="splatting")  # a value decayed over the steps of training
+    assert ("Opacity Decay Strategy", "ScheduleHook") in _new(ledger), _new(ledger)
 
 
 TOPIC = """# HazeField: Radiance Fields in Scattering Media
