@@ -180,6 +180,9 @@ def test_an_anneal_of_something_the_plan_does_not_expose_is_refused():
     ("Every thousand iterations, we prune grid voxels whose density falls below the pruning threshold (which we "
      "anneal linearly from 0 to 0.2).", False),
     ("We progressively activate the levels of the hash grid from low to high resolution over 2000 iterations.", True),
+    # a bracket opened by a relative pronoun names what it anneals just before it
+    ("Training starts from the coarsest levels of the hash grid (which we anneal to the finest over 2000 "
+     "iterations).", True),
 ])
 def test_an_anneal_names_what_it_changes_in_its_own_clause(sentence, built):
     plan = small(Plan.of(load_reference_plan("nerfacto")), "prose-clause")

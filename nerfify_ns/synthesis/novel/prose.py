@@ -250,11 +250,16 @@ def hole_sentences(hole: dict, sentences: list, spec: Spec) -> list[Sentence]:
 
 
 _CLAUSE_END = re.compile(r"[;:]|\.\s")
+_RELATIVE = re.compile(r"\s*(?:which|that|whose)\b", re.IGNORECASE)
+# what ends the noun phrase before a bracket: punctuation, a preposition, a verb of being, a conjunction
+_NOUN_BEFORE = re.compile(r"[,;:]|\b(?:below|above|under|over|for|of|in|at|to|with|from|than|by|on|into|is|are|was|"
+                          r"were|be|and|or)\b", re.IGNORECASE)
 
 
 def _clause(text: str, start: int, end: int) -> tuple[int, int]:
     """The span of the clause of ``text`` that holds ``text[start:end]``: the brackets around it ("we prune voxels
-    below a threshold (which we anneal linearly)": the anneal's clause names no encoding), else up to the nearest
+    below a threshold (we anneal it linearly)": the anneal's clause names no encoding), with the words before them
+    when the brackets open with a relative pronoun ("the threshold (which we anneal ...)"), else up to the nearest
     semicolon, colon or sentence end on either side."""
     opened: list[int] = []
     for i, ch in enumerate(text[:start]):
@@ -265,6 +270,9 @@ def _clause(text: str, start: int, end: int) -> tuple[int, int]:
     if opened:
         close = text.find(")", end)
         if close >= 0 and "(" not in text[end:close]:
+            if _RELATIVE.match(text, opened[-1] + 1):  # "the threshold (which we anneal ...)": what it refers to
+                ends = [m.end() for m in _NOUN_BEFORE.finditer(text, 0, opened[-1])]
+                return (ends[-1] if ends else 0), close
             return opened[-1] + 1, close
     before = [m.end() for m in _CLAUSE_END.finditer(text, 0, start)]
     after = _CLAUSE_END.search(text, end)
