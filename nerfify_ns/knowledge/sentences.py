@@ -82,6 +82,12 @@ def read_rules(path: Path | str = DETECT_FILE) -> Rules:
         raise KnowledgeError(f"{path}: cannot read the detection rules ({exc}); fix detect.yaml") from exc
 
 
+def heading_role(heading: str, rules: Rules | None = None) -> str | None:
+    """The role a heading names by itself (``detect.yaml: section_roles``, first rule that matches), or None."""
+    heading = heading.strip().lower()
+    return next((role for role, pat in _rules(rules).section_roles if pat.search(heading)), None)
+
+
 def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
     """The role of every section of ``doc`` (by index): prior, method, experiments, conclusion, ignore."""
     rules = _rules(rules)
@@ -90,7 +96,7 @@ def section_roles(doc: Any, rules: Rules | None = None) -> dict[int, str]:
     flat = ""  # the role of the last unnumbered top-level section (an extraction whose headings carry no numbers)
     for i, s in enumerate(doc.sections):
         heading = (getattr(s, "title", "") or "").strip().lower()
-        own = next((role for role, pat in rules.section_roles if pat.search(heading)), None)
+        own = heading_role(heading, rules)
         level = getattr(s, "level", 1) or 1
         number = getattr(s, "number", "") or ""
         while stack and (stack[-1][0] >= level or (number and stack[-1][1] and "." in number

@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 
 from nerfify_ns.knowledge.citations import cites_earlier_work, find_spans
-from nerfify_ns.knowledge.sentences import section_roles, split_sentences
+from nerfify_ns.knowledge.sentences import heading_role, section_roles, split_sentences
 from nerfify_ns.synthesis.known import CardEquations
 
 LEDGER_FILE = Path(__file__).resolve().parent / "ledger.yaml"
@@ -322,7 +322,10 @@ class _Reader:
                          "sentence": (h.sentence or "")[:200]})
             if len(section_parts) > 1 and not section_parts[0].equations:
                 section_parts[0].lead = True  # it introduces the run-in parts after it
-            parts.extend(p for p in section_parts if p.sentences or p.equations)
+            # a run-in paragraph of the method's details that reports on the experiments ("Evaluation Metrics.",
+            # "Comparison Baselines.", "Datasets.") describes no part of the method
+            parts.extend(p for k, p in enumerate(section_parts) if (p.sentences or p.equations)
+                         and not (k and heading_role(p.heading) == "experiments"))
         for n, p in enumerate(parts, 1):
             p.id = f"p{n}"
         return parts

@@ -402,3 +402,41 @@ def test_the_papers_topic_in_every_part_does_not_decide_where_one_lands(tmp_path
     medium (with them counted it scored Renderer 16.4 against RGBLoss 3.8)."""
     new = dict(_new(_ledger(tmp_path, TOPIC)))
     assert new["Pseudo-Label Guided Decoupling"] in ("Regularizers", "RGBLoss")
+
+
+DETAILS = """# TwinSplats: Two Fields Agree
+
+## Abstract
+
+We propose to train two radiance fields that regularise each other from sparse views.
+
+## 1 Introduction
+
+We propose to sample pseudo views between the training views and to make two fields agree on them.
+
+## 4 Method
+
+### 4.1 Co-training
+
+We propose to train two radiance fields at once and to penalise their disagreement on pseudo views.
+
+### 4.2 Implementation Details
+
+Datasets. We propose to evaluate on LLFF and on DTU with three training views each.
+
+Evaluation Metrics. We propose to report PSNR, SSIM and LPIPS of both radiance fields on held-out views.
+
+Pseudo-view Sampling. We propose to sample pseudo views by interpolating between the two nearest training cameras.
+
+## 5 Experiments
+
+Both fields improve.
+"""
+
+
+def test_a_run_in_paragraph_that_reports_on_the_experiments_is_no_part(tmp_path: Path):
+    """"Datasets." and "Evaluation Metrics." in the method's details describe the experiments, not a part of the
+    method, whatever they claim; "Pseudo-view Sampling." beside them is a part."""
+    headings = [h for h, _ in _new(_ledger(tmp_path, DETAILS, family="splatting"))]
+    assert "Pseudo-view Sampling" in headings and "Co-training" in headings, headings
+    assert "Datasets" not in headings and "Evaluation Metrics" not in headings, headings
