@@ -440,3 +440,33 @@ def test_a_run_in_paragraph_that_reports_on_the_experiments_is_no_part(tmp_path:
     headings = [h for h, _ in _new(_ledger(tmp_path, DETAILS, family="splatting"))]
     assert "Pseudo-view Sampling" in headings and "Co-training" in headings, headings
     assert "Datasets" not in headings and "Evaluation Metrics" not in headings, headings
+
+
+HDR = """# BrightField: Radiance Fields of Bright Rooms
+
+## Abstract
+
+We propose BrightField for rooms with bright lamps and dark corners, rendered in real-time.
+
+## 1 Introduction
+
+We introduce a perceptual colour space for high dynamic range radiance.
+
+## 3 Method
+
+### 3.1 Modeling of High Dynamic Range
+
+We introduce a perceptual colour space for high dynamic range radiance: the field predicts colours in it and
+the loss compares them there. Our renders are shown in real-time at the training time's quality; the dynamic range
+of the captures spans twenty stops of exposure.
+
+## 4 Experiments
+
+We evaluate on six rooms.
+"""
+
+
+def test_a_dynamic_range_and_real_time_say_nothing_of_time(tmp_path: Path):
+    """"High dynamic range", "real-time" and "training time" in a static paper name no time-conditioned field."""
+    new = _new(_ledger(tmp_path, HDR, family="static"))
+    assert new and all(production != "FieldWrapper" for _, production in new), new
