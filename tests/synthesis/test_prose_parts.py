@@ -243,6 +243,38 @@ def test_a_coarse_to_fine_schedule_of_the_fields_encoding_is_built_and_trains(
     assert all(float(w.window) == 0.0 and float(w.weights()[w.band >= 1].max()) == 0.0 for w in windows)
 
 
+def test_an_annealed_pruning_threshold_is_built_into_the_occupancy_grid(plugin_on_path):  # noqa: F811
+    """"We anneal the pruning threshold" on a base with an occupancy grid: an anneal of the grid's threshold, and the
+    generated model's grid prunes below what the hook last wrote."""
+    from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
+
+    from nerfify_ns.verify.assembled import build_model
+
+    plan = Plan.of(load_reference_plan("instant-ngp"))
+    plan["method"] = "pruned-grid"
+    plan.set("model.sampler.occupancy_grid", {"grid_resolution": 16, "grid_levels": 1, "alpha_thre": 0.01,
+                                              "cone_angle": 0.0})
+    plan.set("model.field.MLPField.pos_encoding", {"hash": {"num_levels": 4, "min_res": 4, "max_res": 32,
+                                                            "log2_hashmap_size": 12, "features_per_level": 2}})
+    result, plan = _build("ScheduleHook", "model.schedule_hooks", [
+        "Every 16 iterations, cells of the occupancy grid whose density falls below the pruning threshold are "
+        "pruned; we anneal the pruning threshold linearly from 0 to 0.2 over 5000 iterations."], plan=plan)
+    assert result.status == IMPLEMENTED, result.reason
+    anneal = plan["model"]["schedule_hooks"]["anneal"]
+    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
+        "occupancy_grid.threshold", 0.0, 0.2, 5000)
+    validate(plan)
+    _, config = plugin_on_path(plan)
+    model = build_model(config.pruned_grid_method)
+    model.train()
+    callbacks = model.get_training_callbacks(TrainingCallbackAttributes(None, None, None, None))
+    for step in (0, 2500):
+        for cb in callbacks:
+            cb.run_callback_at_location(step, TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+        assert abs(model.occupancy_grid.threshold - step / 25000) < 1e-6  # 0 at step 0, 0.1 at step 2500
+    assert model.occupancy_grid.binaries.any()  # the grid's update ran with the threshold written
+
+
 def test_importance_by_a_quantity_of_the_paper_is_an_approximation():
     result, plan = _build("PixelSampler", "pixel_sampler",
                           ["We sample rays with a probability proportional to the temporal variation of their colour."])

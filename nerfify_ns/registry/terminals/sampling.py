@@ -272,6 +272,9 @@ TERMINALS = [
         harness=Harness(build=_build_linear_density, call=_call_occupancy, cases=RAY_CASES, small=SMALL),
         config={"instant-ngp": {"grid_resolution": "grid_resolution", "grid_levels": "grid_levels",
                                 "alpha_thre": "alpha_thre", "cone_angle": "cone_angle"}},
+        # the grid's pruning threshold: an anneal of it makes the model's grid take it from an attribute
+        # (components.occupancy_threshold)
+        code=Code(traits={"schedulable": ["occupancy_grid.threshold"]}),
         duties=({"requires_base": ["instant-ngp"]},)),
     TerminalDef(
         "renderer", "Renderer", Renderer,
