@@ -258,7 +258,7 @@ def test_an_annealed_pruning_threshold_is_built_into_the_occupancy_grid(plugin_o
                                                             "log2_hashmap_size": 12, "features_per_level": 2}})
     result, plan = _build("ScheduleHook", "model.schedule_hooks", [
         "Every 16 iterations, cells of the occupancy grid whose density falls below the pruning threshold are "
-        "pruned; we anneal the pruning threshold linearly from 0 to 0.2 over 5000 iterations."], plan=plan)
+        "pruned; we anneal the pruning threshold linearly from zero to α = 0.2 over 5000 iterations."], plan=plan)
     assert result.status == IMPLEMENTED, result.reason
     anneal = plan["model"]["schedule_hooks"]["anneal"]
     assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
