@@ -151,6 +151,16 @@ def _build(production, slot, sentences, plan=None, corr=None):
     return build_hole(production, slot, sentences, plan, corr), plan
 
 
+def _built_anneal(sentence: str, plan: Plan) -> tuple[tuple, Plan]:
+    """The anneal a ScheduleHook hole's sentence builds, as (target, start value, end value, end step), and the plan
+    it joined (validated)."""
+    result, plan = _build("ScheduleHook", "model.schedule_hooks", [sentence], plan=plan)
+    assert result.status == IMPLEMENTED, result.reason
+    validate(plan)
+    a = plan["model"]["schedule_hooks"]["anneal"]
+    return (a["target"], a["start_value"], a["end_value"], a["end_step"]), plan
+
+
 def test_a_negated_statement_builds_nothing():
     result, plan = _build("FieldWrapper", "model.field_wrappers",
                           ["Unlike D-NeRF, we do not use a deformation network; the field takes time as an input."])
@@ -199,14 +209,9 @@ def test_an_anneal_names_what_it_changes_in_its_own_clause(sentence, built):
 def test_an_anneal_of_the_deformations_window_is_built():
     plan = _dynamic_plan()
     plan.set("model.field_wrappers", {"deformation": {}})
-    result, plan = _build("ScheduleHook", "model.schedule_hooks",
-                          ["The coarse-to-fine window of the deformation's positional encoding is annealed from 0 to "
-                           "8 over 4000 iterations."], plan=plan)
-    assert result.status == IMPLEMENTED
-    anneal = plan["model"]["schedule_hooks"]["anneal"]
-    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
-        "deformation.window", 0.0, 8.0, 4000)
-    validate(plan)
+    anneal, _ = _built_anneal("The coarse-to-fine window of the deformation's positional encoding is annealed from 0 "
+                              "to 8 over 4000 iterations.", plan)
+    assert anneal == ("deformation.window", 0.0, 8.0, 4000)
 
 
 @pytest.mark.parametrize("sentence, encoding, bands", [
@@ -226,12 +231,8 @@ def test_a_coarse_to_fine_schedule_of_the_fields_encoding_is_built_and_trains(
     if encoding == "hash":
         plan.set("model.field.MLPField.pos_encoding", {"hash": {"num_levels": 3, "min_res": 4, "max_res": 16,
                                                                 "log2_hashmap_size": 10, "features_per_level": 2}})
-    result, plan = _build("ScheduleHook", "model.schedule_hooks", [sentence], plan=plan)
-    assert result.status == IMPLEMENTED, result.reason
-    anneal = plan["model"]["schedule_hooks"]["anneal"]
-    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
-        "encoding_window.window", 0.0, 1.0, 6)
-    validate(plan)
+    anneal, plan = _built_anneal(sentence, plan)
+    assert anneal == ("encoding_window.window", 0.0, 1.0, 6)
     _, config = plugin_on_path(plan)
     model, losses = _train(getattr(config, f"coarse_to_fine_{encoding}_method"), steps=8)
     windows = [m for m in model.modules() if type(m).__name__ == CoarseToFine.__name__]  # the plugin's own copy
@@ -256,14 +257,10 @@ def test_an_annealed_pruning_threshold_is_built_into_the_occupancy_grid(plugin_o
                                               "cone_angle": 0.0})
     plan.set("model.field.MLPField.pos_encoding", {"hash": {"num_levels": 4, "min_res": 4, "max_res": 32,
                                                             "log2_hashmap_size": 12, "features_per_level": 2}})
-    result, plan = _build("ScheduleHook", "model.schedule_hooks", [
+    anneal, plan = _built_anneal(
         "Every 16 iterations, cells of the occupancy grid whose density falls below the pruning threshold are "
-        "pruned; we anneal the pruning threshold linearly from zero to α = 0.2 over 5000 iterations."], plan=plan)
-    assert result.status == IMPLEMENTED, result.reason
-    anneal = plan["model"]["schedule_hooks"]["anneal"]
-    assert (anneal["target"], anneal["start_value"], anneal["end_value"], anneal["end_step"]) == (
-        "occupancy_grid.threshold", 0.0, 0.2, 5000)
-    validate(plan)
+        "pruned; we anneal the pruning threshold linearly from zero to α = 0.2 over 5000 iterations.", plan)
+    assert anneal == ("occupancy_grid.threshold", 0.0, 0.2, 5000)
     _, config = plugin_on_path(plan)
     model = build_model(config.pruned_grid_method)
     model.train()
