@@ -121,13 +121,13 @@ def one_column(text: str) -> tuple[str, list[int] | None]:
         return text, None
     out: list[str] = []
     origin: list[int] = []
-    for number, rows in enumerate(split_pages, 1):
+    for number, rows in enumerate(split_pages, 1):  # every page holds a line (_pages)
         out.append(f"<!-- page {number} -->")
-        origin.append(rows[0][0] if rows else 1)
+        origin.append(rows[0][0])
         for side in (1, 2):
             for line_no, *texts in rows:
                 out.append(texts[side - 1])
                 origin.append(line_no)
             out.append("")
-            origin.append(rows[-1][0] if rows else 1)
+            origin.append(rows[-1][0])
     return "\n".join(out), origin

@@ -650,11 +650,12 @@ def model_context(ctx: Context) -> dict:
     proposal = _proposal_networks(ctx)
     if proposal:
         imports += proposal["imports"]
-    if "occupancy_grid.threshold" in annealed(ctx.plan) and "occupancy_grid" in (ctx.plan.get("model.sampler") or {}):
-        # the base's occupancy grid prunes below a threshold the plan's anneal writes (its `schedulable` trait)
-        imports += _imports(ctx, {"imports": ["from .components.occupancy_threshold import scheduled_threshold"],
-                                  "component": "occupancy_threshold"})
-        modules.append({"attr": "occupancy_grid", "ctor": "scheduled_threshold(self.occupancy_grid)"})
+    sampler_code = snippet(sampler_name) if ctx.plan.get("model.sampler") and not custom_sampler else {}
+    wrap = (sampler_code or {}).get("schedule_wrap")
+    if wrap and annealed(ctx.plan) & set(sampler_code.get("schedulable") or ()):
+        # the sampler's part an anneal of the plan writes (its `schedulable` trait: the occupancy grid's threshold)
+        imports += _imports(ctx, wrap)
+        modules.append({"attr": wrap["attr"], "ctor": wrap["ctor"]})
     hooks, hook_imports = schedule_hooks(ctx)
     imports += hook_imports
     from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD  # the plugin's own name for it (torch: on use)

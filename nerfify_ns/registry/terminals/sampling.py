@@ -273,8 +273,11 @@ TERMINALS = [
         config={"instant-ngp": {"grid_resolution": "grid_resolution", "grid_levels": "grid_levels",
                                 "alpha_thre": "alpha_thre", "cone_angle": "cone_angle"}},
         # the grid's pruning threshold: an anneal of it makes the model's grid take it from an attribute
-        # (components.occupancy_threshold)
-        code=Code(traits={"schedulable": ["occupancy_grid.threshold"]}),
+        # (`schedule_wrap`: what the generated model installs then, components.occupancy_threshold)
+        code=Code(traits={"schedulable": ["occupancy_grid.threshold"], "schedule_wrap": {
+            "imports": ["from .components.occupancy_threshold import scheduled_threshold"],
+            "component": "occupancy_threshold", "attr": "occupancy_grid",
+            "ctor": "scheduled_threshold(self.occupancy_grid)"}}),
         duties=({"requires_base": ["instant-ngp"]},)),
     TerminalDef(
         "renderer", "Renderer", Renderer,
