@@ -57,7 +57,7 @@ from nerfify_ns.synthesis.novel import Implementation, implement_holes
 from nerfify_ns.synthesis.novel.implement import revert
 from nerfify_ns.synthesis.novel.records import read_corrections, write_records
 from nerfify_ns.synthesis.plan_from_paper import DerivedPlan, derive_plan
-from nerfify_ns.synthesis.proxy import smoke_samples
+from nerfify_ns.synthesis.proxy import measured_batch, smoke_samples
 from nerfify_ns.synthesis.prune import adopt_scene, prune_plan
 from nerfify_ns.synthesis.scene_probe import probe_scene
 
@@ -450,10 +450,12 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     cost = smoke.details.get("ray_cost") or {}
     scale = (1.0 / cost["speedup"] if cost.get("speedup") and cost.get("threads") == training
              else threads / training if isinstance(threads, int) and 0 < threads < training else 1.0)
-    step, rays = smoke.details["seconds_per_iteration"] * scale, _rays(SMOKE_ARGS)
+    # the batch it trained (a pipeline that counts a step's samples: those, given by the proxy's floor)
+    step, rays = smoke.details["seconds_per_iteration"] * scale, measured_batch(samples or {}, _rays(SMOKE_ARGS))
     # the part of a step its rays cost: the recorder's timing at two batches, against the step at those threads
     share = (min(1.0, cost["seconds_per_ray"] * rays / step)
-             if cost.get("seconds_per_ray") is not None and cost.get("threads") in (None, training) else None)
+             if cost.get("seconds_per_ray") is not None and cost.get("threads") in (None, training)
+             and rays == _rays(SMOKE_ARGS) else None)
     return {"seconds_per_iteration": step,
             "startup_seconds": smoke.details["startup_seconds"], "rays": rays,
             "samples": dict(samples or {}), "ray_share": share}

@@ -656,6 +656,11 @@ def model_context(ctx: Context) -> dict:
         # the sampler's part an anneal of the plan writes (its `schedulable` trait: the occupancy grid's threshold)
         imports += _imports(ctx, wrap)
         modules.append({"attr": wrap["attr"], "ctor": wrap["ctor"]})
+    # the sampler's values the generated config declares (its `config_fields` trait: a proxy may lower them) and
+    # what the model sets from them before the base builds itself (`before_base`)
+    sampler_params = ctx.params(f"model.sampler.{sampler_name}") if sampler_code else {}
+    config_fields = [{"name": f["name"], "type": "int", "value": int(sampler_params[f["param"]]), "doc": f["doc"]}
+                     for f in (sampler_code or {}).get("config_fields") or ()]
     hooks, hook_imports = schedule_hooks(ctx)
     imports += hook_imports
     from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD  # the plugin's own name for it (torch: on use)
@@ -671,6 +676,8 @@ def model_context(ctx: Context) -> dict:
         "regularizers": regularizers,
         "modules": modules,
         "proposal_networks": proposal,
+        "config_fields": config_fields,
+        "before_base": list((sampler_code or {}).get("before_base") or ()),
     }
 
 

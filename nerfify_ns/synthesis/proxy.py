@@ -67,6 +67,8 @@ class Knob:
     """Widths: the learning rates follow this one (the backbone's; ``schedule.yaml``'s width rule)."""
     smoke_at_floor: bool = True
     """The smoke rung measures the step at the floor (``proxy.yaml``'s ``smoke: plan``: at the plan's value)."""
+    kept_per_ray: float = 1.0
+    """A batch of samples (``rays.samples_per_step``): the samples a ray keeps, its rays being the batch over it."""
 
     @property
     def papers(self) -> Any:
@@ -123,8 +125,62 @@ def knobs(plan: dict, rays: int) -> list[Knob]:
                                         what=knob.get("what", KIND_WORDS[kind] if kind in SIZES else ""),
                                         learning_rates=bool(knob.get("learning_rates")),
                                         smoke_at_floor=knob.get("smoke", "floor") == "floor"))
-    found["rays"].append(Knob("rays", RAYS_PATH, RAYS_FLAG, int(rays), int(spec["rays"]["floor"])))
+    batch = samples_batch(base)
+    found["rays"].append(Knob("rays", batch.path, batch.flag, batch.value(plan), batch.floor, what=batch.what,
+                              kept_per_ray=batch.kept_per_ray)
+                         if batch else Knob("rays", RAYS_PATH, RAYS_FLAG, int(rays), int(spec["rays"]["floor"])))
     return [k for kind in spec["order"] for k in found.get(kind, [])]
+
+
+@dataclass(frozen=True)
+class SamplesBatch:
+    """A pipeline that sizes each step by the samples it holds (``proxy.yaml``'s ``rays.samples_per_step``)."""
+
+    name: str
+    """The pipeline config's field (``target_num_samples``)."""
+    default: int
+    """Its default in the base's pipeline config (the paper's, unless the plan sets it)."""
+    floor: int
+    kept_per_ray: float
+    """The samples a ray keeps once the grid has learnt the scene (a step's rays: its samples over this)."""
+
+    @property
+    def path(self) -> str:
+        return f"pipeline.{self.name}"
+
+    @property
+    def flag(self) -> str:
+        return f"--pipeline.{_flag(self.name)}"
+
+    what = "samples per step"
+
+    def value(self, plan: Plan) -> int:
+        return int((plan.get("pipeline") or {}).get(self.name) or self.default)
+
+
+def samples_batch(base: str | None) -> SamplesBatch | None:
+    """How ``base``'s pipeline sizes a step when it counts samples, not rays (None: a ray batch)."""
+    import dataclasses
+    import importlib
+
+    from nerfify_ns.registry.bases import plugin_facts
+
+    entry = (proxy_spec()["rays"].get("samples_per_step") or {})
+    pipeline = (plugin_facts().get(base or "") or {}).get("pipeline") or {}
+    if not entry or not pipeline:
+        return None
+    cls = getattr(importlib.import_module(pipeline["module"]), pipeline["cls"])
+    field_ = next((f for f in dataclasses.fields(cls) if f.name == entry["config"]), None)
+    if field_ is None or not isinstance(field_.default, int):
+        return None
+    return SamplesBatch(entry["config"], int(field_.default), int(entry["floor"]), float(entry["kept_per_ray"]))
+
+
+def measured_batch(values: dict[str, Any], rays: int) -> int:
+    """The batch a smoke rung trained at, in the unit its proxy knob counts: the samples per step it was given
+    (``values``: :func:`smoke_samples`'s, by plan path) for a pipeline that counts samples, else ``rays``."""
+    name = (proxy_spec()["rays"].get("samples_per_step") or {}).get("config")
+    return int(values.get(f"pipeline.{name}", rays)) if name else rays
 
 
 def sample_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> float:
@@ -190,13 +246,17 @@ class ProxyFit:
     def phrases(self, paper_rays: int | None = None) -> list[str]:
         """``64 instead of 192 samples per ray``, ... (what the proxy changed, in words)."""
         parts = []
-        samples = [k for k in self.knobs if k.kind == "samples"]
+        samples = [k for k in self.knobs if k.kind == "samples" and not k.what]
         if any(k in self.changed for k in samples):
             before = sum(k.total(k.papers) for k in samples)
             after = sum(k.total() for k in samples)
             parts.append(f"{after:.0f} instead of {before:.0f} samples per ray")
+        parts += [f"{k.total():.0f} instead of {k.total(k.papers):.0f} {k.what}" for k in self.knobs
+                  if k.kind == "samples" and k.what and k in self.changed]  # counted otherwise (marching steps)
         for k in self.knobs:
-            if k.kind == "rays" and (k in self.changed or (paper_rays or 0) > k.current):
+            if k.kind == "rays" and k.what and k in self.changed:  # a batch of samples
+                parts.append(f"{k.current} instead of {k.paper} {k.what}")
+            elif k.kind == "rays" and not k.what and (k in self.changed or (paper_rays or 0) > k.current):
                 parts.append(f"{k.current} instead of {paper_rays or k.paper} rays per step")
             elif k.kind in SIZES and k in self.changed:
                 parts.append(f"{k.what} {k.value} instead of {k.papers} ({k.path})")
@@ -228,10 +288,12 @@ class ProxyFit:
 
 def _predict(measured: Measured, settings: list[Knob], exponent: float, base_cost: float, base_width: float
              ) -> tuple[float, int]:
-    rays = next((int(k.current) for k in settings if k.kind == "rays"), measured.rays)
-    step = scaled_step(measured.seconds_per_iteration, measured.rays, rays, ray_share=measured.ray_share,
+    """A step's seconds at the knobs' values, and its rays (a batch of samples: over the samples a ray keeps)."""
+    batch = next((k for k in settings if k.kind == "rays"), None)
+    size = int(batch.current) if batch else measured.rays
+    step = scaled_step(measured.seconds_per_iteration, measured.rays, size, ray_share=measured.ray_share,
                        exponent=exponent, per_ray=sample_cost(settings) / base_cost)
-    return step * (width_cost(settings) / base_width), rays
+    return step * (width_cost(settings) / base_width), max(1, int(size / (batch.kept_per_ray if batch else 1.0)))
 
 
 def _fits(left: float, step: float, measured: Measured, rays_per_checkpoint: int, rays: int, budget: Budget,
@@ -333,8 +395,8 @@ def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
     and the values by plan path (what :class:`Measured` records)."""
     from nerfify_ns.synthesis.schedule import width_learning_rates
 
-    settings = [k for k in knobs(plan, 1) if k.kind in ("samples", *SIZES) and k.flag is not None
-                and k.smoke_at_floor]
+    settings = [k for k in knobs(plan, 1) if (k.kind in ("samples", *SIZES) or k.path != RAYS_PATH)
+                and k.flag is not None and k.smoke_at_floor]
     args: list[str] = []
     values: dict[str, Any] = {}
     for k in settings:

@@ -9,6 +9,7 @@ from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, BudgetError
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.proxy import Measured, fit_proxy, knobs, proxy_scene, proxy_spec, smoke_samples
 from nerfify_ns.synthesis.resources import load_reference_plan
+from test_field_wrappers import plugin_on_path  # noqa: F401
 
 PIXELS = 48 * 48  # one view of the proxy's scene
 
@@ -236,3 +237,60 @@ def test_space_time_planes_resolutions_are_a_width_measured_at_the_plans_value()
     assert planes.halved() == [max(32, r // 2) for r in planes.paper] and not planes.learning_rates
     args, values = smoke_samples(plan)
     assert "--pipeline.model.kplanes-resolutions" not in args and planes.path not in values
+
+
+def test_a_pipeline_that_counts_samples_is_scaled_by_its_samples_marching_steps_and_grid():
+    """Instant-NGP's pipeline sizes a step by its samples (the ray batch is no knob of its cost): the proxy marches
+    coarser, keeps a coarser occupancy grid and holds fewer samples a step; the smoke rung measures those floors."""
+    plan = load_reference_plan("instant-ngp")
+    found = {k.path.rsplit(".", 1)[-1]: k for k in knobs(plan, 512)}
+    assert [k.kind for k in knobs(plan, 512)][:3] == ["samples", "grid", "rays"]
+    assert "train_num_rays_per_batch" not in found  # the pipeline resizes the ray batch itself
+    assert found["target_num_samples"].flag == "--pipeline.target-num-samples"
+    assert found["render_steps"].flag == "--pipeline.model.render-steps-per-diagonal"  # the generated config's
+    assert found["grid_resolution"].flag == "--pipeline.model.grid-resolution"  # the base's own
+    args, values = smoke_samples(plan)
+    floors = {k.path: k.floor for k in found.values() if k.kind != "width"}
+    assert {p: values[p] for p in floors} == floors
+    assert args[args.index("--pipeline.target-num-samples") + 1] == str(found["target_num_samples"].floor)
+
+    # a smoke rung of 0.15 s a step at the floors: the paper's 262,144 samples with 1,000 marching steps do not fit
+    # a 150 s budget; the proxy's record names each in words and its ns-train arguments set them
+    measured = Measured(0.15, 15.0, values["pipeline.target_num_samples"], values)
+    fit = fit_proxy(plan, measured, seconds_left=150, rays=512, exponent=1.0, rays_per_checkpoint=4 * PIXELS,
+                    train_pixels=24 * PIXELS, budget=PAPER_BUDGET, most=30000)
+    assert fit.active and fit.time.iterations >= 100
+    changed = {k.path.rsplit(".", 1)[-1]: k.value for k in fit.changed}
+    assert changed["render_steps"] < 1000 and changed["target_num_samples"] < 262144
+    headline = fit.headline()
+    assert "instead of 1000 marching steps across the scene's diagonal" in headline
+    assert "instead of 262144 samples per step" in headline and "samples per ray" not in headline
+    assert "rays per step" not in headline
+    # its rays (passes over the pixels, the learning rates' batch rule) are the samples over those a ray keeps
+    kept = found["target_num_samples"].kept_per_ray
+    assert fit.rays == int(changed["target_num_samples"] / kept)
+
+
+def test_the_generated_model_marches_the_plans_steps_across_the_scene_as_the_base_does(plugin_on_path):  # noqa: F811
+    """The marching step is a field of the generated config (a proxy may march coarser): at the plan's 1,000 steps
+    the generated model's step is the built-in Instant-NGP's, to the bit; at 125 it is eight times longer."""
+    import torch
+    from nerfstudio.data.scene_box import SceneBox
+    from nerfstudio.models.instant_ngp import InstantNGPModelConfig
+
+    from nerfify_ns.verify.assembled import AABB, build_model
+
+    plan = Plan.of(load_reference_plan("instant-ngp"))
+    plan.set("model.sampler.occupancy_grid", {"grid_resolution": 16, "grid_levels": 1, "alpha_thre": 0.01,
+                                              "cone_angle": 0.0})
+    plan.set("model.field.MLPField.pos_encoding", {"hash": {"num_levels": 4, "min_res": 4, "max_res": 32,
+                                                            "log2_hashmap_size": 12, "features_per_level": 2}})
+    _, config = plugin_on_path(plan)
+    method = next(v for k, v in vars(config).items() if k.endswith("_method"))
+    model = build_model(method)
+    assert model.config.render_steps_per_diagonal == 1000
+    builtin = InstantNGPModelConfig(grid_resolution=16, grid_levels=1, log2_hashmap_size=12, max_res=32).setup(
+        scene_box=SceneBox(aabb=torch.tensor(AABB)), num_train_data=4, metadata={})
+    assert model.config.render_step_size == builtin.config.render_step_size
+    method.config.pipeline.model.render_steps_per_diagonal = 125
+    assert build_model(method).config.render_step_size == pytest.approx(8 * builtin.config.render_step_size)

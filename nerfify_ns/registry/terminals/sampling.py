@@ -66,6 +66,9 @@ class OccupancyGrid:
     """Opacity below which samples are skipped."""
     cone_angle: float = param(0.004, range=(0.0, 1.0))
     """Step size grows with distance by this factor (0: uniform steps)."""
+    render_steps: int = param(1000, range=(8, 100000))
+    """Marching steps across the scene box's diagonal: the base step is the diagonal over this count (Nerfstudio's
+    Instant-NGP: 1000)."""
 
 
 @dataclass
@@ -277,7 +280,17 @@ TERMINALS = [
         code=Code(traits={"schedulable": ["occupancy_grid.threshold"], "schedule_wrap": {
             "imports": ["from .components.occupancy_threshold import scheduled_threshold"],
             "component": "occupancy_threshold", "attr": "occupancy_grid",
-            "ctor": "scheduled_threshold(self.occupancy_grid)"}}),
+            "ctor": "scheduled_threshold(self.occupancy_grid)"},
+            # the marching step from the plan's count (a field of the generated config, so a CPU proxy may march
+            # coarser without editing the code), set before the base builds its model as the base sets its own
+            "config_fields": [{"name": "render_steps_per_diagonal", "param": "render_steps",
+                               "doc": "Marching steps across the scene box's diagonal when render_step_size is "
+                                      "None (the plan's value; a CPU proxy may march coarser)."}],
+            "before_base": [
+                "if self.config.render_step_size is None:  # the box's diagonal over the plan's marching steps",
+                "    aabb = self.scene_box.aabb.flatten()",
+                "    diagonal = ((aabb[3:] - aabb[:3]) ** 2).sum().sqrt().item()",
+                "    self.config.render_step_size = diagonal / self.config.render_steps_per_diagonal"]}),
         duties=({"requires_base": ["instant-ngp"]},)),
     TerminalDef(
         "renderer", "Renderer", Renderer,
