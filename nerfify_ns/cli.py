@@ -231,8 +231,13 @@ def _novel_line(result) -> None:
     """One line: the paper's family and how many of its novel parts were found and built; green only when all were
     (or there were none), yellow when some were not, red when the family cannot be built at all."""
     family = getattr(result.derived, "family", None)
-    holes = result.plan.get("holes") or []
-    built = sum(1 for h in holes if h.get("status") in ("implemented",))
+    # a part is a slot of the plan, as the equations stage and the report count them: two holes (sections) that
+    # name the same slot are one part, built when it is
+    slots: dict[str, bool] = {}
+    for h in result.plan.get("holes") or []:
+        key = str(h.get("slot") or id(h))
+        slots[key] = slots.get(key, False) or h.get("status") == "implemented"
+    holes, built = list(slots), sum(slots.values())
     name = family.headline() if family is not None else "static"
     if family is not None and not family.buildable:
         colour, text = "red", f"a {name} paper: {len(holes)} novel part(s) found, none built ({family.why})"

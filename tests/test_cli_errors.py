@@ -148,3 +148,23 @@ def test_plan_method_names_that_cannot_name_a_plugin(method, needle, tmp_path):
     done = run_cli("compose", "plan.yaml", "--until", "plan", cwd=tmp_path)
     assert_one_error(done, needle)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.yaml"]
+
+
+def test_the_novel_parts_line_counts_a_part_once_however_many_sections_name_it(monkeypatch):
+    """Two holes at one slot (two sections of the paper about the renderer) are one part, as the equations stage and
+    the report count them: 3 found, 1 built, not 4."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from nerfify_ns import cli
+
+    console = Console(record=True, width=200)
+    monkeypatch.setattr(cli, "CONSOLE", console)
+    holes = [{"slot": "model.renderer", "status": "not implemented"},
+             {"slot": "model.renderer", "status": "not implemented"},
+             {"slot": "model.schedule_hooks", "status": "implemented"},
+             {"slot": "model.field.MLPField.backbone", "status": "not implemented"}]
+    cli._novel_line(SimpleNamespace(plan={"holes": holes}, derived=None))
+    text = console.export_text()
+    assert "3 novel part(s) found, 1 built from the paper; 2 stand(s) on the base's part" in text

@@ -4,12 +4,12 @@
 from dataclasses import replace
 
 import pytest
+from test_field_wrappers import plugin_on_path  # noqa: F401
 
 from nerfify_ns.budget import COMPOSE_BUDGET, PAPER_BUDGET, Budget, BudgetError
 from nerfify_ns.plan import Plan
 from nerfify_ns.synthesis.proxy import Measured, fit_proxy, knobs, proxy_scene, proxy_spec, smoke_samples
 from nerfify_ns.synthesis.resources import load_reference_plan
-from test_field_wrappers import plugin_on_path  # noqa: F401
 
 PIXELS = 48 * 48  # one view of the proxy's scene
 
