@@ -237,14 +237,14 @@ def _novel_line(result) -> None:
     for h in result.plan.get("holes") or []:
         key = str(h.get("slot") or id(h))
         slots[key] = slots.get(key, False) or h.get("status") == "implemented"
-    holes, built = list(slots), sum(slots.values())
+    parts, built = len(slots), sum(slots.values())
     name = family.headline() if family is not None else "static"
     if family is not None and not family.buildable:
-        colour, text = "red", f"a {name} paper: {len(holes)} novel part(s) found, none built ({family.why})"
+        colour, text = "red", f"a {name} paper: {parts} novel part(s) found, none built ({family.why})"
     else:
-        colour = "green" if built == len(holes) else "yellow"
-        text = f"a {name} paper: {len(holes)} novel part(s) found, {built} built from the paper" + \
-            (f"; {len(holes) - built} stand(s) on the base's part" if built < len(holes) else "")
+        colour = "green" if built == parts else "yellow"
+        text = f"a {name} paper: {parts} novel part(s) found, {built} built from the paper" + \
+            (f"; {parts - built} stand(s) on the base's part" if built < parts else "")
     CONSOLE.print(f"[{colour}]novel parts[/{colour}] {_plain(text)}", soft_wrap=True, highlight=False)
 
 

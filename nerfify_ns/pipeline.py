@@ -450,12 +450,13 @@ def _smoke_timing(ladder, samples: dict | None = None) -> dict:
     cost = smoke.details.get("ray_cost") or {}
     scale = (1.0 / cost["speedup"] if cost.get("speedup") and cost.get("threads") == training
              else threads / training if isinstance(threads, int) and 0 < threads < training else 1.0)
-    # the batch it trained (a pipeline that counts a step's samples: those, given by the proxy's floor)
-    step, rays = smoke.details["seconds_per_iteration"] * scale, measured_batch(samples or {}, _rays(SMOKE_ARGS))
+    # the batch it trained: its rays, or for a pipeline that counts a step's samples those (the proxy's floor)
+    samples_batch = measured_batch(samples or {})
+    step, rays = smoke.details["seconds_per_iteration"] * scale, samples_batch or _rays(SMOKE_ARGS)
     # the part of a step its rays cost: the recorder's timing at two batches, against the step at those threads
     share = (min(1.0, cost["seconds_per_ray"] * rays / step)
              if cost.get("seconds_per_ray") is not None and cost.get("threads") in (None, training)
-             and rays == _rays(SMOKE_ARGS) else None)
+             and samples_batch is None else None)
     return {"seconds_per_iteration": step,
             "startup_seconds": smoke.details["startup_seconds"], "rays": rays,
             "samples": dict(samples or {}), "ray_share": share}

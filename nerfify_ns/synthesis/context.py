@@ -650,8 +650,8 @@ def model_context(ctx: Context) -> dict:
     proposal = _proposal_networks(ctx)
     if proposal:
         imports += proposal["imports"]
-    sampler_code = snippet(sampler_name) if ctx.plan.get("model.sampler") and not custom_sampler else {}
-    wrap = (sampler_code or {}).get("schedule_wrap")
+    sampler_code = (snippet(sampler_name) or {}) if ctx.plan.get("model.sampler") and not custom_sampler else {}
+    wrap = sampler_code.get("schedule_wrap")
     if wrap and annealed(ctx.plan) & set(sampler_code.get("schedulable") or ()):
         # the sampler's part an anneal of the plan writes (its `schedulable` trait: the occupancy grid's threshold)
         imports += _imports(ctx, wrap)
@@ -660,7 +660,7 @@ def model_context(ctx: Context) -> dict:
     # what the model sets from them before the base builds itself (`before_base`)
     sampler_params = ctx.params(f"model.sampler.{sampler_name}") if sampler_code else {}
     config_fields = [{"name": f["name"], "type": "int", "value": int(sampler_params[f["param"]]), "doc": f["doc"]}
-                     for f in (sampler_code or {}).get("config_fields") or ()]
+                     for f in sampler_code.get("config_fields") or ()]
     hooks, hook_imports = schedule_hooks(ctx)
     imports += hook_imports
     from nerfify_ns.components.schedule_hooks import STEP_SCALE_FIELD  # the plugin's own name for it (torch: on use)
@@ -677,7 +677,7 @@ def model_context(ctx: Context) -> dict:
         "modules": modules,
         "proposal_networks": proposal,
         "config_fields": config_fields,
-        "before_base": list((sampler_code or {}).get("before_base") or ()),
+        "before_base": list(sampler_code.get("before_base") or ()),
     }
 
 

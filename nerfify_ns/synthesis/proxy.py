@@ -146,7 +146,7 @@ class SamplesBatch:
 
     @property
     def path(self) -> str:
-        return f"pipeline.{self.name}"
+        return _batch_path(self.name)
 
     @property
     def flag(self) -> str:
@@ -176,11 +176,17 @@ def samples_batch(base: str | None) -> SamplesBatch | None:
     return SamplesBatch(entry["config"], int(field_.default), int(entry["floor"]), float(entry["kept_per_ray"]))
 
 
-def measured_batch(values: dict[str, Any], rays: int) -> int:
-    """The batch a smoke rung trained at, in the unit its proxy knob counts: the samples per step it was given
-    (``values``: :func:`smoke_samples`'s, by plan path) for a pipeline that counts samples, else ``rays``."""
+def _batch_path(name: str) -> str:
+    """The plan's path of a pipeline config field that sizes a step by its samples."""
+    return f"pipeline.{name}"
+
+
+def measured_batch(values: dict[str, Any]) -> int | None:
+    """The samples per step a smoke rung trained at when its pipeline counts samples (``values``:
+    :func:`smoke_samples`'s, by plan path; the proxy's knob counts them so), else None (a ray batch)."""
     name = (proxy_spec()["rays"].get("samples_per_step") or {}).get("config")
-    return int(values.get(f"pipeline.{name}", rays)) if name else rays
+    value = values.get(_batch_path(name)) if name else None
+    return int(value) if value is not None else None
 
 
 def sample_cost(settings: list[Knob], values: dict[str, Any] | None = None) -> float:
@@ -395,8 +401,8 @@ def smoke_samples(plan: dict) -> tuple[list[str], dict[str, Any]]:
     and the values by plan path (what :class:`Measured` records)."""
     from nerfify_ns.synthesis.schedule import width_learning_rates
 
-    settings = [k for k in knobs(plan, 1) if (k.kind in ("samples", *SIZES) or k.path != RAYS_PATH)
-                and k.flag is not None and k.smoke_at_floor]
+    # every knob but the ray batch (a batch of samples is measured at its floor like the samples per ray)
+    settings = [k for k in knobs(plan, 1) if k.path != RAYS_PATH and k.flag is not None and k.smoke_at_floor]
     args: list[str] = []
     values: dict[str, Any] = {}
     for k in settings:
